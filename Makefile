@@ -1,0 +1,28 @@
+# uiofmu: the two commands a new user needs are `make demo` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test fmus examples clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[test,mujoco,control]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/uiofmu demo --out out/demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+fmus: $(STAMP)
+	$(PY) examples/build_fmus.py --out fmus
+
+examples: $(STAMP)
+	for f in examples/*.py; do $(PY) $$f || exit 1; done
+
+clean:
+	rm -rf out fmus examples/out build *.egg-info

@@ -1,0 +1,7 @@
+"""``python -m uiofmu``."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())

@@ -1,0 +1,94 @@
+"""The certificate of a design: the LMI re-check plus checks at the stored matrices.
+
+A design is certified only when every check holds. Each check is a number, a bound and a
+direction, evaluated with numpy on the matrices the runtime will use (not on the solver's
+variables alone), and all of them go into the card.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InfeasibleError
+from .lmi import LmiSolution
+from .tolerances import IDENTITY_RTOL, LMI_MARGIN, VERIFY_FRACTION
+
+
+@dataclass(frozen=True)
+class Check:
+    """``value <= bound`` (``at_most``) or ``value >= bound``."""
+
+    name: str
+    value: float
+    bound: float
+    at_most: bool = True
+
+    @property
+    def holds(self) -> bool:
+        """Whether the check passes."""
+        return self.value <= self.bound if self.at_most else self.value >= self.bound
+
+    def to_data(self) -> dict:
+        """JSON-ready form."""
+        return {"value": self.value, "bound": self.bound, "relation": "<=" if self.at_most else ">=",
+                "holds": self.holds}
+
+
+def identity_check(name: str, residual: np.ndarray, scale: float, rtol: float = IDENTITY_RTOL) -> Check:
+    """An identity that must hold exactly: ``||residual|| <= rtol * max(1, scale)``."""
+    return Check(name, float(np.linalg.norm(residual, 2)) if residual.size else 0.0, rtol * max(1.0, scale))
+
+
+def lyapunov_check(name: str, N: np.ndarray, X: np.ndarray, rho: float, margin: float = LMI_MARGIN,
+                   verify_fraction: float = VERIFY_FRACTION) -> Check:
+    """``rho^2 X - N' X N > 0``: the decay ``||e_{k+1}||_X <= rho ||e_k||_X`` at the stored ``N``."""
+    Q = rho * rho * X - N.T @ X @ N
+    return Check(name, float(np.linalg.eigvalsh(0.5 * (Q + Q.T))[0]), verify_fraction * margin, at_most=False)
+
+
+def positive_check(name: str, X: np.ndarray, margin: float = LMI_MARGIN,
+                   verify_fraction: float = VERIFY_FRACTION) -> Check:
+    """``X > 0`` by its smallest eigenvalue."""
+    return Check(name, float(np.linalg.eigvalsh(0.5 * (X + X.T))[0]), verify_fraction * margin, at_most=False)
+
+
+def certificate(solution: LmiSolution, checks: list[Check], label: str) -> dict:
+    """Assemble the card's ``certificate`` entry and insist that it verifies.
+
+    Parameters
+    ----------
+    solution : LmiSolution
+        The (already re-checked) LMI solution.
+    checks : list of Check
+        Checks at the stored matrices.
+    label : str
+        Names the design in the error message.
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    InfeasibleError
+        When a check fails: the design is not certified.
+    """
+    failed = [c for c in checks if not c.holds]
+    if failed:
+        raise InfeasibleError(f"{label}: the certificate does not survive the re-check at the stored matrices: "
+                              + "; ".join(f"{c.name} = {c.value:.3g} (needs {'<=' if c.at_most else '>='} "
+                                          f"{c.bound:.3g})" for c in failed))
+    return {
+        "solver": "CLARABEL",
+        "status": solution.status,
+        "parameters": solution.parameters,
+        "lmi_margin": solution.margin,
+        "verify_fraction": VERIFY_FRACTION,
+        "lmi_eig_min": solution.eig_min,
+        "checks": {c.name: c.to_data() for c in checks},
+        "verified": bool(solution.verified and not failed),
+        "solve_time_s": solution.solve_time,
+        "setup_time_s": solution.setup_time,
+    }

@@ -1,0 +1,91 @@
+"""Existence reports: the list of conditions a family checks, each with its numbers."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import NoObserverError
+
+
+def complex_list(values) -> list:
+    """Complex numbers as JSON-friendly ``[re, im]`` pairs."""
+    return [[float(np.real(v)), float(np.imag(v))] for v in np.asarray(values).ravel()]
+
+
+def format_complex(values) -> str:
+    """Complex numbers for a message: ``0.99, 0.5±0.2j`` (conjugates merged)."""
+    out = []
+    for v in np.asarray(values).ravel():
+        if abs(v.imag) < 1e-12:
+            out.append(f"{v.real:.6g}")
+        elif v.imag > 0:
+            out.append(f"{v.real:.6g}±{v.imag:.6g}j")
+    return ", ".join(out) if out else "none"
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One checked condition.
+
+    Attributes
+    ----------
+    name : str
+        Short identifier (``rank(CE) = rank(E)``).
+    holds : bool
+    required : bool
+        Whether the observer needs it (informational conditions are not required).
+    message : str
+        One sentence with the numbers, e.g. ``rank(CE) = 1 < rank(E) = 2``.
+    values : dict
+        The numbers, JSON-ready.
+    """
+
+    name: str
+    holds: bool
+    required: bool
+    message: str
+    values: dict = field(default_factory=dict)
+
+    def to_data(self) -> dict:
+        """JSON-ready form."""
+        return {"name": self.name, "holds": self.holds, "required": self.required,
+                "message": self.message, "values": self.values}
+
+
+@dataclass(frozen=True)
+class Existence:
+    """The existence analysis of one family on one problem."""
+
+    family: str
+    conditions: tuple[Condition, ...]
+
+    @property
+    def exists(self) -> bool:
+        """True when every required condition holds."""
+        return all(c.holds for c in self.conditions if c.required)
+
+    @property
+    def failures(self) -> list[Condition]:
+        """The required conditions that fail."""
+        return [c for c in self.conditions if c.required and not c.holds]
+
+    def to_data(self) -> dict:
+        """JSON-ready form (``uiofmu check --json``)."""
+        return {"family": self.family, "exists": self.exists,
+                "conditions": [c.to_data() for c in self.conditions]}
+
+    def require(self) -> "Existence":
+        """Return self, or raise :class:`NoObserverError` naming the failed conditions."""
+        if not self.exists:
+            raise NoObserverError(f"no {self.family} observer exists: "
+                                  + "; ".join(c.message for c in self.failures))
+        return self
+
+    def value(self, name: str, key: str):
+        """A value of a named condition."""
+        for c in self.conditions:
+            if c.name == name:
+                return c.values[key]
+        raise KeyError(name)

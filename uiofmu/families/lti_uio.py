@@ -1,0 +1,181 @@
+"""Classical full-order unknown-input observer (Darouach, Zasadzinski, Xu 1994).
+
+Seed 000, eqs. (2), (5) and Lemma 1: for the sampled plant ``x+ = A x + B u + E d + w``,
+``y = C x``::
+
+    z+   = N z + G u + L y + P w,     xhat = z - M y
+    M    = -E (CE)^+                  (eq. (5) with Y = 0)
+    P    = I + M C,   P E = 0         (exact decoupling)
+    N    = P A - K C,  L = K - N M,  G = P B
+
+so that ``e+ = N e``. ``K`` comes from the LMI (Schur form of ``N' X N < rho^2 X``)::
+
+    [[rho^2 X,  (X P A - W C)'],
+     [X P A - W C,          X ]]  > 0,    I <= X <= t I,   K = X^{-1} W,
+
+minimising ``t`` (so ``sqrt(t)`` bounds the overshoot). ``X >= I`` normalises the otherwise
+homogeneous LMI. The certified bound is ``||e_k|| <= sqrt(cond X) rho^k ||e_0||``.
+``decay = "max"`` bisects rho between the largest fixed mode (which no K can move: the
+invariant zeros) and 1. A continuous plant is designed on its exact sampling at ``dt``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..certificate import certificate, identity_check, lyapunov_check, positive_check
+from ..decoupling import (decoupling_gain, fixed_modes_condition, identifiability_condition, rank_condition,
+                          zeros_condition)
+from ..errors import ProblemError
+from ..existence import Condition, Existence, complex_list
+from ..lmi import Lmi, LmiSystem, search
+from ..tolerances import SEARCH_TOL, ZERO_MARGIN
+
+NAME = "lti-uio"
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of the classical UIO.
+
+    Attributes
+    ----------
+    decay : float or "max"
+        Requested contraction factor per step, in (0, 1), or ``"max"`` for the fastest
+        certifiable one.
+    dt : float
+        Design period (the plant's for a discrete plant; ``observer.dt`` for a continuous one).
+    xhat0 : numpy.ndarray or None
+        Initial estimate (default zeros).
+    """
+
+    decay: object
+    dt: float
+    xhat0: np.ndarray | None
+
+
+def parse_options(table, plant) -> Options:
+    """Read ``[observer]``: ``decay`` (default ``"max"``), ``dt`` (continuous plants), ``xhat0``."""
+    decay = table.tunable("decay", "max", low=0.0, high=1.0, open_low=True, open_high=True)
+    if plant.continuous:
+        if not table.has("dt"):
+            raise ProblemError("observer.dt: required for a continuous plant (the sampling period the "
+                               f"{NAME} observer is designed for)")
+        dt = table.scalar("dt", low=0.0, open_low=True)
+    else:
+        if table.has("dt"):
+            raise ProblemError(f"observer.dt: a discrete plant fixes the period (plant.dt = {plant.dt:g}); "
+                               "remove observer.dt")
+        dt = plant.dt
+    xhat0 = table.vector("xhat0", plant.n, None)
+    return Options(decay, dt, xhat0)
+
+
+def _analysis(problem):
+    plant, opts = problem.plant, problem.options
+    s = plant.sampled(opts.dt)
+    where = f" (sampled at dt = {opts.dt:g} s)" if plant.continuous else ""
+    conds = []
+    if plant.continuous:
+        zc, _ = zeros_condition(plant.A, plant.E, plant.C, True, required=False)
+        conds.append(zc)
+    rank_c = rank_condition(plant.C, s.E, where)
+    conds += [rank_c, identifiability_condition(plant.C, s.E, where)]
+    fixed = np.zeros(0, dtype=complex)
+    if rank_c.holds:
+        zc, _ = zeros_condition(s.A, s.E, plant.C, False, where)
+        fc, fixed = fixed_modes_condition(s.A, s.E, plant.C, where)
+        conds += [zc, fc]
+        if opts.decay != "max" and fc.holds:
+            largest = float(np.abs(fixed).max()) if fixed.size else 0.0
+            ok = opts.decay > largest + ZERO_MARGIN
+            conds.append(Condition(
+                "decay above fixed modes", ok, True,
+                f"requested decay {opts.decay:g} > largest fixed mode modulus {largest:.6g}" if ok else
+                f"requested decay {opts.decay:g} <= largest fixed mode modulus {largest:.6g}: no gain K moves "
+                "that mode, ask for a slower decay or decay = \"max\"",
+                {"decay": opts.decay, "largest_fixed_modulus": largest}))
+    return Existence(NAME, tuple(conds)), s, fixed
+
+
+def check(problem) -> Existence:
+    """Rank condition, invariant zeros, detectability of ((I+MC)A, C), requested decay."""
+    return _analysis(problem)[0]
+
+
+def _lmis(PA, C):
+    n, p = C.shape[1], C.shape[0]
+
+    def build(v, prm, ops):
+        X, W, t = v["X"], v["W"], v["t"]
+        Y = X @ PA - W @ C
+        return [
+            Lmi("decay (Schur form of N'XN < rho^2 X)", ops.bmat([[prm["rho2"] * X, Y.T], [Y, X]])),
+            Lmi("X >= I", X - ops.eye(n), strict=False),
+            Lmi("X <= t I", t * ops.eye(n) - X, strict=False),
+        ]
+
+    return LmiSystem(f"{NAME} decay", {"X": ("symmetric", n), "W": ("matrix", (n, p)), "t": ("scalar",)},
+                     {"rho2": 0.98}, build, objective=lambda v: v["t"])
+
+
+def design(problem):
+    """Design the classical UIO and return its verified card."""
+    from ..synthesis import assemble_card
+
+    existence, s, fixed = _analysis(problem)
+    existence.require()
+    plant, opts = problem.plant, problem.options
+    C = plant.C
+    M = decoupling_gain(C, s.E)
+    P = np.eye(plant.n) + M @ C
+    PA = P @ s.A
+    system = _lmis(PA, C)
+    largest = float(np.abs(fixed).max()) if fixed.size else 0.0
+    if opts.decay == "max":
+        found = search(system, "rho2", 0.5 * (1.0 + largest), largest, tol=SEARCH_TOL,
+                       label=f"{problem.name}: fastest decay", transform=lambda r: r * r)
+        rho, sol = found.value, found.solution
+        searched = {"parameter": "decay", "solves": found.solves, "seconds": found.seconds,
+                    "bracket": list(found.bracket)}
+    else:
+        rho = float(opts.decay)
+        sol = system.require(rho2=rho * rho)
+        searched = None
+    X, W = sol.values["X"], sol.values["W"]
+    X = 0.5 * (X + X.T)
+    K = np.linalg.solve(X, W)
+    N = PA - K @ C
+    L = K - N @ M
+    G = P @ s.B
+    checks = [
+        identity_check("decoupling ||(I+MC)E||", P @ s.E, np.linalg.norm(s.E, 2)),
+        identity_check("||PA - NP - LC||", PA - N @ P - L @ C, np.linalg.norm(s.A, 2)),
+        identity_check("||PB - G||", P @ s.B - G, np.linalg.norm(s.B, 2) if s.B.size else 0.0),
+        positive_check("eig_min(X)", X),
+        lyapunov_check("eig_min(rho^2 X - N'XN)", N, X, rho),
+    ]
+    cert = certificate(sol, checks, f"{NAME} design of {problem.name}")
+    eigX = np.linalg.eigvalsh(X)
+    matrices = {"N": N, "L": L, "G": G, "c": P @ s.w, "Xz": np.eye(plant.n), "Xy": -M, "C": C,
+                "M": M, "K": K, "P": P, "X": X, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E}
+    if existence.value("rank(CE) = q", "rank_CE") == plant.q:
+        matrices.update({"Dy": np.linalg.pinv(C @ s.E), "Yx": C @ s.A, "Yu": C @ s.B, "Yc": C @ s.w})
+    eigN = np.linalg.eigvals(N)
+    results = {
+        "decay": rho,
+        "decay_bound": rho,
+        "overshoot_bound": float(np.sqrt(eigX[-1] / eigX[0])),
+        "bound": "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0||",
+        "fixed_modes": complex_list(fixed),
+        "invariant_zeros": existence.value("stable invariant zeros", "zeros"),
+        "eigenvalues_N": complex_list(eigN),
+        "spectral_radius_N": float(np.abs(eigN).max()),
+        "search": searched,
+    }
+    xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(plant.n)
+    schedule = {"kind": "constant", "dt": opts.dt, "step_policy": "error"}
+    return assemble_card(problem, nz=plant.n, dt=opts.dt, schedule=schedule, matrices=matrices,
+                         certificate=cert, xhat0=xhat0, results=results, existence=existence)

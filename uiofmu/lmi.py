@@ -1,0 +1,302 @@
+"""A small LMI toolkit on cvxpy + CLARABEL, with a re-check that does not trust the solver.
+
+An LMI system is written once, as a function ``build(v, p, ops)`` returning a list of
+:class:`Lmi` (each a matrix that must be positive definite, or semidefinite when
+``strict=False``). The function is called twice:
+
+* with cvxpy variables and parameters (``ops = CVXPY_OPS``) to solve the problem, and
+* with the numpy arrays the solver returned (``ops = NUMPY_OPS``) to re-check every LMI by
+  its eigenvalues, without the solver.
+
+Strict inequalities are solved as ``F >= margin * I`` (:data:`~uiofmu.tolerances.LMI_MARGIN`,
+100x the solver tolerance) and accepted by the re-check when ``eig_min(F) >=
+VERIFY_FRACTION * margin``. Tunables are cvxpy Parameters, so the compiled problem is
+reused when a search changes them.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import Callable
+
+import cvxpy as cp
+import numpy as np
+
+from .errors import InfeasibleError
+from .progress import progress
+from .tolerances import LMI_MARGIN, SEARCH_TOL, SOLVER_TOL, VERIFY_FRACTION
+
+
+@dataclass(frozen=True)
+class Lmi:
+    """One linear matrix inequality ``matrix > 0`` (``>= 0`` when not strict)."""
+
+    name: str
+    matrix: object
+    strict: bool = True
+
+
+def _np_sym(M):
+    return 0.5 * (M + M.T)
+
+
+def _cp_sym(M):
+    return 0.5 * (M + M.T)
+
+
+NUMPY_OPS = SimpleNamespace(bmat=np.block, eye=np.eye, zeros=np.zeros, sym=_np_sym)
+CVXPY_OPS = SimpleNamespace(bmat=cp.bmat, eye=np.eye, zeros=np.zeros, sym=_cp_sym)
+
+
+@dataclass(frozen=True)
+class LmiSolution:
+    """What a solve returned, and what the re-check found.
+
+    Attributes
+    ----------
+    values : dict of str to numpy.ndarray
+        The variables at the returned point.
+    parameters : dict of str to float
+        The parameter values solved for.
+    status : str
+        cvxpy's status string.
+    eig_min : dict of str to float
+        Smallest eigenvalue of every LMI, evaluated with numpy at ``values``.
+    verified : bool
+        True when every strict LMI has ``eig_min >= VERIFY_FRACTION * margin`` and every
+        non-strict one ``eig_min >= -VERIFY_FRACTION * margin``.
+    solve_time, setup_time : float
+        CLARABEL's own time and the rest of the call (problem construction, canonicalisation), s.
+    objective : float or None
+    """
+
+    values: dict
+    parameters: dict
+    status: str
+    eig_min: dict
+    verified: bool
+    solve_time: float
+    setup_time: float
+    objective: float | None = None
+    margin: float = LMI_MARGIN
+
+
+def eig_min(lmis: list[Lmi]) -> dict:
+    """Smallest eigenvalue of each (symmetrised) LMI matrix, with numpy."""
+    return {lmi.name: float(np.linalg.eigvalsh(_np_sym(np.asarray(lmi.matrix, dtype=float)))[0])
+            for lmi in lmis}
+
+
+def accepted(eigs: dict, lmis: list[Lmi], margin: float = LMI_MARGIN,
+             verify_fraction: float = VERIFY_FRACTION) -> bool:
+    """True when every LMI passes the re-check rule (see :class:`LmiSolution`)."""
+    bound = verify_fraction * margin
+    return all(eigs[l.name] >= (bound if l.strict else -bound) for l in lmis)
+
+
+@dataclass
+class LmiSystem:
+    """An LMI problem, compiled once and solved for any parameter values.
+
+    Parameters
+    ----------
+    name : str
+        Shown in messages (e.g. ``"lti-uio decay"``).
+    variables : dict
+        ``name -> ("symmetric", n) | ("matrix", (rows, cols)) | ("scalar",)``.
+    parameters : dict
+        ``name -> initial value`` of the scalar tunables (nonnegative).
+    build : callable
+        ``build(v, p, ops) -> list[Lmi]``, written with ``@``, ``.T``, ``*`` and ``ops``.
+    objective : callable, optional
+        ``objective(v) -> cvxpy expression`` to minimise; feasibility when omitted.
+    margin : float
+        Strictness margin.
+    solver_tol : float
+        CLARABEL's feasibility and gap tolerances.
+    """
+
+    name: str
+    variables: dict
+    parameters: dict
+    build: Callable
+    objective: Callable | None = None
+    margin: float = LMI_MARGIN
+    solver_tol: float = SOLVER_TOL
+    _vars: dict = field(init=False, repr=False)
+    _params: dict = field(init=False, repr=False)
+    _lmis: list = field(init=False, repr=False)
+    _problem: cp.Problem = field(init=False, repr=False)
+
+    def __post_init__(self):
+        self._vars = {}
+        for vname, spec in self.variables.items():
+            if spec[0] == "symmetric":
+                self._vars[vname] = cp.Variable((spec[1], spec[1]), symmetric=True, name=vname)
+            elif spec[0] == "matrix":
+                self._vars[vname] = cp.Variable(spec[1], name=vname)
+            else:
+                self._vars[vname] = cp.Variable(name=vname)
+        self._params = {k: cp.Parameter(nonneg=True, value=float(v), name=k) for k, v in self.parameters.items()}
+        self._lmis = self.build(self._vars, self._params, CVXPY_OPS)
+        constraints = []
+        for lmi in self._lmis:
+            M = lmi.matrix
+            size = M.shape[0]
+            shift = self.margin if lmi.strict else 0.0
+            constraints.append(_cp_sym(M) - shift * np.eye(size) >> 0)
+        goal = cp.Minimize(self.objective(self._vars)) if self.objective else cp.Minimize(0)
+        self._problem = cp.Problem(goal, constraints)
+
+    def evaluate(self, values: dict, parameters: dict) -> list[Lmi]:
+        """The LMIs as numpy matrices at ``values`` (the re-check's input)."""
+        return self.build(values, parameters, NUMPY_OPS)
+
+    def solve(self, **parameters) -> LmiSolution:
+        """Solve for the given parameter values, then re-check the returned point.
+
+        Returns
+        -------
+        LmiSolution
+            Also when the solver fails (``values`` empty, ``verified`` False).
+        """
+        for k, v in parameters.items():
+            self._params[k].value = float(v)
+        pvals = {k: float(p.value) for k, p in self._params.items()}
+        t0 = time.perf_counter()
+        try:
+            self._problem.solve(solver=cp.CLARABEL, tol_feas=self.solver_tol, tol_gap_abs=self.solver_tol,
+                                tol_gap_rel=self.solver_tol)
+            status = self._problem.status
+        except cp.error.SolverError as exc:
+            status = f"solver_error: {exc}"
+        total = time.perf_counter() - t0
+        stats = self._problem.solver_stats
+        solve_time = float(stats.solve_time) if stats and stats.solve_time is not None else total
+        values = {}
+        eigs = {}
+        ok = False
+        if all(v.value is not None for v in self._vars.values()) and status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+            values = {k: np.array(v.value, dtype=float) for k, v in self._vars.items()}
+            lmis = self.evaluate(values, pvals)
+            eigs = eig_min(lmis)
+            ok = accepted(eigs, lmis, self.margin)
+        objective = float(self._problem.value) if ok and self.objective else None
+        return LmiSolution(values, pvals, str(status), eigs, ok, solve_time, max(total - solve_time, 0.0),
+                           objective, self.margin)
+
+    def diagnose(self, **parameters) -> dict:
+        """Which LMIs cannot hold: a phase-1 problem with one slack per strict LMI.
+
+        Returns
+        -------
+        dict of str to float
+            The slack each LMI needs (0 where it can hold), for the message of an
+            infeasible design.
+        """
+        pvals = {k: float(parameters.get(k, p.value)) for k, p in self._params.items()}
+        slack = {l.name: cp.Variable(nonneg=True, name=f"slack_{i}") for i, l in enumerate(self._lmis)}
+        cons = []
+        for lmi in self._lmis:
+            M = lmi.matrix
+            size = M.shape[0]
+            shift = self.margin if lmi.strict else 0.0
+            cons.append(_cp_sym(M) + (slack[lmi.name] - shift) * np.eye(size) >> 0)
+        for k, v in pvals.items():
+            self._params[k].value = v
+        prob = cp.Problem(cp.Minimize(sum(slack.values())), cons)
+        try:
+            prob.solve(solver=cp.CLARABEL)
+        except cp.error.SolverError:
+            return {}
+        return {k: float(s.value) for k, s in slack.items() if s.value is not None}
+
+    def require(self, **parameters) -> LmiSolution:
+        """Solve and insist on a verified certificate.
+
+        Raises
+        ------
+        InfeasibleError
+            Naming the parameters, the solver status and the LMIs that cannot hold (or
+            that failed the re-check, with their smallest eigenvalues).
+        """
+        sol = self.solve(**parameters)
+        if sol.verified:
+            return sol
+        params = ", ".join(f"{k} = {v:.6g}" for k, v in sol.parameters.items())
+        if sol.values:
+            bound = VERIFY_FRACTION * self.margin
+            bad = [f"{k}: eig_min = {v:.3g} < {bound:.1g}" for k, v in sol.eig_min.items() if v < bound]
+            raise InfeasibleError(f"{self.name} LMIs at {params}: CLARABEL answered {sol.status} but the re-check "
+                                  f"rejects its point ({'; '.join(bad)})")
+        need = {k: v for k, v in self.diagnose(**parameters).items() if v > self.margin}
+        which = "; ".join(f"{k} needs slack {v:.3g}" for k, v in sorted(need.items(), key=lambda kv: -kv[1]))
+        raise InfeasibleError(f"{self.name} LMIs are infeasible at {params} (CLARABEL: {sol.status})"
+                              + (f": {which}" if which else ""))
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """The outcome of :func:`search`: the best verified value and its solution."""
+
+    value: float
+    solution: LmiSolution
+    solves: int
+    seconds: float
+    bracket: tuple
+
+
+def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_end: float,
+           tol: float = SEARCH_TOL, label: str | None = None, transform: Callable | None = None) -> SearchResult:
+    """Bisection for the best value of one tunable, keeping only re-checked certificates.
+
+    The value at ``feasible_end`` must give a verified certificate; ``infeasible_end`` is a
+    value known (from theory) not to, or the limit of the range. The best value is the one
+    closest to ``infeasible_end`` that still verifies, within ``tol``.
+
+    Parameters
+    ----------
+    system : LmiSystem
+        Compiled once; only the parameter changes between solves.
+    parameter : str
+        Name of the searched parameter (as in ``system.parameters``).
+    feasible_end, infeasible_end : float
+        The bracket.
+    tol : float
+        Stop when the bracket is narrower than this.
+    label : str, optional
+        Progress-bar label.
+    transform : callable, optional
+        Maps the searched value to the parameter value (e.g. ``lambda r: r * r``).
+
+    Returns
+    -------
+    SearchResult
+
+    Raises
+    ------
+    InfeasibleError
+        When ``feasible_end`` itself does not verify.
+    """
+    f = transform or (lambda x: x)
+    t0 = time.perf_counter()
+    good, bad = float(feasible_end), float(infeasible_end)
+    steps = max(0, int(np.ceil(np.log2(max(abs(good - bad), tol) / tol))))
+    with progress(total=steps + 1, desc=label or f"search {parameter}", unit="solve") as bar:
+        best = system.solve(**{parameter: f(good)})
+        bar.update()
+        solves = 1
+        if not best.verified:
+            system.require(**{parameter: f(good)})  # raises with the diagnosis
+        while abs(good - bad) > tol:
+            mid = 0.5 * (good + bad)
+            sol = system.solve(**{parameter: f(mid)})
+            solves += 1
+            bar.update()
+            if sol.verified:
+                good, best = mid, sol
+            else:
+                bad = mid
+    return SearchResult(good, best, solves, time.perf_counter() - t0, (good, bad))

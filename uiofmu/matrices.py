@@ -1,0 +1,170 @@
+"""One normaliser for every matrix and vector that enters uiofmu.
+
+Problem files, design cards and Python callers all hand matrices over as nested lists or
+arrays; :func:`as_matrix` and :func:`as_vector` turn them into read-only float arrays and
+say exactly which key is wrong and how (ragged rows, non-numeric entries, NaN/Inf, shape).
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from .errors import ProblemError
+
+
+def _describe(value) -> str:
+    if isinstance(value, str):
+        return f"the string {value!r}"
+    if isinstance(value, bool):
+        return f"the boolean {value}"
+    return f"a {type(value).__name__}"
+
+
+def _number(value, name: str, where: str, error) -> float:
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.floating, np.integer)):
+        raise error(f"{name}{where}: expected a number, found {_describe(value)}")
+    x = float(value)
+    if not np.isfinite(x):
+        raise error(f"{name}{where}: expected a finite number, found {x}")
+    return x
+
+
+def freeze(array: np.ndarray) -> np.ndarray:
+    """Return a read-only float64 copy of ``array``."""
+    out = np.array(array, dtype=float, copy=True)
+    out.setflags(write=False)
+    return out
+
+
+def as_matrix(value, name: str, rows: int | None = None, cols: int | None = None,
+              error=ProblemError) -> np.ndarray:
+    """Normalise ``value`` to a read-only 2-D float array.
+
+    Parameters
+    ----------
+    value : list of lists or array_like
+        The matrix, row by row. A numpy array is accepted as it is (after the checks).
+    name : str
+        The key the matrix came from, used in every message (e.g. ``"plant.A"``).
+    rows, cols : int, optional
+        The expected number of rows and columns; ``None`` accepts any.
+    error : type, optional
+        The exception class raised (default :class:`~uiofmu.errors.ProblemError`).
+
+    Returns
+    -------
+    numpy.ndarray
+        A read-only array of shape ``(rows, cols)``.
+
+    Raises
+    ------
+    ProblemError
+        Naming ``name`` and the expected against the found shape, the ragged row, or the
+        non-numeric or non-finite entry.
+
+    Examples
+    --------
+    >>> as_matrix([[1, 2], [3, 4]], "plant.A", rows=2, cols=2).shape
+    (2, 2)
+    """
+    if isinstance(value, np.ndarray):
+        if value.ndim != 2:
+            raise error(f"{name}: expected a matrix (2-D), found an array with {value.ndim} dimensions")
+        if not np.issubdtype(value.dtype, np.number) or np.iscomplexobj(value):
+            raise error(f"{name}: expected real numbers, found dtype {value.dtype}")
+        bad = np.argwhere(~np.isfinite(value))
+        if bad.size:
+            i, j = bad[0]
+            raise error(f"{name}[{i}][{j}]: expected a finite number, found {value[i, j]}")
+        mat = value.astype(float)
+    else:
+        if not isinstance(value, (list, tuple)):
+            raise error(f"{name}: expected a matrix as a list of rows, found {_describe(value)}")
+        if len(value) and all(not isinstance(r, (list, tuple)) for r in value):
+            raise error(f"{name}: expected a matrix as a list of rows (e.g. [[1, 0]]), found a flat list")
+        data = []
+        width = None
+        for i, row in enumerate(value):
+            if not isinstance(row, (list, tuple)):
+                raise error(f"{name}[{i}]: expected a row (a list of numbers), found {_describe(row)}")
+            if width is None:
+                width = len(row)
+            elif len(row) != width:
+                raise error(f"{name}: ragged matrix, row {i} has {len(row)} entries but row 0 has {width}")
+            data.append([_number(x, name, f"[{i}][{j}]", error) for j, x in enumerate(row)])
+        mat = np.array(data, dtype=float).reshape(len(data), width or 0)
+    if rows is not None and cols is not None and mat.shape != (rows, cols):
+        raise error(f"{name}: expected shape {rows}x{cols}, found {mat.shape[0]}x{mat.shape[1]}")
+    if rows is not None and mat.shape[0] != rows:
+        raise error(f"{name}: expected {rows} rows, found {mat.shape[0]}")
+    if cols is not None and mat.shape[1] != cols:
+        raise error(f"{name}: expected {cols} columns, found {mat.shape[1]}")
+    return freeze(mat)
+
+
+def as_vector(value, name: str, size: int | None = None, error=ProblemError) -> np.ndarray:
+    """Normalise ``value`` to a read-only 1-D float array of length ``size``.
+
+    Parameters
+    ----------
+    value : list or array_like
+        The entries.
+    name : str
+        The key, used in every message.
+    size : int, optional
+        The expected length.
+    error : type, optional
+        The exception class raised.
+
+    Returns
+    -------
+    numpy.ndarray
+        A read-only vector.
+    """
+    if isinstance(value, np.ndarray):
+        if value.ndim != 1:
+            raise error(f"{name}: expected a vector (1-D), found an array with {value.ndim} dimensions")
+        items = list(value)
+    elif isinstance(value, (list, tuple)):
+        items = list(value)
+    else:
+        raise error(f"{name}: expected a list of numbers, found {_describe(value)}")
+    vec = np.array([_number(x, name, f"[{i}]", error) for i, x in enumerate(items)], dtype=float)
+    if size is not None and vec.shape[0] != size:
+        raise error(f"{name}: expected {size} entries, found {vec.shape[0]}")
+    return freeze(vec)
+
+
+def as_scalar(value, name: str, low: float | None = None, high: float | None = None,
+              open_low: bool = False, open_high: bool = False, error=ProblemError) -> float:
+    """Normalise ``value`` to a finite float within ``[low, high]`` (or open ends).
+
+    Parameters
+    ----------
+    value : float
+        The number.
+    name : str
+        The key, used in every message.
+    low, high : float, optional
+        Bounds; ``None`` leaves that side unbounded.
+    open_low, open_high : bool, optional
+        Exclude the bound itself.
+    error : type, optional
+        The exception class raised.
+
+    Returns
+    -------
+    float
+    """
+    x = _number(value, name, "", error)
+    lo_bad = low is not None and (x <= low if open_low else x < low)
+    hi_bad = high is not None and (x >= high if open_high else x > high)
+    if lo_bad or hi_bad:
+        left = "(" if open_low else "["
+        right = ")" if open_high else "]"
+        lo = "-inf" if low is None else f"{low:g}"
+        hi = "inf" if high is None else f"{high:g}"
+        raise error(f"{name}: expected a value in {left}{lo}, {hi}{right}, found {x:g}")
+    return x

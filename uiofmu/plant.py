@@ -1,0 +1,229 @@
+"""Linear plants: the typed, immutable model every family designs on.
+
+A plant is either continuous, ``x' = A x + B u + E d`` (sampled at the communication points
+with inputs held), or discrete, ``x+ = A x + B u + E d + w`` with period ``dt``.
+:meth:`Plant.sampled` gives the exact zero-order-hold discretisation for any step ``h``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import expm
+
+from .errors import ProblemError
+from .matrices import as_matrix, as_scalar, as_vector, freeze
+
+
+@dataclass(frozen=True)
+class Sampled:
+    """A plant over one step: ``x+ = A x + B u + E d + w`` (inputs held over the step)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    E: np.ndarray
+    w: np.ndarray
+    h: float
+
+
+def discretize(A: np.ndarray, inputs: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation from the exponential of the augmented matrix.
+
+    Parameters
+    ----------
+    A : (n, n) array
+        Continuous state matrix.
+    inputs : (n, k) array
+        Input matrices side by side (e.g. ``[B E]``).
+    h : float
+        The step, > 0.
+
+    Returns
+    -------
+    Ad : (n, n) array
+        ``exp(A h)``.
+    Gd : (n, k) array
+        ``integral_0^h exp(A s) ds @ inputs``.
+    """
+    n, k = inputs.shape
+    aug = np.zeros((n + k, n + k))
+    aug[:n, :n] = A
+    aug[:n, n:] = inputs
+    ex = expm(aug * h)
+    return ex[:n, :n], ex[:n, n:]
+
+
+@dataclass(frozen=True)
+class Plant:
+    """A linear plant with known input ``u`` (B), unknown input ``d`` (E) and output ``y = C x``.
+
+    Build one with :meth:`Plant.create`, which checks every shape.
+
+    Attributes
+    ----------
+    time : {"continuous", "discrete"}
+    A, B, E, C : numpy.ndarray
+        Read-only, shapes (n, n), (n, m), (n, q), (p, n).
+    w : numpy.ndarray
+        Constant affine term (discrete plants; zeros otherwise), shape (n,).
+    dt : float or None
+        Period of a discrete plant.
+    x0 : numpy.ndarray
+        Initial state (default zeros).
+    """
+
+    time: str
+    A: np.ndarray
+    B: np.ndarray
+    E: np.ndarray
+    C: np.ndarray
+    w: np.ndarray
+    dt: float | None
+    x0: np.ndarray
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def n(self) -> int:
+        """Number of states."""
+        return self.A.shape[0]
+
+    @property
+    def m(self) -> int:
+        """Number of known inputs."""
+        return self.B.shape[1]
+
+    @property
+    def q(self) -> int:
+        """Number of unknown inputs."""
+        return self.E.shape[1]
+
+    @property
+    def p(self) -> int:
+        """Number of measured outputs."""
+        return self.C.shape[0]
+
+    @property
+    def continuous(self) -> bool:
+        """True for a continuous-time plant."""
+        return self.time == "continuous"
+
+    @classmethod
+    def create(cls, A, C, E, B=None, *, time: str = "discrete", dt: float | None = None,
+               w=None, x0=None, prefix: str = "plant") -> "Plant":
+        """Check and normalise a plant.
+
+        Parameters
+        ----------
+        A, C, E : array_like
+            State, output and unknown-input matrices.
+        B : array_like, optional
+            Known-input matrix; omitted means no known input (m = 0).
+        time : {"continuous", "discrete"}
+            Time domain.
+        dt : float, optional
+            Period, required for a discrete plant, not allowed for a continuous one.
+        w : array_like, optional
+            Constant affine term of a discrete plant (default zeros).
+        x0 : array_like, optional
+            Initial state (default zeros).
+        prefix : str
+            Key prefix used in error messages (``"plant"`` gives ``plant.A``).
+
+        Returns
+        -------
+        Plant
+
+        Raises
+        ------
+        ProblemError
+            Naming the key and the expected against the found shape or value.
+        """
+        if time not in ("continuous", "discrete"):
+            raise ProblemError(f'{prefix}.time: expected "continuous" or "discrete", found {time!r}')
+        A = as_matrix(A, f"{prefix}.A")
+        n = A.shape[0]
+        if A.shape[1] != n or n == 0:
+            raise ProblemError(f"{prefix}.A: expected a square non-empty matrix, found {A.shape[0]}x{A.shape[1]}")
+        C = as_matrix(C, f"{prefix}.C", cols=n)
+        E = as_matrix(E, f"{prefix}.E", rows=n)
+        B = freeze(np.zeros((n, 0))) if B is None else as_matrix(B, f"{prefix}.B", rows=n)
+        if C.shape[0] == 0:
+            raise ProblemError(f"{prefix}.C: expected at least one output row, found none")
+        if time == "discrete":
+            if dt is None:
+                raise ProblemError(f"{prefix}.dt: required for a discrete plant (seconds per step)")
+            dt = as_scalar(dt, f"{prefix}.dt", low=0.0, open_low=True)
+        elif dt is not None:
+            raise ProblemError(f"{prefix}.dt: only discrete plants have a period; a continuous plant is sampled "
+                               "at the communication points")
+        if w is not None and time == "continuous":
+            raise ProblemError(f"{prefix}.w: the affine term is defined for discrete plants only")
+        w = freeze(np.zeros(n)) if w is None else as_vector(w, f"{prefix}.w", size=n)
+        x0 = freeze(np.zeros(n)) if x0 is None else as_vector(x0, f"{prefix}.x0", size=n)
+        return cls(time=time, A=A, B=B, E=E, C=C, w=w, dt=dt, x0=x0)
+
+    def sampled(self, h: float | None = None) -> Sampled:
+        """The plant over one step of length ``h``.
+
+        Parameters
+        ----------
+        h : float, optional
+            Step length. A discrete plant has only its own ``dt`` (the default); a continuous
+            plant is discretised exactly with inputs held (``h`` required).
+
+        Returns
+        -------
+        Sampled
+        """
+        if not self.continuous:
+            if h is not None and not np.isclose(h, self.dt, rtol=1e-12, atol=0.0):
+                raise ProblemError(f"a discrete plant steps at dt = {self.dt:g} s only, not h = {h:g} s")
+            return Sampled(self.A, self.B, self.E, self.w, self.dt)
+        if h is None or not h > 0:
+            raise ProblemError(f"sampling a continuous plant needs a step h > 0, found {h}")
+        key = float(h)
+        if key not in self._cache:
+            Ad, G = discretize(self.A, np.hstack([self.B, self.E]), key)
+            self._cache[key] = Sampled(freeze(Ad), freeze(G[:, :self.m]), freeze(G[:, self.m:]),
+                                       freeze(np.zeros(self.n)), key)
+        return self._cache[key]
+
+    def to_data(self) -> dict:
+        """The plant as the ``[plant]`` table of a problem file (plain lists)."""
+        data = {"time": self.time, "A": self.A.tolist(), "B": self.B.tolist(), "E": self.E.tolist(),
+                "C": self.C.tolist(), "x0": self.x0.tolist()}
+        if not self.continuous:
+            data["dt"] = self.dt
+            data["w"] = self.w.tolist()
+        return data
+
+
+def plant_from_statespace(sys, E, x0=None) -> Plant:
+    """A :class:`Plant` from a python-control ``StateSpace`` and the unknown-input matrix.
+
+    Parameters
+    ----------
+    sys : control.StateSpace
+        The plant with known inputs ``u``; its ``D`` must be zero (y = C x). ``sys.dt`` of
+        0 (or None) means continuous time, a positive value a discrete plant of that period.
+    E : array_like
+        The unknown-input matrix, shape (n, q).
+    x0 : array_like, optional
+        Initial state.
+
+    Returns
+    -------
+    Plant
+    """
+    D = np.asarray(sys.D, dtype=float)
+    if D.size and np.any(D != 0):
+        raise ProblemError(f"statespace.D: uiofmu plants have y = C x; found a non-zero D of shape {D.shape}")
+    dt = getattr(sys, "dt", 0) or 0
+    if dt is True:
+        raise ProblemError("statespace.dt: a discrete plant needs a numeric period, found dt=True")
+    time = "discrete" if dt else "continuous"
+    B = np.asarray(sys.B, dtype=float)
+    return Plant.create(np.asarray(sys.A, dtype=float), np.asarray(sys.C, dtype=float), E,
+                        B if B.size else None, time=time, dt=float(dt) if dt else None, x0=x0,
+                        prefix="statespace")

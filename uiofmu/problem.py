@@ -1,0 +1,236 @@
+"""Problem files (TOML) turned into a typed, immutable :class:`Problem`.
+
+A problem file is data: it is parsed with :mod:`tomllib`, never evaluated. Every malformed
+or inconsistent file raises :class:`~uiofmu.errors.ProblemError` naming the key and what was
+expected against what was found.
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import ProblemError
+from .matrices import as_scalar, as_vector
+from .plant import Plant
+from .signals import Signal, parse_signals
+
+_MISSING = object()
+
+#: Every family of the product, with the paper it comes from.
+KNOWN_FAMILIES = ("lti-uio", "ltv-auid", "switched", "sampled-data", "deadbeat-functional", "delayed-uio")
+
+
+class Table:
+    """Read one TOML table key by key; :meth:`done` rejects the keys nobody read.
+
+    Parameters
+    ----------
+    data : dict
+        The table.
+    name : str
+        Its key path (``"observer"``), used in messages.
+    """
+
+    def __init__(self, data, name: str):
+        if not isinstance(data, dict):
+            raise ProblemError(f"{name}: expected a table, found {type(data).__name__}")
+        self.data = data
+        self.name = name
+        self.used: set[str] = set()
+
+    def key(self, key: str) -> str:
+        """Full key path of ``key``."""
+        return f"{self.name}.{key}" if self.name else key
+
+    def has(self, key: str) -> bool:
+        """Whether the key is present."""
+        return key in self.data
+
+    def get(self, key: str, default=_MISSING):
+        """The raw value; a missing key without default is an error."""
+        self.used.add(key)
+        if key in self.data:
+            return self.data[key]
+        if default is _MISSING:
+            raise ProblemError(f"{self.key(key)}: required key is missing")
+        return default
+
+    def scalar(self, key: str, default=_MISSING, **bounds) -> float:
+        """A finite number within bounds (see :func:`~uiofmu.matrices.as_scalar`)."""
+        value = self.get(key, default)
+        return value if value is default else as_scalar(value, self.key(key), **bounds)
+
+    def tunable(self, key: str, default=_MISSING, **bounds):
+        """A number within bounds, or the string ``"max"`` (search for the best value)."""
+        value = self.get(key, default)
+        if value == "max":
+            return "max"
+        if isinstance(value, str):
+            raise ProblemError(f'{self.key(key)}: expected a number or "max", found {value!r}')
+        return value if value is default else as_scalar(value, self.key(key), **bounds)
+
+    def vector(self, key: str, size: int | None = None, default=_MISSING):
+        """A list of numbers."""
+        value = self.get(key, default)
+        return value if value is default else as_vector(value, self.key(key), size)
+
+    def choice(self, key: str, options: tuple, default=_MISSING) -> str:
+        """One of ``options``."""
+        value = self.get(key, default)
+        if value not in options:
+            raise ProblemError(f"{self.key(key)}: expected one of {', '.join(map(repr, options))}, found {value!r}")
+        return value
+
+    def done(self, allowed_hint: str = "") -> None:
+        """Raise on any key that was not read."""
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            known = ", ".join(sorted(self.used))
+            raise ProblemError(f"{self.key(unknown[0])}: unknown key" + (f" (known here: {known})" if known else "")
+                               + allowed_hint)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A parsed problem: plant, observer family and options, default signals.
+
+    Attributes
+    ----------
+    name : str
+        Used for FMU model names.
+    plant : Plant
+    family : str
+        One of :data:`KNOWN_FAMILIES`.
+    options : object
+        The family's frozen options (see the family module).
+    u, d : tuple of Signal
+        Default co-simulation inputs per channel.
+    data : dict
+        The problem as data (what the design card records).
+    """
+
+    name: str
+    plant: Plant
+    family: str
+    options: object
+    u: tuple[Signal, ...]
+    d: tuple[Signal, ...]
+    data: dict
+
+
+def _model_name(name: str) -> str:
+    cleaned = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name).strip("_")
+    return cleaned or "problem"
+
+
+def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
+    """Build a :class:`Problem` from the parsed TOML document.
+
+    Parameters
+    ----------
+    data : dict
+        The document (as :func:`tomllib.loads` returns it).
+    default_name : str
+        Name when the document has none (the file's stem).
+
+    Returns
+    -------
+    Problem
+    """
+    from .families import family_module
+
+    top = Table(data, "")
+    name = top.get("name", default_name)
+    if not isinstance(name, str) or not name.strip():
+        raise ProblemError(f"name: expected a non-empty string, found {name!r}")
+    pt = Table(top.get("plant"), "plant")
+    time = pt.choice("time", ("continuous", "discrete"))
+    for unsupported in ("modes", "scheduling"):
+        if pt.has(unsupported):
+            raise ProblemError(f"plant.{unsupported}: switched and LPV plants are not supported by this version "
+                               "of uiofmu (families available: " + ", ".join(_available()) + ")")
+    plant = Plant.create(pt.get("A"), pt.get("C"), pt.get("E"), pt.get("B", None), time=time,
+                         dt=pt.get("dt", None), w=pt.get("w", None), x0=pt.get("x0", None))
+    pt.done()
+    ot = Table(top.get("observer"), "observer")
+    family = ot.get("family")
+    if family not in KNOWN_FAMILIES:
+        raise ProblemError(f"observer.family: unknown family {family!r} (families: {', '.join(KNOWN_FAMILIES)})")
+    module = family_module(family)
+    options = module.parse_options(ot, plant)
+    ot.done()
+    st = Table(top.get("signals", {}), "signals")
+    u = parse_signals(st.get("u", None), "signals.u", plant.m)
+    d = parse_signals(st.get("d", None), "signals.d", plant.q)
+    st.done()
+    top.done()
+    return Problem(_model_name(name), plant, family, options, u, d, copy.deepcopy(data))
+
+
+def _available() -> list[str]:
+    from .families import FAMILIES
+    return sorted(FAMILIES)
+
+
+def load_problem(path) -> Problem:
+    """Read and check a problem file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A TOML file, or a folder holding ``problem.toml`` (``plants/NAME``).
+
+    Returns
+    -------
+    Problem
+
+    Raises
+    ------
+    ProblemError
+        For a missing or unreadable file, TOML syntax errors and every malformed key.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "problem.toml"
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ProblemError(f"{path}: no such problem file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProblemError(f"{path}: cannot read the problem file ({exc})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ProblemError(f"{path}: not valid TOML ({exc})") from None
+    stem = path.parent.name if path.name == "problem.toml" else path.stem
+    return problem_from_data(data, default_name=stem)
+
+
+def make_problem(plant: Plant, family: str, name: str = "problem", signals: dict | None = None,
+                 **options) -> Problem:
+    """A :class:`Problem` from a :class:`~uiofmu.plant.Plant` given from Python.
+
+    Parameters
+    ----------
+    plant : Plant
+        E.g. from :func:`~uiofmu.plant.plant_from_statespace`.
+    family : str
+        Observer family.
+    name : str
+        Model name.
+    signals : dict, optional
+        The ``[signals]`` table.
+    **options
+        The family's parameters, as in the ``[observer]`` table.
+
+    Returns
+    -------
+    Problem
+    """
+    data = {"name": name, "plant": plant.to_data(), "observer": {"family": family, **options}}
+    if signals:
+        data["signals"] = signals
+    return problem_from_data(data, default_name=name)

@@ -1,0 +1,164 @@
+"""The reference runtime: the step semantics every observer FMU reproduces.
+
+numpy only (no cvxpy): this module is what runs inside a pythonfmu observer. At the
+communication point ``t_k`` the master sets ``y_k`` and ``u_k`` and reads the outputs::
+
+    xhat_k = Xz z_k + Xy y_k          (xhat_0 is the initial estimate itself)
+    r_k    = y_k - C xhat_k
+    dhat_k = Dy (y_k - Yx xhat_{k-1} - Yu u_{k-1} - Yc)     (0 at k = 0)
+
+then ``step(h_k)`` advances::
+
+    z_{k+1} = N z_k + L y_k + G u_k + c
+
+with the matrices the schedule picks for (k, h_k, h_{k-1}). At the first step
+``z_0 = xhat_0 - Xy y_0``, so the first output is the initial estimate and ``z`` takes over
+from there. ``dhat_k`` estimates the unknown input held over ``[t_{k-1}, t_k)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .card import Card
+from .schedules import StepRejected, make_schedule
+
+
+class RuntimeInputError(Exception):
+    """An input or call the observer cannot take (the FMU turns it into fmi2Error)."""
+
+
+class Runtime:
+    """Steps one observer described by a design card.
+
+    Parameters
+    ----------
+    card : Card
+        A checked design card.
+    xhat0 : array_like, optional
+        Initial estimate (default: the card's ``initial.xhat0``).
+
+    Examples
+    --------
+    >>> rt = Runtime(card)                     # doctest: +SKIP
+    >>> rt.set_y([1.0]); rt.set_u([0.0])       # doctest: +SKIP
+    >>> xhat = rt.xhat(); rt.step(0.1)         # doctest: +SKIP
+    """
+
+    def __init__(self, card: Card, xhat0=None):
+        self.card = card
+        d = card.dims
+        self.n, self.m, self.p, self.q, self.nz = d["n"], d["m"], d["p"], d["q"], d["nz"]
+        self.schedule = make_schedule(card.schedule, card.matrices)
+        self.has_dhat = card.has_dhat
+        default = card.data["initial"].get("xhat0", [0.0] * self.n)
+        self.xhat0 = np.array(default if xhat0 is None else xhat0, dtype=float)
+        self.y = np.zeros(self.p)
+        self.u = np.zeros(self.m)
+        self._xhat = np.empty(self.n)
+        self._r = np.empty(self.p)
+        self._dhat = np.zeros(self.q)
+        self._tmp = np.empty(self.nz)
+        self._tz = np.empty(self.nz)
+        self._tn = np.empty(self.n)
+        self._tp = np.empty(self.p)
+        self.reset()
+
+    # -- state -------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to k = 0 with the current initial estimate."""
+        self.k = 0
+        self.z = np.zeros(self.nz)
+        self.pred = np.zeros(self.p)          # Yx xhat_{k-1} + Yu u_{k-1} + Yc
+        self.h_prev = self.schedule.initial_h_prev()
+
+    def get_state(self) -> dict:
+        """Everything that defines the future outputs, as plain lists (JSON-ready)."""
+        return {"k": self.k, "z": self.z.tolist(), "pred": self.pred.tolist(), "h_prev": self.h_prev,
+                "xhat0": self.xhat0.tolist(), "y": self.y.tolist(), "u": self.u.tolist()}
+
+    def set_state(self, state: dict) -> None:
+        """Restore what :meth:`get_state` returned."""
+        self.k = int(state["k"])
+        self.z = np.array(state["z"], dtype=float)
+        self.pred = np.array(state["pred"], dtype=float)
+        self.h_prev = float(state["h_prev"])
+        self.xhat0 = np.array(state["xhat0"], dtype=float)
+        self.y[:] = state["y"]
+        self.u[:] = state["u"]
+
+    # -- inputs ------------------------------------------------------------------------
+    def set_y(self, y) -> None:
+        """Measured outputs at the current communication point."""
+        self.y[:] = y
+
+    def set_u(self, u) -> None:
+        """Known inputs at the current communication point."""
+        self.u[:] = u
+
+    def _check_inputs(self) -> None:
+        for name, vec in (("y", self.y), ("u", self.u)):
+            if not np.all(np.isfinite(vec)):
+                i = int(np.flatnonzero(~np.isfinite(vec))[0])
+                raise RuntimeInputError(f"input {name}[{i + 1}] = {vec[i]} at step k = {self.k} is not finite")
+
+    # -- outputs -----------------------------------------------------------------------
+    def xhat(self) -> np.ndarray:
+        """The state estimate at the current communication point (a view; copy to keep)."""
+        if self.k == 0:
+            self._xhat[:] = self.xhat0
+            return self._xhat
+        mats = self.schedule.output_matrices(self.k, self.h_prev)
+        np.dot(mats["Xz"], self.z, out=self._xhat)
+        self._xhat += np.dot(mats["Xy"], self.y, out=self._tn)
+        return self._xhat
+
+    def residual(self) -> np.ndarray:
+        """``r = y - C xhat``."""
+        np.dot(self.card.matrices["C"], self.xhat(), out=self._r)
+        np.subtract(self.y, self._r, out=self._r)
+        return self._r
+
+    def dhat(self) -> np.ndarray:
+        """Estimate of the unknown input over the last step (zeros at k = 0 or without dhat)."""
+        if self.has_dhat and self.k > 0:
+            mats = self.schedule.output_matrices(self.k, self.h_prev)
+            np.subtract(self.y, self.pred, out=self._tp)
+            np.dot(mats["Dy"], self._tp, out=self._dhat)
+        return self._dhat
+
+    # -- step --------------------------------------------------------------------------
+    def step(self, h: float) -> None:
+        """Advance from ``t_k`` to ``t_k + h`` with the inputs currently set.
+
+        Raises
+        ------
+        RuntimeInputError
+            A non-finite input or a step h <= 0 (nothing changes).
+        StepRejected
+            A step the schedule was not designed for (nothing changes).
+        """
+        if not (isinstance(h, (int, float)) and math.isfinite(h) and h > 0):
+            raise RuntimeInputError(f"communication step h = {h!r} at step k = {self.k}: expected h > 0")
+        self._check_inputs()
+        mats = self.schedule.step_matrices(self.k, float(h), self.h_prev)
+        xhat = self.xhat()
+        if self.k == 0:
+            out = self.schedule.output_matrices(0, self.h_prev)
+            self.z = self.xhat0 - out["Xy"] @ self.y
+        if self.has_dhat:
+            np.dot(mats["Yx"], xhat, out=self.pred)
+            self.pred += np.dot(mats["Yu"], self.u, out=self._tp)
+            self.pred += mats["Yc"]
+        np.dot(mats["N"], self.z, out=self._tmp)
+        self._tmp += np.dot(mats["L"], self.y, out=self._tz)
+        self._tmp += np.dot(mats["G"], self.u, out=self._tz)
+        self._tmp += mats["c"]
+        self.z, self._tmp = self._tmp, self.z
+        self.h_prev = float(h)
+        self.k += 1
+
+
+__all__ = ["Runtime", "RuntimeInputError", "StepRejected"]

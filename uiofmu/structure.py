@@ -1,0 +1,168 @@
+"""Structural analysis of linear systems: ranks, uncontrollable modes, invariant zeros.
+
+Everything here uses orthogonal transformations (SVD) and one rank rule,
+:func:`rank`, whose tolerance is documented in :mod:`uiofmu.tolerances`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import null_space
+
+from .tolerances import RANK_RTOL
+
+
+def rank(M: np.ndarray, rank_rtol: float = RANK_RTOL) -> int:
+    """Numerical rank: singular values above ``rank_rtol * max(1, s_max)``.
+
+    Parameters
+    ----------
+    M : array_like
+        Any matrix (an empty one has rank 0).
+    rank_rtol : float
+        Relative tolerance (default :data:`~uiofmu.tolerances.RANK_RTOL`).
+
+    Returns
+    -------
+    int
+
+    Examples
+    --------
+    >>> rank(np.array([[1.0, 2.0], [2.0, 4.0]]))
+    1
+    """
+    M = np.atleast_2d(np.asarray(M, dtype=float))
+    if M.size == 0:
+        return 0
+    s = np.linalg.svd(M, compute_uv=False)
+    return int(np.sum(s > rank_rtol * max(1.0, s[0])))
+
+
+def _range_basis(M: np.ndarray, rank_rtol: float) -> np.ndarray:
+    """Orthonormal basis of the column range of ``M`` (n x r)."""
+    if M.size == 0:
+        return np.zeros((M.shape[0], 0))
+    U, s, _ = np.linalg.svd(M, full_matrices=True)
+    r = int(np.sum(s > rank_rtol * max(1.0, s[0]))) if s.size else 0
+    return U[:, :r]
+
+
+def uncontrollable_modes(A: np.ndarray, B: np.ndarray, rank_rtol: float = RANK_RTOL) -> np.ndarray:
+    """Eigenvalues of ``A`` that no input through ``B`` can move.
+
+    The controllable subspace is grown by orthonormal bases (``K <- orth([K, A K])``);
+    the uncontrollable modes are the eigenvalues of ``A`` on its orthogonal complement.
+
+    Parameters
+    ----------
+    A : (n, n) array
+    B : (n, m) array
+    rank_rtol : float
+        Rank tolerance.
+
+    Returns
+    -------
+    numpy.ndarray
+        The uncontrollable modes (complex), sorted by decreasing modulus.
+    """
+    n = A.shape[0]
+    K = _range_basis(B, rank_rtol) if B.size else np.zeros((n, 0))
+    while 0 < K.shape[1] < n:
+        grown = _range_basis(np.hstack([K, A @ K]), rank_rtol)
+        if grown.shape[1] == K.shape[1]:
+            break
+        K = grown
+    if K.shape[1] == n:
+        return np.zeros(0, dtype=complex)
+    Q = null_space(K.T) if K.shape[1] else np.eye(n)
+    modes = np.linalg.eigvals(Q.T @ A @ Q)
+    return modes[np.argsort(-np.abs(modes), kind="stable")]
+
+
+def unobservable_modes(A: np.ndarray, C: np.ndarray, rank_rtol: float = RANK_RTOL) -> np.ndarray:
+    """Eigenvalues of ``A`` not seen through ``C`` (dual of :func:`uncontrollable_modes`)."""
+    return uncontrollable_modes(A.T, C.T, rank_rtol)
+
+
+def invariant_zeros(A: np.ndarray, E: np.ndarray, C: np.ndarray, D: np.ndarray | None = None,
+                    rank_rtol: float = RANK_RTOL) -> np.ndarray:
+    """Invariant zeros of ``(A, E, C, D)``: where the Rosenbrock pencil loses its normal rank.
+
+    The pencil ``[[A - zI, E], [C, D]]`` may be non-square. It is reduced by constant
+    orthogonal transformations that keep its finite zeros (no random squaring-down):
+
+    1. Split the inputs so that ``D = [D1 0]`` with ``D1`` of full column rank. The inputs
+       of ``D1`` are fixed by the outputs (``u1 = -D1^+ C x``), which leaves the system
+       ``(A - E1 D1^+ C, E2, C2, 0)`` with ``C2 = (I - D1 D1^+) C`` compressed to its rank.
+    2. With ``D = 0`` the state must lie in ``ker C2``: with ``W`` an orthonormal basis of
+       that kernel and ``W_perp`` one of its complement, the rows along ``W`` keep ``z``
+       and the rows along ``W_perp`` do not, giving the smaller system
+       ``(W' A W, W' E2, W_perp' A W, W_perp' E2)``. Repeat from 1.
+    3. When no output constraint is left, the zeros are the uncontrollable modes of the
+       remaining pair ``(A, E)``.
+
+    Each pass removes at least one state, so the reduction ends after at most n passes.
+
+    Parameters
+    ----------
+    A : (n, n) array
+    E : (n, q) array
+        Input matrix of the inputs whose zeros are wanted (the unknown inputs here).
+    C : (p, n) array
+    D : (p, q) array, optional
+        Feedthrough (default zero).
+    rank_rtol : float
+        Rank tolerance.
+
+    Returns
+    -------
+    numpy.ndarray
+        The finite invariant zeros (complex), sorted by decreasing modulus.
+
+    Examples
+    --------
+    With ``y = x2`` and ``d`` acting on x2, the zero is the pole of the hidden state x1:
+
+    >>> A = np.array([[0.5, 0.0], [1.0, 0.2]])
+    >>> invariant_zeros(A, np.array([[0.0], [1.0]]), np.array([[0.0, 1.0]])).real.round(6)
+    array([0.5])
+    """
+    A = np.asarray(A, dtype=float)
+    E = np.asarray(E, dtype=float)
+    C = np.asarray(C, dtype=float)
+    D = np.zeros((C.shape[0], E.shape[1])) if D is None else np.asarray(D, dtype=float)
+    while A.shape[0] > 0:
+        n = A.shape[0]
+        # Step 1: D = [D1 0] with D1 of full column rank (right singular vectors).
+        if D.size and rank(D, rank_rtol):
+            U, s, Vt = np.linalg.svd(D, full_matrices=True)
+            r = int(np.sum(s > rank_rtol * max(1.0, s[0])))
+            V = Vt.T
+            D1 = D @ V[:, :r]
+            E1, E2 = E @ V[:, :r], E @ V[:, r:]
+            D1pinv = np.linalg.pinv(D1)
+            A = A - E1 @ D1pinv @ C
+            Uperp = U[:, r:]                       # left complement of range(D1)
+            C = Uperp.T @ C
+            E = E2
+        # Compress C to its row rank.
+        Crow = _range_basis(C.T, rank_rtol) if C.size else np.zeros((n, 0))
+        if Crow.shape[1] == 0:
+            return uncontrollable_modes(A, E, rank_rtol) if n else np.zeros(0, dtype=complex)
+        # Step 2: x in ker C, x = W xi.
+        W = null_space(Crow.T) if Crow.shape[1] < n else np.zeros((n, 0))
+        if W.shape[1] == 0:
+            return np.zeros(0, dtype=complex)
+        Wp = Crow
+        A, E, C, D = W.T @ A @ W, W.T @ E, Wp.T @ A @ W, Wp.T @ E
+    return np.zeros(0, dtype=complex)
+
+
+def is_stable(values: np.ndarray, continuous: bool, margin: float = 0.0) -> bool:
+    """True when every value is in the open left half-plane (continuous) or unit disc (discrete)."""
+    values = np.asarray(values)
+    if values.size == 0:
+        return True
+    if continuous:
+        return bool(np.all(values.real < -margin))
+    return bool(np.all(np.abs(values) < 1.0 - margin))

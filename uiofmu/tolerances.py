@@ -1,0 +1,35 @@
+"""Numerical tolerances, in one place.
+
+Each value is the documented default of the keyword argument of the same name in the
+functions that use it; pass another value there to override it for one call.
+"""
+
+#: Relative rank tolerance: a singular value ``s`` counts when ``s > RANK_RTOL * max(1, s_max)``.
+#: Matrices in problem files are given with a few digits; 1e-9 separates "zero" from
+#: "small" far above the round-off of products like ``C @ E`` (about 1e-16).
+RANK_RTOL = 1e-9
+
+#: Strictness margin of the LMIs: a strict inequality ``F(x) > 0`` is solved as
+#: ``F(x) >= LMI_MARGIN * I``; it is 100x the solver tolerance below.
+LMI_MARGIN = 1e-6
+
+#: Feasibility and gap tolerances asked of CLARABEL.
+SOLVER_TOL = 1e-8
+
+#: The independent re-check accepts a strict LMI when its smallest eigenvalue, evaluated
+#: with numpy at the stored matrices, is at least ``VERIFY_FRACTION * LMI_MARGIN``.
+VERIFY_FRACTION = 0.1
+
+#: Largest accepted residual of an identity the design must satisfy exactly
+#: (decoupling (I + MC)E = 0, PA - NP - LC = 0, ...), relative to the norms involved.
+IDENTITY_RTOL = 1e-9
+
+#: Bisection tolerance of a "max" search, on the searched parameter.
+SEARCH_TOL = 1e-4
+
+#: A communication step h matches a design interval H when ``|h - H| <= STEP_RTOL * H``.
+STEP_RTOL = 1e-6
+
+#: A continuous-time invariant zero is "stable" when its real part is below ``-ZERO_MARGIN``;
+#: a discrete-time one when its modulus is below ``1 - ZERO_MARGIN``.
+ZERO_MARGIN = 1e-9
