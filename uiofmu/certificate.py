@@ -28,7 +28,7 @@ class Check:
     @property
     def holds(self) -> bool:
         """Whether the check passes."""
-        return self.value <= self.bound if self.at_most else self.value >= self.bound
+        return bool(self.value <= self.bound if self.at_most else self.value >= self.bound)
 
     def to_data(self) -> dict:
         """JSON-ready form."""

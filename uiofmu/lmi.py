@@ -17,6 +17,7 @@ reused when a search changes them.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Callable
@@ -167,8 +168,10 @@ class LmiSystem:
         pvals = {k: float(p.value) for k, p in self._params.items()}
         t0 = time.perf_counter()
         try:
-            self._problem.solve(solver=cp.CLARABEL, tol_feas=self.solver_tol, tol_gap_abs=self.solver_tol,
-                                tol_gap_rel=self.solver_tol)
+            with warnings.catch_warnings():   # inaccurate answers are judged by the re-check instead
+                warnings.simplefilter("ignore", UserWarning)
+                self._problem.solve(solver=cp.CLARABEL, tol_feas=self.solver_tol, tol_gap_abs=self.solver_tol,
+                                    tol_gap_rel=self.solver_tol)
             status = self._problem.status
         except cp.error.SolverError as exc:
             status = f"solver_error: {exc}"
@@ -208,7 +211,9 @@ class LmiSystem:
             self._params[k].value = v
         prob = cp.Problem(cp.Minimize(sum(slack.values())), cons)
         try:
-            prob.solve(solver=cp.CLARABEL)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                prob.solve(solver=cp.CLARABEL)
         except cp.error.SolverError:
             return {}
         return {k: float(s.value) for k, s in slack.items() if s.value is not None}

@@ -29,6 +29,17 @@ def design(problem: Problem) -> Card:
     return family_module(problem.family).design(problem)
 
 
+def verify(card: Card) -> list:
+    """Re-check a design card's certificate from its stored matrices, without any solver.
+
+    Returns
+    -------
+    list of Check
+        Every check with its value and bound; the card is certified when all hold.
+    """
+    return family_module(card.family).verify(card)
+
+
 def assemble_card(problem: Problem, *, nz: int, dt: float | None, schedule: dict, matrices: dict,
                   certificate: dict, xhat0, results: dict, existence: Existence) -> Card:
     """The design card of a finished design (shared by every family).
