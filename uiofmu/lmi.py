@@ -4,7 +4,7 @@ An LMI system is written once, as a function ``build(v, p, ops)`` returning a li
 :class:`Lmi` (each a matrix that must be positive definite, or semidefinite when
 ``strict=False``). The function is called twice:
 
-* with cvxpy variables and parameters (``ops = CVXPY_OPS``) to solve the problem, and
+* with cvxpy variables and parameters (``ops`` builds with ``cvxpy.bmat``) to solve the problem, and
 * with the numpy arrays the solver returned (``ops = NUMPY_OPS``) to re-check every LMI by
   its eigenvalues, without the solver.
 
@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Callable
 
-import cvxpy as cp
 import numpy as np
 
 from .errors import InfeasibleError
@@ -47,8 +46,14 @@ def _cp_sym(M):
     return 0.5 * (M + M.T)
 
 
+def _cvxpy():
+    """cvxpy, imported on first use (reading problems and cards does not need it)."""
+    import cvxpy
+
+    return cvxpy
+
+
 NUMPY_OPS = SimpleNamespace(bmat=np.block, eye=np.eye, zeros=np.zeros, sym=_np_sym)
-CVXPY_OPS = SimpleNamespace(bmat=cp.bmat, eye=np.eye, zeros=np.zeros, sym=_cp_sym)
 
 
 @dataclass(frozen=True)
@@ -129,9 +134,11 @@ class LmiSystem:
     _vars: dict = field(init=False, repr=False)
     _params: dict = field(init=False, repr=False)
     _lmis: list = field(init=False, repr=False)
-    _problem: cp.Problem = field(init=False, repr=False)
+    _problem: object = field(init=False, repr=False)
 
     def __post_init__(self):
+        cp = _cvxpy()
+        ops = SimpleNamespace(bmat=cp.bmat, eye=np.eye, zeros=np.zeros, sym=_cp_sym)
         self._vars = {}
         for vname, spec in self.variables.items():
             if spec[0] == "symmetric":
@@ -141,7 +148,7 @@ class LmiSystem:
             else:
                 self._vars[vname] = cp.Variable(name=vname)
         self._params = {k: cp.Parameter(nonneg=True, value=float(v), name=k) for k, v in self.parameters.items()}
-        self._lmis = self.build(self._vars, self._params, CVXPY_OPS)
+        self._lmis = self.build(self._vars, self._params, ops)
         constraints = []
         for lmi in self._lmis:
             M = lmi.matrix
@@ -163,6 +170,7 @@ class LmiSystem:
         LmiSolution
             Also when the solver fails (``values`` empty, ``verified`` False).
         """
+        cp = _cvxpy()
         for k, v in parameters.items():
             self._params[k].value = float(v)
         pvals = {k: float(p.value) for k, p in self._params.items()}
@@ -199,6 +207,7 @@ class LmiSystem:
             The slack each LMI needs (0 where it can hold), for the message of an
             infeasible design.
         """
+        cp = _cvxpy()
         pvals = {k: float(parameters.get(k, p.value)) for k, p in self._params.items()}
         slack = {l.name: cp.Variable(nonneg=True, name=f"slack_{i}") for i, l in enumerate(self._lmis)}
         cons = []

@@ -55,6 +55,10 @@ class ConstantSchedule:
         """The step assumed before the first one."""
         return self.dt
 
+    def admissible_steps(self) -> list:
+        """The step lengths this schedule accepts."""
+        return [self.dt]
+
 
 def make_schedule(spec: dict, matrices: dict):
     """The schedule object of a card's ``schedule`` entry."""

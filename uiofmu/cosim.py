@@ -1,0 +1,193 @@
+"""The co-simulation master: plant FMU and observer FMU on fmpy, with aperiodic steps.
+
+Order at each communication point t_k (SPEC): read the plant's ``y`` (and true ``x``); set
+the plant's ``u``, ``d`` and the observer's ``y``, ``u``; read ``xhat`` (and ``r``,
+``dhat``); then ``doStep(t_k, h_k)`` on both. Inputs are held over each step.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .card import Card, card_from_data
+from .errors import FmuError
+from .fmi import Fmu, FmuCallError, read_model_json
+from .inputs import CsvInputs, SignalInputs
+from .metrics import error_metrics
+from .progress import progress
+from .steps import step_sequence
+
+
+@dataclass
+class CosimResult:
+    """Histories of one co-simulation (row k is the communication point t_k) and its metrics."""
+
+    times: np.ndarray
+    h: np.ndarray
+    x: np.ndarray
+    xhat: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    d: np.ndarray
+    r: np.ndarray
+    dhat: np.ndarray
+    metrics: dict = field(default_factory=dict)
+    card: Card | None = None
+
+    def columns(self) -> dict:
+        """Named columns for ``results.csv``."""
+        cols = {"time": self.times, "h": np.append(self.h, np.nan)}
+        for name in ("x", "xhat", "y", "u", "d", "dhat", "r"):
+            arr = getattr(self, name)
+            for i in range(arr.shape[1]):
+                cols[f"{name}[{i + 1}]"] = arr[:, i]
+        cols["error_norm"] = np.linalg.norm(self.x - self.xhat, axis=1)
+        return cols
+
+
+def observer_card(path) -> Card:
+    """The design card packed in an observer FMU built by uiofmu."""
+    spec = read_model_json(path)
+    if spec.get("kind") != "observer":
+        raise FmuError(f"{path}: this FMU is a {spec.get('kind')}, not an observer")
+    return card_from_data(spec["card"])
+
+
+def default_steps(card: Card) -> str:
+    """The step SPEC an observer is designed for (``fixed:dt``)."""
+    return f"fixed:{card.dt!r}"
+
+
+def default_t_end(card: Card, steps: np.ndarray | None = None, floor: int = 50, cap: int = 5000) -> float:
+    """Long enough for the certified bound to fall to 1e-3 of the initial error (50 to 5000 steps)."""
+    decay, over = card.data.get("decay_bound"), card.data.get("overshoot_bound")
+    k = cap
+    if decay and over and 0 < decay < 1:
+        k = int(math.ceil(math.log(1e-3 / over) / math.log(decay)))
+    h = float(np.mean(steps)) if steps is not None and len(steps) else float(card.dt)
+    return min(max(k, floor), cap) * h
+
+
+def default_inputs(card: Card):
+    """The problem's ``[signals]`` recorded in the card."""
+    from .problem import problem_from_data
+
+    problem = problem_from_data(card.data["problem"], default_name=card.name)
+    return SignalInputs(problem.u, problem.d)
+
+
+def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, plant_x0=None, xhat0=None,
+               show_progress: bool | None = None) -> CosimResult:
+    """Run the plant and observer FMUs together on the given communication steps.
+
+    Parameters
+    ----------
+    plant_path, observer_path : str or Path
+        FMUs; the plant has inputs ``u``, ``d`` and outputs ``y``, ``x``; the observer has
+        inputs ``y``, ``u`` and outputs ``xhat``, ``r`` (and ``dhat``).
+    steps : array_like
+        Step lengths h_0, h_1, ... (see :func:`uiofmu.steps.step_sequence`).
+    inputs : object, optional
+        Has ``u(t)`` and ``d(t)``; by default the signals of the observer's problem.
+    plant_x0, xhat0 : array_like, optional
+        Override the plant's initial state and the observer's initial estimate.
+    show_progress : bool, optional
+        Progress bar (default: when stderr is a terminal).
+
+    Returns
+    -------
+    CosimResult
+
+    Raises
+    ------
+    FmuError
+        When an FMU refuses a call, naming the FMU, the time, the step and its message.
+    """
+    card = observer_card(observer_path) if "observer" == read_model_json(observer_path).get("kind") else None
+    if inputs is None:
+        if card is None:
+            raise FmuError("give inputs (the observer FMU carries no problem signals)")
+        inputs = default_inputs(card)
+    steps = np.asarray(steps, dtype=float)
+    K = len(steps)
+    with Fmu(plant_path, "plant") as plant, Fmu(observer_path, "observer") as obs:
+        if not plant.has("x"):
+            raise FmuError(f"{plant_path}: the plant FMU has no x[...] outputs; the error needs the true state")
+        if plant.has("y") and obs.has("y") and len(plant.refs("y")) != len(obs.refs("y")):
+            raise FmuError(f"plant has {len(plant.refs('y'))} outputs y but the observer expects {len(obs.refs('y'))}")
+        plant.initialize(0.0, {"x0": plant_x0} if plant_x0 is not None else None)
+        obs.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
+        n, p = len(plant.refs("x")), len(plant.refs("y"))
+        m, q, nq = len(plant.refs("u")), len(plant.refs("d")), len(obs.refs("dhat"))
+        T = np.zeros(K + 1)
+        X, XH, Y = np.zeros((K + 1, n)), np.zeros((K + 1, n)), np.zeros((K + 1, p))
+        U, D, R, DH = np.zeros((K + 1, m)), np.zeros((K + 1, q)), np.zeros((K + 1, p)), np.zeros((K + 1, nq))
+        t = 0.0
+        with progress(total=K, desc="co-simulation", unit="step", enabled=show_progress) as bar:
+            for k in range(K + 1):
+                y = plant.get("y")
+                u, d = inputs.u(t), inputs.d(t)
+                plant.set("u", u)
+                plant.set("d", d)
+                obs.set("y", y)
+                obs.set("u", u)
+                T[k], X[k], Y[k], U[k], D[k] = t, plant.get("x"), y, u, d
+                XH[k], R[k], DH[k] = obs.get("xhat"), obs.get("r"), obs.get("dhat")
+                if k == K:
+                    break
+                h = steps[k]
+                for who, fmu in (("observer", obs), ("plant", plant)):
+                    try:
+                        fmu.step(t, h)
+                    except FmuCallError as exc:
+                        raise FmuError(f"the {who} FMU refused step {k} (t = {t:g} s, h = {h:g} s): "
+                                       + (exc.messages[-1] if exc.messages else str(exc))) from None
+                t = float(np.sum(steps[:k + 1])) if k % 1024 == 1023 else t + h
+                bar.update()
+    result = CosimResult(T, steps, X, XH, Y, U, D, R, DH, card=card)
+    certified = card is not None and card.data.get("decay_bound") is not None
+    result.metrics = error_metrics(T, steps, X, XH,
+                                   card.data.get("decay_bound") if certified else None,
+                                   card.data.get("overshoot_bound") if certified else None,
+                                   D if nq else None, DH if nq else None)
+    return result
+
+
+def write_outputs(result: CosimResult, out_dir, title: str | None = None) -> dict:
+    """Write ``results.csv``, ``metrics.json`` and ``report.png`` into ``out_dir``.
+
+    Returns
+    -------
+    dict
+        The paths written.
+    """
+    from .report import plot_report
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cols = result.columns()
+    with open(out / "results.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for row in zip(*cols.values()):
+            w.writerow(["" if isinstance(v, float) and math.isnan(v) else repr(float(v)) for v in row])
+    (out / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
+    plot_report(result, out / "report.png", title)
+    return {"results": out / "results.csv", "metrics": out / "metrics.json", "report": out / "report.png"}
+
+
+def load_inputs(csv_path, plant_path):
+    """Inputs from a CSV sized for the plant FMU."""
+    with Fmu(plant_path, "probe") as plant:
+        m, q = len(plant.refs("u")), len(plant.refs("d"))
+    return CsvInputs(csv_path, m, q)
+
+
+__all__ = ["CosimResult", "cosimulate", "default_inputs", "default_steps", "default_t_end", "load_inputs",
+           "observer_card", "step_sequence", "write_outputs"]

@@ -1,0 +1,107 @@
+"""Packing observers and plants as FMI 2.0 Co-Simulation FMUs.
+
+Backend ``python`` (pythonfmu): one generic slave (:mod:`uiofmu.slave_template`) plus the
+model as data (``resources/model.json``) plus a copy of the numpy-only runtime, in the
+shape of pythonfmu's csv builder. The host Python needs numpy and nothing else of uiofmu.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from . import __version__
+from .card import Card
+from .errors import FmuError
+from .plant import Plant
+
+#: The modules an FMU carries: the runtime and what it imports (numpy only).
+RUNTIME_MODULES = ("card", "errors", "matrices", "schedules", "tolerances", "runtime", "plant_runtime", "fmu_model")
+RUNTIME_PACKAGE = "uiofmu_rt_" + re.sub(r"\W", "_", __version__)
+BACKENDS = ("python",)
+
+
+def model_identifier(name: str, role: str) -> str:
+    """A C identifier for the FMU's model (``two_room_building_observer``)."""
+    ident = re.sub(r"\W", "_", f"{name}_{role}").strip("_")
+    return ident if ident[:1].isalpha() else f"m_{ident}"
+
+
+def _build_python(spec: dict, identifier: str, description: str, output: Path) -> Path:
+    from pythonfmu.builder import FmuBuilder
+
+    here = Path(__file__).parent
+    output = Path(output)
+    if output.suffix != ".fmu":
+        raise FmuError(f"{output}: the FMU file name must end in .fmu")
+    output.parent.mkdir(parents=True, exist_ok=True)
+    module = f"{identifier}_slave"
+    with tempfile.TemporaryDirectory(prefix="uiofmu_build_") as tmp:
+        src = Path(tmp)
+        pkg = src / RUNTIME_PACKAGE
+        pkg.mkdir()
+        (pkg / "__init__.py").write_text(f'"""uiofmu {__version__} runtime, numpy only."""\n')
+        for name in RUNTIME_MODULES:
+            shutil.copy2(here / f"{name}.py", pkg / f"{name}.py")
+        (src / "model.json").write_text(json.dumps(spec), encoding="utf-8")
+        text = (here / "slave_template.py").read_text(encoding="utf-8")
+        text = (text.replace("UIOFMU_RT", RUNTIME_PACKAGE).replace("UiofmuModel", identifier)
+                .replace("FMU_DESCRIPTION", description.replace('"', "'")))
+        script = src / f"{module}.py"
+        script.write_text(text, encoding="utf-8")
+        try:
+            path = FmuBuilder.build_FMU(script, dest=output, project_files=[pkg, src / "model.json"],
+                                        canGetAndSetFMUstate=True, canSerializeFMUstate=True)
+        finally:
+            for key in [k for k in sys.modules if k == module or k.split(".")[0] == RUNTIME_PACKAGE]:
+                sys.modules.pop(key)
+            while str(src) in sys.path:
+                sys.path.remove(str(src))
+    return Path(path)
+
+
+def build_observer(card: Card, output, backend: str = "python") -> Path:
+    """Pack the observer of a design card as an FMU.
+
+    Parameters
+    ----------
+    card : Card
+        A verified design card.
+    output : str or Path
+        The ``.fmu`` file to write.
+    backend : {"python"}
+        ``python``: pythonfmu (the host needs Python with numpy).
+
+    Returns
+    -------
+    Path
+    """
+    if backend not in BACKENDS:
+        raise FmuError(f"--backend: expected one of {', '.join(BACKENDS)}, found {backend!r}")
+    ident = model_identifier(card.name, "observer")
+    desc = f"{card.family} unknown-input observer of {card.name} (uiofmu {__version__})"
+    return _build_python({"kind": "observer", "card": card.data}, ident, desc, output)
+
+
+def build_plant(plant: Plant, name: str, output) -> Path:
+    """Pack a linear plant as an FMU (exact between communication points).
+
+    Parameters
+    ----------
+    plant : Plant
+    name : str
+        Model name (the FMU's model identifier is ``NAME_plant``).
+    output : str or Path
+        The ``.fmu`` file to write.
+
+    Returns
+    -------
+    Path
+    """
+    ident = model_identifier(name, "plant")
+    desc = f"{plant.time} linear plant {name} (uiofmu {__version__})"
+    return _build_python({"kind": "plant", "plant": plant.to_data()}, ident, desc, output)

@@ -1,0 +1,135 @@
+"""What an FMU exposes, for observers and plants alike (numpy only).
+
+A model lists its ports, each a named vector: parameters (set before initialisation),
+inputs, and outputs (computed on demand and cached until an input or the state changes).
+The pythonfmu slave (:mod:`uiofmu.slave_template`) maps ports to FMI variables
+``name[1..size]`` without knowing what the model is; the C backend generates the same ports.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .card import card_from_data
+from .plant_runtime import PlantRuntime
+from .runtime import Runtime, RuntimeInputError
+from .schedules import StepRejected
+
+
+class Port:
+    """A named vector of FMI Real variables ``name[1..size]``."""
+
+    def __init__(self, name: str, values: np.ndarray, description: str):
+        self.name = name
+        self.values = values
+        self.description = description
+
+    @property
+    def size(self) -> int:
+        """Number of scalar variables."""
+        return int(self.values.shape[0])
+
+
+class ObserverModel:
+    """The observer of a design card as FMU ports: ``y, u -> xhat, r, dhat``."""
+
+    kind = "observer"
+
+    def __init__(self, spec: dict):
+        self.card = card_from_data(spec["card"])
+        self.rt = Runtime(self.card)
+        n, p, q = self.rt.n, self.rt.p, self.rt.q
+        self.parameters = [Port("xhat0", self.rt.xhat0.copy(), "initial state estimate at the start time")]
+        self.inputs = [Port("y", self.rt.y, "measured outputs at the current communication point"),
+                       Port("u", self.rt.u, "known inputs at the current communication point")]
+        self.outputs = [Port("xhat", np.zeros(n), "state estimate at the current communication point"),
+                        Port("r", np.zeros(p), "output residual y - C xhat")]
+        if self.rt.has_dhat:
+            self.outputs.append(Port("dhat", np.zeros(q), "unknown-input estimate over the last step"))
+        self.dirty = True
+
+    def initialize(self) -> None:
+        """Take the parameters (called when leaving initialisation mode)."""
+        self.rt.xhat0 = self.parameters[0].values.copy()
+        self.rt.reset()
+        self.dirty = True
+
+    def refresh(self) -> None:
+        """Recompute the outputs from the current inputs and state."""
+        self.outputs[0].values[:] = self.rt.xhat()
+        self.outputs[1].values[:] = self.rt.residual()
+        if self.rt.has_dhat:
+            self.outputs[2].values[:] = self.rt.dhat()
+        self.dirty = False
+
+    def step(self, t: float, h: float) -> None:
+        """One communication step; raises StepRejected or RuntimeInputError."""
+        self.rt.step(h)
+        self.dirty = True
+
+    def get_state(self) -> dict:
+        """JSON-ready state (runtime and parameters)."""
+        return {"runtime": self.rt.get_state(), "xhat0": self.parameters[0].values.tolist()}
+
+    def set_state(self, state: dict) -> None:
+        """Restore :meth:`get_state`."""
+        self.rt.set_state(state["runtime"])
+        self.parameters[0].values[:] = state["xhat0"]
+        self.dirty = True
+
+
+class PlantModel:
+    """A linear plant as FMU ports: ``u, d -> y, x``."""
+
+    kind = "plant"
+
+    def __init__(self, spec: dict):
+        self.rt = PlantRuntime(spec["plant"])
+        n, p = self.rt.n, self.rt.p
+        self.parameters = [Port("x0", self.rt.x0.copy(), "initial state")]
+        self.inputs = [Port("u", self.rt.u, "known inputs (held over the step)"),
+                       Port("d", self.rt.d, "unknown inputs (held over the step)")]
+        self.outputs = [Port("y", np.zeros(p), "measured outputs C x"),
+                        Port("x", np.zeros(n), "true state (for validation)")]
+        self.dirty = True
+
+    def initialize(self) -> None:
+        """Take the parameters."""
+        self.rt.x0 = self.parameters[0].values.copy()
+        self.rt.reset()
+        self.dirty = True
+
+    def refresh(self) -> None:
+        """Recompute the outputs."""
+        self.outputs[0].values[:] = self.rt.y()
+        self.outputs[1].values[:] = self.rt.x
+        self.dirty = False
+
+    def step(self, t: float, h: float) -> None:
+        """One communication step."""
+        try:
+            self.rt.step(h)
+        except ValueError as exc:
+            raise RuntimeInputError(str(exc)) from None
+        self.dirty = True
+
+    def get_state(self) -> dict:
+        """JSON-ready state."""
+        return {"runtime": self.rt.get_state()}
+
+    def set_state(self, state: dict) -> None:
+        """Restore :meth:`get_state`."""
+        self.rt.set_state(state["runtime"])
+        self.parameters[0].values[:] = self.rt.x0
+        self.dirty = True
+
+
+MODELS = {"observer": ObserverModel, "plant": PlantModel}
+
+
+def make_model(spec: dict):
+    """The model of an FMU's ``resources/model.json``."""
+    return MODELS[spec["kind"]](spec)
+
+
+__all__ = ["ObserverModel", "PlantModel", "Port", "RuntimeInputError", "StepRejected", "make_model"]

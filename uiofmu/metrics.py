@@ -1,0 +1,80 @@
+"""Convergence metrics of a co-simulation, and the comparison with the certified bound."""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Relative slack of the bound comparison (round-off of the plant and observer steps).
+BOUND_RTOL = 1e-9
+
+
+def settling_index(norms: np.ndarray, fraction: float) -> int | None:
+    """First index from which ``norms`` stays at or below ``fraction * norms[0]`` (None if never)."""
+    if norms.size == 0:
+        return None
+    above = np.flatnonzero(norms > fraction * norms[0])
+    if above.size == 0:
+        return 0
+    k = int(above[-1]) + 1
+    return k if k < norms.size else None
+
+
+def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.ndarray,
+                  decay: float | None = None, overshoot: float | None = None,
+                  d: np.ndarray | None = None, dhat: np.ndarray | None = None,
+                  bound_rtol: float = BOUND_RTOL) -> dict:
+    """The SPEC metrics of one run.
+
+    Parameters
+    ----------
+    times : (K+1,) array
+        Communication points t_0..t_K.
+    steps : (K,) array
+        Step lengths h_0..h_{K-1}.
+    x, xhat : (K+1, n) arrays
+        True state and estimate at each point.
+    decay, overshoot : float, optional
+        The certified ``delta`` and ``M`` of ``||e_k|| <= M delta^k ||e_0||``.
+    d, dhat : (K+1, q) arrays, optional
+        Unknown input applied over ``[t_k, t_{k+1})`` and its estimate at ``t_k`` (which
+        estimates the input over the previous step).
+    bound_rtol : float
+        Relative slack of the bound comparison.
+
+    Returns
+    -------
+    dict
+        ``steps``, ``initial_error_norm``, ``final_error_norm``, ``rms_error`` (per state),
+        ``steps_to_1pct``, ``time_to_1pct``, and when certified ``certified_decay``,
+        ``certified_overshoot``, ``bound_respected``, ``max_bound_ratio``,
+        ``first_bound_violation``; ``dhat_rms_error`` with an unknown-input estimate.
+    """
+    e = x - xhat
+    norms = np.linalg.norm(e, axis=1)
+    k1 = settling_index(norms, 0.01)
+    out = {
+        "steps": int(len(steps)),
+        "t_end": float(times[-1]),
+        "initial_error_norm": float(norms[0]),
+        "final_error_norm": float(norms[-1]),
+        "rms_error": np.sqrt(np.mean(e * e, axis=0)).tolist(),
+        "max_error_norm": float(norms.max()),
+        "steps_to_1pct": k1,
+        "time_to_1pct": None if k1 is None else float(times[k1]),
+        "step_min": float(steps.min()) if steps.size else None,
+        "step_max": float(steps.max()) if steps.size else None,
+    }
+    if decay is not None and overshoot is not None:
+        bound = overshoot * decay ** np.arange(len(norms)) * norms[0]
+        slack = bound * (1 + bound_rtol) + bound_rtol * norms[0]
+        ratio = np.divide(norms, bound, out=np.zeros_like(norms), where=bound > 0)
+        bad = np.flatnonzero(norms > slack)
+        out.update({"certified_decay": float(decay), "certified_overshoot": float(overshoot),
+                    "bound_respected": bool(bad.size == 0), "max_bound_ratio": float(ratio.max()),
+                    "first_bound_violation": int(bad[0]) if bad.size else None})
+    if d is not None and dhat is not None and dhat.size and len(d) > 1:
+        err = dhat[1:] - d[:-1]
+        out["dhat_rms_error"] = np.sqrt(np.mean(err * err, axis=0)).tolist()
+        half = len(err) // 2
+        out["dhat_rms_error_second_half"] = np.sqrt(np.mean(err[half:] ** 2, axis=0)).tolist()
+    return out

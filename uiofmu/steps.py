@@ -1,0 +1,107 @@
+"""Communication-step sequences for the co-simulation master (``--steps SPEC``).
+
+``fixed:H``             every step H seconds
+``choice:H1,H2,...``    each step drawn uniformly from the list (``--seed``)
+``uniform:HMIN:HMAX``   each step drawn uniformly from the interval (``--seed``)
+``file:PATH``           one step per line (blank lines and ``#`` comments skipped)
+
+The sequence is drawn once, independently of the run, so a seed gives the same steps for
+every observer that is compared on it.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ProblemError
+
+
+def _positive(text: str, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ProblemError(f"--steps: {what} must be a number, found {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise ProblemError(f"--steps: {what} must be > 0, found {text!r}")
+    return value
+
+
+def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
+    """The communication steps from 0 until the first point at or after ``t_end``.
+
+    Parameters
+    ----------
+    spec : str
+        A step SPEC (see the module docstring).
+    t_end : float
+        End time; the run stops at the first communication point at or after it (a step
+        is never shortened: an observer may accept only the steps it was designed for).
+    seed : int
+        Seed of the random kinds.
+
+    Returns
+    -------
+    numpy.ndarray
+        The step lengths h_0, h_1, ...
+
+    Raises
+    ------
+    ProblemError
+        For a malformed SPEC, with what was expected.
+
+    Examples
+    --------
+    >>> step_sequence("fixed:0.5", 2.0).tolist()
+    [0.5, 0.5, 0.5, 0.5]
+    """
+    if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
+        raise ProblemError(f"--t-end must be > 0, found {t_end!r}")
+    kind, _, rest = spec.partition(":")
+    rng = np.random.default_rng(seed)
+    if kind == "file":
+        path = Path(rest)
+        try:
+            lines = path.read_text().splitlines()
+        except OSError as exc:
+            raise ProblemError(f"--steps file:{rest}: cannot read it ({exc.strerror})") from None
+        steps = [_positive(line.split("#")[0].strip(), f"line {i + 1} of {rest}")
+                 for i, line in enumerate(lines) if line.split("#")[0].strip()]
+        if not steps:
+            raise ProblemError(f"--steps file:{rest}: no steps in the file")
+        out, t = [], 0.0
+        for h in steps:
+            if t >= t_end:
+                break
+            out.append(h)
+            t += h
+        return np.array(out)
+    if kind == "fixed":
+        h = _positive(rest, "fixed:H")
+        draw = lambda: h  # noqa: E731
+    elif kind == "choice":
+        options = [_positive(v, "each choice") for v in rest.split(",") if v.strip()]
+        if not options:
+            raise ProblemError("--steps choice:H1,H2,...: give at least one step")
+        draw = lambda: options[int(rng.integers(len(options)))]  # noqa: E731
+    elif kind == "uniform":
+        parts = rest.split(":")
+        if len(parts) != 2:
+            raise ProblemError(f"--steps uniform:HMIN:HMAX expected, found {spec!r}")
+        lo, hi = _positive(parts[0], "HMIN"), _positive(parts[1], "HMAX")
+        if lo > hi:
+            raise ProblemError(f"--steps uniform: HMIN = {lo:g} > HMAX = {hi:g}")
+        draw = lambda: float(rng.uniform(lo, hi))  # noqa: E731
+    else:
+        raise ProblemError(f"--steps: unknown kind {kind!r} (expected fixed:H, choice:H1,H2,..., "
+                           "uniform:HMIN:HMAX or file:PATH)")
+    out, t = [], 0.0
+    while t < t_end * (1 - 1e-12):
+        h = draw()
+        out.append(h)
+        t += h
+        if len(out) > 10_000_000:
+            raise ProblemError(f"--steps {spec} with --t-end {t_end:g} needs more than 10 million steps")
+    return np.array(out)
