@@ -52,3 +52,19 @@ def example1_card(example1_path, tmp_path_factory):
     path = tmp_path_factory.mktemp("cards") / "example1.json"
     card.write(path)
     return card, path
+
+
+@pytest.fixture(scope="session")
+def building_path() -> Path:
+    return ROOT / "plants" / "two_room_building" / "problem.toml"
+
+
+@pytest.fixture(scope="session")
+def building_card(building_path, tmp_path_factory):
+    """The designed card of the two-room building (alpha = "max"), designed once per session."""
+    import uiofmu
+
+    card = uiofmu.design(uiofmu.load_problem(building_path))
+    path = tmp_path_factory.mktemp("cards") / "building.json"
+    card.write(path)
+    return card, path

@@ -41,10 +41,12 @@ def identity_check(name: str, residual: np.ndarray, scale: float, rtol: float = 
     return Check(name, float(np.linalg.norm(residual, 2)) if residual.size else 0.0, rtol * max(1.0, scale))
 
 
-def lyapunov_check(name: str, N: np.ndarray, X: np.ndarray, rho: float, margin: float = LMI_MARGIN,
-                   verify_fraction: float = VERIFY_FRACTION) -> Check:
-    """``rho^2 X - N' X N > 0``: the decay ``||e_{k+1}||_X <= rho ||e_k||_X`` at the stored ``N``."""
-    Q = rho * rho * X - N.T @ X @ N
+def lyapunov_check(name: str, N: np.ndarray, X: np.ndarray, rho: float, X_prev: np.ndarray | None = None,
+                   margin: float = LMI_MARGIN, verify_fraction: float = VERIFY_FRACTION) -> Check:
+    """``rho^2 X_prev - N' X N > 0``: the decay ``||e_{k+1}||_X <= rho ||e_k||_{X_prev}`` at the
+    stored ``N`` (``X_prev = X`` for a common Lyapunov matrix)."""
+    X_prev = X if X_prev is None else X_prev
+    Q = rho * rho * X_prev - N.T @ X @ N
     return Check(name, float(np.linalg.eigvalsh(0.5 * (Q + Q.T))[0]), verify_fraction * margin, at_most=False)
 
 

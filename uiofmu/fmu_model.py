@@ -40,6 +40,9 @@ class ObserverModel:
         self.rt = Runtime(self.card)
         n, p, q = self.rt.n, self.rt.p, self.rt.q
         self.parameters = [Port("xhat0", self.rt.xhat0.copy(), "initial state estimate at the start time")]
+        if self.card.schedule["kind"] == "interval":
+            self.parameters.append(Port("h_prev0", np.array([self.rt.h_prev0]),
+                                        "sampling interval assumed before the first step, h_{-1} [s]"))
         self.inputs = [Port("y", self.rt.y, "measured outputs at the current communication point"),
                        Port("u", self.rt.u, "known inputs at the current communication point")]
         self.outputs = [Port("xhat", np.zeros(n), "state estimate at the current communication point"),
@@ -49,10 +52,20 @@ class ObserverModel:
         self.dirty = True
 
     def initialize(self) -> None:
-        """Take the parameters (called when leaving initialisation mode)."""
+        """Take the parameters (called when leaving initialisation mode); raises StepRejected
+        for an h_prev0 that is not a design interval."""
         self.rt.xhat0 = self.parameters[0].values.copy()
+        if len(self.parameters) > 1:
+            self.rt.h_prev0 = float(self.parameters[1].values[0])
+            self.rt.schedule.output_matrices(0, self.rt.h_prev0)
         self.rt.reset()
         self.dirty = True
+
+    def notices(self) -> list:
+        """Messages the schedule left for the log (drained)."""
+        out = list(self.rt.schedule.notices)
+        self.rt.schedule.notices.clear()
+        return out
 
     def refresh(self) -> None:
         """Recompute the outputs from the current inputs and state."""
@@ -69,12 +82,13 @@ class ObserverModel:
 
     def get_state(self) -> dict:
         """JSON-ready state (runtime and parameters)."""
-        return {"runtime": self.rt.get_state(), "xhat0": self.parameters[0].values.tolist()}
+        return {"runtime": self.rt.get_state(), "parameters": [p.values.tolist() for p in self.parameters]}
 
     def set_state(self, state: dict) -> None:
         """Restore :meth:`get_state`."""
         self.rt.set_state(state["runtime"])
-        self.parameters[0].values[:] = state["xhat0"]
+        for port, values in zip(self.parameters, state["parameters"]):
+            port.values[:] = values
         self.dirty = True
 
 
@@ -112,6 +126,10 @@ class PlantModel:
         except ValueError as exc:
             raise RuntimeInputError(str(exc)) from None
         self.dirty = True
+
+    def notices(self) -> list:
+        """Messages for the log (none for plants)."""
+        return []
 
     def get_state(self) -> dict:
         """JSON-ready state."""

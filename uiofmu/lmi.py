@@ -31,11 +31,13 @@ from .tolerances import LMI_MARGIN, SEARCH_TOL, SOLVER_TOL, VERIFY_FRACTION
 
 @dataclass(frozen=True)
 class Lmi:
-    """One linear matrix inequality ``matrix > 0`` (``>= 0`` when not strict)."""
+    """One linear matrix inequality ``matrix > 0`` (``>= 0`` when not strict), or a linear
+    equality ``matrix = 0`` when ``equality`` is set."""
 
     name: str
     matrix: object
     strict: bool = True
+    equality: bool = False
 
 
 def _np_sym(M):
@@ -90,16 +92,23 @@ class LmiSolution:
 
 
 def eig_min(lmis: list[Lmi]) -> dict:
-    """Smallest eigenvalue of each (symmetrised) LMI matrix, with numpy."""
-    return {lmi.name: float(np.linalg.eigvalsh(_np_sym(np.asarray(lmi.matrix, dtype=float)))[0])
-            for lmi in lmis}
+    """Smallest eigenvalue of each (symmetrised) LMI matrix, with numpy; minus the largest
+    absolute entry for an equality (so that 0 is perfect and negative is a violation)."""
+    out = {}
+    for lmi in lmis:
+        M = np.asarray(lmi.matrix, dtype=float)
+        out[lmi.name] = (-float(np.abs(M).max()) if lmi.equality
+                         else float(np.linalg.eigvalsh(_np_sym(M))[0]))
+    return out
 
 
 def accepted(eigs: dict, lmis: list[Lmi], margin: float = LMI_MARGIN,
              verify_fraction: float = VERIFY_FRACTION) -> bool:
-    """True when every LMI passes the re-check rule (see :class:`LmiSolution`)."""
+    """True when every LMI passes the re-check rule (see :class:`LmiSolution`); an equality
+    passes when its largest residual is below ``verify_fraction * margin`` (the family
+    then restores it exactly and re-checks the stored matrices)."""
     bound = verify_fraction * margin
-    return all(eigs[l.name] >= (bound if l.strict else -bound) for l in lmis)
+    return all(eigs[l.name] >= (bound if l.strict and not l.equality else -bound) for l in lmis)
 
 
 @dataclass
@@ -152,9 +161,11 @@ class LmiSystem:
         constraints = []
         for lmi in self._lmis:
             M = lmi.matrix
-            size = M.shape[0]
+            if lmi.equality:
+                constraints.append(M == 0)
+                continue
             shift = self.margin if lmi.strict else 0.0
-            constraints.append(_cp_sym(M) - shift * np.eye(size) >> 0)
+            constraints.append(_cp_sym(M) - shift * np.eye(M.shape[0]) >> 0)
         goal = cp.Minimize(self.objective(self._vars)) if self.objective else cp.Minimize(0)
         self._problem = cp.Problem(goal, constraints)
 
@@ -209,10 +220,14 @@ class LmiSystem:
         """
         cp = _cvxpy()
         pvals = {k: float(parameters.get(k, p.value)) for k, p in self._params.items()}
-        slack = {l.name: cp.Variable(nonneg=True, name=f"slack_{i}") for i, l in enumerate(self._lmis)}
+        slack = {l.name: cp.Variable(nonneg=True, name=f"slack_{i}")
+                 for i, l in enumerate(self._lmis) if not l.equality}
         cons = []
         for lmi in self._lmis:
             M = lmi.matrix
+            if lmi.equality:
+                cons.append(M == 0)
+                continue
             size = M.shape[0]
             shift = self.margin if lmi.strict else 0.0
             cons.append(_cp_sym(M) + (slack[lmi.name] - shift) * np.eye(size) >> 0)

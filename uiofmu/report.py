@@ -25,7 +25,9 @@ def plot_report(result, path, title: str | None = None) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    t, m = result.times, result.metrics
+    m = result.metrics
+    scale, unit = (3600.0, "h") if result.times[-1] > 4 * 3600 else (1.0, "s")
+    t = result.times / scale
     fig, axes = plt.subplots(2, 2, figsize=(12, 7.5), constrained_layout=True)
     ax = axes[0, 0]
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -34,7 +36,7 @@ def plot_report(result, path, title: str | None = None) -> Path:
         ax.plot(t, result.x[:, i], color=c, lw=1.6, label=f"x[{i + 1}]")
         ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--", label=f"xhat[{i + 1}]")
     ax.set_title("true state (solid) and estimate (dashed)")
-    ax.set_xlabel("time [s]")
+    ax.set_xlabel(f"time [{unit}]")
     ax.legend(ncol=2, fontsize=8)
     ax.grid(alpha=0.3)
 
@@ -51,14 +53,14 @@ def plot_report(result, path, title: str | None = None) -> Path:
     if m.get("steps_to_1pct") is not None:
         ax.axvline(t[m["steps_to_1pct"]], color="gray", lw=0.8)
     ax.set_title("estimation error")
-    ax.set_xlabel("time [s]")
+    ax.set_xlabel(f"time [{unit}]")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, which="both")
 
     ax = axes[1, 0]
     ax.step(t[:-1], result.h, where="post", lw=1.2)
     ax.set_title(f"communication steps ({len(result.h)} steps, h in [{result.h.min():.4g}, {result.h.max():.4g}] s)")
-    ax.set_xlabel("time [s]")
+    ax.set_xlabel(f"time [{unit}]")
     ax.set_ylabel("h_k [s]")
     ax.grid(alpha=0.3)
 
@@ -73,7 +75,7 @@ def plot_report(result, path, title: str | None = None) -> Path:
         for i in range(result.r.shape[1]):
             ax.plot(t, result.r[:, i], lw=1.2, label=f"r[{i + 1}]")
         ax.set_title("output residual r = y - C xhat")
-    ax.set_xlabel("time [s]")
+    ax.set_xlabel(f"time [{unit}]")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     if title:

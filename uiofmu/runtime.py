@@ -39,6 +39,8 @@ class Runtime:
         A checked design card.
     xhat0 : array_like, optional
         Initial estimate (default: the card's ``initial.xhat0``).
+    h_prev0 : float, optional
+        The step assumed before the first one, h_{-1} (interval schedules; default: the card's).
 
     Examples
     --------
@@ -47,7 +49,7 @@ class Runtime:
     >>> xhat = rt.xhat(); rt.step(0.1)         # doctest: +SKIP
     """
 
-    def __init__(self, card: Card, xhat0=None):
+    def __init__(self, card: Card, xhat0=None, h_prev0=None):
         self.card = card
         d = card.dims
         self.n, self.m, self.p, self.q, self.nz = d["n"], d["m"], d["p"], d["q"], d["nz"]
@@ -55,6 +57,7 @@ class Runtime:
         self.has_dhat = card.has_dhat
         default = card.data["initial"].get("xhat0", [0.0] * self.n)
         self.xhat0 = np.array(default if xhat0 is None else xhat0, dtype=float)
+        self.h_prev0 = float(self.schedule.initial_h_prev() if h_prev0 is None else h_prev0)
         self.y = np.zeros(self.p)
         self.u = np.zeros(self.m)
         self._xhat = np.empty(self.n)
@@ -72,12 +75,12 @@ class Runtime:
         self.k = 0
         self.z = np.zeros(self.nz)
         self.pred = np.zeros(self.p)          # Yx xhat_{k-1} + Yu u_{k-1} + Yc
-        self.h_prev = self.schedule.initial_h_prev()
+        self.h_prev = self.h_prev0
 
     def get_state(self) -> dict:
         """Everything that defines the future outputs, as plain lists (JSON-ready)."""
         return {"k": self.k, "z": self.z.tolist(), "pred": self.pred.tolist(), "h_prev": self.h_prev,
-                "xhat0": self.xhat0.tolist(), "y": self.y.tolist(), "u": self.u.tolist()}
+                "xhat0": self.xhat0.tolist(), "h_prev0": self.h_prev0, "y": self.y.tolist(), "u": self.u.tolist()}
 
     def set_state(self, state: dict) -> None:
         """Restore what :meth:`get_state` returned."""
@@ -86,6 +89,7 @@ class Runtime:
         self.pred = np.array(state["pred"], dtype=float)
         self.h_prev = float(state["h_prev"])
         self.xhat0 = np.array(state["xhat0"], dtype=float)
+        self.h_prev0 = float(state["h_prev0"])
         self.y[:] = state["y"]
         self.u[:] = state["u"]
 

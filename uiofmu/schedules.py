@@ -6,6 +6,13 @@ A schedule is the only thing that differs between families at run time; the step
 ``constant``
     One set of matrices, designed for the period ``dt``. A step of another length follows
     ``step_policy``: ``"error"`` rejects it (the FMU answers fmi2Discard with a log line).
+``interval``
+    Matrices per pair (h_k, h_{k-1}) of design intervals (the sampled-data family): the step
+    matrices ``N, L`` are indexed ``[i][j]``, ``G, c, Yx, Yu, Yc`` by ``[i]`` (the step
+    taken), the output matrices ``Xz, Xy, Dy`` by ``[j]`` (the step before). A step h
+    matches the interval H when ``|h - H| <= STEP_RTOL * H``; another step follows
+    ``step_policy``: ``"error"`` rejects it, ``"nearest"`` uses the nearest interval (and
+    leaves one notice, logged once by the FMU).
 """
 
 from __future__ import annotations
@@ -14,7 +21,13 @@ from .errors import CardError
 from .tolerances import STEP_RTOL
 
 #: The policies a schedule may record for a step it was not designed for.
-STEP_POLICIES = ("error",)
+STEP_POLICIES = ("error", "nearest")
+
+#: Leading schedule axes of each matrix, per schedule kind.
+AXES = {
+    "constant": {},
+    "interval": {"N": 2, "L": 2, "G": 1, "c": 1, "Yx": 1, "Yu": 1, "Yc": 1, "Xz": 1, "Xy": 1, "Dy": 1},
+}
 
 
 class StepRejected(Exception):
@@ -24,9 +37,16 @@ class StepRejected(Exception):
 def schedule_axes(spec: dict) -> dict:
     """Number of leading schedule axes of each matrix for a schedule ``spec``."""
     kind = spec.get("kind") if isinstance(spec, dict) else None
-    if kind == "constant":
-        return {}
-    raise CardError(f"design card schedule.kind: unknown kind {kind!r} (known: constant)")
+    if kind not in AXES:
+        raise CardError(f"design card schedule.kind: unknown kind {kind!r} (known: {', '.join(AXES)})")
+    return AXES[kind]
+
+
+def _policy(spec: dict) -> str:
+    policy = spec.get("step_policy", "error")
+    if policy not in STEP_POLICIES:
+        raise CardError(f"design card schedule.step_policy: expected one of {STEP_POLICIES}, found {policy!r}")
+    return policy
 
 
 class ConstantSchedule:
@@ -34,10 +54,11 @@ class ConstantSchedule:
 
     def __init__(self, spec: dict, matrices: dict, step_rtol: float = STEP_RTOL):
         self.dt = float(spec["dt"])
-        self.policy = spec.get("step_policy", "error")
-        if self.policy not in STEP_POLICIES:
-            raise CardError(f"design card schedule.step_policy: expected one of {STEP_POLICIES}, found {self.policy!r}")
+        self.policy = _policy(spec)
+        if self.policy != "error":
+            raise CardError("design card schedule.step_policy: a constant schedule accepts only 'error'")
         self.matrices = matrices
+        self.notices: list[str] = []
         self.step_rtol = step_rtol
 
     def step_matrices(self, k: int, h: float, h_prev: float) -> dict:
@@ -60,7 +81,67 @@ class ConstantSchedule:
         return [self.dt]
 
 
+class IntervalSchedule:
+    """Matrices per pair of design intervals (h_k, h_{k-1})."""
+
+    def __init__(self, spec: dict, matrices: dict, step_rtol: float = STEP_RTOL):
+        self.intervals = [float(h) for h in spec["intervals"]]
+        self.policy = _policy(spec)
+        self.h_prev0 = float(spec.get("h_prev0", self.intervals[0]))
+        self.step_rtol = step_rtol
+        self.notices: list[str] = []
+        self._noticed = False
+        N = len(self.intervals)
+        axes = AXES["interval"]
+        for name, value in matrices.items():
+            if name in axes and value.shape[0] != N or (axes.get(name) == 2 and value.shape[1] != N):
+                raise CardError(f"design card matrices.{name}: expected {N} entries per schedule axis "
+                                f"for {N} intervals, found shape {value.shape}")
+        fixed = {k: v for k, v in matrices.items() if k not in axes}
+        self._out = [{**fixed, **{k: matrices[k][j] for k in ("Xz", "Xy", "Dy") if k in matrices}}
+                     for j in range(N)]
+        self._step = [[{**fixed,
+                        **{k: matrices[k][i][j] for k in ("N", "L")},
+                        **{k: matrices[k][i] for k in ("G", "c", "Yx", "Yu", "Yc") if k in matrices}}
+                       for j in range(N)] for i in range(N)]
+
+    def index(self, h: float) -> int:
+        """Index of the design interval of the step ``h`` (raises :class:`StepRejected`)."""
+        best = min(range(len(self.intervals)), key=lambda i: abs(h - self.intervals[i]))
+        H = self.intervals[best]
+        if abs(h - H) <= self.step_rtol * H:
+            return best
+        listed = ", ".join(f"{v:g}" for v in self.intervals)
+        if self.policy == "nearest":
+            if not self._noticed:
+                self._noticed = True
+                self.notices.append(f"step h = {h!r} s is not a design interval ({listed} s); using the nearest, "
+                                    f"{H:g} s, without a certificate (step_policy = 'nearest'; noted once)")
+            return best
+        raise StepRejected(f"step h = {h!r} s is not one of the design intervals {{{listed}}} s "
+                           f"(tolerance {self.step_rtol:g} relative; step_policy = 'error')")
+
+    def step_matrices(self, k: int, h: float, h_prev: float) -> dict:
+        """The matrices of the step (h_k, h_{k-1})."""
+        return self._step[self.index(h)][self.index(h_prev)]
+
+    def output_matrices(self, k: int, h_prev: float) -> dict:
+        """The output matrices after a step h_{k-1}."""
+        return self._out[self.index(h_prev)]
+
+    def initial_h_prev(self) -> float:
+        """h_{-1}, the interval assumed before the first step."""
+        return self.h_prev0
+
+    def admissible_steps(self) -> list:
+        """The design intervals."""
+        return list(self.intervals)
+
+
+SCHEDULES = {"constant": ConstantSchedule, "interval": IntervalSchedule}
+
+
 def make_schedule(spec: dict, matrices: dict):
     """The schedule object of a card's ``schedule`` entry."""
     schedule_axes(spec)
-    return ConstantSchedule(spec, matrices)
+    return SCHEDULES[spec["kind"]](spec, matrices)

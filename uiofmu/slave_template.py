@@ -82,7 +82,12 @@ class UiofmuModel(Fmi2Slave):
                          "the FMU will refuse to step", Fmi2Status.error)
                 self.phase = "invalid"
                 return
-        self.model.initialize()
+        try:
+            self.model.initialize()
+        except StepRejected as exc:
+            self.log(f"parameters: {exc}; the FMU will refuse to step", Fmi2Status.error)
+            self.phase = "invalid"
+            return
         self.phase = "running"
 
     def do_step(self, current_time, step_size):
@@ -99,6 +104,8 @@ class UiofmuModel(Fmi2Slave):
         except RuntimeInputError as exc:
             self.log(f"t = {current_time!r}: {exc}", Fmi2Status.error)
             return False
+        for notice in self.model.notices():
+            self.log(f"t = {current_time!r}: {notice}", Fmi2Status.warning)
         return True
 
     def terminate(self):

@@ -3,6 +3,8 @@
 ``fixed:H``             every step H seconds
 ``choice:H1,H2,...``    each step drawn uniformly from the list (``--seed``)
 ``uniform:HMIN:HMAX``   each step drawn uniformly from the interval (``--seed``)
+``dropout:H:P:MAX``     nominal step H; each sample is lost with probability P, at most MAX
+                        in a row, so h = H (1 + successive losses) (``--seed``)
 ``file:PATH``           one step per line (blank lines and ``#`` comments skipped)
 
 The sequence is drawn once, independently of the run, so a seed gives the same steps for
@@ -79,8 +81,8 @@ def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
             t += h
         return np.array(out)
     if kind == "fixed":
-        h = _positive(rest, "fixed:H")
-        draw = lambda: h  # noqa: E731
+        fixed = _positive(rest, "fixed:H")
+        draw = lambda: fixed  # noqa: E731
     elif kind == "choice":
         options = [_positive(v, "each choice") for v in rest.split(",") if v.strip()]
         if not options:
@@ -94,14 +96,32 @@ def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
         if lo > hi:
             raise ProblemError(f"--steps uniform: HMIN = {lo:g} > HMAX = {hi:g}")
         draw = lambda: float(rng.uniform(lo, hi))  # noqa: E731
+    elif kind == "dropout":
+        parts = rest.split(":")
+        if len(parts) != 3:
+            raise ProblemError(f"--steps dropout:H:P:MAX expected, found {spec!r}")
+        nominal = _positive(parts[0], "H")
+        try:
+            prob, most = float(parts[1]), int(parts[2])
+        except ValueError:
+            raise ProblemError(f"--steps dropout:H:P:MAX: P must be a number and MAX an integer, found {spec!r}") \
+                from None
+        if not 0 <= prob < 1 or most < 0:
+            raise ProblemError(f"--steps dropout: expected 0 <= P < 1 and MAX >= 0, found P = {prob:g}, MAX = {most}")
+
+        def draw():
+            lost = 0
+            while lost < most and rng.random() < prob:
+                lost += 1
+            return nominal * (1 + lost)
     else:
         raise ProblemError(f"--steps: unknown kind {kind!r} (expected fixed:H, choice:H1,H2,..., "
-                           "uniform:HMIN:HMAX or file:PATH)")
+                           "uniform:HMIN:HMAX, dropout:H:P:MAX or file:PATH)")
     out, t = [], 0.0
     while t < t_end * (1 - 1e-12):
-        h = draw()
-        out.append(h)
-        t += h
+        step = draw()
+        out.append(step)
+        t += step
         if len(out) > 10_000_000:
             raise ProblemError(f"--steps {spec} with --t-end {t_end:g} needs more than 10 million steps")
     return np.array(out)

@@ -18,7 +18,7 @@ from importlib import import_module
 from ..errors import ProblemError
 
 #: Families available in this version, and their modules.
-FAMILIES = {"lti-uio": "lti_uio"}
+FAMILIES = {"lti-uio": "lti_uio", "sampled-data": "sampled_data"}
 
 
 def family_module(name: str):

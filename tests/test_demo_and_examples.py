@@ -1,0 +1,35 @@
+"""The main job and the example scripts run end to end (real design, FMUs, co-simulation)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from tests.conftest import EXAMPLES
+
+
+def test_demo(cli, tmp_path):
+    res = cli("demo", "--out", tmp_path / "demo")
+    assert res.code == 0, res.err
+    for line in ("initial error", "final error", "steps to 1 %", "certified bound", "bound respected      yes"):
+        assert line in res.out
+    m = json.loads((tmp_path / "demo" / "metrics.json").read_text())
+    assert m["bound_respected"] is True and m["t_end"] >= 86400 and m["step_max"] > 600
+    for name in ("design.json", "observer.fmu", "plant.fmu", "results.csv", "report.png"):
+        assert (tmp_path / "demo" / name).stat().st_size > 0
+
+
+@pytest.mark.parametrize("script,outputs", [
+    ("seed000_example1.py", ["figure1_classical.png", "report.png", "metrics.json"]),
+    ("two_room_building.py", ["figure1.png", "figure2.png", "report.png", "metrics.json"]),
+])
+def test_example_scripts(script, outputs):
+    proc = subprocess.run([sys.executable, str(EXAMPLES / script)], capture_output=True, text=True, cwd=EXAMPLES)
+    assert proc.returncode == 0, proc.stderr
+    folder = EXAMPLES / "out" / script.removesuffix(".py")
+    for name in outputs:
+        assert (folder / name).stat().st_size > 0
+    assert json.loads((folder / "metrics.json").read_text())["bound_respected"] is True

@@ -1,0 +1,187 @@
+"""Sampled-data UIO (seed 004) on the two-room building: what the theory guarantees."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import uiofmu
+from uiofmu.export import build_observer, build_plant
+from uiofmu.fmi import Fmu, FmuCallError
+from uiofmu.runtime import Runtime
+from uiofmu.schedules import StepRejected
+from uiofmu.validate import validate
+
+
+def test_certificate_is_rechecked(building_card):
+    card, _ = building_card
+    assert card.data["certificate"]["verified"] is True
+    assert all(c.holds for c in uiofmu.verify(card))
+    size = card.data["lmi_size"]
+    assert size["lmis"] == 144 and size["lmi_dim"] == 4
+
+
+def test_decoupling_identities_for_every_pair(building_card):
+    card, _ = building_card
+    M = {k: np.array(v) for k, v in card.data["matrices"].items()}
+    C, K = M["C"], M["K"]
+    for i in range(12):
+        Pi = np.eye(2) - K[i] @ C
+        assert np.linalg.norm(Pi @ M["E_sampled"][i]) <= 1e-12 * np.linalg.norm(M["E_sampled"][i])   # (13)
+        for j in range(12):
+            L, P = M["N"][i, j], M["L"][i, j]
+            res = L - Pi @ M["A_sampled"][i] - L @ K[j] @ C + P @ C                                    # (12)
+            assert np.linalg.norm(res) <= 1e-12
+            Q = card.data["decay_bound"] ** 2 * M["Pl"][j] - L.T @ M["Pl"][i] @ L
+            assert np.linalg.eigvalsh(Q)[0] > 0
+
+
+def test_printed_sign_of_19_violates_12(building_card):
+    """The paper prints P_ij = Pl_i^-1 Q_ij - L_ij K_j; with that sign (12) fails by O(1)."""
+    card, _ = building_card
+    M = {k: np.array(v) for k, v in card.data["matrices"].items()}
+    C, K = M["C"], M["K"]
+    i, j = 0, 3
+    L = M["N"][i, j]
+    G = M["L"][i, j] - L @ K[j]                       # Pl_i^-1 Q_ij recovered from the stored P_ij
+    printed = G - L @ K[j]
+    res = L - (np.eye(2) - K[i] @ C) @ M["A_sampled"][i] - L @ K[j] @ C + printed @ C
+    assert np.linalg.norm(res) > 0.1
+
+
+def test_alpha_max_meets_the_zero_limit(building_card):
+    card, _ = building_card
+    zeros = card.data["sampled_invariant_zeros"]
+    assert zeros[0]["h"] == 600.0 and zeros[0]["zeros"][0][0] == pytest.approx(0.955997, abs=1e-6)
+    limit = card.data["alpha_limit_from_zeros"]
+    assert limit == pytest.approx(1 - 0.955997 ** 2, abs=1e-6)
+    assert limit * (1 - 1e-3) <= card.data["alpha"] < limit
+    assert card.data["decay_bound"] == pytest.approx(np.sqrt(1 - card.data["alpha"]))
+
+
+def test_paper_alpha_is_refused_with_both_numbers(building_path, cli, tmp_path):
+    text = building_path.read_text().replace('alpha = "max"', "alpha = 0.9")
+    path = tmp_path / "b.toml"
+    path.write_text(text)
+    res = cli("design", path, "-o", tmp_path / "d.json")
+    assert res.code == 2
+    assert "requested decay sqrt(1 - alpha) = 0.316228 (alpha = 0.9) <= largest sampled invariant zero 0.955997 " \
+           "(h = 600 s)" in res.err
+
+
+def test_bound_holds_on_200_random_sequences(building_card, building_path):
+    card, _ = building_card
+    plant = uiofmu.load_problem(building_path).plant
+    H = card.schedule["intervals"]
+    M, delta = card.data["overshoot_bound"], card.data["decay_bound"]
+    rng = np.random.default_rng(2024)
+    worst = 0.0
+    for _ in range(200):
+        rt = Runtime(card, xhat0=rng.normal(22, 3, size=2), h_prev0=H[int(rng.integers(12))])
+        x = rng.normal(22, 3, size=2)
+        e0 = None
+        for k in range(120):
+            h = H[int(rng.integers(12))]
+            u, d = rng.normal(8, 4, size=1), rng.normal(800, 100, size=1)
+            rt.set_y(plant.C @ x)
+            rt.set_u(u)
+            e = np.linalg.norm(x - rt.xhat())
+            e0 = e if e0 is None else e0
+            worst = max(worst, e / (M * delta ** k * e0))
+            rt.step(h)
+            s = plant.sampled(h)
+            x = s.A @ x + s.B @ u + s.E @ d
+    assert worst <= 1 + 1e-9
+
+
+@pytest.fixture(scope="module")
+def building_fmus(building_card, building_path, tmp_path_factory):
+    card, _ = building_card
+    d = tmp_path_factory.mktemp("bfmu")
+    problem = uiofmu.load_problem(building_path)
+    return build_observer(card, d / "obs.fmu"), build_plant(problem.plant, problem.name, d / "plant.fmu")
+
+
+def test_fmu_equals_runtime_on_aperiodic_steps(building_fmus):
+    report = validate(building_fmus[0], steps=300, seed=11)
+    assert report.ok and report.max_rel_diff <= 1e-12
+    assert validate(building_fmus[1], steps=100).ok
+
+
+def test_cosimulation_respects_the_bound(building_fmus, cli, tmp_path):
+    obs, plant = building_fmus
+    res = cli("cosim", "--plant", plant, "--observer", obs, "--steps", "dropout:600:0.5:11", "--seed", "3",
+              "--t-end", "172800", "--out", tmp_path / "run")
+    assert res.code == 0, res.err
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["bound_respected"] is True and m["step_max"] > 600
+    assert m["final_error_norm"] < 1e-3 * m["initial_error_norm"]
+    assert m["dhat_rms_error_second_half"][0] < 5.0     # W, against a 800 W +- 100 W input
+
+
+def _policy_card(card, policy):
+    data = json.loads(card.to_json())
+    data["schedule"]["step_policy"] = policy
+    return uiofmu.card.card_from_data(data)
+
+
+def test_step_outside_the_set_error_policy(building_card, building_fmus):
+    card, _ = building_card
+    rt = Runtime(card)
+    with pytest.raises(StepRejected, match=r"step h = 900.0 s is not one of the design intervals \{600, 1200"):
+        rt.step(900.0)
+    rt.step(1200.0 * (1 + 1e-9))                          # within the tolerance: accepted
+    with Fmu(building_fmus[0], "o") as fmu:
+        fmu.initialize(0.0)
+        fmu.set("y", [22.0])
+        with pytest.raises(FmuCallError) as info:
+            fmu.step(0.0, 900.0)
+        assert info.value.status == 2
+        assert any("900.0 s is not one of the design intervals" in msg for msg in info.value.messages)
+
+
+def test_step_outside_the_set_nearest_policy(building_card, tmp_path):
+    card = _policy_card(building_card[0], "nearest")
+    rt = Runtime(card)
+    rt.set_y([22.0])
+    rt.step(900.0)
+    rt.step(700.0)
+    assert len(rt.schedule.notices) == 1 and "using the nearest" in rt.schedule.notices[0]
+    ref = Runtime(card)
+    ref.set_y([22.0])
+    ref.step(600.0)   # 900 is equidistant from 600 and 1200; min() picks the first
+    ref.step(600.0)
+    assert np.array_equal(rt.xhat(), ref.xhat())
+    obs = build_observer(card, tmp_path / "nearest.fmu")
+    with Fmu(obs, "o") as fmu:
+        fmu.initialize(0.0)
+        fmu.set("y", [22.0])
+        fmu.step(0.0, 900.0)
+        fmu.step(900.0, 1000.0)
+        notes = [m for m in fmu.messages if "using the nearest" in m]
+        assert len(notes) == 1
+
+
+def test_h_prev0_must_be_an_interval(building_path, cli, tmp_path):
+    text = building_path.read_text().replace("h_prev0 = 600.0", "h_prev0 = 650.0")
+    path = tmp_path / "b.toml"
+    path.write_text(text)
+    res = cli("check", path)
+    assert res.code == 2 and "observer.h_prev0: 650 s is not one of the intervals" in res.err
+
+
+def test_packaged_demo_problem_matches_plants_folder(building_path):
+    from uiofmu.demo import demo_problem_path
+
+    assert demo_problem_path().read_text() == building_path.read_text()
+
+
+def test_discrete_plant_is_refused(example1_path, cli, tmp_path):
+    text = example1_path.read_text().replace('family = "lti-uio"\ndecay = "max"',
+                                             'family = "sampled-data"\nintervals = [0.1]')
+    path = tmp_path / "p.toml"
+    path.write_text(text)
+    res = cli("check", path)
+    assert res.code == 2 and 'samples a continuous plant; plant.time is "discrete"' in res.err

@@ -1,0 +1,311 @@
+"""Sampled-data UIO under time-varying sampling (Etienne, Langueh, Hetel, ECC 2023; seed 004).
+
+A continuous plant ``x' = A x + B u + E d``, ``y = C x`` is sampled with intervals ``h_k``
+from a finite set ``{H_1..H_N}`` (inputs held). With ``A_i, B_i, E_i`` its exact sampling at
+``H_i`` (exponential of the augmented matrix), the observer (paper (6), with the known input)::
+
+    xhat_k  = z_k + K_j y_k                          j: index of h_{k-1}
+    z_{k+1} = L_ij z_k + P_ij y_k + G_i u_k          i: index of h_k
+
+gives ``e_{k+1} = L_ij e_k`` when (12) ``L_ij = (I - K_i C) A_i + L_ij K_j C - P_ij C`` and
+(13) ``(I - K_i C) E_i = 0``, with ``G_i = (I - K_i C) B_i``. Corollary 2's LMIs, with
+``Pl_i`` the Lyapunov matrices::
+
+    (16)  Pl_i E_i - S_i C E_i = 0                                  (E_i scaled to unit norm)
+    (15)  [[Pl_i, Pl_i A_i - S_i C A_i - Q_ij C], [*, (1 - alpha) Pl_j]] > 0    for all i, j
+          I <= Pl_i <= mu I   (normalisation; mu minimised: the overshoot bound is sqrt(mu))
+
+and the gains ``K_i = Pl_i^{-1} S_i``, ``L_ij = (I - K_i C) A_i - Pl_i^{-1} Q_ij C``,
+``P_ij = Pl_i^{-1} Q_ij + L_ij K_j``. The paper prints (19) with ``- L_ij K_j``, which
+violates (12) (residual 1.5 on the building); the ``+`` sign is the one that satisfies it.
+``K_i`` is then moved onto the affine set ``K C E_i = E_i`` (a change of the order of the
+solver tolerance) so that (13) and (12) hold to round-off; the re-check runs on those stored
+matrices. With ``V_k = e_k' Pl(h_{k-1}) e_k``, ``||e_k|| <= M delta^k ||e_0||`` for every
+sequence of intervals, ``delta = sqrt(1 - alpha)``, ``M = sqrt(max eig Pl / min eig Pl)``;
+the bound holds from k = 0 because ``z_0 = xhat_0 - K(h_{-1}) y_0`` with a stated ``h_{-1}``.
+
+No exactly-decoupling observer converges faster than the sampled invariant zeros: a mode at
+``z(H_i)`` of ``(A_i, E_i, C)`` stays in every ``L_ij``, so ``delta > max |z(H_i)|``, i.e.
+``alpha < 1 - max |z|^2``. :func:`check` says so before any solve.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..certificate import Check, certificate, identity_check, lyapunov_check, positive_check
+from ..decoupling import fixed_modes_condition, identifiability_condition, rank_condition, zeros_condition
+from ..errors import ProblemError
+from ..existence import Condition, Existence, complex_list
+from ..lmi import Lmi, LmiSystem, search
+from ..schedules import STEP_POLICIES
+from ..tolerances import SEARCH_TOL, STEP_RTOL, ZERO_MARGIN
+
+NAME = "sampled-data"
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of the sampled-data UIO.
+
+    Attributes
+    ----------
+    intervals : tuple of float
+        The design sampling intervals (s), increasing.
+    alpha : float or "max"
+        Decay parameter of (15): the error contracts by ``sqrt(1 - alpha)`` per sample.
+    xhat0 : numpy.ndarray or None
+        Initial estimate.
+    h_prev0 : float
+        The interval assumed before the first sample, h_{-1} (default the first interval).
+    step_policy : {"error", "nearest"}
+        What the runtime does with a step that is not a design interval.
+    """
+
+    intervals: tuple
+    alpha: object
+    xhat0: np.ndarray | None
+    h_prev0: float
+    step_policy: str
+
+
+def _intervals(table) -> tuple:
+    key = table.key("intervals")
+    value = table.get("intervals")
+    if isinstance(value, dict):
+        sub = type(table)(value, key)
+        lo = sub.scalar("min", low=0.0, open_low=True)
+        hi = sub.scalar("max", low=0.0, open_low=True)
+        count = sub.get("count")
+        sub.done()
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            raise ProblemError(f"{key}.count: expected a positive integer, found {count!r}")
+        if hi < lo or (count == 1 and hi != lo):
+            raise ProblemError(f"{key}: expected min <= max (and min = max for count = 1), found {lo:g}, {hi:g}")
+        values = np.linspace(lo, hi, count)
+    elif isinstance(value, list):
+        values = np.array(table.vector("intervals"))
+    else:
+        raise ProblemError(f"{key}: expected a list of intervals in s or a table {{min, max, count}}, "
+                           f"found {type(value).__name__}")
+    if values.size == 0 or np.any(values <= 0):
+        raise ProblemError(f"{key}: expected positive intervals, found {values.tolist()}")
+    values = np.sort(values)
+    close = np.flatnonzero(np.diff(values) <= 2 * STEP_RTOL * values[1:])
+    if close.size:
+        raise ProblemError(f"{key}: intervals {values[close[0]]:g} and {values[close[0] + 1]:g} coincide "
+                           f"within the step tolerance {STEP_RTOL:g}")
+    return tuple(float(v) for v in values)
+
+
+def parse_options(table, plant) -> Options:
+    """Read ``intervals``, ``alpha``, ``xhat0``, ``h_prev0`` and ``step_policy``."""
+    if not plant.continuous:
+        raise ProblemError(f'observer.family: "{NAME}" samples a continuous plant; plant.time is "discrete" '
+                           '(use "lti-uio" for a discrete plant)')
+    intervals = _intervals(table)
+    alpha = table.tunable("alpha", "max", low=0.0, high=1.0, open_low=True, open_high=True)
+    xhat0 = table.vector("xhat0", plant.n, None)
+    h_prev0 = table.scalar("h_prev0", intervals[0], low=0.0, open_low=True)
+    if min(abs(h_prev0 - h) / h for h in intervals) > STEP_RTOL:
+        raise ProblemError(f"observer.h_prev0: {h_prev0:g} s is not one of the intervals "
+                           f"{', '.join(f'{h:g}' for h in intervals)} s")
+    policy = table.choice("step_policy", STEP_POLICIES, "error")
+    return Options(intervals, alpha, xhat0, h_prev0, policy)
+
+
+def _per_interval(conds: list[Condition], name: str, intervals) -> Condition:
+    """One condition from one per interval: holds when all hold; the message of the worst."""
+    failed = [c for c in conds if not c.holds]
+    lead = failed[0] if failed else conds[0]
+    others = len(conds) - 1
+    msg = lead.message if failed or not others else f"{lead.message}; likewise at the other {others} interval(s)"
+    return Condition(name, not failed, conds[0].required, msg,
+                     {"per_interval": [{"h": h, **c.values} for h, c in zip(intervals, conds)]})
+
+
+def _analysis(problem):
+    plant, opts = problem.plant, problem.options
+    samples = [plant.sampled(h) for h in opts.intervals]
+    zc, _ = zeros_condition(plant.A, plant.E, plant.C, True, required=False)
+    conds = [zc]
+    ranks = [rank_condition(plant.C, s.E, f" at h = {h:g} s") for h, s in zip(opts.intervals, samples)]
+    conds.append(_per_interval(ranks, "rank(C E(h)) = rank(E(h))", opts.intervals))
+    conds.append(_per_interval([identifiability_condition(plant.C, s.E, f" at h = {h:g} s")
+                                for h, s in zip(opts.intervals, samples)], "rank(C E(h)) = q", opts.intervals))
+    zmax, zarg = 0.0, opts.intervals[0]
+    if all(c.holds for c in ranks):
+        zeros = [zeros_condition(s.A, s.E, plant.C, False, f" at h = {h:g} s")
+                 for h, s in zip(opts.intervals, samples)]
+        fixed = [fixed_modes_condition(s.A, s.E, plant.C, f" at h = {h:g} s")
+                 for h, s in zip(opts.intervals, samples)]
+        conds.append(_per_interval([z[0] for z in zeros], "stable sampled invariant zeros", opts.intervals))
+        conds.append(_per_interval([f[0] for f in fixed], "detectable decoupled pairs", opts.intervals))
+        for h, (_, modes) in zip(opts.intervals, fixed):
+            if modes.size and np.abs(modes).max() > zmax:
+                zmax, zarg = float(np.abs(modes).max()), h
+        limit = 1.0 - zmax * zmax
+        info = {"largest_zero_modulus": zmax, "at_interval": zarg, "alpha_limit": limit}
+        if opts.alpha == "max":
+            conds.append(Condition(
+                "decay limited by sampled zeros", True, False,
+                f"the sampled invariant zero {zmax:.6g} (h = {zarg:g} s) limits any exactly-decoupling observer "
+                f"to a decay above {zmax:.6g} per sample, i.e. alpha < 1 - {zmax:.6g}^2 = {limit:.6g}", info))
+        else:
+            delta = float(np.sqrt(1 - opts.alpha))
+            ok = delta > zmax + ZERO_MARGIN
+            conds.append(Condition(
+                "decay above sampled zeros", ok, True,
+                (f"requested decay sqrt(1 - alpha) = {delta:.6g} > largest sampled invariant zero {zmax:.6g} "
+                 f"(h = {zarg:g} s)") if ok else
+                (f"requested decay sqrt(1 - alpha) = {delta:.6g} (alpha = {opts.alpha:g}) <= largest sampled "
+                 f"invariant zero {zmax:.6g} (h = {zarg:g} s): no exactly-decoupling observer converges faster; "
+                 f"alpha must be < 1 - {zmax:.6g}^2 = {limit:.6g} (or \"max\")"), {**info, "decay": delta}))
+    return Existence(NAME, tuple(conds)), samples, zmax
+
+
+def check(problem) -> Existence:
+    """Rank conditions, sampled invariant zeros and the decay they allow, for every interval."""
+    return _analysis(problem)[0]
+
+
+def _lmis(samples, C):
+    N, n, p = len(samples), C.shape[1], C.shape[0]
+    Es = [s.E / max(np.linalg.norm(s.E, 2), 1e-300) for s in samples]
+
+    def build(v, prm, ops):
+        out = []
+        for i in range(N):
+            P, S = v[f"Pl{i}"], v[f"S{i}"]
+            out.append(Lmi(f"Pl_{i + 1} >= I", P - ops.eye(n), strict=False))
+            out.append(Lmi(f"Pl_{i + 1} <= mu I", v["mu"] * ops.eye(n) - P, strict=False))
+            out.append(Lmi(f"(16) decoupling i={i + 1}", P @ Es[i] - S @ (C @ Es[i]), equality=True))
+            CA = C @ samples[i].A
+            for j in range(N):
+                Y = P @ samples[i].A - S @ CA - v[f"Q{i}_{j}"] @ C
+                out.append(Lmi(f"(15) i={i + 1} j={j + 1}", ops.bmat([[P, Y], [Y.T, prm["c"] * v[f"Pl{j}"]]])))
+        return out
+
+    variables = {"mu": ("scalar",)}
+    for i in range(N):
+        variables[f"Pl{i}"] = ("symmetric", n)
+        variables[f"S{i}"] = ("matrix", (n, p))
+        for j in range(N):
+            variables[f"Q{i}_{j}"] = ("matrix", (n, p))
+    return LmiSystem(f"{NAME} (15)-(16)", variables, {"c": 0.99}, build, objective=lambda v: v["mu"])
+
+
+def checks(matrices: dict, decay: float) -> list:
+    """The certificate's checks at the stored matrices, worst case over all (i, j).
+
+    (13) ``(I - K_i C) E_i = 0``, (12) ``L_ij - (I - K_i C) A_i - L_ij K_j C + P_ij C = 0``,
+    ``G_i = (I - K_i C) B_i``, ``Pl_i > 0`` and ``decay^2 Pl_j - L_ij' Pl_i L_ij > 0``.
+    """
+    g = {k: np.asarray(v, dtype=float) for k, v in matrices.items()}
+    C, K, Pl = g["C"], g["K"], g["Pl"]
+    A, B, E = g["A_sampled"], g["B_sampled"], g["E_sampled"]
+    N, n = len(K), C.shape[1]
+    worst: dict[str, Check] = {}
+
+    def keep(c: Check):
+        old = worst.get(c.name)
+        if old is None or (c.value > old.value if c.at_most else c.value < old.value):
+            worst[c.name] = c
+
+    for i in range(N):
+        Pi = np.eye(n) - K[i] @ C
+        keep(identity_check("(13) max_i ||(I - K_i C) E_i||", Pi @ E[i], np.linalg.norm(E[i], 2)))
+        keep(identity_check("max_i ||G_i - (I - K_i C) B_i||", g["G"][i] - Pi @ B[i],
+                            np.linalg.norm(B[i], 2) if B[i].size else 0.0))
+        keep(identity_check("max_j ||Xy_j - K_j||", g["Xy"][i] - K[i], np.linalg.norm(K[i], 2)))
+        keep(positive_check("min_i eig_min(Pl_i)", Pl[i]))
+        for j in range(N):
+            L, P = g["N"][i][j], g["L"][i][j]
+            keep(identity_check("(12) max_ij ||L_ij - (I-K_iC)A_i - L_ij K_j C + P_ij C||",
+                                L - Pi @ A[i] - L @ K[j] @ C + P @ C,
+                                np.linalg.norm(A[i], 2) + np.linalg.norm(P, 2) * np.linalg.norm(C, 2)))
+            keep(lyapunov_check("min_ij eig_min(delta^2 Pl_j - L_ij' Pl_i L_ij)", L, Pl[i], decay, Pl[j]))
+    return list(worst.values())
+
+
+def verify(card) -> list:
+    """Re-check a card's certificate from its matrices alone (no solver)."""
+    return checks(card.data["matrices"], card.data["decay_bound"])
+
+
+def design(problem):
+    """Design the sampled-data UIO (Corollary 2) and return its verified card."""
+    from ..synthesis import assemble_card
+
+    existence, samples, zmax = _analysis(problem)
+    existence.require()
+    plant, opts = problem.plant, problem.options
+    C, n, N = plant.C, plant.n, len(opts.intervals)
+    system = _lmis(samples, C)
+    limit = 1.0 - zmax * zmax
+    if opts.alpha == "max":
+        found = search(system, "c", 1e-3 * limit, limit, tol=SEARCH_TOL * limit,
+                       label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a)
+        alpha, sol = found.value, found.solution
+        searched = {"parameter": "alpha", "solves": found.solves, "seconds": found.seconds,
+                    "bracket": list(found.bracket)}
+    else:
+        alpha = float(opts.alpha)
+        sol = system.require(c=1.0 - alpha)
+        searched = None
+    v = sol.values
+    Pl = [0.5 * (v[f"Pl{i}"] + v[f"Pl{i}"].T) for i in range(N)]
+    K, G, Yx, Yu, Dy = [], [], [], [], []
+    for i, s in enumerate(samples):
+        Ki = np.linalg.solve(Pl[i], v[f"S{i}"])
+        CE = C @ s.E
+        Ki = Ki + (s.E - Ki @ CE) @ np.linalg.pinv(CE)        # exact (13): K_i C E_i = E_i
+        K.append(Ki)
+        G.append((np.eye(n) - Ki @ C) @ s.B)
+        Yx.append(C @ s.A)
+        Yu.append(C @ s.B)
+        Dy.append(np.linalg.pinv(CE))
+    Lm = np.zeros((N, N, n, n))
+    Pm = np.zeros((N, N, n, plant.p))
+    for i, s in enumerate(samples):
+        for j in range(N):
+            Gij = np.linalg.solve(Pl[i], v[f"Q{i}_{j}"])
+            Lm[i, j] = (np.eye(n) - K[i] @ C) @ s.A - Gij @ C
+            Pm[i, j] = Gij + Lm[i, j] @ K[j]                   # (19), sign corrected
+    matrices = {
+        "N": Lm, "L": Pm, "G": np.array(G), "c": np.zeros((N, n)),
+        "Xz": np.array([np.eye(n)] * N), "Xy": np.array(K), "C": C,
+        "K": np.array(K), "Pl": np.array(Pl),
+        "A_sampled": np.array([s.A for s in samples]), "B_sampled": np.array([s.B for s in samples]),
+        "E_sampled": np.array([s.E for s in samples]),
+    }
+    if existence.value("rank(C E(h)) = q", "per_interval") and all(
+            c["rank_CE"] == plant.q for c in existence.value("rank(C E(h)) = q", "per_interval")):
+        matrices.update({"Dy": np.array(Dy), "Yx": np.array(Yx), "Yu": np.array(Yu), "Yc": np.zeros((N, plant.p))})
+    decay = float(np.sqrt(1.0 - alpha))
+    cert = certificate(sol, checks(matrices, decay), f"{NAME} design of {problem.name}")
+    eig = np.array([np.linalg.eigvalsh(P) for P in Pl])
+    zeros = existence.value("stable sampled invariant zeros", "per_interval")
+    results = {
+        "alpha": alpha,
+        "decay_bound": decay,
+        "overshoot_bound": float(np.sqrt(eig.max() / eig.min())),
+        "bound": "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0|| for every sequence of design intervals",
+        "intervals": list(opts.intervals),
+        "alpha_limit_from_zeros": limit,
+        "largest_sampled_zero": zmax,
+        "sampled_invariant_zeros": [{"h": z["h"], "zeros": z["zeros"]} for z in zeros],
+        "lmi_size": {"lmis": N * N, "lmi_dim": 2 * n, "normalisation_lmis": 2 * N, "equalities": N,
+                     "scalar_variables": 1 + N * n * (n + 1) // 2 + N * n * plant.p + N * N * n * plant.p},
+        "search": searched,
+        "spectral_radius_max": float(max(np.abs(np.linalg.eigvals(Lm[i, j])).max()
+                                         for i in range(N) for j in range(N))),
+        "eigenvalues_L_constant": [complex_list(np.linalg.eigvals(Lm[i, i])) for i in range(N)],
+    }
+    xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(n)
+    schedule = {"kind": "interval", "intervals": list(opts.intervals), "h_prev0": opts.h_prev0,
+                "step_policy": opts.step_policy, "step_rtol": STEP_RTOL}
+    return assemble_card(problem, nz=n, dt=None, schedule=schedule, matrices=matrices,
+                         certificate=cert, xhat0=xhat0, results=results, existence=existence)
