@@ -167,3 +167,22 @@ def test_validate_command(fmus, cli):
     bad.write_bytes(b"not a zip")
     res = cli("validate", bad)
     assert res.code == 2 and "not an FMU built by uiofmu" in res.err
+
+
+def test_setting_an_output_is_refused_with_a_log_line(fmus):
+    with Fmu(fmus["obs"], "o") as fmu:
+        fmu.initialize(0.0)
+        fmu.set("xhat", [5.0, 5.0])
+        assert any("xhat[1] is an output" in m for m in fmu.messages)
+        assert fmu.get("xhat").tolist() == [0.0, 0.0]
+        fmu.set("y", [1.0])
+        fmu.step(0.0, 0.1)
+
+
+def test_step_after_terminate_is_refused(fmus):
+    with Fmu(fmus["obs"], "o") as fmu:
+        fmu.initialize(0.0)
+        fmu.slave.terminate()
+        with pytest.raises(FmuCallError) as info:
+            fmu.step(0.0, 0.1)
+        assert any("phase 'terminated'" in m for m in info.value.messages)

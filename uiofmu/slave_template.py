@@ -45,7 +45,7 @@ class UiofmuModel(Fmi2Slave):
                 self.register_variable(Real(
                     f"{port.name}[{i + 1}]", causality=Fmi2Causality.output,
                     variability=Fmi2Variability.continuous, initial=Fmi2Initial.exact, description=port.description,
-                    getter=self._getter(port, i, True)))
+                    getter=self._getter(port, i, True), setter=self._refuse(f"{port.name}[{i + 1}]")))
 
     # -- variable access ---------------------------------------------------------------
     def _getter(self, port, i, output):
@@ -59,6 +59,12 @@ class UiofmuModel(Fmi2Slave):
         def set_(value):
             port.values[i] = value
             self.model.dirty = True
+        return set_
+
+    def _refuse(self, name):
+        def set_(value):
+            self.log(f"{name} is an output: fmi2SetReal on it is not allowed; the value {value!r} is ignored",
+                     Fmi2Status.error)
         return set_
 
     def _param_setter(self, port, i):
