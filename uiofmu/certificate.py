@@ -94,3 +94,10 @@ def certificate(solution: LmiSolution, checks: list[Check], label: str) -> dict:
         "solve_time_s": solution.solve_time,
         "setup_time_s": solution.setup_time,
     }
+
+
+def geometric_bound(card, e0: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``M delta^k ||e_0||`` for k = 0..len(d)-1: the bound of designs with exact decoupling
+    (it holds whatever the unknown input)."""
+    k = np.arange(len(d))
+    return card.data["overshoot_bound"] * card.data["decay_bound"] ** k * float(np.linalg.norm(e0))

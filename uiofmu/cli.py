@@ -100,9 +100,10 @@ def print_summary(metrics: dict, paths: dict | None = None, file=None) -> None:
     k = metrics["steps_to_1pct"]
     p(f"  steps to 1 %         {k if k is not None else 'not reached'}"
       + (f" (t = {metrics['time_to_1pct']:g} s)" if k is not None else ""))
-    if "certified_decay" in metrics:
-        p(f"  certified bound      ||e_k|| <= {metrics['certified_overshoot']:.4g} * {metrics['certified_decay']:.6g}^k"
-          " * ||e_0||")
+    if "bound_respected" in metrics:
+        p(f"  certified bound      {metrics.get('bound_formula')}")
+        p(f"                       decay {metrics['certified_decay']:.6g} per step, overshoot "
+          f"{metrics['certified_overshoot']:.4g}")
         verdict = "yes" if metrics["bound_respected"] else f"NO (first at step {metrics['first_bound_violation']})"
         p(f"  bound respected      {verdict} at every step (largest ratio {metrics['max_bound_ratio']:.4g})")
     if "dhat_rms_error" in metrics:

@@ -17,6 +17,7 @@ import numpy as np
 
 from .card import Card, card_from_data
 from .errors import FmuError
+from .families import certified_bound
 from .fmi import Fmu, FmuCallError, read_model_json
 from .inputs import CsvInputs, SignalInputs
 from .metrics import error_metrics
@@ -39,6 +40,7 @@ class CosimResult:
     dhat: np.ndarray
     metrics: dict = field(default_factory=dict)
     card: Card | None = None
+    bound: np.ndarray | None = None
 
     def columns(self) -> dict:
         """Named columns for ``results.csv``."""
@@ -151,11 +153,14 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
                 t = float(np.sum(steps[:k + 1])) if k % 1024 == 1023 else t + h
                 bar.update()
     result = CosimResult(T, steps, X, XH, Y, U, D, R, DH, card=card)
-    certified = card is not None and card.data.get("decay_bound") is not None
-    result.metrics = error_metrics(T, steps, X, XH,
-                                   card.data.get("decay_bound") if certified else None,
-                                   card.data.get("overshoot_bound") if certified else None,
+    bound = certified_bound(card, X[0] - XH[0], D) if card is not None else None
+    result.bound = bound
+    result.metrics = error_metrics(T, steps, X, XH, bound,
+                                   card.data.get("decay_bound") if card is not None else None,
+                                   card.data.get("overshoot_bound") if card is not None else None,
                                    D if nq else None, DH if nq else None)
+    if bound is not None:
+        result.metrics["bound_formula"] = card.data.get("bound")
     return result
 
 

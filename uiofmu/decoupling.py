@@ -80,3 +80,46 @@ def fixed_modes_condition(A, E, C, where: str = "", rank_rtol: float = RANK_RTOL
     return Condition("detectable decoupled pair", holds, True, msg,
                      {"fixed_modes": complex_list(fixed), "moduli": moduli.tolist(),
                       "largest_modulus": largest}), fixed
+
+
+def sampled_decoupling_conditions(plant, s, dt: float) -> tuple[list, np.ndarray, bool]:
+    """The classical conditions on a plant sampled at ``dt`` (a discrete plant as it is).
+
+    Returns
+    -------
+    conditions : list of Condition
+        Continuous-time zeros (informational, continuous plants), ``rank(CE) = rank(E)``,
+        ``rank(CE) = q``, and when the rank condition holds the sampled invariant zeros and the
+        fixed modes of ``((I + MC) A, C)``.
+    fixed : numpy.ndarray
+        The fixed modes (empty when the rank condition fails).
+    decouplable : bool
+        Whether ``rank(CE) = rank(E)``.
+    """
+    where = f" (sampled at dt = {dt:g} s)" if plant.continuous else ""
+    conds = []
+    if plant.continuous:
+        conds.append(zeros_condition(plant.A, plant.E, plant.C, True, required=False)[0])
+    rank_c = rank_condition(plant.C, s.E, where)
+    conds += [rank_c, identifiability_condition(plant.C, s.E, where)]
+    fixed = np.zeros(0, dtype=complex)
+    if rank_c.holds:
+        conds.append(zeros_condition(s.A, s.E, plant.C, False, where)[0])
+        fc, fixed = fixed_modes_condition(s.A, s.E, plant.C, where)
+        conds.append(fc)
+    return conds, fixed, rank_c.holds
+
+
+def parse_period(table, plant, family: str) -> float:
+    """``observer.dt``: required for a continuous plant, refused for a discrete one (its dt is used)."""
+    from .errors import ProblemError
+
+    if plant.continuous:
+        if not table.has("dt"):
+            raise ProblemError(f"observer.dt: required for a continuous plant (the sampling period the {family} "
+                               "observer is designed for)")
+        return table.scalar("dt", low=0.0, open_low=True)
+    if table.has("dt"):
+        raise ProblemError(f"observer.dt: a discrete plant fixes the period (plant.dt = {plant.dt:g}); "
+                           "remove observer.dt")
+    return plant.dt

@@ -50,7 +50,7 @@ class Condition:
 
     def to_data(self) -> dict:
         """JSON-ready form."""
-        return {"name": self.name, "holds": self.holds, "required": self.required,
+        return {"name": self.name, "holds": bool(self.holds), "required": self.required,
                 "message": self.message, "values": self.values}
 
 

@@ -7,6 +7,7 @@ shape of pythonfmu's csv builder. The host Python needs numpy and nothing else o
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 import shutil
@@ -21,8 +22,17 @@ from .plant import Plant
 
 #: The modules an FMU carries: the runtime and what it imports (numpy only).
 RUNTIME_MODULES = ("card", "errors", "matrices", "schedules", "tolerances", "runtime", "plant_runtime", "fmu_model")
-RUNTIME_PACKAGE = "uiofmu_rt_" + re.sub(r"\W", "_", __version__)
 BACKENDS = ("python",)
+
+
+def runtime_package() -> str:
+    """Name of the runtime copy inside an FMU: it changes with the runtime's source, so FMUs built
+    by different uiofmu versions load side by side in one process without sharing modules."""
+    here = Path(__file__).parent
+    digest = hashlib.sha256()
+    for name in RUNTIME_MODULES:
+        digest.update((here / f"{name}.py").read_bytes())
+    return f"uiofmu_rt_{digest.hexdigest()[:12]}"
 
 
 def model_identifier(name: str, role: str) -> str:
@@ -40,16 +50,17 @@ def _build_python(spec: dict, identifier: str, description: str, output: Path) -
         raise FmuError(f"{output}: the FMU file name must end in .fmu")
     output.parent.mkdir(parents=True, exist_ok=True)
     module = f"{identifier}_slave"
+    package = runtime_package()
     with tempfile.TemporaryDirectory(prefix="uiofmu_build_") as tmp:
         src = Path(tmp)
-        pkg = src / RUNTIME_PACKAGE
+        pkg = src / package
         pkg.mkdir()
         (pkg / "__init__.py").write_text(f'"""uiofmu {__version__} runtime, numpy only."""\n')
         for name in RUNTIME_MODULES:
             shutil.copy2(here / f"{name}.py", pkg / f"{name}.py")
         (src / "model.json").write_text(json.dumps(spec), encoding="utf-8")
         text = (here / "slave_template.py").read_text(encoding="utf-8")
-        text = (text.replace("UIOFMU_RT", RUNTIME_PACKAGE).replace("UiofmuModel", identifier)
+        text = (text.replace("UIOFMU_RT", package).replace("UiofmuModel", identifier)
                 .replace("FMU_DESCRIPTION", description.replace('"', "'")))
         script = src / f"{module}.py"
         script.write_text(text, encoding="utf-8")
@@ -57,7 +68,7 @@ def _build_python(spec: dict, identifier: str, description: str, output: Path) -
             path = FmuBuilder.build_FMU(script, dest=output, project_files=[pkg, src / "model.json"],
                                         canGetAndSetFMUstate=True, canSerializeFMUstate=True)
         finally:
-            for key in [k for k in sys.modules if k == module or k.split(".")[0] == RUNTIME_PACKAGE]:
+            for key in [k for k in sys.modules if k == module or k.split(".")[0] == package]:
                 sys.modules.pop(key)
             while str(src) in sys.path:
                 sys.path.remove(str(src))

@@ -99,7 +99,12 @@ class Fmu:
         self.slave = FMU2Slave(guid=self.description.guid, unzipDirectory=self._unzipdir,
                                modelIdentifier=self.description.coSimulation.modelIdentifier,
                                instanceName=instance_name)
-        self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
+        try:
+            self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
+        except Exception:  # noqa: BLE001 - fmpy raises a bare Exception here
+            shutil.rmtree(self._unzipdir, ignore_errors=True)
+            why = self.messages[-1] if self.messages else "no message"
+            raise FmuError(f"{self.path}: fmi2Instantiate failed ({why})") from None
         self.slave.setDebugLogging(True, [])
         self._alive = True
 

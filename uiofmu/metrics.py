@@ -20,7 +20,7 @@ def settling_index(norms: np.ndarray, fraction: float) -> int | None:
 
 
 def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.ndarray,
-                  decay: float | None = None, overshoot: float | None = None,
+                  bound: np.ndarray | None = None, decay: float | None = None, overshoot: float | None = None,
                   d: np.ndarray | None = None, dhat: np.ndarray | None = None,
                   bound_rtol: float = BOUND_RTOL) -> dict:
     """The SPEC metrics of one run.
@@ -33,8 +33,11 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
         Step lengths h_0..h_{K-1}.
     x, xhat : (K+1, n) arrays
         True state and estimate at each point.
+    bound : (K+1,) array, optional
+        The certified bound on ``||e_k||`` for this run (see
+        :func:`uiofmu.families.certified_bound`).
     decay, overshoot : float, optional
-        The certified ``delta`` and ``M`` of ``||e_k|| <= M delta^k ||e_0||``.
+        The certified asymptotic ``delta`` and ``M``, reported alongside.
     d, dhat : (K+1, q) arrays, optional
         Unknown input applied over ``[t_k, t_{k+1})`` and its estimate at ``t_k`` (which
         estimates the input over the previous step).
@@ -64,14 +67,14 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
         "step_min": float(steps.min()) if steps.size else None,
         "step_max": float(steps.max()) if steps.size else None,
     }
-    if decay is not None and overshoot is not None:
-        bound = overshoot * decay ** np.arange(len(norms)) * norms[0]
+    if bound is not None:
         slack = bound * (1 + bound_rtol) + bound_rtol * norms[0]
         ratio = np.divide(norms, bound, out=np.zeros_like(norms), where=bound > 0)
         bad = np.flatnonzero(norms > slack)
-        out.update({"certified_decay": float(decay), "certified_overshoot": float(overshoot),
+        out.update({"certified_decay": decay, "certified_overshoot": overshoot,
                     "bound_respected": bool(bad.size == 0), "max_bound_ratio": float(ratio.max()),
-                    "first_bound_violation": int(bad[0]) if bad.size else None})
+                    "first_bound_violation": int(bad[0]) if bad.size else None,
+                    "final_bound": float(bound[-1])})
     if d is not None and dhat is not None and dhat.size and len(d) > 1:
         err = dhat[1:] - d[:-1]
         out["dhat_rms_error"] = np.sqrt(np.mean(err * err, axis=0)).tolist()

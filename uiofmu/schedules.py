@@ -13,20 +13,29 @@ A schedule is the only thing that differs between families at run time; the step
     matches the interval H when ``|h - H| <= STEP_RTOL * H``; another step follows
     ``step_policy``: ``"error"`` rejects it, ``"nearest"`` uses the nearest interval (and
     leaves one notice, logged once by the FMU).
+``geometric``
+    Matrices polynomial in ``a = alpha^k`` (the asymptotic-decoupling family): every matrix
+    has a leading axis of coefficients, ``M(a) = M[0] + a M[1] + a^2 M[2] + ...``, evaluated
+    with ``a = alpha**k`` computed afresh at each step (no drift; it underflows to exactly 0).
+    A step other than ``dt`` follows ``step_policy``: ``"error"`` rejects it, ``"count"``
+    (explicit opt-in) takes it as one step k whatever its length.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 from .errors import CardError
 from .tolerances import STEP_RTOL
 
 #: The policies a schedule may record for a step it was not designed for.
-STEP_POLICIES = ("error", "nearest")
+STEP_POLICIES = ("error", "nearest", "count")
 
 #: Leading schedule axes of each matrix, per schedule kind.
 AXES = {
     "constant": {},
     "interval": {"N": 2, "L": 2, "G": 1, "c": 1, "Yx": 1, "Yu": 1, "Yc": 1, "Xz": 1, "Xy": 1, "Dy": 1},
+    "geometric": {k: 1 for k in ("N", "L", "G", "c", "Yx", "Yu", "Yc", "Xz", "Xy", "Dy")},
 }
 
 
@@ -138,7 +147,60 @@ class IntervalSchedule:
         return list(self.intervals)
 
 
-SCHEDULES = {"constant": ConstantSchedule, "interval": IntervalSchedule}
+class GeometricSchedule:
+    """Matrices polynomial in ``a = alpha^k``, designed for the period ``dt``."""
+
+    def __init__(self, spec: dict, matrices: dict, step_rtol: float = STEP_RTOL):
+        self.alpha = float(spec["alpha"])
+        self.dt = float(spec["dt"])
+        self.policy = _policy(spec)
+        if self.policy == "nearest":
+            raise CardError("design card schedule.step_policy: a geometric schedule accepts 'error' or 'count'")
+        self.step_rtol = step_rtol
+        self.notices: list[str] = []
+        axes = AXES["geometric"]
+        self.coeffs = {k: v for k, v in matrices.items() if k in axes}
+        self._buf = {k: np.empty(v.shape[1:]) for k, v in self.coeffs.items()}
+        self._buf.update({k: v for k, v in matrices.items() if k not in axes})
+        self._k = None
+
+    def a(self, k: int) -> float:
+        """``alpha**k``, exact for every k (0.0 once it underflows)."""
+        return self.alpha ** k
+
+    def _evaluate(self, k: int) -> dict:
+        if self._k != k:
+            a = self.a(k)
+            for name, c in self.coeffs.items():
+                out = self._buf[name]
+                out[...] = c[-1]
+                for j in range(len(c) - 2, -1, -1):     # Horner
+                    out *= a
+                    out += c[j]
+            self._k = k
+        return self._buf
+
+    def step_matrices(self, k: int, h: float, h_prev: float) -> dict:
+        """The matrices of step k (raises :class:`StepRejected` for a step other than dt)."""
+        if self.policy == "error" and abs(h - self.dt) > self.step_rtol * self.dt:
+            raise StepRejected(f"this observer counts steps of dt = {self.dt!r} s and received h = {h!r} s "
+                               "(step_policy = 'error'; 'count' would take it as one step)")
+        return self._evaluate(k)
+
+    def output_matrices(self, k: int, h_prev: float) -> dict:
+        """The output matrices at communication point k."""
+        return self._evaluate(k)
+
+    def initial_h_prev(self) -> float:
+        """The step assumed before the first one."""
+        return self.dt
+
+    def admissible_steps(self) -> list:
+        """The design period."""
+        return [self.dt]
+
+
+SCHEDULES = {"constant": ConstantSchedule, "interval": IntervalSchedule, "geometric": GeometricSchedule}
 
 
 def make_schedule(spec: dict, matrices: dict):

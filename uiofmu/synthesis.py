@@ -82,7 +82,7 @@ def assemble_card(problem: Problem, *, nz: int, dt: float | None, schedule: dict
         "schedule": schedule,
         "initial": {"xhat0": to_lists(xhat0)},
         **to_lists(results),
-        "existence": existence.to_data(),
+        "existence": to_lists(existence.to_data()),
         "matrices": to_lists(matrices),
         "certificate": to_lists(certificate),
         "problem": problem.data,

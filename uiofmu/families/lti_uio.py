@@ -26,9 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import certificate, identity_check, lyapunov_check, positive_check
-from ..decoupling import (decoupling_gain, fixed_modes_condition, identifiability_condition, rank_condition,
-                          zeros_condition)
-from ..errors import ProblemError
+from ..decoupling import decoupling_gain, parse_period, sampled_decoupling_conditions
 from ..existence import Condition, Existence, complex_list
 from ..lmi import Lmi, LmiSystem, search
 from ..tolerances import SEARCH_TOL, ZERO_MARGIN
@@ -59,16 +57,7 @@ class Options:
 def parse_options(table, plant) -> Options:
     """Read ``[observer]``: ``decay`` (default ``"max"``), ``dt`` (continuous plants), ``xhat0``."""
     decay = table.tunable("decay", "max", low=0.0, high=1.0, open_low=True, open_high=True)
-    if plant.continuous:
-        if not table.has("dt"):
-            raise ProblemError("observer.dt: required for a continuous plant (the sampling period the "
-                               f"{NAME} observer is designed for)")
-        dt = table.scalar("dt", low=0.0, open_low=True)
-    else:
-        if table.has("dt"):
-            raise ProblemError(f"observer.dt: a discrete plant fixes the period (plant.dt = {plant.dt:g}); "
-                               "remove observer.dt")
-        dt = plant.dt
+    dt = parse_period(table, plant, NAME)
     xhat0 = table.vector("xhat0", plant.n, None)
     return Options(decay, dt, xhat0)
 
@@ -76,27 +65,16 @@ def parse_options(table, plant) -> Options:
 def _analysis(problem):
     plant, opts = problem.plant, problem.options
     s = plant.sampled(opts.dt)
-    where = f" (sampled at dt = {opts.dt:g} s)" if plant.continuous else ""
-    conds = []
-    if plant.continuous:
-        zc, _ = zeros_condition(plant.A, plant.E, plant.C, True, required=False)
-        conds.append(zc)
-    rank_c = rank_condition(plant.C, s.E, where)
-    conds += [rank_c, identifiability_condition(plant.C, s.E, where)]
-    fixed = np.zeros(0, dtype=complex)
-    if rank_c.holds:
-        zc, _ = zeros_condition(s.A, s.E, plant.C, False, where)
-        fc, fixed = fixed_modes_condition(s.A, s.E, plant.C, where)
-        conds += [zc, fc]
-        if opts.decay != "max" and fc.holds:
-            largest = float(np.abs(fixed).max()) if fixed.size else 0.0
-            ok = opts.decay > largest + ZERO_MARGIN
-            conds.append(Condition(
-                "decay above fixed modes", ok, True,
-                f"requested decay {opts.decay:g} > largest fixed mode modulus {largest:.6g}" if ok else
-                f"requested decay {opts.decay:g} <= largest fixed mode modulus {largest:.6g}: no gain K moves "
-                "that mode, ask for a slower decay or decay = \"max\"",
-                {"decay": opts.decay, "largest_fixed_modulus": largest}))
+    conds, fixed, decouplable = sampled_decoupling_conditions(plant, s, opts.dt)
+    if opts.decay != "max" and decouplable and conds[-1].holds:
+        largest = float(np.abs(fixed).max()) if fixed.size else 0.0
+        ok = opts.decay > largest + ZERO_MARGIN
+        conds.append(Condition(
+            "decay above fixed modes", ok, True,
+            f"requested decay {opts.decay:g} > largest fixed mode modulus {largest:.6g}" if ok else
+            f"requested decay {opts.decay:g} <= largest fixed mode modulus {largest:.6g}: no gain K moves "
+            "that mode, ask for a slower decay or decay = \"max\"",
+            {"decay": opts.decay, "largest_fixed_modulus": largest}))
     return Existence(NAME, tuple(conds)), s, fixed
 
 

@@ -1,0 +1,288 @@
+"""Asymptotic unknown-input decoupling LTV observer (Ichalal & Mammar, CDC 2019; seed 000).
+
+For the sampled plant ``x+ = A x + B u + E d + w``, ``y = C x``, with ``a = alpha^k``::
+
+    xhat_k  = z_k - H_k y_k,          H_k = (1 - a) M,   M = -E (CE)^+        (4), (5)
+    z_{k+1} = N_k z_k + L_k y_k + G_k u_k + P_{k+1} w
+    P_{k+1} = I + MC - alpha a MC                                            (11), (18)
+    K_k     = a T_1 + (1 - a) T_2,   N_k = P_{k+1} A - K_k C,
+    L_k     = K_k - N_k H_k,         G_k = P_{k+1} B                          (40)-(44)
+
+so that ``e_{k+1} = N_k e_k + S_k d_k`` with ``S_k = P_{k+1} E = -alpha^{k+1} M C E``: the
+unknown input is decoupled only as ``k`` grows, and in exchange the slow invariant zeros do
+not bind the transient. Every matrix is a polynomial in ``a`` of degree at most 2, which the
+runtime evaluates at ``a = alpha**k`` (schedule ``geometric``).
+
+Theorem 2 with the vertices ``A_1 = (I + (1 - alpha) MC) A``, ``A_2 = (I + MC) A``,
+``S_1 = -alpha MCE``, ``tau_1 = eta (1 + mu)``, ``tau_2 = eta``. The LMIs are homogeneous in
+``(X, G_i, Tbar_i, gamma)``; they are normalised by ``X >= I``, ``X - G_i - G_i'`` replaces
+the printed ``X - 2 G_i`` (``G_i`` is a slack and need not be symmetric, so the block must be
+symmetrised), ``gamma`` is minimised (Remark 1) and ``T_i = G_i^{-1} Tbar_i``.
+
+What is certified, and re-checked at the stored ``T_i``: ``N_i' X N_i < (1 - tau_i) X`` at
+both vertices; ``N' X N`` is matrix-convex in ``N``, so ``N_k' X N_k < (1 - eta_k) X`` with
+``eta_k = eta (1 + mu alpha^k)`` for every k. For a run with unknown input ``d``,
+``||e_k|| <= b_k / sqrt(eig_min X)`` with ``b_0 = ||e_0||_X`` and
+``b_{k+1} = sqrt(1 - eta_k) b_k + ||S_k d_k||_X`` (:func:`certified_bound`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..certificate import certificate, identity_check, lyapunov_check, positive_check
+from ..decoupling import decoupling_gain, parse_period, sampled_decoupling_conditions
+from ..errors import ProblemError
+from ..existence import Condition, Existence, complex_list, format_complex
+from ..lmi import Lmi, LmiSystem, search
+from ..structure import unobservable_modes
+from ..tolerances import SEARCH_TOL, ZERO_MARGIN
+
+NAME = "ltv-auid"
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of the LTV observer (the paper's names).
+
+    Attributes
+    ----------
+    alpha : float
+        Rate of the time-decreasing sequence ``f_k = alpha^k``, in (0, 1).
+    eta : float
+        Asymptotic decay parameter: ``tau_2 = eta``.
+    mu : float or "max"
+        Transient boost: ``tau_1 = eta (1 + mu)`` (needs ``eta (1 + mu) < 1``).
+    dt : float
+        Period (the plant's, or ``observer.dt`` for a continuous plant).
+    xhat0 : numpy.ndarray or None
+    step_policy : {"error", "count"}
+        A step other than ``dt``: refused, or taken as one step k (explicit opt-in).
+    """
+
+    alpha: float
+    eta: float
+    mu: object
+    dt: float
+    xhat0: np.ndarray | None
+    step_policy: str
+
+
+def parse_options(table, plant) -> Options:
+    """Read ``alpha``, ``eta``, ``mu``, ``dt``, ``xhat0``, ``step_policy``."""
+    alpha = table.scalar("alpha", low=0.0, high=1.0, open_low=True, open_high=True)
+    eta = table.scalar("eta", low=0.0, high=1.0, open_low=True, open_high=True)
+    mu = table.tunable("mu", "max", low=0.0, open_low=True)
+    if mu != "max" and eta * (1 + mu) >= 1:
+        raise ProblemError(f"observer.mu: tau_1 = eta (1 + mu) = {eta:g} * {1 + mu:g} = {eta * (1 + mu):g} must be "
+                           f"< 1, i.e. mu < 1/eta - 1 = {1 / eta - 1:g}")
+    dt = parse_period(table, plant, NAME)
+    xhat0 = table.vector("xhat0", plant.n, None)
+    policy = table.choice("step_policy", ("error", "count"), "error")
+    return Options(alpha, eta, mu, dt, xhat0, policy)
+
+
+def _vertices(s, C, alpha):
+    M = decoupling_gain(C, s.E)
+    MC = M @ C
+    n = C.shape[1]
+    return M, (np.eye(n) + (1 - alpha) * MC) @ s.A, (np.eye(n) + MC) @ s.A, -alpha * M @ C @ s.E
+
+
+def _analysis(problem):
+    plant, opts = problem.plant, problem.options
+    s = plant.sampled(opts.dt)
+    conds, fixed, decouplable = sampled_decoupling_conditions(plant, s, opts.dt)
+    info = {}
+    if decouplable and conds[-1].holds:
+        zmax = float(np.abs(fixed).max()) if fixed.size else 0.0
+        ok = np.sqrt(1 - opts.eta) > zmax + ZERO_MARGIN
+        conds.append(Condition(
+            "eta below the zero limit", ok, True,
+            (f"sqrt(1 - eta) = {np.sqrt(1 - opts.eta):.6g} > largest fixed mode {zmax:.6g}: the asymptotic "
+             "vertex (34) can hold") if ok else
+            (f"sqrt(1 - eta) = {np.sqrt(1 - opts.eta):.6g} (eta = {opts.eta:g}) <= largest fixed mode {zmax:.6g}: "
+             f"LMI (34) cannot hold; eta must be < 1 - {zmax:.6g}^2 = {1 - zmax * zmax:.6g}"),
+            {"eta": opts.eta, "largest_fixed_modulus": zmax}))
+        _, A1, _, _ = _vertices(s, plant.C, opts.alpha)
+        f1 = unobservable_modes(A1, plant.C)
+        f1max = float(np.abs(f1).max()) if f1.size else 0.0
+        mu_limit = min(1.0 / opts.eta - 1.0, (1.0 - f1max ** 2) / opts.eta - 1.0)
+        info = {"fixed_modes_A1": complex_list(f1), "mu_limit": mu_limit}
+        if opts.mu == "max":
+            conds.append(Condition(
+                "transient vertex (A_1, C)", mu_limit > 0, True,
+                (f"(A_1, C) is observable: every mode of the transient vertex can be placed; mu < 1/eta - 1 = "
+                 f"{mu_limit:.6g}" if not f1.size else
+                 f"fixed modes of (A_1, C): {format_complex(f1)}; mu < {mu_limit:.6g}") if mu_limit > 0 else
+                f"fixed modes of (A_1, C) {format_complex(f1)} leave no room for tau_1 > eta", info))
+        else:
+            tau1 = opts.eta * (1 + opts.mu)
+            ok = np.sqrt(1 - tau1) > f1max + ZERO_MARGIN
+            conds.append(Condition(
+                "transient vertex (A_1, C)", ok, True,
+                f"sqrt(1 - tau_1) = {np.sqrt(1 - tau1):.6g} > largest fixed mode of (A_1, C) {f1max:.6g}" if ok else
+                f"sqrt(1 - tau_1) = {np.sqrt(1 - tau1):.6g} (tau_1 = {tau1:g}) <= largest fixed mode of (A_1, C) "
+                f"{f1max:.6g}: LMI (33) cannot hold; mu must be < {mu_limit:.6g}", info))
+    return Existence(NAME, tuple(conds)), s, fixed, info
+
+
+def check(problem) -> Existence:
+    """The classical conditions, the zero limit on eta and the transient vertex's limit on mu."""
+    return _analysis(problem)[0]
+
+
+def _lmis(A1, A2, S1, C, eta):
+    n, p, q = C.shape[1], C.shape[0], S1.shape[1]
+
+    def build(v, prm, ops):
+        X, G1, G2, gamma = v["X"], v["G1"], v["G2"], v["gamma"]
+        Z1 = G1 @ A1 - v["Tb1"] @ C
+        Z2 = G2 @ A2 - v["Tb2"] @ C
+        Gam = Z1.T @ S1
+        Om = gamma * (S1.T @ S1) - S1.T @ (G1 + G1.T) @ S1
+        return [
+            Lmi("X >= I", X - ops.eye(n), strict=False),
+            Lmi("(33) transient vertex", ops.bmat([[(1 - prm["tau1"]) * X, -Z1.T, -Gam],
+                                                   [-Z1, G1 + G1.T - X, ops.zeros((n, q))],
+                                                   [-Gam.T, ops.zeros((q, n)), Om]])),
+            Lmi("(34) asymptotic vertex", ops.bmat([[(1 - eta) * X, -Z2.T], [-Z2, G2 + G2.T - X]])),
+        ]
+
+    variables = {"X": ("symmetric", n), "G1": ("matrix", (n, n)), "G2": ("matrix", (n, n)),
+                 "Tb1": ("matrix", (n, p)), "Tb2": ("matrix", (n, p)), "gamma": ("scalar",)}
+    return LmiSystem(f"{NAME} Theorem 2", variables, {"tau1": 2 * eta}, build, objective=lambda v: v["gamma"])
+
+
+def coefficients(M, T1, T2, s, C, alpha) -> dict:
+    """The runtime matrices as polynomials in ``a = alpha^k`` (coefficient axis first)."""
+    n = C.shape[1]
+    P = np.eye(n) + M @ C
+    MC = M @ C
+    N0 = P @ s.A - T2 @ C
+    N1 = -alpha * MC @ s.A - (T1 - T2) @ C
+    CE = C @ s.E
+    return {
+        "N": np.array([N0, N1]),
+        "L": np.array([T2 - N0 @ M, (T1 - T2) - N1 @ M + N0 @ M, N1 @ M]),
+        "G": np.array([P @ s.B, -alpha * MC @ s.B]),
+        "c": np.array([P @ s.w, -alpha * MC @ s.w]),
+        "Xz": np.array([np.eye(n), np.zeros((n, n))]),
+        "Xy": np.array([-M, M]),
+        "Dy": np.array([np.linalg.pinv(CE)]), "Yx": np.array([C @ s.A]), "Yu": np.array([C @ s.B]),
+        "Yc": np.array([C @ s.w]),
+    }
+
+
+def _poly(c, a):
+    return sum(ci * a ** j for j, ci in enumerate(c))
+
+
+def checks(card_data: dict) -> list:
+    """The certificate's checks at the stored matrices.
+
+    Both vertex decays ``N_i' X N_i < (1 - tau_i) X``; ``X > 0``; decoupling
+    ``(I + MC) E = 0``; and at ``a`` in {1, alpha^5, 0} the observer identities
+    ``P_{k+1} A - N_k P_k - L_k C = 0``, ``G_k = P_{k+1} B``, ``H_k = (1 - a) M`` from the
+    stored polynomial matrices.
+    """
+    g = {k: np.asarray(v, dtype=float) for k, v in card_data["matrices"].items()}
+    alpha, tau1, tau2 = card_data["alpha"], card_data["tau1"], card_data["tau2"]
+    C, M, X = g["C"], g["M"], g["X"]
+    A, B, E = g["A_sampled"], g["B_sampled"], g["E_sampled"]
+    n = C.shape[1]
+    out = [
+        identity_check("decoupling ||(I+MC)E||", (np.eye(n) + M @ C) @ E, np.linalg.norm(E, 2)),
+        positive_check("eig_min(X)", X),
+        lyapunov_check("vertex 1: eig_min((1-tau_1) X - N_1'XN_1)", g["A1"] - g["T1"] @ C, X, np.sqrt(1 - tau1)),
+        lyapunov_check("vertex 2: eig_min((1-tau_2) X - N_2'XN_2)", g["A2"] - g["T2"] @ C, X, np.sqrt(1 - tau2)),
+    ]
+    worst = {"PA - NP - LC": 0.0, "G - PB": 0.0, "Xy + H": 0.0}
+    for a in (1.0, alpha ** 5, 0.0):
+        P_next = np.eye(n) + M @ C - alpha * a * M @ C
+        P_now = np.eye(n) + (1 - a) * M @ C
+        N, L, G, Xy = (_poly(g[k], a) for k in ("N", "L", "G", "Xy"))
+        worst["PA - NP - LC"] = max(worst["PA - NP - LC"], float(np.linalg.norm(P_next @ A - N @ P_now - L @ C, 2)))
+        worst["G - PB"] = max(worst["G - PB"], float(np.linalg.norm(G - P_next @ B, 2)) if B.size else 0.0)
+        worst["Xy + H"] = max(worst["Xy + H"], float(np.linalg.norm(Xy + (1 - a) * M, 2)))
+    scale = 1.0 + np.linalg.norm(A, 2) * (1 + np.linalg.norm(M, 2) * np.linalg.norm(C, 2)) ** 2
+    out += [identity_check(f"max_k ||{k}||", np.array([v]), scale) for k, v in worst.items()]
+    return out
+
+
+def verify(card) -> list:
+    """Re-check a card's certificate from its matrices alone (no solver)."""
+    return checks(card.data)
+
+
+def certified_bound(card, e0, d) -> np.ndarray:
+    """``||e_k|| <= b_k / sqrt(eig_min X)``, ``b_{k+1} = sqrt(1 - eta_k) b_k + ||S_k d_k||_X``."""
+    g = card.data
+    X = np.asarray(g["matrices"]["X"])
+    MCE = np.asarray(g["matrices"]["M"]) @ np.asarray(g["matrices"]["C"]) @ np.asarray(g["matrices"]["E_sampled"])
+    alpha, eta, mu = g["alpha"], g["eta"], g["mu"]
+    lo = float(np.linalg.eigvalsh(X)[0])
+    b = np.empty(len(d))
+    b[0] = float(np.sqrt(e0 @ X @ e0))
+    for k in range(len(d) - 1):
+        a = alpha ** k
+        s = -alpha * a * MCE @ d[k]
+        b[k + 1] = np.sqrt(1 - eta * (1 + mu * a)) * b[k] + float(np.sqrt(s @ X @ s))
+    return b / np.sqrt(lo)
+
+
+def design(problem):
+    """Design the LTV observer (procedure steps 1-9, Theorem 2) and return its verified card."""
+    from ..synthesis import assemble_card
+
+    existence, s, fixed, info = _analysis(problem)
+    existence.require()
+    plant, opts = problem.plant, problem.options
+    C = plant.C
+    M, A1, A2, S1 = _vertices(s, C, opts.alpha)
+    system = _lmis(A1, A2, S1, C, opts.eta)
+    if opts.mu == "max":
+        limit = info["mu_limit"]
+        found = search(system, "tau1", limit * 1e-4, limit, tol=SEARCH_TOL * limit,
+                       label=f"{problem.name}: largest mu", transform=lambda m: opts.eta * (1 + m))
+        mu, sol = found.value, found.solution
+        searched = {"parameter": "mu", "solves": found.solves, "seconds": found.seconds,
+                    "bracket": list(found.bracket)}
+    else:
+        mu = float(opts.mu)
+        sol = system.require(tau1=opts.eta * (1 + mu))
+        searched = None
+    v = sol.values
+    X = 0.5 * (v["X"] + v["X"].T)
+    T1 = np.linalg.solve(v["G1"], v["Tb1"])
+    T2 = np.linalg.solve(v["G2"], v["Tb2"])
+    tau1, tau2 = opts.eta * (1 + mu), opts.eta
+    matrices = {**coefficients(M, T1, T2, s, C, opts.alpha), "C": C, "M": M, "T1": T1, "T2": T2, "X": X,
+                "A1": A1, "A2": A2, "S1": S1, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E}
+    if np.linalg.matrix_rank(C @ s.E) < plant.q:
+        for k in ("Dy", "Yx", "Yu", "Yc"):
+            matrices.pop(k)
+    eigX = np.linalg.eigvalsh(X)
+    results = {"alpha": opts.alpha, "eta": opts.eta, "mu": mu, "tau1": tau1, "tau2": tau2,
+               "gamma": float(v["gamma"])}
+    cert = certificate(sol, checks({"matrices": matrices, **results}), f"{NAME} design of {problem.name}")
+    N0 = A1 - T1 @ C                                   # N_k at k = 0 (a = 1)
+    results.update({
+        "decay_bound": float(np.sqrt(1 - tau2)),
+        "initial_decay_bound": float(np.sqrt(1 - tau1)),
+        "overshoot_bound": float(np.sqrt(eigX[-1] / eigX[0])),
+        "bound": "||e_k|| <= b_k / sqrt(eig_min X), b_{k+1} = sqrt(1 - eta (1 + mu alpha^k)) b_k + ||S_k d_k||_X",
+        "fixed_modes": complex_list(fixed),
+        "invariant_zeros": existence.value("stable invariant zeros", "zeros"),
+        "fixed_modes_A1": info.get("fixed_modes_A1", []),
+        "eigenvalues_N_k0": complex_list(np.linalg.eigvals(N0)),
+        "eigenvalues_N_inf": complex_list(np.linalg.eigvals(A2 - T2 @ C)),
+        "norm_MCE": float(np.linalg.norm(M @ C @ s.E, 2)),
+        "search": searched,
+    })
+    xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(plant.n)
+    schedule = {"kind": "geometric", "alpha": opts.alpha, "dt": opts.dt, "step_policy": opts.step_policy}
+    return assemble_card(problem, nz=plant.n, dt=opts.dt, schedule=schedule, matrices=matrices,
+                         certificate=cert, xhat0=xhat0, results=results, existence=existence)
