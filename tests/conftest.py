@@ -68,3 +68,14 @@ def building_card(building_path, tmp_path_factory):
     path = tmp_path_factory.mktemp("cards") / "building.json"
     card.write(path)
     return card, path
+
+
+@pytest.fixture(scope="session")
+def ltv_card(tmp_path_factory):
+    """The designed LTV card of seed 000 Example 1 (paper parameters)."""
+    import uiofmu
+
+    card = uiofmu.design(uiofmu.load_problem(EXAMPLES / "seed000_example1_ltv.toml"))
+    path = tmp_path_factory.mktemp("cards") / "ltv.json"
+    card.write(path)
+    return card, path
