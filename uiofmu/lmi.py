@@ -275,10 +275,17 @@ class SearchResult:
     solves: int
     seconds: float
     bracket: tuple
+    parameter: str = ""
+
+    def to_data(self) -> dict:
+        """What the card records about the search."""
+        return {"parameter": self.parameter, "solves": self.solves, "seconds": self.seconds,
+                "bracket": list(self.bracket)}
 
 
 def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_end: float,
-           tol: float = SEARCH_TOL, label: str | None = None, transform: Callable | None = None) -> SearchResult:
+           tol: float = SEARCH_TOL, label: str | None = None, transform: Callable | None = None,
+           name: str | None = None) -> SearchResult:
     """Bisection for the best value of one tunable, keeping only re-checked certificates.
 
     The value at ``feasible_end`` must give a verified certificate; ``infeasible_end`` is a
@@ -299,6 +306,8 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
         Progress-bar label.
     transform : callable, optional
         Maps the searched value to the parameter value (e.g. ``lambda r: r * r``).
+    name : str, optional
+        The user's name of the searched value (``"decay"``), recorded in the result.
 
     Returns
     -------
@@ -328,4 +337,4 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
                 good, best = mid, sol
             else:
                 bad = mid
-    return SearchResult(good, best, solves, time.perf_counter() - t0, (good, bad))
+    return SearchResult(good, best, solves, time.perf_counter() - t0, (good, bad), name or parameter)

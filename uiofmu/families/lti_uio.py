@@ -139,10 +139,9 @@ def design(problem):
     largest = float(np.abs(fixed).max()) if fixed.size else 0.0
     if opts.decay == "max":
         found = search(system, "rho2", 0.5 * (1.0 + largest), largest, tol=SEARCH_TOL,
-                       label=f"{problem.name}: fastest decay", transform=lambda r: r * r)
+                       label=f"{problem.name}: fastest decay", transform=lambda r: r * r, name="decay")
         rho, sol = found.value, found.solution
-        searched = {"parameter": "decay", "solves": found.solves, "seconds": found.seconds,
-                    "bracket": list(found.bracket)}
+        searched = found.to_data()
     else:
         rho = float(opts.decay)
         sol = system.require(rho2=rho * rho)

@@ -246,10 +246,9 @@ def design(problem):
     if opts.mu == "max":
         limit = info["mu_limit"]
         found = search(system, "tau1", limit * 1e-4, limit, tol=SEARCH_TOL * limit,
-                       label=f"{problem.name}: largest mu", transform=lambda m: opts.eta * (1 + m))
+                       label=f"{problem.name}: largest mu", transform=lambda m: opts.eta * (1 + m), name="mu")
         mu, sol = found.value, found.solution
-        searched = {"parameter": "mu", "solves": found.solves, "seconds": found.seconds,
-                    "bracket": list(found.bracket)}
+        searched = found.to_data()
     else:
         mu = float(opts.mu)
         sol = system.require(tau1=opts.eta * (1 + mu))

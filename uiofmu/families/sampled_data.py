@@ -247,10 +247,9 @@ def design(problem):
     limit = 1.0 - zmax * zmax
     if opts.alpha == "max":
         found = search(system, "c", 1e-3 * limit, limit, tol=SEARCH_TOL * limit,
-                       label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a)
+                       label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a, name="alpha")
         alpha, sol = found.value, found.solution
-        searched = {"parameter": "alpha", "solves": found.solves, "seconds": found.seconds,
-                    "bracket": list(found.bracket)}
+        searched = found.to_data()
     else:
         alpha = float(opts.alpha)
         sol = system.require(c=1.0 - alpha)
