@@ -5,7 +5,8 @@ from pathlib import Path
 
 from _common import ROOT, design_and_build, main_guard
 
-PROBLEMS = [ROOT / "examples" / "seed000_example1.toml", ROOT / "plants" / "two_room_building" / "problem.toml"]
+PROBLEMS = [ROOT / "examples" / "seed000_example1.toml", ROOT / "examples" / "seed000_example1_ltv.toml",
+            ROOT / "plants" / "two_room_building" / "problem.toml", ROOT / "plants" / "quarter_car" / "problem.toml"]
 
 
 def main():
@@ -15,6 +16,10 @@ def main():
     for path in PROBLEMS:
         problem, card, obs, plant = design_and_build(path, out)
         print(f"{problem.name}: {obs.name}, {plant.name}")
+    from uiofmu.mujoco_plant import build_mujoco_plant, load_spec
+
+    mujoco = build_mujoco_plant(load_spec(ROOT / "plants" / "quarter_car"), out / "quarter-car_mujoco_plant.fmu")
+    print(f"quarter-car: {mujoco.name}")
 
 
 if __name__ == "__main__":

@@ -21,7 +21,8 @@ from .errors import FmuError
 from .plant import Plant
 
 #: The modules an FMU carries: the runtime and what it imports (numpy only).
-RUNTIME_MODULES = ("card", "errors", "matrices", "schedules", "tolerances", "runtime", "plant_runtime", "fmu_model")
+RUNTIME_MODULES = ("card", "errors", "matrices", "schedules", "tolerances", "runtime", "plant_runtime", "fmu_model",
+                   "mujoco_runtime")
 BACKENDS = ("python",)
 
 
@@ -41,7 +42,7 @@ def model_identifier(name: str, role: str) -> str:
     return ident if ident[:1].isalpha() else f"m_{ident}"
 
 
-def _build_python(spec: dict, identifier: str, description: str, output: Path) -> Path:
+def _build_python(spec: dict, identifier: str, description: str, output: Path, extra_files=()) -> Path:
     from pythonfmu.builder import FmuBuilder
 
     here = Path(__file__).parent
@@ -65,7 +66,8 @@ def _build_python(spec: dict, identifier: str, description: str, output: Path) -
         script = src / f"{module}.py"
         script.write_text(text, encoding="utf-8")
         try:
-            path = FmuBuilder.build_FMU(script, dest=output, project_files=[pkg, src / "model.json"],
+            path = FmuBuilder.build_FMU(script, dest=output,
+                                        project_files=[pkg, src / "model.json", *map(Path, extra_files)],
                                         canGetAndSetFMUstate=True, canSerializeFMUstate=True)
         finally:
             for key in [k for k in sys.modules if k == module or k.split(".")[0] == package]:

@@ -127,6 +127,11 @@ class Fmu:
             self._vectors[name] = refs
         return self._vectors[name]
 
+    @property
+    def resources(self) -> str:
+        """The extracted ``resources`` folder."""
+        return str(Path(self._unzipdir) / "resources")
+
     def has(self, name: str) -> bool:
         """Whether the FMU has the vector ``name``."""
         return bool(self.refs(name))

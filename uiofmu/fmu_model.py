@@ -142,12 +142,48 @@ class PlantModel:
         self.dirty = True
 
 
-MODELS = {"observer": ObserverModel, "plant": PlantModel}
+class MujocoPlantModel(PlantModel):
+    """A MuJoCo model as FMU ports: ``u, d -> y, x``; parameters ``x0`` and the physical ones."""
+
+    kind = "mujoco"
+
+    def __init__(self, spec: dict, resources: str):
+        from .mujoco_runtime import MujocoRuntime
+
+        self.rt = MujocoRuntime(spec["mujoco"], resources)
+        self.parameters = [Port("x0", self.rt.x0.copy(), "initial state [qpos, qvel]")]
+        for i, name in enumerate(self.rt.param_names):
+            self.parameters.append(Port(name, self.rt.params[i:i + 1].copy(),
+                                        f"physical parameter {spec['mujoco']['parameters'][name]}"))
+        self.inputs = [Port("u", self.rt.u, "known actuator forces (held over the step)"),
+                       Port("d", self.rt.d, "unknown input forces (held over the step)")]
+        self.outputs = [Port("y", np.zeros(self.rt.p), "measured outputs C x"),
+                        Port("x", np.zeros(self.rt.n), "true state [qpos, qvel] (for validation)")]
+        self.dirty = True
+
+    def initialize(self) -> None:
+        """Take the parameters into the MuJoCo model and reset to x0."""
+        self.rt.x0 = self.parameters[0].values.copy()
+        for i, port in enumerate(self.parameters[1:]):
+            self.rt.params[i] = port.values[0]
+        self.rt.apply_parameters()
+        self.rt.reset()
+        self.dirty = True
+
+    def set_state(self, state: dict) -> None:
+        """Restore :meth:`get_state`."""
+        self.rt.set_state(state["runtime"])
+        self.parameters[0].values[:] = self.rt.x0
+        for i, port in enumerate(self.parameters[1:]):
+            port.values[0] = self.rt.params[i]
+        self.dirty = True
 
 
-def make_model(spec: dict):
+def make_model(spec: dict, resources: str = "."):
     """The model of an FMU's ``resources/model.json``."""
-    return MODELS[spec["kind"]](spec)
+    if spec["kind"] == "mujoco":
+        return MujocoPlantModel(spec, resources)
+    return {"observer": ObserverModel, "plant": PlantModel}[spec["kind"]](spec)
 
 
 __all__ = ["ObserverModel", "PlantModel", "Port", "RuntimeInputError", "StepRejected", "make_model"]

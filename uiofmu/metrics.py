@@ -62,6 +62,7 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
         "final_error_norm": float(norms[-1]),
         "rms_error": np.sqrt(np.mean(e * e, axis=0)).tolist(),
         "max_error_norm": float(norms.max()),
+        "error_floor": float(np.median(norms[-max(1, len(norms) // 5):])),
         "steps_to_1pct": k1,
         "time_to_1pct": None if k1 is None else float(times[k1]),
         "step_min": float(steps.min()) if steps.size else None,
@@ -69,11 +70,14 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
     }
     if bound is not None:
         slack = bound * (1 + bound_rtol) + bound_rtol * norms[0]
-        ratio = np.divide(norms, bound, out=np.zeros_like(norms), where=bound > 0)
+        with np.errstate(over="ignore", divide="ignore"):
+            ratio = np.divide(norms, bound, out=np.zeros_like(norms), where=bound > 1e-300)
         bad = np.flatnonzero(norms > slack)
         out.update({"certified_decay": decay, "certified_overshoot": overshoot,
                     "bound_respected": bool(bad.size == 0), "max_bound_ratio": float(ratio.max()),
                     "first_bound_violation": int(bad[0]) if bad.size else None,
+                    "error_at_first_violation": float(norms[bad[0]]) if bad.size else None,
+                    "bound_at_first_violation": float(bound[bad[0]]) if bad.size else None,
                     "final_bound": float(bound[-1])})
     if d is not None and dhat is not None and dhat.size and len(d) > 1:
         err = dhat[1:] - d[:-1]

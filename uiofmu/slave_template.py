@@ -26,7 +26,7 @@ class UiofmuModel(Fmi2Slave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         with open(os.path.join(self.resources, "model.json"), encoding="utf-8") as f:
-            self.model = make_model(json.load(f))
+            self.model = make_model(json.load(f), self.resources)
         self.phase = "instantiated"
         for port in self.model.parameters:
             for i in range(port.size):

@@ -151,8 +151,9 @@ def _analysis(problem):
         if opts.alpha == "max":
             conds.append(Condition(
                 "decay limited by sampled zeros", True, False,
-                f"the sampled invariant zero {zmax:.6g} (h = {zarg:g} s) limits any exactly-decoupling observer "
-                f"to a decay above {zmax:.6g} per sample, i.e. alpha < 1 - {zmax:.6g}^2 = {limit:.6g}", info))
+                (f"the sampled invariant zero {zmax:.6g} (h = {zarg:g} s) limits any exactly-decoupling observer "
+                 f"to a decay above {zmax:.6g} per sample, i.e. alpha < 1 - {zmax:.6g}^2 = {limit:.6g}") if zmax > 0
+                else "no sampled invariant zero limits the decay (alpha < 1)", info))
         else:
             delta = float(np.sqrt(1 - opts.alpha))
             ok = delta > zmax + ZERO_MARGIN

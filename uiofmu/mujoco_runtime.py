@@ -1,0 +1,161 @@
+"""Stepping a MuJoCo model between communication points (numpy and mujoco only).
+
+This runs inside a MuJoCo plant FMU. A communication step ``h`` is taken as
+``floor(h/dt + eps)`` substeps of the fixed ``dt`` plus one shorter last substep, so every
+step ends exactly at ``t + h``; the inputs are held over the step. The state vector is
+``x = [qpos of the listed joints, qvel of the listed joints]``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+#: Model fields a plant's physical parameters may set (name -> the id kind it is indexed by).
+PARAMETER_FIELDS = {"body_mass": "body", "jnt_stiffness": "joint", "dof_damping": "joint",
+                    "tendon_stiffness": "tendon", "tendon_damping": "tendon", "actuator_gear": "actuator"}
+
+
+def load_model(spec: dict, folder):
+    """The MjModel of a MuJoCo plant spec, with its integrator and timestep enforced."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_path(str(Path(folder) / spec["model"]))
+    model.opt.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{spec.get('integrator', 'RK4')}")
+    model.opt.timestep = float(spec["timestep"])
+    return model
+
+
+def _object(model, kind: str, name: str) -> int:
+    import mujoco
+
+    obj = {"body": mujoco.mjtObj.mjOBJ_BODY, "joint": mujoco.mjtObj.mjOBJ_JOINT,
+           "tendon": mujoco.mjtObj.mjOBJ_TENDON, "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR}[kind]
+    i = mujoco.mj_name2id(model, obj, name)
+    if i < 0:
+        raise ValueError(f"the MJCF model has no {kind} named {name!r}")
+    return i
+
+
+def set_parameter(model, target: str, value: float) -> None:
+    """Set ``"field:name"`` (e.g. ``"tendon_stiffness:suspension"``) to ``value``."""
+    field, _, name = target.partition(":")
+    i = _object(model, PARAMETER_FIELDS[field], name)
+    if field == "dof_damping":
+        i = int(model.jnt_dofadr[i])
+    arr = getattr(model, field)
+    if arr.ndim == 2:
+        arr[i, 0] = value
+    else:
+        arr[i] = value
+
+
+def get_parameter(model, target: str) -> float:
+    """The current value of ``"field:name"``."""
+    field, _, name = target.partition(":")
+    i = _object(model, PARAMETER_FIELDS[field], name)
+    if field == "dof_damping":
+        i = int(model.jnt_dofadr[i])
+    arr = getattr(model, field)
+    return float(arr[i, 0] if arr.ndim == 2 else arr[i])
+
+
+class MujocoRuntime:
+    """A MuJoCo model stepped at communication points.
+
+    Parameters
+    ----------
+    spec : dict
+        The ``[mujoco]`` table: ``model`` (MJCF file), ``timestep``, ``integrator``, ``joints``,
+        ``u`` and ``d`` (actuator names), ``C``, ``x0``, ``parameters``.
+    folder : str or Path
+        Where the MJCF file is.
+    """
+
+    def __init__(self, spec: dict, folder):
+        import mujoco
+
+        self._mj = mujoco
+        self.spec = spec
+        self.folder = folder
+        self.model = load_model(spec, folder)
+        self.data = mujoco.MjData(self.model)
+        self.dt = float(spec["timestep"])
+        joints = [_object(self.model, "joint", j) for j in spec["joints"]]
+        self.qadr = np.array([self.model.jnt_qposadr[j] for j in joints])
+        self.vadr = np.array([self.model.jnt_dofadr[j] for j in joints])
+        self.uid = np.array([_object(self.model, "actuator", a) for a in spec.get("u", [])], dtype=int)
+        self.did = np.array([_object(self.model, "actuator", a) for a in spec.get("d", [])], dtype=int)
+        self.C = np.array(spec["C"], dtype=float)
+        self.n, self.m, self.q, self.p = 2 * len(joints), len(self.uid), len(self.did), self.C.shape[0]
+        self.x0 = np.array(spec.get("x0") or np.zeros(self.n), dtype=float)
+        self.param_names = list(spec.get("parameters", {}))
+        self.params = np.array([get_parameter(self.model, spec["parameters"][k]) for k in self.param_names])
+        self.u = np.zeros(self.m)
+        self.d = np.zeros(self.q)
+        self.reset()
+
+    def apply_parameters(self) -> None:
+        """Write the physical parameters into the model."""
+        for name, value in zip(self.param_names, self.params):
+            set_parameter(self.model, self.spec["parameters"][name], float(value))
+
+    def reset(self) -> None:
+        """Back to ``x0`` at time 0."""
+        self._mj.mj_resetData(self.model, self.data)
+        k = len(self.qadr)
+        self.data.qpos[self.qadr] = self.x0[:k]
+        self.data.qvel[self.vadr] = self.x0[k:]
+        self._mj.mj_forward(self.model, self.data)
+
+    @property
+    def x(self) -> np.ndarray:
+        """The state ``[qpos, qvel]`` of the listed joints."""
+        return np.concatenate([self.data.qpos[self.qadr], self.data.qvel[self.vadr]])
+
+    def y(self) -> np.ndarray:
+        """Measured outputs ``C x``."""
+        return self.C @ self.x
+
+    def step(self, h: float) -> None:
+        """Advance by ``h`` with ``u`` and ``d`` held (substeps of dt and one shorter last one)."""
+        if not (math.isfinite(h) and h > 0):
+            raise ValueError(f"communication step h = {h!r}: expected h > 0")
+        for name, vec in (("u", self.u), ("d", self.d)):
+            if not np.all(np.isfinite(vec)):
+                i = int(np.flatnonzero(~np.isfinite(vec))[0])
+                raise ValueError(f"input {name}[{i + 1}] = {vec[i]} is not finite")
+        self.data.ctrl[self.uid] = self.u
+        self.data.ctrl[self.did] = self.d
+        t_end = self.data.time + h
+        full = int(math.floor(h / self.dt + 1e-9))
+        rest = h - full * self.dt
+        if full:
+            self._mj.mj_step(self.model, self.data, full)
+        if rest > 1e-9 * self.dt:
+            self.model.opt.timestep = rest
+            self._mj.mj_step(self.model, self.data)
+            self.model.opt.timestep = self.dt
+        self.data.time = t_end
+
+    def get_state(self) -> dict:
+        """JSON-ready state."""
+        d = self.data
+        return {"qpos": d.qpos.tolist(), "qvel": d.qvel.tolist(), "act": d.act.tolist(), "ctrl": d.ctrl.tolist(),
+                "time": float(d.time), "x0": self.x0.tolist(), "params": self.params.tolist(),
+                "u": self.u.tolist(), "d": self.d.tolist()}
+
+    def set_state(self, state: dict) -> None:
+        """Restore :meth:`get_state`."""
+        d = self.data
+        self.params[:] = state["params"]
+        self.apply_parameters()
+        d.qpos[:], d.qvel[:], d.ctrl[:] = state["qpos"], state["qvel"], state["ctrl"]
+        if len(state["act"]):
+            d.act[:] = state["act"]
+        d.time = state["time"]
+        self.x0 = np.array(state["x0"])
+        self.u[:], self.d[:] = state["u"], state["d"]
+        self._mj.mj_forward(self.model, d)
