@@ -56,7 +56,10 @@ def _build_python(spec: dict, identifier: str, description: str, output: Path, e
         src = Path(tmp)
         pkg = src / package
         pkg.mkdir()
-        (pkg / "__init__.py").write_text(f'"""uiofmu {__version__} runtime, numpy only."""\n')
+        # Import every module at once: the package is shared (by its content-named name) by all FMUs
+        # of this runtime in a process, and the folder it was first loaded from may be removed.
+        (pkg / "__init__.py").write_text(f'"""uiofmu {__version__} runtime (numpy; mujoco for MuJoCo plants)."""\n\n'
+                                         f'from . import {", ".join(RUNTIME_MODULES)}  # noqa: F401\n')
         for name in RUNTIME_MODULES:
             shutil.copy2(here / f"{name}.py", pkg / f"{name}.py")
         (src / "model.json").write_text(json.dumps(spec), encoding="utf-8")
