@@ -142,7 +142,8 @@ def test_step_outside_the_set_error_policy(building_card, building_fmus):
         assert any("900.0 s is not one of the design intervals" in msg for msg in info.value.messages)
 
 
-def test_step_outside_the_set_nearest_policy(building_card, tmp_path):
+@pytest.mark.parametrize("backend", ["python", "c"])
+def test_step_outside_the_set_nearest_policy(building_card, tmp_path, backend):
     card = _policy_card(building_card[0], "nearest")
     rt = Runtime(card)
     rt.set_y([22.0])
@@ -154,7 +155,7 @@ def test_step_outside_the_set_nearest_policy(building_card, tmp_path):
     ref.step(600.0)   # 900 is equidistant from 600 and 1200; min() picks the first
     ref.step(600.0)
     assert np.array_equal(rt.xhat(), ref.xhat())
-    obs = build_observer(card, tmp_path / "nearest.fmu")
+    obs = build_observer(card, tmp_path / "nearest.fmu", backend=backend)
     with Fmu(obs, "o") as fmu:
         fmu.initialize(0.0)
         fmu.set("y", [22.0])

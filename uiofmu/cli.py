@@ -73,8 +73,11 @@ def _cmd_build(args) -> int:
 
     card = read_card(args.design)
     out = Path(args.output) if args.output else Path(f"{card.name}_observer.fmu")
-    path = build_observer(card, out, backend=args.backend)
-    print(f"{card.name}: {card.family} observer FMU ({args.backend} backend) written to {path}")
+    from .export import default_backend
+
+    backend = args.backend or default_backend()
+    path = build_observer(card, out, backend=backend)
+    print(f"{card.name}: {card.family} observer FMU ({backend} backend) written to {path}")
     return 0
 
 
@@ -218,11 +221,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("build", help="pack a design card as an FMI 2.0 Co-Simulation FMU",
                        description="Pack the observer of a design card as an FMI 2.0 Co-Simulation FMU with inputs "
-                                   "y[i], u[i], outputs xhat[i], r[i] (and dhat[i]), parameter xhat0[i]. The "
-                                   "python backend (pythonfmu) needs Python with numpy in the importing tool.")
+                                   "y[i], u[i], outputs xhat[i], r[i] (and dhat[i]), parameter xhat0[i] (and "
+                                   "h_prev0 for sampled-data observers).")
     p.add_argument("design", help="design card (JSON) from `uiofmu design`")
     p.add_argument("-o", "--output", metavar="OBS.fmu", help="FMU path (default: NAME_observer.fmu)")
-    p.add_argument("--backend", default="python", choices=["python"], help="FMU implementation (default: python)")
+    p.add_argument("--backend", choices=["c", "python"],
+                   help="c: a standalone native binary with its sources (no Python needed by the importer; the "
+                        "default when a C compiler is found); python: pythonfmu (the importer needs Python and numpy)")
     p.set_defaults(func=_cmd_build)
 
     p = sub.add_parser("plant", help="pack the plant of a problem (or a MuJoCo plant folder) as an FMU",

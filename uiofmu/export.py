@@ -23,7 +23,7 @@ from .plant import Plant
 #: The modules an FMU carries: the runtime and what it imports (numpy only).
 RUNTIME_MODULES = ("card", "errors", "matrices", "schedules", "tolerances", "runtime", "plant_runtime", "fmu_model",
                    "mujoco_runtime")
-BACKENDS = ("python",)
+BACKENDS = ("c", "python")
 
 
 def runtime_package() -> str:
@@ -80,7 +80,14 @@ def _build_python(spec: dict, identifier: str, description: str, output: Path, e
     return Path(path)
 
 
-def build_observer(card: Card, output, backend: str = "python") -> Path:
+def default_backend() -> str:
+    """``c`` where a C compiler is found, else ``python``."""
+    from .export_c import c_compiler
+
+    return "c" if c_compiler() else "python"
+
+
+def build_observer(card: Card, output, backend: str | None = None) -> Path:
     """Pack the observer of a design card as an FMU.
 
     Parameters
@@ -89,16 +96,22 @@ def build_observer(card: Card, output, backend: str = "python") -> Path:
         A verified design card.
     output : str or Path
         The ``.fmu`` file to write.
-    backend : {"python"}
-        ``python``: pythonfmu (the host needs Python with numpy).
+    backend : {"c", "python"}, optional
+        ``c``: a standalone native binary plus its sources (the default where a C compiler
+        is found); ``python``: pythonfmu (the host needs Python with numpy).
 
     Returns
     -------
     Path
     """
+    backend = backend or default_backend()
     if backend not in BACKENDS:
         raise FmuError(f"--backend: expected one of {', '.join(BACKENDS)}, found {backend!r}")
     ident = model_identifier(card.name, "observer")
+    if backend == "c":
+        from .export_c import build_c_observer
+
+        return build_c_observer(card, output, ident)
     desc = f"{card.family} unknown-input observer of {card.name} (uiofmu {__version__})"
     return _build_python({"kind": "observer", "card": card.data}, ident, desc, output)
 

@@ -183,8 +183,8 @@ class GeometricSchedule:
     def step_matrices(self, k: int, h: float, h_prev: float) -> dict:
         """The matrices of step k (raises :class:`StepRejected` for a step other than dt)."""
         if self.policy == "error" and abs(h - self.dt) > self.step_rtol * self.dt:
-            raise StepRejected(f"this observer counts steps of dt = {self.dt!r} s and received h = {h!r} s "
-                               "(step_policy = 'error'; 'count' would take it as one step)")
+            raise StepRejected(f"this observer was designed for steps of dt = {self.dt!r} s and received "
+                               f"h = {h!r} s (step_policy = 'error')")
         return self._evaluate(k)
 
     def output_matrices(self, k: int, h_prev: float) -> dict:

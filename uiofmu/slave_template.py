@@ -98,9 +98,8 @@ class UiofmuModel(Fmi2Slave):
 
     def do_step(self, current_time, step_size):
         if self.phase != "running":
-            self.log(f"fmi2DoStep called in phase '{self.phase}': the FMU steps only after "
-                     "fmi2ExitInitializationMode with finite parameters, and not after fmi2Terminate",
-                     Fmi2Status.error)
+            self.log(f"fmi2DoStep: called before fmi2ExitInitializationMode or after fmi2Terminate "
+                     f"(phase '{self.phase}'; a non-finite parameter also stops the FMU)", Fmi2Status.error)
             return False
         try:
             self.model.step(current_time, step_size)

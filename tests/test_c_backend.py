@@ -1,0 +1,236 @@
+"""The C backend: standalone native observer FMUs, against the reference runtime, in three importers."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import zipfile
+
+import numpy as np
+import pytest
+from fmpy import read_model_description
+from fmpy.validation import validate_fmu
+
+from uiofmu.export import build_observer
+from uiofmu.export_c import build_host
+from uiofmu.fmi import Fmu, FmuCallError
+from uiofmu.runtime import Runtime
+from uiofmu.validate import validate
+
+
+@pytest.fixture(scope="module")
+def cfmus(example1_card, building_card, ltv_card, tmp_path_factory):
+    d = tmp_path_factory.mktemp("cfmu")
+    cards = {"lti-uio": example1_card[0], "sampled-data": building_card[0], "ltv-auid": ltv_card[0]}
+    return {k: (card, build_observer(card, d / f"{k}.fmu", backend="c")) for k, card in cards.items()}, d
+
+
+@pytest.mark.parametrize("family", ["lti-uio", "sampled-data", "ltv-auid"])
+def test_c_fmu_equals_runtime(cfmus, family):
+    card, path = cfmus[0][family]
+    assert validate_fmu(str(path)) == []
+    md = read_model_description(str(path))
+    assert md.coSimulation.needsExecutionTool is False
+    assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
+    with zipfile.ZipFile(path) as z:
+        names = set(z.namelist())
+    assert {"sources/observer.c", "sources/design_data.c", f"binaries/linux64/{md.coSimulation.modelIdentifier}.so"} <= names
+    report = validate(path, steps=400, seed=17)
+    assert report.ok and report.max_rel_diff <= 1e-12
+
+
+def test_same_interface_as_the_python_backend(cfmus, tmp_path):
+    card, path = cfmus[0]["sampled-data"]
+    py = build_observer(card, tmp_path / "py.fmu", backend="python")
+    a, b = read_model_description(str(path)), read_model_description(str(py))
+    key = lambda v: (v.name, v.valueReference, v.causality, v.variability, float(v.start))  # noqa: E731
+    assert [key(v) for v in a.modelVariables] == [key(v) for v in b.modelVariables]
+
+
+@pytest.mark.parametrize("case,status,fragment", [
+    ("nan", 3, "input y[1] = nan"),
+    ("zero-step", 3, "expected h > 0"),
+    ("wrong-step", 2, "is not one of the design intervals"),
+    ("before-init", 3, "called before fmi2ExitInitializationMode"),
+    ("after-terminate", 3, "after fmi2Terminate"),
+])
+def test_bad_calls_return_error_with_a_log_line(cfmus, case, status, fragment):
+    _, path = cfmus[0]["sampled-data"]
+    with Fmu(path, "o") as fmu:
+        if case != "before-init":
+            fmu.initialize(0.0)
+        if case == "after-terminate":
+            fmu.slave.terminate()
+        if case == "nan":
+            fmu.set("y", [float("nan")])
+        h = {"zero-step": 0.0, "wrong-step": 900.0}.get(case, 600.0)
+        with pytest.raises(FmuCallError) as info:
+            fmu.step(0.0, h)
+        assert info.value.status == status
+        assert any(fragment in m for m in info.value.messages), info.value.messages
+        if case in ("nan", "zero-step", "wrong-step"):          # nothing changed; the instance goes on
+            fmu.set("y", [22.0])
+            fmu.step(0.0, 600.0)
+
+
+def test_setting_an_output_or_a_fixed_parameter_late_is_an_error(cfmus):
+    _, path = cfmus[0]["lti-uio"]
+    with Fmu(path, "o") as fmu:
+        fmu.initialize(0.0)
+        with pytest.raises(FmuCallError) as info:
+            fmu.set("xhat", [1.0, 2.0])
+        assert info.value.status == 3 and "is an output" in info.value.messages[-1]
+        with pytest.raises(FmuCallError) as info:
+            fmu.set("xhat0", [1.0, 2.0])
+        assert "fixed parameter" in info.value.messages[-1]
+
+
+def test_many_instances_share_nothing(cfmus):
+    card, path = cfmus[0]["ltv-auid"]
+    rng = np.random.default_rng(4)
+    count, steps = 12, 40
+    ys = rng.normal(size=(count, steps, 1))
+    us = rng.normal(size=(count, steps, 1))
+    fmus = [Fmu(path, f"o{i}") for i in range(count)]
+    try:
+        for i, f in enumerate(fmus):
+            f.initialize(0.0, {"xhat0": [float(i), -float(i)]})
+        outs = np.zeros((count, steps, 2))
+        for k in range(steps):
+            for i, f in enumerate(fmus):
+                f.set("y", ys[i, k]); f.set("u", us[i, k])
+                outs[i, k] = f.get("xhat")
+                f.step(0.1 * k, 0.1)
+    finally:
+        for f in fmus:
+            f.close()
+    for i in range(count):
+        rt = Runtime(card, xhat0=[float(i), -float(i)])
+        for k in range(steps):
+            rt.set_y(ys[i, k]); rt.set_u(us[i, k])
+            np.testing.assert_allclose(outs[i, k], rt.xhat(), rtol=1e-12, atol=1e-14)
+            rt.step(0.1)
+
+
+def test_state_and_serialisation(cfmus):
+    _, path = cfmus[0]["sampled-data"]
+    rng = np.random.default_rng(8)
+    H = [600.0 * (1 + int(i)) for i in rng.integers(0, 12, size=30)]
+    ys = rng.normal(22, 1, size=(30, 1))
+
+    def drive(fmu, a, b):
+        out = []
+        for k in range(a, b):
+            fmu.set("y", ys[k]); fmu.set("u", [5.0])
+            out.append(np.concatenate([fmu.get("xhat"), fmu.get("dhat")]))
+            fmu.step(0.0, H[k])
+        return np.array(out)
+
+    with Fmu(path, "o") as fmu:
+        fmu.initialize(0.0)
+        drive(fmu, 0, 10)
+        state = fmu.get_state()
+        blob = fmu.serialize(state)
+        first = drive(fmu, 10, 30)
+        fmu.set_state(state)
+        assert drive(fmu, 10, 30).tobytes() == first.tobytes()
+    with Fmu(path, "o2") as fmu:
+        fmu.initialize(0.0)
+        fmu.set_state(fmu.deserialize(blob))
+        assert drive(fmu, 10, 30).tobytes() == first.tobytes()
+        with pytest.raises(FmuCallError):
+            fmu.deserialize(blob[:-3])
+
+
+def _host_run(cfmus, family, tmp_path, wrapper=()):
+    card, path = cfmus[0][family]
+    unzip = tmp_path / family
+    with zipfile.ZipFile(path) as z:
+        z.extractall(unzip)
+    md = read_model_description(str(path))
+    host = build_host(tmp_path / "host")
+    rt = Runtime(card)
+    rng = np.random.default_rng(21)
+    steps = rt.schedule.admissible_steps()
+    rows, expect = [], []
+    for k in range(60):
+        h = float(steps[int(rng.integers(len(steps)))])
+        y, u = rng.normal(size=rt.p), rng.normal(size=rt.m)
+        rt.set_y(y); rt.set_u(u)
+        expect.append(np.concatenate([rt.xhat(), rt.residual()]))
+        rt.step(h)
+        rows.append(" ".join(repr(float(v)) for v in [h, *y, *u]))
+    (tmp_path / "steps.txt").write_text("\n".join(rows) + "\n")
+    refs = {v.name: v.valueReference for v in md.modelVariables}
+    ins = [refs[f"y[{i + 1}]"] for i in range(rt.p)] + [refs[f"u[{i + 1}]"] for i in range(rt.m)]
+    outs = [refs[f"xhat[{i + 1}]"] for i in range(rt.n)] + [refs[f"r[{i + 1}]"] for i in range(rt.p)]
+    cmd = [*wrapper, str(host), str(unzip / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"),
+           md.guid, (unzip / "resources").as_uri(), ",".join(map(str, ins)) or "-", ",".join(map(str, outs)),
+           str(tmp_path / "steps.txt")]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    return proc, np.array(expect)
+
+
+@pytest.mark.parametrize("family", ["sampled-data", "ltv-auid"])
+def test_c_host_without_python(cfmus, family, tmp_path):
+    proc, expect = _host_run(cfmus, family, tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    got = np.array([[float(v) for v in line.split()] for line in proc.stdout.splitlines()])
+    np.testing.assert_allclose(got, expect, rtol=1e-12, atol=1e-12 * np.abs(expect).max())
+
+
+@pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind is not installed on this machine")
+def test_c_host_under_valgrind(cfmus, tmp_path):
+    proc, _ = _host_run(cfmus, "ltv-auid", tmp_path,
+                        wrapper=("valgrind", "--error-exitcode=3", "--leak-check=full", "--errors-for-leak-kinds=definite",
+                                 "--quiet"))
+    assert proc.returncode == 0, proc.stderr
+    assert "ERROR SUMMARY" not in proc.stderr or "0 errors" in proc.stderr
+
+
+def test_libcosimpy_runs_the_c_fmu(cfmus):
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+    from libcosimpy.CosimSlave import CosimLocalSlave
+
+    log_output_level(CosimLogLevel.ERROR)
+    card, path = cfmus[0]["lti-uio"]
+    md = read_model_description(str(path))
+    refs = {v.name: v.valueReference for v in md.modelVariables}
+    ex = CosimExecution.from_step_size(step_size=int(round(card.dt * 1e9)))
+    idx = ex.add_local_slave(local_slave=CosimLocalSlave(fmu_path=str(path), instance_name="observer"))
+    obs = CosimObserver.create_last_value()
+    ex.add_observer(observer=obs)
+    ex.real_initial_value(slave_index=idx, variable_reference=refs["y[1]"], value=1.0)
+    assert ex.step(step_count=25)
+    got = obs.last_real_values(slave_index=idx, variable_references=[refs["xhat[1]"], refs["xhat[2]"]])
+    rt = Runtime(card)
+    rt.set_y([1.0])
+    for _ in range(25):
+        rt.step(card.dt)
+    np.testing.assert_allclose(got, rt.xhat(), rtol=1e-12)
+
+
+def test_fmpy_compile_rebuilds_from_sources(cfmus, tmp_path):
+    """The binary removed, fmpy's build (cmake, its own FMI headers) makes a new one from sources/."""
+    from fmpy import extract
+    from fmpy.build import build_platform_binary
+    from fmpy.util import create_zip_archive
+
+    _, path = cfmus[0]["ltv-auid"]
+    unzip = tmp_path / "unzip"
+    extract(str(path), unzipdir=str(unzip))
+    shutil.rmtree(unzip / "binaries")
+    build_platform_binary(unzipdir=str(unzip))
+    rebuilt = tmp_path / "rebuilt.fmu"
+    create_zip_archive(str(rebuilt), str(unzip))
+    assert validate(rebuilt, steps=100).ok
+
+
+def test_build_defaults_to_c(example1_card, cli, tmp_path):
+    _, card_path = example1_card
+    res = cli("build", card_path, "-o", tmp_path / "o.fmu")
+    assert res.code == 0 and "(c backend)" in res.out
+    assert read_model_description(str(tmp_path / "o.fmu")).coSimulation.needsExecutionTool is False

@@ -1,0 +1,38 @@
+/* uiofmu: the data of one observer design, as the C runtime reads it.
+ *
+ * A design card becomes one constant UiofmuDesign (design_data.c, generated). Every matrix
+ * is stored row-major with its schedule axis first: `count` blocks of rows x cols.
+ *   constant : count = 1
+ *   interval : N, L: count = N*N, block [i*N + j]; G, c, Yx, Yu, Yc: block [i]; Xz, Xy, Dy: block [j]
+ *              (i: index of h_k, j: index of h_{k-1})
+ *   geometric: count = number of polynomial coefficients in a = alpha^k
+ * C is never scheduled. count = 0 marks an absent matrix (no dhat).
+ */
+#ifndef UIOFMU_DESIGN_H
+#define UIOFMU_DESIGN_H
+
+typedef struct {
+    int count;
+    int rows, cols;
+    const double *data;
+} UiofmuMatrix;
+
+enum { UIOFMU_CONSTANT = 0, UIOFMU_INTERVAL = 1, UIOFMU_GEOMETRIC = 2 };
+enum { UIOFMU_POLICY_ERROR = 0, UIOFMU_POLICY_NEAREST = 1, UIOFMU_POLICY_COUNT = 2 };
+enum { M_N, M_L, M_G, M_c, M_Xz, M_Xy, M_C, M_Dy, M_Yx, M_Yu, M_Yc, M_COUNT };
+
+typedef struct {
+    const char *guid;
+    const char *model;
+    int n, m, p, q, nz, has_dhat;
+    int kind, policy;
+    double dt, alpha, h_prev0, step_rtol;
+    int nintervals;
+    const double *intervals;
+    const double *xhat0;
+    UiofmuMatrix mat[M_COUNT];
+} UiofmuDesign;
+
+extern const UiofmuDesign UIOFMU_DESIGN;
+
+#endif
