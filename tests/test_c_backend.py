@@ -180,7 +180,6 @@ def test_c_host_without_python(cfmus, family, tmp_path):
     np.testing.assert_allclose(got, expect, rtol=1e-12, atol=1e-12 * np.abs(expect).max())
 
 
-@pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind is not installed on this machine")
 def test_c_host_under_valgrind(cfmus, tmp_path):
     proc, _ = _host_run(cfmus, "ltv-auid", tmp_path,
                         wrapper=("valgrind", "--error-exitcode=3", "--leak-check=full", "--errors-for-leak-kinds=definite",
