@@ -120,11 +120,8 @@ class PlantModel:
         self.dirty = False
 
     def step(self, t: float, h: float) -> None:
-        """One communication step."""
-        try:
-            self.rt.step(h)
-        except ValueError as exc:
-            raise RuntimeInputError(str(exc)) from None
+        """One communication step; raises RuntimeInputError."""
+        self.rt.step(h)
         self.dirty = True
 
     def notices(self) -> list:

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .runtime import check_step
+
 #: Model fields a plant's physical parameters may set (name -> the id kind it is indexed by).
 PARAMETER_FIELDS = {"body_mass": "body", "jnt_stiffness": "joint", "dof_damping": "joint",
                     "tendon_stiffness": "tendon", "tendon_damping": "tendon", "actuator_gear": "actuator"}
@@ -121,12 +123,7 @@ class MujocoRuntime:
 
     def step(self, h: float) -> None:
         """Advance by ``h`` with ``u`` and ``d`` held (substeps of dt and one shorter last one)."""
-        if not (math.isfinite(h) and h > 0):
-            raise ValueError(f"communication step h = {h!r}: expected h > 0")
-        for name, vec in (("u", self.u), ("d", self.d)):
-            if not np.all(np.isfinite(vec)):
-                i = int(np.flatnonzero(~np.isfinite(vec))[0])
-                raise ValueError(f"input {name}[{i + 1}] = {vec[i]} is not finite")
+        check_step(h, {"u": self.u, "d": self.d})
         self.data.ctrl[self.uid] = self.u
         self.data.ctrl[self.did] = self.d
         t_end = self.data.time + h

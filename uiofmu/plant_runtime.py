@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from .runtime import check_step
 from .schedules import StepRejected
 from .tolerances import STEP_RTOL
 
@@ -99,12 +100,7 @@ class PlantRuntime:
 
     def step(self, h: float) -> None:
         """Advance by ``h`` with ``u`` and ``d`` held."""
-        if not (math.isfinite(h) and h > 0):
-            raise ValueError(f"communication step h = {h!r}: expected h > 0")
-        for name, vec in (("u", self.u), ("d", self.d)):
-            if not np.all(np.isfinite(vec)):
-                i = int(np.flatnonzero(~np.isfinite(vec))[0])
-                raise ValueError(f"input {name}[{i + 1}] = {vec[i]} is not finite")
+        check_step(h, {"u": self.u, "d": self.d})
         Ad, Bd, Ed, wd = self.matrices(h)
         self.x = Ad @ self.x + Bd @ self.u + Ed @ self.d + wd
 

@@ -30,6 +30,31 @@ class RuntimeInputError(Exception):
     """An input or call the observer cannot take (the FMU turns it into fmi2Error)."""
 
 
+def check_step(h, inputs: dict, k: int | None = None) -> None:
+    """Refuse a step ``h <= 0`` (or not finite) and non-finite inputs, naming them.
+
+    Parameters
+    ----------
+    h : float
+        The communication step.
+    inputs : dict of str to numpy.ndarray
+        The input vectors by name (``{"y": y, "u": u}``).
+    k : int, optional
+        The step counter, for the message.
+
+    Raises
+    ------
+    RuntimeInputError
+    """
+    at = "" if k is None else f" at step k = {k}"
+    if not (isinstance(h, (int, float)) and math.isfinite(h) and h > 0):
+        raise RuntimeInputError(f"communication step h = {h!r}{at}: expected h > 0")
+    for name, vec in inputs.items():
+        if not np.all(np.isfinite(vec)):
+            i = int(np.flatnonzero(~np.isfinite(vec))[0])
+            raise RuntimeInputError(f"input {name}[{i + 1}] = {vec[i]}{at} is not finite")
+
+
 class Runtime:
     """Steps one observer described by a design card.
 
@@ -102,12 +127,6 @@ class Runtime:
         """Known inputs at the current communication point."""
         self.u[:] = u
 
-    def _check_inputs(self) -> None:
-        for name, vec in (("y", self.y), ("u", self.u)):
-            if not np.all(np.isfinite(vec)):
-                i = int(np.flatnonzero(~np.isfinite(vec))[0])
-                raise RuntimeInputError(f"input {name}[{i + 1}] = {vec[i]} at step k = {self.k} is not finite")
-
     # -- outputs -----------------------------------------------------------------------
     def xhat(self) -> np.ndarray:
         """The state estimate at the current communication point (a view; copy to keep)."""
@@ -144,9 +163,7 @@ class Runtime:
         StepRejected
             A step the schedule was not designed for (nothing changes).
         """
-        if not (isinstance(h, (int, float)) and math.isfinite(h) and h > 0):
-            raise RuntimeInputError(f"communication step h = {h!r} at step k = {self.k}: expected h > 0")
-        self._check_inputs()
+        check_step(h, {"y": self.y, "u": self.u}, self.k)
         mats = self.schedule.step_matrices(self.k, float(h), self.h_prev)
         xhat = self.xhat()
         if self.k == 0:
