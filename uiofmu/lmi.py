@@ -131,6 +131,11 @@ class LmiSystem:
         Strictness margin.
     solver_tol : float
         CLARABEL's feasibility and gap tolerances.
+    backend : {"direct", "cvxpy"}
+        ``direct`` (default) traces the LMIs once into CLARABEL's conic form
+        (:mod:`uiofmu.conic`); ``cvxpy`` builds the same LMIs as a cvxpy problem (the
+        straightforward formulation, kept for comparison and for the infeasibility diagnosis).
+        Both are re-checked the same way.
     """
 
     name: str
@@ -140,12 +145,23 @@ class LmiSystem:
     objective: Callable | None = None
     margin: float = LMI_MARGIN
     solver_tol: float = SOLVER_TOL
+    backend: str = "direct"
+    _conic: object = field(init=False, repr=False, default=None)
     _vars: dict = field(init=False, repr=False)
     _params: dict = field(init=False, repr=False)
     _lmis: list = field(init=False, repr=False)
     _problem: object = field(init=False, repr=False)
 
     def __post_init__(self):
+        self._problem = None
+        if self.backend == "direct":
+            from .conic import ConicProblem
+
+            self._conic = ConicProblem(self.variables, self.parameters, self.build, self.objective, self.margin)
+        else:
+            self._compile_cvxpy()
+
+    def _compile_cvxpy(self):
         cp = _cvxpy()
         ops = SimpleNamespace(bmat=cp.bmat, eye=np.eye, zeros=np.zeros, sym=_cp_sym)
         self._vars = {}
@@ -181,11 +197,15 @@ class LmiSystem:
         LmiSolution
             Also when the solver fails (``values`` empty, ``verified`` False).
         """
-        cp = _cvxpy()
-        for k, v in parameters.items():
-            self._params[k].value = float(v)
-        pvals = {k: float(p.value) for k, p in self._params.items()}
+        pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
         t0 = time.perf_counter()
+        if self._conic is not None:
+            values, status, solve_time = self._conic.solve(pvals, self.solver_tol)
+            total = time.perf_counter() - t0
+            return self._checked(values or {}, pvals, status, solve_time, total)
+        cp = _cvxpy()
+        for k, v in pvals.items():
+            self._params[k].value = v
         try:
             with warnings.catch_warnings():   # inaccurate answers are judged by the re-check instead
                 warnings.simplefilter("ignore", UserWarning)
@@ -198,15 +218,20 @@ class LmiSystem:
         stats = self._problem.solver_stats
         solve_time = float(stats.solve_time) if stats and stats.solve_time is not None else total
         values = {}
-        eigs = {}
-        ok = False
         if all(v.value is not None for v in self._vars.values()) and status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
             values = {k: np.array(v.value, dtype=float) for k, v in self._vars.items()}
+        return self._checked(values, pvals, str(status), solve_time, total)
+
+    def _checked(self, values: dict, pvals: dict, status: str, solve_time: float, total: float) -> LmiSolution:
+        """The re-check of a returned point (the same for every backend)."""
+        eigs, ok, objective = {}, False, None
+        if values:
             lmis = self.evaluate(values, pvals)
             eigs = eig_min(lmis)
             ok = accepted(eigs, lmis, self.margin)
-        objective = float(self._problem.value) if ok and self.objective else None
-        return LmiSolution(values, pvals, str(status), eigs, ok, solve_time, max(total - solve_time, 0.0),
+            if ok and self.objective:
+                objective = float(np.asarray(self.objective(values)))
+        return LmiSolution(values, pvals, status, eigs, ok, solve_time, max(total - solve_time, 0.0),
                            objective, self.margin)
 
     def diagnose(self, **parameters) -> dict:
@@ -219,7 +244,9 @@ class LmiSystem:
             infeasible design.
         """
         cp = _cvxpy()
-        pvals = {k: float(parameters.get(k, p.value)) for k, p in self._params.items()}
+        if self._problem is None:
+            self._compile_cvxpy()
+        pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
         slack = {l.name: cp.Variable(nonneg=True, name=f"slack_{i}")
                  for i, l in enumerate(self._lmis) if not l.equality}
         cons = []
@@ -288,9 +315,11 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
            name: str | None = None) -> SearchResult:
     """Bisection for the best value of one tunable, keeping only re-checked certificates.
 
-    The value at ``feasible_end`` must give a verified certificate; ``infeasible_end`` is a
-    value known (from theory) not to, or the limit of the range. The best value is the one
-    closest to ``infeasible_end`` that still verifies, within ``tol``.
+    ``infeasible_end`` is a value known (from theory) not to verify, or the limit of the range;
+    the best value is the one closest to it that still verifies, within ``tol``. The bracket
+    comes from theory (zeros, fixed modes), and the search first tries the value ``tol`` inside
+    it: where theory's limit is reached (as for the building) one solve decides. Otherwise the
+    value at ``feasible_end`` must verify, and bisection narrows the bracket.
 
     Parameters
     ----------
@@ -322,10 +351,17 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
     t0 = time.perf_counter()
     good, bad = float(feasible_end), float(infeasible_end)
     steps = max(0, int(np.ceil(np.log2(max(abs(good - bad), tol) / tol))))
-    with progress(total=steps + 1, desc=label or f"search {parameter}", unit="solve") as bar:
-        best = system.solve(**{parameter: f(good)})
+    with progress(total=steps + 2, desc=label or f"search {parameter}", unit="solve") as bar:
+        near = bad + (tol if good > bad else -tol)
+        best = system.solve(**{parameter: f(near)})
         bar.update()
         solves = 1
+        if best.verified:
+            return SearchResult(near, best, solves, time.perf_counter() - t0, (near, bad), name or parameter)
+        bad = near
+        best = system.solve(**{parameter: f(good)})
+        bar.update()
+        solves += 1
         if not best.verified:
             system.require(**{parameter: f(good)})  # raises with the diagnosis
         while abs(good - bad) > tol:
