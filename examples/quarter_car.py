@@ -27,7 +27,8 @@ def main():
     import uiofmu
     from uiofmu.cosim import cosimulate, write_outputs
     from uiofmu.export import build_observer
-    from uiofmu.mujoco_plant import build_mujoco_plant, linearize, load_spec, problem_document, to_toml
+    from uiofmu.mujoco_plant import build_mujoco_plant, linearize, load_spec, problem_document
+    from uiofmu.problem import to_toml
     from uiofmu.problem import problem_from_data
     from uiofmu.steps import step_sequence
 

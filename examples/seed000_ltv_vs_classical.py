@@ -80,7 +80,7 @@ def example1(plt, out):
 
 def example2(plt, out):
     import uiofmu
-    from uiofmu.problem import problem_from_data
+    from uiofmu.problem import problem_from_data, to_toml
     from uiofmu.steps import step_sequence
 
     printed = uiofmu.load_problem(EX / "seed000_example2_printed.toml")
@@ -97,7 +97,7 @@ def example2(plt, out):
     classical["observer"] = {"family": "lti-uio", "decay": "max"}
     tmp = out / "fmus" / "seed000_example2_classical.toml"
     tmp.parent.mkdir(parents=True, exist_ok=True)
-    tmp.write_text(_toml(classical))
+    tmp.write_text(to_toml(classical))
     _, ccard, cobs, plant = design_and_build(tmp, out / "fmus")
     _, lcard, lobs, _ = design_and_build(path, out / "fmus")
     print(f"Example 2 (zeros 0.995, 0.999): mu max = {lcard.data['mu']:.4g} (paper: 15), tau_1 = "
@@ -139,7 +139,7 @@ def example2(plt, out):
         data["name"] = f"seed000-example2-alpha{alpha}"
         data["observer"]["alpha"] = alpha
         p = out / "fmus" / f"alpha{alpha}.toml"
-        p.write_text(_toml(data))
+        p.write_text(to_toml(data))
         _, card, obs, _ = design_and_build(p, out / "fmus")
         r = run(plant, obs, steps, out / f"ex2_alpha{alpha}", f"Example 2, alpha = {alpha}")
         rows[alpha] = {"mu": card.data["mu"], "steps_to_1pct": r.metrics["steps_to_1pct"],
@@ -154,24 +154,6 @@ def example2(plt, out):
     for alpha, row in rows.items():
         print(f"  alpha = {alpha}: mu max {row['mu']:.4g}, steps to 1 % {row['steps_to_1pct']}")
     print(f"  classical: steps to 1 % {rc.metrics['steps_to_1pct']}")
-
-
-def _toml(data: dict) -> str:
-    """A problem as TOML (tables of numbers, strings and lists only)."""
-    def value(v):
-        if isinstance(v, str):
-            return json.dumps(v)
-        if isinstance(v, dict):
-            return "{" + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + "}"
-        if isinstance(v, list):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        return repr(v)
-    lines = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, dict)]
-    for section, table in data.items():
-        if isinstance(table, dict):
-            lines.append(f"[{section}]")
-            lines += [f"{k} = {value(v)}" for k, v in table.items()]
-    return "\n".join(lines) + "\n"
 
 
 def main():

@@ -101,7 +101,8 @@ def _cmd_plant(args) -> int:
 
 
 def _cmd_linearize(args) -> int:
-    from .mujoco_plant import linearize, load_spec, problem_document, to_toml
+    from .mujoco_plant import linearize, load_spec, problem_document
+    from .problem import to_toml
 
     spec = load_spec(args.plant)
     lin = linearize(spec)

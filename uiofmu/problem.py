@@ -234,3 +234,26 @@ def make_problem(plant: Plant, family: str, name: str = "problem", signals: dict
     if signals:
         data["signals"] = signals
     return problem_from_data(data, default_name=name)
+
+
+def to_toml(doc: dict, header: str = "") -> str:
+    """A problem document as TOML text (numbers with full precision)."""
+    import json
+
+    def value(v):
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, dict):
+            return "{" + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + "}"
+        if isinstance(v, list):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return repr(float(v)) if isinstance(v, float) else repr(v)
+
+    lines = [f"# {line}" for line in header.splitlines()]
+    lines += [f"{k} = {value(v)}" for k, v in doc.items() if not isinstance(v, dict)]
+    for section, table in doc.items():
+        if isinstance(table, dict):
+            lines += ["", f"[{section}]"] + [f"{k} = {value(v)}" for k, v in table.items()]
+    return "\n".join(lines) + "\n"
