@@ -186,3 +186,12 @@ def test_discrete_plant_is_refused(example1_path, cli, tmp_path):
     path.write_text(text)
     res = cli("check", path)
     assert res.code == 2 and 'samples a continuous plant; plant.time is "discrete"' in res.err
+
+
+def test_cosim_defaults_follow_the_design_intervals(building_fmus, cli, tmp_path):
+    obs, plant = building_fmus
+    res = cli("cosim", "--plant", plant, "--observer", obs, "--out", tmp_path / "run")
+    assert res.code == 0, res.err
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["step_min"] >= 600 and m["step_max"] <= 7200 and m["step_min"] < m["step_max"]
+    assert m["bound_respected"] is True

@@ -151,10 +151,7 @@ def _cmd_cosim(args) -> int:
 
     card = observer_card(args.observer)
     spec = args.steps or default_steps(card)
-    t_end = args.t_end
-    if t_end is None:
-        probe = step_sequence(spec, 100 * float(card.dt), seed=args.seed)
-        t_end = default_t_end(card, probe)
+    t_end = args.t_end if args.t_end is not None else default_t_end(card)
     steps = step_sequence(spec, t_end, seed=args.seed)
     inputs = load_inputs(args.inputs, args.plant) if args.inputs else None
     result = cosimulate(args.plant, args.observer, steps, inputs)
@@ -263,7 +260,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "time,u[1],...,d[1],... (each row held from its time).")
     p.add_argument("--plant", required=True, metavar="P.fmu", help="plant FMU (inputs u, d; outputs y, x)")
     p.add_argument("--observer", required=True, metavar="O.fmu", help="observer FMU built by uiofmu")
-    p.add_argument("--steps", metavar="SPEC", help="communication steps (see above)")
+    p.add_argument("--steps", metavar="SPEC",
+                   help="communication steps (see above; default: the observer's dt, or a uniform choice of its "
+                        "design intervals)")
     p.add_argument("--t-end", type=float, metavar="T",
                    help="end time in s (default: until the certified bound falls to 1e-3, 50 to 5000 steps)")
     p.add_argument("--seed", type=int, default=0, help="seed of random step kinds (default 0)")

@@ -89,6 +89,10 @@ def load_spec(path) -> MujocoSpec:
     from .mujoco_runtime import MujocoRuntime
 
     try:
+        import mujoco  # noqa: F401
+    except ImportError:
+        raise ProblemError(f"{file}: MuJoCo plants need the mujoco package (pip install 'uiofmu[mujoco]')") from None
+    try:
         MujocoRuntime(spec, folder)
     except ValueError as exc:
         raise ProblemError(f"{file}: {exc}") from None
