@@ -60,7 +60,7 @@ def _cmd_design(args) -> int:
             print(f"  {key:16s} {card.data[key]:.6g}")
     search = card.data.get("search")
     if search:
-        print(f"  search           {search['parameter']} over {search['solves']} solves in {search['seconds']:.3f} s")
+        print(f"  search           {search['parameter']} over {search['solves']} solve(s) in {search['seconds']:.3f} s")
     print(f"  certificate      {'verified' if cert['verified'] else 'NOT verified'} "
           f"(CLARABEL {cert['status']}, solver {cert['solve_time_s'] * 1e3:.1f} ms, "
           f"construction {cert['setup_time_s'] * 1e3:.1f} ms)")

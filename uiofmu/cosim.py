@@ -163,7 +163,11 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
                                    card.data.get("overshoot_bound") if card is not None else None,
                                    D if nq else None, DH if nq else None)
     if bound is not None:
-        result.metrics["bound_formula"] = card.data.get("bound")
+        text = card.data.get("bound", "")
+        if card.data.get("overshoot_bound") is not None:
+            text = (text.replace("overshoot_bound", f"{card.data['overshoot_bound']:.4g}")
+                    .replace("decay_bound**k", f"{card.data['decay_bound']:.6g}^k"))
+        result.metrics["bound_formula"] = text
     return result
 
 

@@ -49,7 +49,7 @@ def run_demo(out, say=print) -> dict:
     size = card.data["lmi_size"]
     say(f"  design               alpha = {card.data['alpha']:.6g} (limit from the sampled zeros "
         f"{card.data['alpha_limit_from_zeros']:.6g}), {size['lmis']} LMIs of {size['lmi_dim']}x{size['lmi_dim']}, "
-        f"{card.data['search']['solves']} solves in {time.perf_counter() - t0:.2f} s, certificate "
+        f"{card.data['search']['solves']} solve(s) in {time.perf_counter() - t0:.2f} s, certificate "
         f"{'verified' if cert['verified'] else 'NOT verified'}")
     obs = build_observer(card, out / "observer.fmu")
     plant = build_plant(problem.plant, problem.name, out / "plant.fmu")
