@@ -111,7 +111,8 @@ class Affine:
     def T(self) -> "Affine":
         return self._map(lambda c: c.T, lambda T: T.transpose(1, 0, 2), self.shape[::-1])
 
-    def __add__(self, other):
+    def _combine(self, other, sign: float) -> "Affine":
+        """``self + sign * other`` without intermediate copies."""
         if isinstance(other, ParamAffine):
             if other.coef:
                 raise TypeError("add a parameter times a matrix, not a bare parameter")
@@ -123,11 +124,14 @@ class Affine:
             raise ValueError(f"shape mismatch {self.shape} + {other.shape}")
         const = dict(self.const)
         for k, v in other.const.items():
-            const[k] = const[k] + v if k in const else v
+            const[k] = const[k] + sign * v if k in const else sign * v
         coef = dict(self.coef)
         for k, v in other.coef.items():
-            coef[k] = coef[k] + v if k in coef else v
+            coef[k] = coef[k] + sign * v if k in coef else sign * v
         return Affine(self.shape, const, coef)
+
+    def __add__(self, other):
+        return self._combine(other, 1.0)
 
     __radd__ = __add__
 
@@ -135,7 +139,7 @@ class Affine:
         return self._map(lambda c: -c, lambda T: -T, self.shape)
 
     def __sub__(self, other):
-        return self + (-other)
+        return self._combine(other, -1.0)
 
     def __rsub__(self, other):
         return (-self) + other
@@ -255,20 +259,21 @@ class ConicProblem:
             if lmi.equality:
                 m = F.shape[0] * F.shape[1]
                 sel = (np.repeat(np.arange(F.shape[0]), F.shape[1]), np.tile(np.arange(F.shape[1]), F.shape[0]))
+                tsel = sel
                 scale, sign_a, sign_b = np.ones(m), 1.0, -1.0
                 self.cones.append(clarabel.ZeroConeT(m))
                 shift = 0.0
             else:
-                F = _sym(F)
                 n = F.shape[0]
                 ii, jj, scale = _svec_index(n)
                 sel = (ii, jj)
+                tsel = (jj, ii)                  # the symmetric part: (F + F') / 2 entry by entry
                 m = len(ii)
                 sign_a, sign_b = -1.0, 1.0
                 self.cones.append(clarabel.PSDTriangleConeT(n))
                 shift = margin if lmi.strict else 0.0
             for key, T in F.coef.items():
-                block = T[sel] * scale[:, None]
+                block = (0.5 * (T[sel] + T[tsel])) * scale[:, None]
                 nz = np.nonzero(block)
                 lst = rows.setdefault(key[0], ([], [], []))
                 lst[0].append(r + nz[0])
@@ -278,7 +283,7 @@ class ConicProblem:
             if shift:
                 consts[None] = consts.get(None, np.zeros(F.shape)) - shift * np.eye(F.shape[0])
             for key, c in consts.items():
-                b_parts.append((key, r, sign_b * c[sel] * scale))
+                b_parts.append((key, r, sign_b * 0.5 * (c[sel] + c[tsel]) * scale))
             r += m
         self.nrows = r
         self.A = {}

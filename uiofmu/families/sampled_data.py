@@ -178,15 +178,16 @@ def _lmis(samples, C):
 
     def build(v, prm, ops):
         out = []
+        scaled = [prm["c"] * v[f"Pl{j}"] for j in range(N)]           # (1 - alpha) Pl_j, once per j
         for i in range(N):
             P, S = v[f"Pl{i}"], v[f"S{i}"]
             out.append(Lmi(f"Pl_{i + 1} >= I", P - ops.eye(n), strict=False))
             out.append(Lmi(f"Pl_{i + 1} <= mu I", v["mu"] * ops.eye(n) - P, strict=False))
             out.append(Lmi(f"(16) decoupling i={i + 1}", P @ Es[i] - S @ (C @ Es[i]), equality=True))
-            CA = C @ samples[i].A
+            base = P @ samples[i].A - S @ (C @ samples[i].A)            # the part of (15) common to all j
             for j in range(N):
-                Y = P @ samples[i].A - S @ CA - v[f"Q{i}_{j}"] @ C
-                out.append(Lmi(f"(15) i={i + 1} j={j + 1}", ops.bmat([[P, Y], [Y.T, prm["c"] * v[f"Pl{j}"]]])))
+                Y = base - v[f"Q{i}_{j}"] @ C
+                out.append(Lmi(f"(15) i={i + 1} j={j + 1}", ops.bmat([[P, Y], [Y.T, scaled[j]]])))
         return out
 
     variables = {"mu": ("scalar",)}
@@ -303,9 +304,8 @@ def design(problem):
         "lmi_size": {"lmis": N * N, "lmi_dim": 2 * n, "normalisation_lmis": 2 * N, "equalities": N,
                      "scalar_variables": 1 + N * n * (n + 1) // 2 + N * n * plant.p + N * N * n * plant.p},
         "search": searched,
-        "spectral_radius_max": float(max(np.abs(np.linalg.eigvals(Lm[i, j])).max()
-                                         for i in range(N) for j in range(N))),
-        "eigenvalues_L_constant": [complex_list(np.linalg.eigvals(Lm[i, i])) for i in range(N)],
+        "spectral_radius_max": float(np.abs(np.linalg.eigvals(Lm)).max()),
+        "eigenvalues_L_constant": [complex_list(e) for e in np.linalg.eigvals(Lm[np.arange(N), np.arange(N)])],
     }
     xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(n)
     schedule = {"kind": "interval", "intervals": list(opts.intervals), "h_prev0": opts.h_prev0,
