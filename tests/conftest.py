@@ -43,15 +43,20 @@ def example1_path() -> Path:
     return EXAMPLES / "seed000_example1.toml"
 
 
+def designed(path, tmp_path_factory, stem: str):
+    """Design the problem at ``path`` and write its card; returns (card, card path)."""
+    import uiofmu
+
+    card = uiofmu.design(uiofmu.load_problem(path))
+    out = tmp_path_factory.mktemp("cards") / f"{stem}.json"
+    card.write(out)
+    return card, out
+
+
 @pytest.fixture(scope="session")
 def example1_card(example1_path, tmp_path_factory):
     """The designed card of seed 000 Example 1 (designed once per session)."""
-    import uiofmu
-
-    card = uiofmu.design(uiofmu.load_problem(example1_path))
-    path = tmp_path_factory.mktemp("cards") / "example1.json"
-    card.write(path)
-    return card, path
+    return designed(example1_path, tmp_path_factory, "example1")
 
 
 @pytest.fixture(scope="session")
@@ -62,20 +67,10 @@ def building_path() -> Path:
 @pytest.fixture(scope="session")
 def building_card(building_path, tmp_path_factory):
     """The designed card of the two-room building (alpha = "max"), designed once per session."""
-    import uiofmu
-
-    card = uiofmu.design(uiofmu.load_problem(building_path))
-    path = tmp_path_factory.mktemp("cards") / "building.json"
-    card.write(path)
-    return card, path
+    return designed(building_path, tmp_path_factory, "building")
 
 
 @pytest.fixture(scope="session")
 def ltv_card(tmp_path_factory):
     """The designed LTV card of seed 000 Example 1 (paper parameters)."""
-    import uiofmu
-
-    card = uiofmu.design(uiofmu.load_problem(EXAMPLES / "seed000_example1_ltv.toml"))
-    path = tmp_path_factory.mktemp("cards") / "ltv.json"
-    card.write(path)
-    return card, path
+    return designed(EXAMPLES / "seed000_example1_ltv.toml", tmp_path_factory, "ltv")

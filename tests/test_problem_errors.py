@@ -58,6 +58,8 @@ CASES = [
     ("unknown-top-key", "solver = 'scs'\n" + GOOD, "solver: unknown key"),
     ("unknown-family", edit('"lti-uio"', '"kalman"'), "observer.family: unknown family 'kalman'"),
     ("missing-family", edit('family = "lti-uio"\n', ""), "observer.family: required key is missing"),
+    ("family-not-available", edit('family = "lti-uio"\ndecay = "max"', 'family = "switched"'),
+     "observer.family: 'switched' is not available in this version of uiofmu"),
     ("unknown-observer-key", edit('decay = "max"', 'decay = "max"\ngain = 3'), "observer.gain: unknown key"),
     ("decay-range", edit('decay = "max"', "decay = 1.5"), "observer.decay: expected a value in (0, 1), found 1.5"),
     ("decay-word", edit('decay = "max"', 'decay = "fast"'), 'observer.decay: expected a number or "max"'),
