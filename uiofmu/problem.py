@@ -205,6 +205,9 @@ def load_problem(path) -> Problem:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ProblemError(f"{path}: not valid TOML ({exc})") from None
+    if "mujoco" in data and "plant" not in data:
+        raise ProblemError(f"{path} is a MuJoCo plant spec, not a problem file: linearise it first "
+                           f"(uiofmu linearize {path.parent} -o problem.toml)")
     stem = path.parent.name if path.name == "problem.toml" else path.stem
     return problem_from_data(data, default_name=stem)
 
