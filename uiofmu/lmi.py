@@ -1,17 +1,18 @@
-"""A small LMI toolkit on cvxpy + CLARABEL, with a re-check that does not trust the solver.
+"""A small LMI toolkit for CLARABEL, with a re-check that does not trust the solver.
 
 An LMI system is written once, as a function ``build(v, p, ops)`` returning a list of
-:class:`Lmi` (each a matrix that must be positive definite, or semidefinite when
-``strict=False``). The function is called twice:
+:class:`Lmi` (each a matrix that must be positive definite, semidefinite when
+``strict=False``, or zero when ``equality``). The function is called
 
-* with cvxpy variables and parameters (``ops`` builds with ``cvxpy.bmat``) to solve the problem, and
+* with affine tracer objects (:mod:`uiofmu.conic`), once, to assemble CLARABEL's conic data
+  (or with cvxpy variables and parameters, the straightforward formulation, ``backend="cvxpy"``),
 * with the numpy arrays the solver returned (``ops = NUMPY_OPS``) to re-check every LMI by
   its eigenvalues, without the solver.
 
 Strict inequalities are solved as ``F >= margin * I`` (:data:`~uiofmu.tolerances.LMI_MARGIN`,
 100x the solver tolerance) and accepted by the re-check when ``eig_min(F) >=
-VERIFY_FRACTION * margin``. Tunables are cvxpy Parameters, so the compiled problem is
-reused when a search changes them.
+VERIFY_FRACTION * margin``. A tunable is a parameter of the assembled problem, so a search
+changes only its part of the data between solves.
 """
 
 from __future__ import annotations
@@ -139,7 +140,7 @@ class LmiSystem:
     build : callable
         ``build(v, p, ops) -> list[Lmi]``, written with ``@``, ``.T``, ``*`` and ``ops``.
     objective : callable, optional
-        ``objective(v) -> cvxpy expression`` to minimise; feasibility when omitted.
+        ``objective(v)``: a scalar affine in the variables (e.g. ``v["t"]``) to minimise; feasibility when omitted.
     margin : float
         Strictness margin.
     solver_tol : float
