@@ -272,13 +272,10 @@ class ConicProblem:
                 sign_a, sign_b = -1.0, 1.0
                 self.cones.append(clarabel.PSDTriangleConeT(n))
                 shift = margin if lmi.strict else 0.0
+            half = (0.5 * sign_a) * scale[:, None]
             for key, T in F.coef.items():
-                block = (0.5 * (T[sel] + T[tsel])) * scale[:, None]
-                nz = np.nonzero(block)
-                lst = rows.setdefault(key[0], ([], [], []))
-                lst[0].append(r + nz[0])
-                lst[1].append(self.offsets[key[1]] + nz[1])
-                lst[2].append(sign_a * block[nz])
+                block = (T[sel] + T[tsel]) * half
+                rows.setdefault(key[0], []).append((r, self.offsets[key[1]], block))
             consts = dict(F.const)
             if shift:
                 consts[None] = consts.get(None, np.zeros(F.shape)) - shift * np.eye(F.shape[0])
@@ -286,10 +283,7 @@ class ConicProblem:
                 b_parts.append((key, r, sign_b * 0.5 * (c[sel] + c[tsel]) * scale))
             r += m
         self.nrows = r
-        self.A = {}
-        for key, (ri, ci, vi) in rows.items():
-            self.A[key] = sp.csc_matrix((np.concatenate(vi), (np.concatenate(ri), np.concatenate(ci))),
-                                        shape=(r, self.nvar))
+        self.A = {key: self._sparse(blocks, r) for key, blocks in rows.items()}
         self.b = {}
         for key, start, vec in b_parts:
             self.b.setdefault(key, np.zeros(r))[start:start + len(vec)] += vec
@@ -299,6 +293,19 @@ class ConicProblem:
             for (key, var), T in obj.coef.items():
                 self.q[self.offsets[var]:self.offsets[var] + self.sizes[var]] += T[0, 0]
         self.P = sp.csc_matrix((self.nvar, self.nvar))
+
+    def _sparse(self, blocks: list, nrows: int):
+        """One CSC matrix from dense blocks ``(first row, first column, block)``, zeros dropped.
+
+        The row and column of every entry are computed for all blocks at once."""
+        sizes = np.array([b.size for _, _, b in blocks])
+        widths = np.repeat(np.array([b.shape[1] for _, _, b in blocks]), sizes)
+        local = np.arange(sizes.sum()) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+        rows = np.repeat(np.array([r for r, _, _ in blocks]), sizes) + local // widths
+        cols = np.repeat(np.array([c for _, c, _ in blocks]), sizes) + local % widths
+        vals = np.concatenate([b.ravel() for _, _, b in blocks])
+        keep = vals != 0.0
+        return sp.csc_matrix((vals[keep], (rows[keep], cols[keep])), shape=(nrows, self.nvar))
 
     def solve(self, params: dict, tol: float):
         """Solve for the parameter values; returns ``(values or None, status, solve_time)``."""
