@@ -143,7 +143,7 @@ def test_state_and_serialisation(cfmus):
             fmu.deserialize(blob[:-3])
 
 
-def _host_run(cfmus, family, tmp_path, wrapper=()):
+def _host_run(cfmus, family, tmp_path, wrapper=(), refused_at=None):
     card, path = cfmus[0][family]
     unzip = tmp_path / family
     with zipfile.ZipFile(path) as z:
@@ -155,11 +155,12 @@ def _host_run(cfmus, family, tmp_path, wrapper=()):
     steps = rt.schedule.admissible_steps()
     rows, expect = [], []
     for k in range(60):
-        h = float(steps[int(rng.integers(len(steps)))])
+        h = float(steps[int(rng.integers(len(steps)))]) if k != refused_at else 0.75 * steps[0]
         y, u = rng.normal(size=rt.p), rng.normal(size=rt.m)
         rt.set_y(y); rt.set_u(u)
         expect.append(np.concatenate([rt.xhat(), rt.residual()]))
-        rt.step(h)
+        if k != refused_at:
+            rt.step(h)
         rows.append(" ".join(repr(float(v)) for v in [h, *y, *u]))
     (tmp_path / "steps.txt").write_text("\n".join(rows) + "\n")
     refs = {v.name: v.valueReference for v in md.modelVariables}
@@ -180,12 +181,22 @@ def test_c_host_without_python(cfmus, family, tmp_path):
     np.testing.assert_allclose(got, expect, rtol=1e-12, atol=1e-12 * np.abs(expect).max())
 
 
+VALGRIND = ("valgrind", "--error-exitcode=3", "--leak-check=full", "--errors-for-leak-kinds=definite", "--quiet")
+
+
 def test_c_host_under_valgrind(cfmus, tmp_path):
-    proc, _ = _host_run(cfmus, "ltv-auid", tmp_path,
-                        wrapper=("valgrind", "--error-exitcode=3", "--leak-check=full", "--errors-for-leak-kinds=definite",
-                                 "--quiet"))
+    proc, _ = _host_run(cfmus, "ltv-auid", tmp_path, wrapper=VALGRIND)
     assert proc.returncode == 0, proc.stderr
     assert "ERROR SUMMARY" not in proc.stderr or "0 errors" in proc.stderr
+
+
+def test_c_host_under_valgrind_with_a_refused_step(cfmus, tmp_path):
+    """A step outside the design intervals: fmi2Discard with its log line, no memory error or leak."""
+    proc, _ = _host_run(cfmus, "sampled-data", tmp_path, wrapper=VALGRIND, refused_at=20)
+    assert proc.returncode == 2, proc.stderr          # the host's own status for a refused step (3 = valgrind)
+    assert "is not one of the design intervals" in proc.stderr
+    assert "fmi2DoStep returned 2 at row 20" in proc.stderr
+    assert "definitely lost" not in proc.stderr
 
 
 def test_libcosimpy_runs_the_c_fmu(cfmus):

@@ -79,12 +79,13 @@ int main(int argc, char **argv) {
     double values[256];
     double t = 0.0, elapsed = 0.0;
     long steps = 0;
-    for (int pass = 0; pass < repeat; pass++) {
+    int status = 0;
+    for (int pass = 0; pass < repeat && !status; pass++) {
         for (size_t r = 0; r < rows; r++) {
             const double *row = &data[r * (nin + 1)];
-            if (nin && fmi2SetReal(c, in, nin, row + 1) != fmi2OK) return 2;
+            if (nin && fmi2SetReal(c, in, nin, row + 1) != fmi2OK) { status = 2; break; }
             if (pass == 0) {
-                if (nout && fmi2GetReal(c, out, nout, values) != fmi2OK) return 2;
+                if (nout && fmi2GetReal(c, out, nout, values) != fmi2OK) { status = 2; break; }
                 for (int j = 0; j < nout; j++) printf(j ? " %.17g" : "%.17g", values[j]);
                 printf("\n");
             }
@@ -94,14 +95,18 @@ int main(int argc, char **argv) {
             clock_gettime(CLOCK_MONOTONIC, &b);
             elapsed += (b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec);
             steps++;
-            if (st != fmi2OK) { fprintf(stderr, "fmi2DoStep returned %d at row %zu\n", (int)st, r); return 2; }
+            if (st != fmi2OK) {
+                fprintf(stderr, "fmi2DoStep returned %d at row %zu\n", (int)st, r);
+                status = 2;
+                break;
+            }
             t += row[0];
         }
     }
-    if (repeat > 1) fprintf(stderr, "ns_per_step %.1f\n", elapsed / steps);
-    fmi2Terminate(c);
+    if (repeat > 1 && steps) fprintf(stderr, "ns_per_step %.1f\n", elapsed / steps);
+    if (!status) fmi2Terminate(c);
     fmi2FreeInstance(c);
     free(data);
     dlclose(lib);
-    return 0;
+    return status;
 }
