@@ -37,6 +37,7 @@ typedef struct {
     long k;
     double h_prev, h_prev0;
     int noticed;
+    int j_prev; /* index of h_prev among the design intervals, -1 until looked up */
     double *z, *pred, *xhat0, *y, *u;
     /* outputs and work space */
     int dirty;
@@ -125,7 +126,7 @@ static void evaluate(Instance *s, long k) {
     double a = pow(s->d->alpha, (double)k);
     for (int w = 0; w < M_COUNT; w++) {
         const UiofmuMatrix *M = &s->d->mat[w];
-        if (w == M_C || M->count == 0) continue;
+        if (w == M_C || M->count <= 1) continue; /* constant in a: used in place */
         size_t sz = msize(M);
         double *out = s->work[w];
         memcpy(out, M->data + (size_t)(M->count - 1) * sz, sz * sizeof(double));
@@ -140,20 +141,21 @@ static const double *pick(Instance *s, int which, int i, int j) {
     const UiofmuMatrix *M = &s->d->mat[which];
     size_t sz = msize(M);
     if (which == M_C || s->d->kind == UIOFMU_CONSTANT) return M->data;
-    if (s->d->kind == UIOFMU_GEOMETRIC) return s->work[which];
+    if (s->d->kind == UIOFMU_GEOMETRIC) return M->count == 1 ? M->data : s->work[which];
     if (which == M_N || which == M_L) return M->data + ((size_t)i * s->d->nintervals + j) * sz;
     if (which == M_Xz || which == M_Xy || which == M_Dy) return M->data + (size_t)j * sz;
     return M->data + (size_t)i * sz;
 }
 
 static int prev_index(Instance *s) {
-    return s->d->kind == UIOFMU_INTERVAL ? interval_index(s, s->h_prev, NULL, 0) : 0;
+    if (s->d->kind != UIOFMU_INTERVAL) return 0;
+    if (s->j_prev < 0) s->j_prev = interval_index(s, s->h_prev, NULL, 0);
+    return s->j_prev;
 }
 
-static void refresh(Instance *s) {
+/* xhat_k alone (what a step needs). */
+static void estimate(Instance *s, int j) {
     const UiofmuDesign *d = s->d;
-    if (!s->dirty) return;
-    int j = prev_index(s);
     if (d->kind == UIOFMU_GEOMETRIC) evaluate(s, s->k);
     if (s->k == 0) {
         memcpy(s->xhat, s->xhat0, d->n * sizeof(double));
@@ -161,6 +163,13 @@ static void refresh(Instance *s) {
         matvec(pick(s, M_Xz, 0, j), d->n, d->nz, s->z, s->xhat);
         matvec_add(pick(s, M_Xy, 0, j), d->n, d->p, s->y, s->xhat, s->pt);
     }
+}
+
+static void refresh(Instance *s) {
+    const UiofmuDesign *d = s->d;
+    if (!s->dirty) return;
+    int j = prev_index(s);
+    estimate(s, j);
     matvec(d->mat[M_C].data, d->p, d->n, s->xhat, s->r);
     for (int i = 0; i < d->p; i++) s->r[i] = s->y[i] - s->r[i];
     if (d->has_dhat) {
@@ -177,6 +186,7 @@ static void refresh(Instance *s) {
 static void reset_state(Instance *s) {
     s->k = 0;
     s->h_prev = s->h_prev0;
+    s->j_prev = -1;
     s->noticed = 0;
     memset(s->z, 0, s->d->nz * sizeof(double));
     memset(s->pred, 0, s->d->p * sizeof(double));
@@ -423,7 +433,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
               "(step_policy = 'error')", num(t, bt), num(d->dt, bd), num(h, bh));
         return fmi2Discard;
     }
-    refresh(s); /* xhat_k (and the geometric matrices of step k) */
+    estimate(s, j); /* xhat_k (and the geometric matrices of step k) */
     if (s->k == 0) {
         matvec(pick(s, M_Xy, i, j), d->n, d->p, s->y, s->tmp);
         for (int e = 0; e < d->nz; e++) s->z[e] = s->xhat0[e] - s->tmp[e];
@@ -440,6 +450,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     const double *cc = pick(s, M_c, i, j);
     for (int e = 0; e < d->nz; e++) s->z[e] = s->tmp[e] + cc[e];
     s->h_prev = h;
+    s->j_prev = i;
     s->k += 1;
     s->dirty = 1;
     return fmi2OK;
@@ -478,6 +489,7 @@ static void unpack(Instance *s, const double *in) {
     memcpy(s->y, o, d->p * sizeof(double)); o += d->p;
     memcpy(s->u, o, d->m * sizeof(double));
     s->work_k = -1;
+    s->j_prev = -1;
     s->dirty = 1;
 }
 
