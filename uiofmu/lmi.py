@@ -82,7 +82,8 @@ class LmiSolution:
         True when every strict LMI has ``eig_min >= VERIFY_FRACTION * margin`` and every
         non-strict one ``eig_min >= -VERIFY_FRACTION * margin``.
     solve_time, setup_time : float
-        CLARABEL's own time and the rest of the call (problem construction, canonicalisation), s.
+        CLARABEL's own time (direct backend: the wall time of its setup and solve calls; cvxpy
+        backend: the solve time cvxpy reports) and the rest of the call, s.
     objective : float or None
     """
 

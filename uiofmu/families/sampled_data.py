@@ -271,13 +271,11 @@ def design(problem):
         Yx.append(C @ s.A)
         Yu.append(C @ s.B)
         Dy.append(np.linalg.pinv(CE))
-    Lm = np.zeros((N, N, n, n))
-    Pm = np.zeros((N, N, n, plant.p))
-    for i, s in enumerate(samples):
-        for j in range(N):
-            Gij = np.linalg.solve(Pl[i], v[f"Q{i}_{j}"])
-            Lm[i, j] = (np.eye(n) - K[i] @ C) @ s.A - Gij @ C
-            Pm[i, j] = Gij + Lm[i, j] @ K[j]                   # (19), sign corrected
+    Q = np.array([[v[f"Q{i}_{j}"] for j in range(N)] for i in range(N)])       # (N, N, n, p)
+    Gq = np.linalg.solve(np.array(Pl)[:, None], Q)                               # Pl_i^{-1} Q_ij
+    PiA = np.array([(np.eye(n) - K[i] @ C) @ s.A for i, s in enumerate(samples)])
+    Lm = PiA[:, None] - Gq @ C                                                   # (18)
+    Pm = Gq + Lm @ np.array(K)[None, :]                                          # (19), sign corrected
     matrices = {
         "N": Lm, "L": Pm, "G": np.array(G), "c": np.zeros((N, n)),
         "Xz": np.array([np.eye(n)] * N), "Xy": np.array(K), "C": C,
