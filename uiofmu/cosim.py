@@ -192,10 +192,15 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None) -> dic
 
 
 def load_inputs(csv_path, plant_path):
-    """Inputs from a CSV sized for the plant FMU."""
-    with Fmu(plant_path, "probe") as plant:
-        m, q = len(plant.refs("u")), len(plant.refs("d"))
-    return CsvInputs(csv_path, m, q)
+    """Inputs from a CSV sized for the plant FMU (its ``u[i]`` and ``d[i]`` inputs)."""
+    from fmpy import read_model_description
+
+    try:
+        names = {v.name for v in read_model_description(str(plant_path)).modelVariables}
+    except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for broken archives
+        raise FmuError(f"{plant_path}: not a readable FMU ({exc})") from None
+    count = lambda vec: sum(1 for i in range(1, len(names) + 1) if f"{vec}[{i}]" in names)  # noqa: E731
+    return CsvInputs(csv_path, count("u"), count("d"))
 
 
 __all__ = ["CosimResult", "cosimulate", "default_inputs", "default_steps", "default_t_end", "load_inputs",

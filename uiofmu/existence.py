@@ -83,6 +83,13 @@ class Existence:
                                   + "; ".join(c.message for c in self.failures))
         return self
 
+    def holds(self, name: str) -> bool:
+        """Whether the named condition holds."""
+        for c in self.conditions:
+            if c.name == name:
+                return bool(c.holds)
+        raise KeyError(name)
+
     def value(self, name: str, key: str):
         """A value of a named condition."""
         for c in self.conditions:

@@ -156,7 +156,7 @@ def design(problem):
                 "M": M, "K": K, "P": P, "X": X, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E}
     cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}")
     eigX = np.linalg.eigvalsh(X)
-    if existence.value("rank(CE) = q", "rank_CE") == plant.q:
+    if existence.holds("rank(CE) = q"):
         matrices.update({"Dy": np.linalg.pinv(C @ s.E), "Yx": C @ s.A, "Yu": C @ s.B, "Yc": C @ s.w})
     eigN = np.linalg.eigvals(N)
     results = {

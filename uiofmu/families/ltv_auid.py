@@ -260,7 +260,7 @@ def design(problem):
     tau1, tau2 = opts.eta * (1 + mu), opts.eta
     matrices = {**coefficients(M, T1, T2, s, C, opts.alpha), "C": C, "M": M, "T1": T1, "T2": T2, "X": X,
                 "A1": A1, "A2": A2, "S1": S1, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E}
-    if np.linalg.matrix_rank(C @ s.E) < plant.q:
+    if not existence.holds("rank(CE) = q"):
         for k in ("Dy", "Yx", "Yu", "Yc"):
             matrices.pop(k)
     eigX = np.linalg.eigvalsh(X)

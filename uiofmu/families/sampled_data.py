@@ -283,8 +283,7 @@ def design(problem):
         "A_sampled": np.array([s.A for s in samples]), "B_sampled": np.array([s.B for s in samples]),
         "E_sampled": np.array([s.E for s in samples]),
     }
-    if existence.value("rank(C E(h)) = q", "per_interval") and all(
-            c["rank_CE"] == plant.q for c in existence.value("rank(C E(h)) = q", "per_interval")):
+    if existence.holds("rank(C E(h)) = q"):
         matrices.update({"Dy": np.array(Dy), "Yx": np.array(Yx), "Yu": np.array(Yu), "Yc": np.zeros((N, plant.p))})
     decay = float(np.sqrt(1.0 - alpha))
     cert = certificate(sol, checks(matrices, decay), f"{NAME} design of {problem.name}")
