@@ -93,23 +93,32 @@ class ObserverModel:
 
 
 class PlantModel:
-    """A linear plant as FMU ports: ``u, d -> y, x``."""
+    """A plant as FMU ports: ``u, d -> y, x``; parameters ``x0`` and the runtime's physical ones.
+
+    The runtime is a linear :class:`~uiofmu.plant_runtime.PlantRuntime` or a
+    :class:`~uiofmu.mujoco_runtime.MujocoRuntime`; both hold ``x0``, ``u``, ``d``, ``x``, ``y()``,
+    ``step(h)`` and their physical parameters ``param_names``, ``params``, ``apply_parameters()``.
+    """
 
     kind = "plant"
 
-    def __init__(self, spec: dict):
-        self.rt = PlantRuntime(spec["plant"])
-        n, p = self.rt.n, self.rt.p
-        self.parameters = [Port("x0", self.rt.x0.copy(), "initial state")]
-        self.inputs = [Port("u", self.rt.u, "known inputs (held over the step)"),
-                       Port("d", self.rt.d, "unknown inputs (held over the step)")]
-        self.outputs = [Port("y", np.zeros(p), "measured outputs C x"),
-                        Port("x", np.zeros(n), "true state (for validation)")]
+    def __init__(self, rt, param_targets: dict | None = None):
+        self.rt = rt
+        self.parameters = [Port("x0", rt.x0.copy(), "initial state")]
+        for i, name in enumerate(rt.param_names):
+            self.parameters.append(Port(name, rt.params[i:i + 1].copy(), f"physical parameter {param_targets[name]}"))
+        self.inputs = [Port("u", rt.u, "known inputs (held over the step)"),
+                       Port("d", rt.d, "unknown inputs (held over the step)")]
+        self.outputs = [Port("y", np.zeros(rt.p), "measured outputs C x"),
+                        Port("x", np.zeros(rt.n), "true state (for validation)")]
         self.dirty = True
 
     def initialize(self) -> None:
-        """Take the parameters."""
+        """Take the parameters (initial state and physical parameters) and reset."""
         self.rt.x0 = self.parameters[0].values.copy()
+        for i, port in enumerate(self.parameters[1:]):
+            self.rt.params[i] = port.values[0]
+        self.rt.apply_parameters()
         self.rt.reset()
         self.dirty = True
 
@@ -136,51 +145,20 @@ class PlantModel:
         """Restore :meth:`get_state`."""
         self.rt.set_state(state["runtime"])
         self.parameters[0].values[:] = self.rt.x0
-        self.dirty = True
-
-
-class MujocoPlantModel(PlantModel):
-    """A MuJoCo model as FMU ports: ``u, d -> y, x``; parameters ``x0`` and the physical ones."""
-
-    kind = "mujoco"
-
-    def __init__(self, spec: dict, resources: str):
-        from .mujoco_runtime import MujocoRuntime
-
-        self.rt = MujocoRuntime(spec["mujoco"], resources)
-        self.parameters = [Port("x0", self.rt.x0.copy(), "initial state [qpos, qvel]")]
-        for i, name in enumerate(self.rt.param_names):
-            self.parameters.append(Port(name, self.rt.params[i:i + 1].copy(),
-                                        f"physical parameter {spec['mujoco']['parameters'][name]}"))
-        self.inputs = [Port("u", self.rt.u, "known actuator forces (held over the step)"),
-                       Port("d", self.rt.d, "unknown input forces (held over the step)")]
-        self.outputs = [Port("y", np.zeros(self.rt.p), "measured outputs C x"),
-                        Port("x", np.zeros(self.rt.n), "true state [qpos, qvel] (for validation)")]
-        self.dirty = True
-
-    def initialize(self) -> None:
-        """Take the parameters into the MuJoCo model and reset to x0."""
-        self.rt.x0 = self.parameters[0].values.copy()
-        for i, port in enumerate(self.parameters[1:]):
-            self.rt.params[i] = port.values[0]
-        self.rt.apply_parameters()
-        self.rt.reset()
-        self.dirty = True
-
-    def set_state(self, state: dict) -> None:
-        """Restore :meth:`get_state`."""
-        self.rt.set_state(state["runtime"])
-        self.parameters[0].values[:] = self.rt.x0
         for i, port in enumerate(self.parameters[1:]):
             port.values[0] = self.rt.params[i]
         self.dirty = True
 
 
 def make_model(spec: dict, resources: str = "."):
-    """The model of an FMU's ``resources/model.json``."""
+    """The model of an FMU's ``resources/model.json`` (``resources``: where its files are)."""
     if spec["kind"] == "mujoco":
-        return MujocoPlantModel(spec, resources)
-    return {"observer": ObserverModel, "plant": PlantModel}[spec["kind"]](spec)
+        from .mujoco_runtime import MujocoRuntime
+
+        return PlantModel(MujocoRuntime(spec["mujoco"], resources), spec["mujoco"].get("parameters", {}))
+    if spec["kind"] == "plant":
+        return PlantModel(PlantRuntime(spec["plant"]))
+    return ObserverModel(spec)
 
 
 __all__ = ["ObserverModel", "PlantModel", "Port", "RuntimeInputError", "StepRejected", "make_model"]

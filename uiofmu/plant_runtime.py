@@ -67,9 +67,14 @@ class PlantRuntime:
         self.x0 = np.array(data.get("x0") or np.zeros(n), dtype=float)
         self.u = np.zeros(self.m)
         self.d = np.zeros(self.q)
+        self.param_names: list = []            # a linear plant has no physical parameters to set
+        self.params = np.zeros(0)
         self._cache: dict = {}
         self._cache_size = cache_size
         self.reset()
+
+    def apply_parameters(self) -> None:
+        """Nothing to apply: the matrices are the parameters (kept for the FMU model's interface)."""
 
     def reset(self) -> None:
         """Back to the initial state ``x0``."""
@@ -106,7 +111,8 @@ class PlantRuntime:
 
     def get_state(self) -> dict:
         """JSON-ready state."""
-        return {"x": self.x.tolist(), "x0": self.x0.tolist(), "u": self.u.tolist(), "d": self.d.tolist()}
+        return {"x": self.x.tolist(), "x0": self.x0.tolist(), "u": self.u.tolist(), "d": self.d.tolist(),
+                "params": []}
 
     def set_state(self, state: dict) -> None:
         """Restore :meth:`get_state`."""
