@@ -73,3 +73,42 @@ def test_trace_equals_numpy_evaluation():
             seg = x[system._conic.offsets[var]:system._conic.offsets[var] + system._conic.sizes[var]]
             got = got + (good if k == param else 1.0) * np.einsum("ijv,v->ij", T, seg)
         np.testing.assert_allclose(got, np.asarray(d.matrix, dtype=float), atol=1e-12)
+
+
+@pytest.mark.parametrize("index", range(3))
+def test_conic_data_equals_numpy_evaluation(index):
+    """CLARABEL's slack ``s = b - A x`` at a random point and parameter value is, cone by cone,
+    the LMI evaluated with numpy: the scaled upper triangle of ``sym(F) - margin I`` (column
+    by column) for a strict LMI, ``sym(F)`` for a non-strict one, ``-F`` for an equality."""
+    _, make, param, good, _ = systems()[index]
+    system = make("direct")
+    problem = system._conic
+    x = np.random.default_rng(index).normal(size=problem.nvar)
+    A, b = problem.data({param: good})
+    slack = b - A @ x
+    expected = []
+    for lmi in system.build(problem.unpack(x), {param: good}, NUMPY_OPS):
+        F = np.asarray(lmi.matrix, dtype=float)
+        if lmi.equality:
+            expected.append(-F.ravel())
+            continue
+        S = 0.5 * (F + F.T) - (system.margin if lmi.strict else 0.0) * np.eye(len(F))
+        i, j = np.tril_indices(len(F))      # S[j, i]: the upper triangle, column by column
+        expected.append(np.where(i == j, 1.0, np.sqrt(2.0)) * S[j, i])
+    np.testing.assert_allclose(slack, np.concatenate(expected), atol=1e-12)
+
+
+def test_card_records_where_the_design_time_went(building_path, cli, tmp_path):
+    """The card's timing adds up: CLARABEL and the LMI assembly are parts of the total, the
+    solves are the search's, and ``uiofmu design`` prints them."""
+    res = cli("design", building_path, "-o", tmp_path / "b.json")
+    assert res.code == 0, res.err
+    card = uiofmu.read_card(tmp_path / "b.json")
+    t = card.data["timing"]
+    assert t["backend"] == "direct"
+    assert t["solves"] == card.data["search"]["solves"] >= 1
+    assert 0 < t["solver_s"] and 0 < t["lmi_assembly_s"]
+    assert t["solver_s"] + t["lmi_assembly_s"] < t["total_s"]
+    assert card.data["search"]["seconds"] < t["total_s"]
+    line = next(x for x in res.out.splitlines() if x.strip().startswith("time"))
+    assert f"CLARABEL {t['solver_s'] * 1e3:.1f} ms ({t['solves']} solve(s))" in line

@@ -36,7 +36,7 @@ DHAT = ("Dy", "Yx", "Yu", "Yc")
 def to_lists(value):
     """Arrays (and complex numbers) to nested lists of floats, recursively."""
     if isinstance(value, np.ndarray):
-        return to_lists(value.tolist())
+        return value.tolist() if value.dtype.kind in "biuf" else to_lists(value.tolist())
     if isinstance(value, dict):
         return {k: to_lists(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):

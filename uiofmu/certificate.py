@@ -92,7 +92,6 @@ def certificate(solution: LmiSolution, checks: list[Check], label: str) -> dict:
         "checks": {c.name: c.to_data() for c in checks},
         "verified": bool(solution.verified and not failed),
         "solve_time_s": solution.solve_time,
-        "setup_time_s": solution.setup_time,
     }
 
 

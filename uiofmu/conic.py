@@ -4,8 +4,9 @@ An LMI system is written once as ``build(v, p, ops)`` (see :mod:`uiofmu.lmi`). C
 :class:`Affine` variables and :class:`ParamAffine` parameters, the same function traces every
 LMI as an affine map of the variables, with dense coefficient tensors per variable (the blocks
 are small; there are many of them). :class:`ConicProblem` turns the traced LMIs into CLARABEL's
-form ``A x + s = b``, ``s`` in zero and PSD-triangle cones, once; a solve for new parameter
-values only adds the parameter's sparse part and calls the solver.
+form ``A x + s = b``, ``s`` in zero and PSD-triangle cones, once, with one sparsity pattern
+for every parameter value: a solve for new values forms ``A`` and ``b`` with one small matrix
+product each and calls the solver.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import time
 from functools import lru_cache
 from types import SimpleNamespace
 
+import clarabel
 import numpy as np
 import scipy.sparse as sp
 
@@ -211,16 +213,31 @@ TRACE_OPS = SimpleNamespace(bmat=bmat, eye=np.eye, zeros=np.zeros, sym=_sym)
 
 
 @lru_cache(maxsize=64)
-def _svec_index(n: int):
-    """Rows, columns and scales of the upper triangle, column by column (CLARABEL's PSD triangle)."""
-    ii, jj = np.triu_indices(n)
-    order = np.lexsort((ii, jj))
-    ii, jj = ii[order], jj[order]
-    return ii, jj, np.where(ii == jj, 1.0, SQRT2)
+def _cone_map(rows: int, cols: int, equality: bool):
+    """Where each entry of an LMI matrix (row-major) goes in its cone: ``(row, weight, count)``.
+
+    A PSD cone holds CLARABEL's scaled upper triangle of the symmetric part, column by
+    column: entry ``F[i, j]`` adds ``-F[i, j] / 2`` to the row of the pair ``{i, j}``, times
+    sqrt(2) off the diagonal (``-F[i, i]`` on it; the sign makes ``A x + s = b`` hold with
+    ``s = F(x)``). A zero cone row is ``+F[i, j]`` itself."""
+    if equality:
+        return np.arange(rows * cols), np.ones(rows * cols), rows * cols
+    n = rows
+    i, j = np.divmod(np.arange(n * n), n)
+    lo, hi = np.minimum(i, j), np.maximum(i, j)
+    row = hi * (hi + 1) // 2 + lo                       # upper triangle, column by column
+    weight = np.where(i == j, -1.0, -0.5 * SQRT2)
+    return row, weight, n * (n + 1) // 2
 
 
 class ConicProblem:
     """The traced LMIs of a system as CLARABEL data, assembled once.
+
+    Every LMI is traced to its entries ``F(x) = F0 + sum_k p_k F_k + (linear in x)``; each entry
+    goes to one row of its cone with one weight (:func:`_cone_map`), so the rows, columns and
+    values of ``A`` and ``b`` for all LMIs and all parameters are computed at once from the
+    stacked coefficients. ``A`` is kept as one sparsity pattern with a column of values per
+    parameter: a solve forms its values with one small matrix product.
 
     Parameters
     ----------
@@ -237,98 +254,99 @@ class ConicProblem:
     """
 
     def __init__(self, variables: dict, parameters: dict, build, objective, margin: float):
-        import clarabel
-
-        self._clarabel = clarabel
         self.specs = variables
-        self.offsets, self.sizes = {}, {}
-        total = 0
+        self.offsets, self.sizes, self._basis = {}, {}, {}
         traced = {}
+        total = 0
         for name, spec in variables.items():
-            var = Affine.variable(name, spec)
-            traced[name] = var
+            var = traced[name] = Affine.variable(name, spec)
+            self._basis[name] = var.coef[(None, name)]
             self.offsets[name] = total
-            self.sizes[name] = next(iter(var.coef.values())).shape[2]
+            self.sizes[name] = self._basis[name].shape[2]
             total += self.sizes[name]
         self.nvar = total
-        params = {k: ParamAffine(0.0, {k: 1.0}) for k in parameters}
-        lmis = build(traced, params, TRACE_OPS)
-        rows = {}      # parameter key -> (row, col, val) lists of A
-        b_parts = []   # (parameter key, first row, values) of b
+        self.keys = (None, *parameters)
+        code = {k: i for i, k in enumerate(self.keys)}
+        lmis = build(traced, {k: ParamAffine(0.0, {k: 1.0}) for k in parameters}, TRACE_OPS)
+
+        maps, coef, const, diag = [], [], [], []
         self.cones = []
-        r = 0
+        entry = row = 0
         for lmi in lmis:
-            F = lmi.matrix
-            if not isinstance(F, Affine):
-                F = Affine(np.shape(F), {None: np.asarray(F, dtype=float)})
+            F = lmi.matrix if isinstance(lmi.matrix, Affine) else Affine(np.shape(lmi.matrix),
+                                                                            {None: np.asarray(lmi.matrix, float)})
+            m, n = F.shape
+            rows, weights, count = _cone_map(m, n, lmi.equality)
+            maps.append((rows + row, weights))
             if lmi.equality:
-                m = F.shape[0] * F.shape[1]
-                sel = (np.repeat(np.arange(F.shape[0]), F.shape[1]), np.tile(np.arange(F.shape[1]), F.shape[0]))
-                tsel = sel
-                scale, sign_a, sign_b = np.ones(m), 1.0, -1.0
-                self.cones.append(clarabel.ZeroConeT(m))
-                shift = 0.0
+                self.cones.append(clarabel.ZeroConeT(count))
             else:
-                n = F.shape[0]
-                ii, jj, scale = _svec_index(n)
-                sel = (ii, jj)
-                tsel = (jj, ii)                  # the symmetric part: (F + F') / 2 entry by entry
-                m = len(ii)
-                sign_a, sign_b = -1.0, 1.0
-                self.cones.append(clarabel.PSDTriangleConeT(n))
-                shift = margin if lmi.strict else 0.0
-            half = (0.5 * sign_a) * scale[:, None]
-            for key, T in F.coef.items():
-                block = (T[sel] + T[tsel]) * half
-                rows.setdefault(key[0], []).append((r, self.offsets[key[1]], block))
-            consts = dict(F.const)
-            if shift:
-                consts[None] = consts.get(None, np.zeros(F.shape)) - shift * np.eye(F.shape[0])
-            for key, c in consts.items():
-                b_parts.append((key, r, sign_b * 0.5 * (c[sel] + c[tsel]) * scale))
-            r += m
-        self.nrows = r
-        self.A = {key: self._sparse(blocks, r) for key, blocks in rows.items()}
-        self.b = {}
-        for key, start, vec in b_parts:
-            self.b.setdefault(key, np.zeros(r))[start:start + len(vec)] += vec
+                self.cones.append(clarabel.PSDTriangleConeT(m))
+                if lmi.strict:                                    # F - margin I in the cone
+                    diag.append(entry + np.arange(m) * (m + 1))
+            for (key, var), T in F.coef.items():
+                coef.append((code[key], entry, self.offsets[var], T.reshape(m * n, -1)))
+            for key, c in F.const.items():
+                const.append((code[key], entry, c.ravel()))
+            entry += m * n
+            row += count
+        self.nrows = row
+        to_row = np.concatenate([r for r, _ in maps])
+        to_weight = np.concatenate([w for _, w in maps])
+        self._pattern(coef, to_row, to_weight)
+        c = np.zeros((entry, len(self.keys)))
+        for k, first, vals in const:
+            c[first:first + len(vals), k] += vals
+        if diag:
+            c[np.concatenate(diag), 0] -= margin
+        self._b = np.zeros((row, len(self.keys)))
+        np.add.at(self._b, to_row, -to_weight[:, None] * c)
         self.q = np.zeros(self.nvar)
         if objective is not None:
-            obj = objective(traced)
-            for (key, var), T in obj.coef.items():
+            for (key, var), T in objective(traced).coef.items():
                 self.q[self.offsets[var]:self.offsets[var] + self.sizes[var]] += T[0, 0]
-        self.P = sp.csc_matrix((self.nvar, self.nvar))
+        self.P = sp.csc_matrix((np.zeros(0), np.zeros(0, np.int64), np.zeros(self.nvar + 1, np.int64)),
+                               shape=(self.nvar, self.nvar))
 
-    def _sparse(self, blocks: list, nrows: int):
-        """One CSC matrix from dense blocks ``(first row, first column, block)``, zeros dropped.
+    def _pattern(self, blocks: list, to_row: np.ndarray, to_weight: np.ndarray):
+        """``A``'s pattern (CSC) and its values per parameter key, from dense coefficient blocks
+        ``(key, first entry, first column, block)``: the cone row, column and value of every
+        coefficient are computed for all blocks at once, and coefficients landing on the same
+        (row, column) are summed."""
+        keys, first_entry, first_col, widths = (np.array(x) for x in zip(*[(k, e, c, b.shape[1])
+                                                                           for k, e, c, b in blocks]))
+        starts = np.cumsum([0] + [b.size for *_, b in blocks])
+        vals = np.concatenate([b.ravel() for *_, b in blocks])
+        where = np.flatnonzero(vals)                   # only the nonzero coefficients get indices
+        block = np.searchsorted(starts, where, side="right") - 1
+        local = where - starts[block]
+        entries = first_entry[block] + local // widths[block]
+        rows, cols, keys = to_row[entries], first_col[block] + local % widths[block], keys[block]
+        vals = vals[where] * to_weight[entries]
+        order = np.lexsort((rows, cols))
+        pairs = cols[order] * self.nrows + rows[order]
+        first = np.concatenate([[pairs.size > 0], pairs[1:] != pairs[:-1]])
+        slot = np.cumsum(first) - 1
+        self._values = np.zeros((int(first.sum()), len(self.keys)))
+        np.add.at(self._values, (slot, keys[order]), vals[order])
+        self._indices = rows[order][first].astype(np.int64)
+        self._indptr = np.searchsorted(cols[order][first], np.arange(self.nvar + 1)).astype(np.int64)
 
-        The row and column of every entry are computed for all blocks at once."""
-        sizes = np.array([b.size for _, _, b in blocks])
-        widths = np.repeat(np.array([b.shape[1] for _, _, b in blocks]), sizes)
-        local = np.arange(sizes.sum()) - np.repeat(np.cumsum(sizes) - sizes, sizes)
-        rows = np.repeat(np.array([r for r, _, _ in blocks]), sizes) + local // widths
-        cols = np.repeat(np.array([c for _, c, _ in blocks]), sizes) + local % widths
-        vals = np.concatenate([b.ravel() for _, _, b in blocks])
-        keep = vals != 0.0
-        return sp.csc_matrix((vals[keep], (rows[keep], cols[keep])), shape=(nrows, self.nvar))
+    def data(self, params: dict):
+        """CLARABEL's ``A`` (CSC) and ``b`` at the parameter values."""
+        weights = np.array([1.0] + [float(params[k]) for k in self.keys[1:]])
+        A = sp.csc_matrix((self._values @ weights, self._indices, self._indptr), shape=(self.nrows, self.nvar))
+        return A, self._b @ weights
 
     def solve(self, params: dict, tol: float):
         """Solve for the parameter values; returns ``(values or None, status, solver_time)``.
 
         ``solver_time`` is the wall time spent in CLARABEL's calls: its setup (presolve, KKT
         initialisation, equilibration) and its interior-point iterations."""
-        clarabel = self._clarabel
-        A = self.A.get(None, sp.csc_matrix((self.nrows, self.nvar)))
-        b = self.b.get(None, np.zeros(self.nrows)).copy()
-        for k, v in params.items():
-            if k in self.A:
-                A = A + v * self.A[k]
-            if k in self.b:
-                b += v * self.b[k]
+        A, b = self.data(params)
         settings = clarabel.DefaultSettings()
         settings.verbose = False
         settings.tol_feas = settings.tol_gap_abs = settings.tol_gap_rel = tol
-        A = sp.csc_matrix(A)
         t0 = time.perf_counter()                      # CLARABEL's own time: its setup and its solve
         sol = clarabel.DefaultSolver(self.P, self.q, A, b, self.cones, settings).solve()
         solver_time = time.perf_counter() - t0
@@ -342,7 +360,7 @@ class ConicProblem:
         out = {}
         for name, spec in self.specs.items():
             seg = x[self.offsets[name]:self.offsets[name] + self.sizes[name]]
-            out[name] = np.einsum("ijv,v->ij", Affine.variable(name, spec).coef[(None, name)], seg)
+            out[name] = self._basis[name] @ seg
             if spec[0] == "scalar":
                 out[name] = np.array(out[name][0, 0])
         return out

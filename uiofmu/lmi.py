@@ -151,6 +151,15 @@ class LmiSystem:
         (:mod:`uiofmu.conic`); ``cvxpy`` builds the same LMIs as a cvxpy problem (the
         straightforward formulation, kept for comparison and for the infeasibility diagnosis).
         Both are re-checked the same way.
+
+    Attributes
+    ----------
+    assembly_time : float
+        Seconds spent building the problem (tracing into conic form, or cvxpy's construction).
+    solves : int
+        Solves so far.
+    solver_time : float
+        CLARABEL's time summed over the solves, s (see :class:`LmiSolution`).
     """
 
     name: str
@@ -166,15 +175,22 @@ class LmiSystem:
     _params: dict = field(init=False, repr=False)
     _lmis: list = field(init=False, repr=False)
     _problem: object = field(init=False, repr=False)
+    assembly_time: float = field(init=False, default=0.0)
+    solves: int = field(init=False, default=0)
+    solver_time: float = field(init=False, default=0.0)
 
     def __post_init__(self):
-        self._problem = None
-        if self.backend == "direct":
+        if self.backend == "direct":        # imported here, before the clock: reading cards needs neither
             from .conic import ConicProblem
-
+        else:
+            _cvxpy()
+        self._problem = None
+        t0 = time.perf_counter()
+        if self.backend == "direct":
             self._conic = ConicProblem(self.variables, self.parameters, self.build, self.objective, self.margin)
         else:
             self._compile_cvxpy()
+        self.assembly_time = time.perf_counter() - t0
 
     def _compile_cvxpy(self):
         cp = _cvxpy()
@@ -238,7 +254,9 @@ class LmiSystem:
         return self._checked(values, pvals, str(status), solve_time, total)
 
     def _checked(self, values: dict, pvals: dict, status: str, solve_time: float, total: float) -> LmiSolution:
-        """The re-check of a returned point (the same for every backend)."""
+        """The re-check of a returned point (the same for every backend); counts the solve."""
+        self.solves += 1
+        self.solver_time += solve_time
         eigs, ok, objective = {}, False, None
         if values:
             lmis = self.evaluate(values, pvals)

@@ -7,7 +7,6 @@ Everything here uses orthogonal transformations (SVD) and one rank rule,
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import null_space
 
 from .tolerances import RANK_RTOL
 
@@ -38,13 +37,14 @@ def rank(M: np.ndarray, rank_rtol: float = RANK_RTOL) -> int:
     return int(np.sum(s > rank_rtol * max(1.0, s[0])))
 
 
-def _range_basis(M: np.ndarray, rank_rtol: float) -> np.ndarray:
-    """Orthonormal basis of the column range of ``M`` (n x r)."""
+def _range_split(M: np.ndarray, rank_rtol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal bases of the column range of ``M`` (n x r) and of its orthogonal
+    complement (n x (n - r)), from one SVD."""
     if M.size == 0:
-        return np.zeros((M.shape[0], 0))
+        return np.zeros((M.shape[0], 0)), np.eye(M.shape[0])
     U, s, _ = np.linalg.svd(M, full_matrices=True)
     r = int(np.sum(s > rank_rtol * max(1.0, s[0]))) if s.size else 0
-    return U[:, :r]
+    return U[:, :r], U[:, r:]
 
 
 def uncontrollable_modes(A: np.ndarray, B: np.ndarray, rank_rtol: float = RANK_RTOL) -> np.ndarray:
@@ -65,16 +65,14 @@ def uncontrollable_modes(A: np.ndarray, B: np.ndarray, rank_rtol: float = RANK_R
     numpy.ndarray
         The uncontrollable modes (complex), sorted by decreasing modulus.
     """
-    n = A.shape[0]
-    K = _range_basis(B, rank_rtol) if B.size else np.zeros((n, 0))
-    while 0 < K.shape[1] < n:
-        grown = _range_basis(np.hstack([K, A @ K]), rank_rtol)
+    K, Q = _range_split(B, rank_rtol)
+    while 0 < K.shape[1] < A.shape[0]:
+        grown, complement = _range_split(np.hstack([K, A @ K]), rank_rtol)
         if grown.shape[1] == K.shape[1]:
             break
-        K = grown
-    if K.shape[1] == n:
+        K, Q = grown, complement
+    if not Q.shape[1]:
         return np.zeros(0, dtype=complex)
-    Q = null_space(K.T) if K.shape[1] else np.eye(n)
     modes = np.linalg.eigvals(Q.T @ A @ Q)
     return modes[np.argsort(-np.abs(modes), kind="stable")]
 
@@ -145,15 +143,12 @@ def invariant_zeros(A: np.ndarray, E: np.ndarray, C: np.ndarray, D: np.ndarray |
             Uperp = U[:, r:]                       # left complement of range(D1)
             C = Uperp.T @ C
             E = E2
-        # Compress C to its row rank.
-        Crow = _range_basis(C.T, rank_rtol) if C.size else np.zeros((n, 0))
-        if Crow.shape[1] == 0:
+        # Compress C to its row rank; step 2: x in ker C, x = W xi.
+        Wp, W = _range_split(C.T, rank_rtol)
+        if Wp.shape[1] == 0:
             return uncontrollable_modes(A, E, rank_rtol) if n else np.zeros(0, dtype=complex)
-        # Step 2: x in ker C, x = W xi.
-        W = null_space(Crow.T) if Crow.shape[1] < n else np.zeros((n, 0))
         if W.shape[1] == 0:
             return np.zeros(0, dtype=complex)
-        Wp = Crow
         A, E, C, D = W.T @ A @ W, W.T @ E, Wp.T @ A @ W, Wp.T @ E
     return np.zeros(0, dtype=complex)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import platform
+import time
 
 from . import __version__
 from .card import FORMAT, VERSION, Card, card_from_data, to_lists
@@ -41,7 +42,7 @@ def verify(card: Card) -> list:
 
 
 def assemble_card(problem: Problem, *, nz: int, dt: float | None, schedule: dict, matrices: dict,
-                  certificate: dict, xhat0, results: dict, existence: Existence) -> Card:
+                  certificate: dict, xhat0, results: dict, existence: Existence, lmi, started: float) -> Card:
     """The design card of a finished design (shared by every family).
 
     Parameters
@@ -64,6 +65,10 @@ def assemble_card(problem: Problem, *, nz: int, dt: float | None, schedule: dict
         Family results at top level (``invariant_zeros``, ``decay_bound``, ...).
     existence : Existence
         The existence analysis the design passed.
+    lmi : LmiSystem
+        The design's LMI system (its assembly time, solves and solver time go to ``timing``).
+    started : float
+        ``time.perf_counter()`` when the design started (``timing.total_s`` ends here).
 
     Returns
     -------
@@ -86,5 +91,7 @@ def assemble_card(problem: Problem, *, nz: int, dt: float | None, schedule: dict
         "matrices": to_lists(matrices),
         "certificate": to_lists(certificate),
         "problem": problem.data,
+        "timing": {"total_s": time.perf_counter() - started, "lmi_assembly_s": lmi.assembly_time,
+                   "solver_s": lmi.solver_time, "solves": lmi.solves, "backend": lmi.backend},
     }
     return card_from_data(data)

@@ -21,6 +21,7 @@ invariant zeros) and 1. A continuous plant is designed on its exact sampling at 
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -128,6 +129,7 @@ def design(problem):
     """Design the classical UIO and return its verified card."""
     from ..synthesis import assemble_card
 
+    started = time.perf_counter()
     existence, s, fixed = _analysis(problem)
     existence.require()
     plant, opts = problem.plant, problem.options
@@ -173,4 +175,5 @@ def design(problem):
     xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(plant.n)
     schedule = {"kind": "constant", "dt": opts.dt, "step_policy": "error"}
     return assemble_card(problem, nz=plant.n, dt=opts.dt, schedule=schedule, matrices=matrices,
-                         certificate=cert, xhat0=xhat0, results=results, existence=existence)
+                         certificate=cert, xhat0=xhat0, results=results, existence=existence,
+                         lmi=system, started=started)

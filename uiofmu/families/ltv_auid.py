@@ -28,6 +28,7 @@ both vertices; ``N' X N`` is matrix-convex in ``N``, so ``N_k' X N_k < (1 - eta_
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -237,6 +238,7 @@ def design(problem):
     """Design the LTV observer (procedure steps 1-9, Theorem 2) and return its verified card."""
     from ..synthesis import assemble_card
 
+    started = time.perf_counter()
     existence, s, fixed, info = _analysis(problem)
     existence.require()
     plant, opts = problem.plant, problem.options
@@ -284,4 +286,5 @@ def design(problem):
     xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(plant.n)
     schedule = {"kind": "geometric", "alpha": opts.alpha, "dt": opts.dt, "step_policy": opts.step_policy}
     return assemble_card(problem, nz=plant.n, dt=opts.dt, schedule=schedule, matrices=matrices,
-                         certificate=cert, xhat0=xhat0, results=results, existence=existence)
+                         certificate=cert, xhat0=xhat0, results=results, existence=existence,
+                         lmi=system, started=started)

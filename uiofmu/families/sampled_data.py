@@ -31,6 +31,7 @@ No exactly-decoupling observer converges faster than the sampled invariant zeros
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -244,6 +245,7 @@ def design(problem):
     """Design the sampled-data UIO (Corollary 2) and return its verified card."""
     from ..synthesis import assemble_card
 
+    started = time.perf_counter()
     existence, samples, zmax = _analysis(problem)
     existence.require()
     plant, opts = problem.plant, problem.options
@@ -308,4 +310,5 @@ def design(problem):
     schedule = {"kind": "interval", "intervals": list(opts.intervals), "h_prev0": opts.h_prev0,
                 "step_policy": opts.step_policy, "step_rtol": STEP_RTOL}
     return assemble_card(problem, nz=n, dt=None, schedule=schedule, matrices=matrices,
-                         certificate=cert, xhat0=xhat0, results=results, existence=existence)
+                         certificate=cert, xhat0=xhat0, results=results, existence=existence,
+                         lmi=system, started=started)
