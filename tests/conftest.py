@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import io
-import os
-import sys
 from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import dataclass
 from pathlib import Path
@@ -76,23 +74,3 @@ def building_card(building_path, tmp_path_factory):
 def ltv_card(tmp_path_factory):
     """The designed LTV card of seed 000 Example 1 (paper parameters)."""
     return designed(EXAMPLES / "seed000_example1_ltv.toml", tmp_path_factory, "ltv")
-
-
-# The suite ends its process without running native libraries' exit handlers. Seen about once in
-# seven full runs on this machine: after every test has passed and pytest has reported, the heap is
-# found corrupt while a third-party library unloads at exit (libgfortran, which scs brings in through
-# cvxpy, aborts with "corrupted double-linked list"); pythonfmu's binaries also corrupt the heap when
-# our C host unloads them (benchmarks/fmu_step_cost.py notes it). The culprit is not isolated yet;
-# the tests' assertions and pytest's exit status are unaffected by this.
-_EXIT_STATUS = [0]
-
-
-def pytest_sessionfinish(session, exitstatus):
-    _EXIT_STATUS[0] = int(exitstatus)
-
-
-@pytest.hookimpl(trylast=True)
-def pytest_unconfigure(config):
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(_EXIT_STATUS[0])

@@ -194,3 +194,46 @@ def test_step_after_terminate_is_refused(fmus):
         with pytest.raises(FmuCallError) as info:
             fmu.step(0.0, 0.1)
         assert any("after fmi2Terminate" in m for m in info.value.messages)
+
+
+def test_log_lines_reach_the_instance_that_wrote_them(fmus):
+    """Observer opened first, plant second: the observer's refusal carries its own log line,
+    and the plant's log stays free of it (fmpy's native log proxy holds one callback)."""
+    with Fmu(fmus["obs"], "observer") as obs, Fmu(fmus["plant"], "plant") as plant:
+        obs.initialize(0.0)
+        plant.initialize(0.0)
+        with pytest.raises(FmuCallError) as info:
+            obs.step(0.0, 0.25)
+        assert any("received h = 0.25 s" in m for m in info.value.messages), info.value.messages
+        assert any("received h = 0.25 s" in m for m in obs.messages)
+        assert not any("received h = 0.25 s" in m for m in plant.messages), plant.messages
+        with pytest.raises(FmuCallError) as info:
+            plant.step(0.0, 0.3)
+        assert any("received h = 0.3 s" in m for m in info.value.messages)
+        assert not any("received h = 0.3 s" in m for m in obs.messages)
+
+
+SCRIPT = """
+import sys
+from uiofmu.fmi import Fmu
+with Fmu(sys.argv[1], "o") as fmu:
+    fmu.initialize(0.0); fmu.set("y", [1.0]); fmu.step(0.0, 0.1)
+"""
+
+
+def test_a_closed_pythonfmu_instance_leaves_a_clean_heap_at_exit(fmus, tmp_path):
+    """pythonfmu 0.7.0 binaries free their interpreter state at exit and then write into it
+    from a library destructor (glibc then aborts at exit, now and then). After ``Fmu.close``
+    valgrind sees no access to freed memory at exit from any FMU binary."""
+    import os
+    import subprocess
+    import sys
+
+    script = tmp_path / "open_close.py"
+    script.write_text(SCRIPT)
+    env = {**os.environ, "PYTHONMALLOC": "malloc"}
+    proc = subprocess.run(["valgrind", "--quiet", sys.executable, str(script), str(fmus["obs"])],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "finalizePythonInterpreter" not in proc.stderr, proc.stderr[-4000:]
+    assert "freed" not in proc.stderr, proc.stderr[-4000:]

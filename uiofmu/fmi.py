@@ -3,12 +3,18 @@
 Every FMI call goes through fmpy's ``FMU2Slave``; a call that returns fmi2Discard,
 fmi2Error or fmi2Fatal raises :class:`FmuCallError` carrying the status and the log lines
 the FMU wrote, so a master can say exactly what went wrong and where.
+
+Log lines reach the right instance through one logger for the whole process: fmpy's native
+proxy (which formats the FMU's variadic message) holds a single Python callback, so each
+instance passes its own key as ``componentEnvironment`` and the logger files the line there.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import shutil
+import weakref
 import zipfile
 from ctypes import byref
 from pathlib import Path
@@ -51,6 +57,46 @@ def read_model_json(path) -> dict:
         raise FmuError(f"{path}: not an FMU built by uiofmu (no resources/model.json)") from None
 
 
+_INSTANCES: "weakref.WeakValueDictionary[int, Fmu]" = weakref.WeakValueDictionary()
+_KEYS = itertools.count(1)
+_LOGGER = []        # the process's one logger callback, created on first use and never freed
+
+
+def _log(environment, instance, status, category, message) -> None:
+    """File a log line with the instance whose key the FMU passed back as its environment."""
+    fmu = _INSTANCES.get(environment or 0)
+    if fmu is not None:
+        fmu.messages.append(message.decode("utf-8", "replace") if message else "")
+
+
+def _logger():
+    if not _LOGGER:
+        from fmpy.fmi2 import fmi2CallbackLoggerTYPE
+
+        _LOGGER.append(fmi2CallbackLoggerTYPE(_log))
+    return _LOGGER[0]
+
+
+def _release_python_state(dll) -> None:
+    """Release a pythonfmu binary's interpreter state while the library is still loaded.
+
+    pythonfmu 0.7.0 keeps it in a static ``shared_ptr`` and resets that pointer again in a
+    library destructor. For the first copy of the library in a process (which the dynamic
+    loader keeps until exit) the static is destroyed first, and the destructor then writes
+    into the freed block: glibc aborts at exit ("corrupted double-linked list") when a later
+    exit handler meets that heap chunk. Resetting the pointer here, through the library's own
+    exported ``finalizePythonInterpreter``, leaves nothing for either to free; the host's
+    Python is not touched (the state owns the interpreter only when the library started it).
+    Other binaries do not export the function and are left alone.
+    """
+    try:
+        finalize = dll.finalizePythonInterpreter
+    except AttributeError:
+        return
+    finalize.argtypes, finalize.restype = [], None
+    finalize()
+
+
 class Fmu:
     """One instance of a Co-Simulation FMU, driven by fmpy.
 
@@ -71,7 +117,7 @@ class Fmu:
     def __init__(self, path, instance_name: str):
         from fmpy import calloc, extract, free, read_model_description
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+                               fmi2CallbackFunctions)
         from fmpy.logging import addLoggerProxy
 
         self.path = Path(path)
@@ -88,11 +134,11 @@ class Fmu:
         self._vectors: dict = {}
         self._unzipdir = extract(str(self.path))
 
-        def logger(component, instance, status, category, message):
-            self.messages.append(message.decode("utf-8", "replace") if message else "")
-
+        self._key = next(_KEYS)
+        _INSTANCES[self._key] = self
         self._callbacks = fmi2CallbackFunctions()
-        self._callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+        self._callbacks.logger = _logger()
+        self._callbacks.componentEnvironment = self._key
         self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         addLoggerProxy(byref(self._callbacks))
@@ -189,7 +235,9 @@ class Fmu:
         except Exception:  # noqa: BLE001 - an instance in error state may refuse terminate
             pass
         try:
-            self.slave.freeInstance()
+            self.slave.fmi2FreeInstance(self.slave.component)
+            _release_python_state(self.slave.dll)
+            self.slave.freeLibrary()
         finally:
             shutil.rmtree(self._unzipdir, ignore_errors=True)
 

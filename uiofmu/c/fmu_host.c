@@ -110,6 +110,11 @@ int main(int argc, char **argv) {
     if (!status) fmi2Terminate(c);
     fmi2FreeInstance(c);
     free(data);
+    /* pythonfmu 0.7.0 binaries release their interpreter state from a library destructor
+       after their static has already freed it; releasing it here, while the library is
+       loaded, leaves nothing behind for the destructor (see uiofmu/fmi.py). */
+    void (*release)(void) = (void (*)(void))dlsym(lib, "finalizePythonInterpreter");
+    if (release) release();
     dlclose(lib);
     return status;
 }
