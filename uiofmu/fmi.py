@@ -17,6 +17,7 @@ import shutil
 import weakref
 import zipfile
 from ctypes import byref
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +60,6 @@ def read_model_json(path) -> dict:
 
 _INSTANCES: "weakref.WeakValueDictionary[int, Fmu]" = weakref.WeakValueDictionary()
 _KEYS = itertools.count(1)
-_LOGGER = []        # the process's one logger callback, created on first use and never freed
 
 
 def _log(environment, instance, status, category, message) -> None:
@@ -69,12 +69,13 @@ def _log(environment, instance, status, category, message) -> None:
         fmu.messages.append(message.decode("utf-8", "replace") if message else "")
 
 
+@lru_cache(maxsize=None)
 def _logger():
-    if not _LOGGER:
-        from fmpy.fmi2 import fmi2CallbackLoggerTYPE
+    """The process's one logger callback, created on first use and kept for good (fmpy's
+    proxy may call it as long as any FMU lives)."""
+    from fmpy.fmi2 import fmi2CallbackLoggerTYPE
 
-        _LOGGER.append(fmi2CallbackLoggerTYPE(_log))
-    return _LOGGER[0]
+    return fmi2CallbackLoggerTYPE(_log)
 
 
 def _release_python_state(dll) -> None:
