@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from fmpy.validation import validate_fmu
@@ -221,19 +225,17 @@ with Fmu(sys.argv[1], "o") as fmu:
 """
 
 
-def test_a_closed_pythonfmu_instance_leaves_a_clean_heap_at_exit(fmus, tmp_path):
+def test_a_closed_pythonfmu_instance_leaves_a_clean_heap_at_exit(example1_card, tmp_path):
     """pythonfmu 0.7.0 binaries free their interpreter state at exit and then write into it
     from a library destructor (glibc then aborts at exit, now and then). After ``Fmu.close``
-    valgrind sees no access to freed memory at exit from any FMU binary."""
-    import os
-    import subprocess
-    import sys
-
+    valgrind sees no access to freed memory at exit (its exit status is the program's, so the
+    report is read)."""
+    obs = build_observer(example1_card[0], tmp_path / "obs.fmu", backend="python")
     script = tmp_path / "open_close.py"
     script.write_text(SCRIPT)
     env = {**os.environ, "PYTHONMALLOC": "malloc"}
-    proc = subprocess.run(["valgrind", "--quiet", sys.executable, str(script), str(fmus["obs"])],
+    proc = subprocess.run(["valgrind", "--quiet", sys.executable, str(script), str(obs)],
                           capture_output=True, text=True, env=env, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "finalizePythonInterpreter" not in proc.stderr, proc.stderr[-4000:]
-    assert "freed" not in proc.stderr, proc.stderr[-4000:]
+    assert "free'd" not in proc.stderr, proc.stderr[-4000:]

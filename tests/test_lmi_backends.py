@@ -112,3 +112,20 @@ def test_card_records_where_the_design_time_went(building_path, cli, tmp_path):
     assert card.data["search"]["seconds"] < t["total_s"]
     line = next(x for x in res.out.splitlines() if x.strip().startswith("time"))
     assert f"CLARABEL {t['solver_s'] * 1e3:.1f} ms ({t['solves']} solve(s))" in line
+
+
+def test_edge_cases_of_the_assembly():
+    """A parameter times a variable, a constant LMI, an LMI whose coefficients cancel, no LMI
+    at all, and a non-square matrix (refused with its shape)."""
+    from uiofmu.lmi import Lmi, LmiSystem
+
+    scaled = LmiSystem("scaled", {"P": ("symmetric", 2)}, {"a": 1.0},
+                       lambda v, p, o: [Lmi("P > I", v["P"] - o.eye(2)),
+                                        Lmi("a P <= 3 I", 3 * o.eye(2) - p["a"] * v["P"], strict=False)])
+    assert scaled.solve(a=2.0).verified and not scaled.solve(a=4.0).verified
+    for build in (lambda v, p, o: [Lmi("constant", np.eye(2))],
+                  lambda v, p, o: [Lmi("cancelled", 0.0 * v["P"] + o.eye(2))],
+                  lambda v, p, o: []):
+        assert LmiSystem("edge", {"P": ("symmetric", 2)}, {}, build).solve().verified
+    with pytest.raises(ValueError, match="must be square, found 2x1"):
+        LmiSystem("non-square", {"P": ("symmetric", 2)}, {}, lambda v, p, o: [Lmi("F", v["P"] @ np.ones((2, 1)))])

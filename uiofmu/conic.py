@@ -219,15 +219,20 @@ def _cone_map(rows: int, cols: int, equality: bool):
     A PSD cone holds CLARABEL's scaled upper triangle of the symmetric part, column by
     column: entry ``F[i, j]`` adds ``-F[i, j] / 2`` to the row of the pair ``{i, j}``, times
     sqrt(2) off the diagonal (``-F[i, i]`` on it; the sign makes ``A x + s = b`` hold with
-    ``s = F(x)``). A zero cone row is ``+F[i, j]`` itself."""
+    ``s = F(x)``). A zero cone row is ``+F[i, j]`` itself. The arrays are shared (cached) and
+    read-only."""
     if equality:
-        return np.arange(rows * cols), np.ones(rows * cols), rows * cols
-    n = rows
-    i, j = np.divmod(np.arange(n * n), n)
-    lo, hi = np.minimum(i, j), np.maximum(i, j)
-    row = hi * (hi + 1) // 2 + lo                       # upper triangle, column by column
-    weight = np.where(i == j, -1.0, -0.5 * SQRT2)
-    return row, weight, n * (n + 1) // 2
+        row, weight, count = np.arange(rows * cols), np.ones(rows * cols), rows * cols
+    else:
+        if rows != cols:
+            raise ValueError(f"an LMI matrix must be square, found {rows}x{cols}")
+        i, j = np.divmod(np.arange(rows * rows), rows)
+        lo, hi = np.minimum(i, j), np.maximum(i, j)
+        row = hi * (hi + 1) // 2 + lo                   # upper triangle, column by column
+        weight = np.where(i == j, -1.0, -0.5 * SQRT2)
+        count = rows * (rows + 1) // 2
+    row.flags.writeable = weight.flags.writeable = False
+    return row, weight, count
 
 
 class ConicProblem:
@@ -291,8 +296,8 @@ class ConicProblem:
             entry += m * n
             row += count
         self.nrows = row
-        to_row = np.concatenate([r for r, _ in maps])
-        to_weight = np.concatenate([w for _, w in maps])
+        to_row = np.concatenate([r for r, _ in maps] or [np.zeros(0, int)])
+        to_weight = np.concatenate([w for _, w in maps] or [np.zeros(0)])
         self._pattern(coef, to_row, to_weight)
         c = np.zeros((entry, len(self.keys)))
         for k, first, vals in const:
@@ -304,8 +309,10 @@ class ConicProblem:
         self.q = np.zeros(self.nvar)
         if objective is not None:
             for (key, var), T in objective(traced).coef.items():
+                if key is not None:
+                    raise TypeError(f"the objective must not depend on the parameter {key!r}")
                 self.q[self.offsets[var]:self.offsets[var] + self.sizes[var]] += T[0, 0]
-        self.P = sp.csc_matrix((np.zeros(0), np.zeros(0, np.int64), np.zeros(self.nvar + 1, np.int64)),
+        self.P = sp.csc_matrix((np.zeros(0), np.zeros(0, int), np.zeros(self.nvar + 1, int)),
                                shape=(self.nvar, self.nvar))
 
     def _pattern(self, blocks: list, to_row: np.ndarray, to_weight: np.ndarray):
@@ -313,10 +320,10 @@ class ConicProblem:
         ``(key, first entry, first column, block)``: the cone row, column and value of every
         coefficient are computed for all blocks at once, and coefficients landing on the same
         (row, column) are summed."""
-        keys, first_entry, first_col, widths = (np.array(x) for x in zip(*[(k, e, c, b.shape[1])
-                                                                           for k, e, c, b in blocks]))
+        heads = np.array([(k, e, c, b.shape[1]) for k, e, c, b in blocks], dtype=int).reshape(-1, 4)
+        keys, first_entry, first_col, widths = heads.T
         starts = np.cumsum([0] + [b.size for *_, b in blocks])
-        vals = np.concatenate([b.ravel() for *_, b in blocks])
+        vals = np.concatenate([b.ravel() for *_, b in blocks] or [np.zeros(0)])
         where = np.flatnonzero(vals)                   # only the nonzero coefficients get indices
         block = np.searchsorted(starts, where, side="right") - 1
         local = where - starts[block]
@@ -325,15 +332,16 @@ class ConicProblem:
         vals = vals[where] * to_weight[entries]
         order = np.lexsort((rows, cols))
         pairs = cols[order] * self.nrows + rows[order]
-        first = np.concatenate([[pairs.size > 0], pairs[1:] != pairs[:-1]])
+        first = np.ones(pairs.size, dtype=bool)
+        first[1:] = pairs[1:] != pairs[:-1]
         slot = np.cumsum(first) - 1
         self._values = np.zeros((int(first.sum()), len(self.keys)))
         np.add.at(self._values, (slot, keys[order]), vals[order])
-        self._indices = rows[order][first].astype(np.int64)
-        self._indptr = np.searchsorted(cols[order][first], np.arange(self.nvar + 1)).astype(np.int64)
+        self._indices = rows[order][first]
+        self._indptr = np.searchsorted(cols[order][first], np.arange(self.nvar + 1))
 
     def data(self, params: dict):
-        """CLARABEL's ``A`` (CSC) and ``b`` at the parameter values."""
+        """CLARABEL's ``A`` (CSC) and ``b`` at the parameter values (one for every parameter)."""
         weights = np.array([1.0] + [float(params[k]) for k in self.keys[1:]])
         A = sp.csc_matrix((self._values @ weights, self._indices, self._indptr), shape=(self.nrows, self.nvar))
         return A, self._b @ weights

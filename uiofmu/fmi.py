@@ -149,7 +149,7 @@ class Fmu:
         try:
             self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
         except Exception:  # noqa: BLE001 - fmpy raises a bare Exception here
-            shutil.rmtree(self._unzipdir, ignore_errors=True)
+            self._unload()
             why = self.messages[-1] if self.messages else "no message"
             raise FmuError(f"{self.path}: fmi2Instantiate failed ({why})") from None
         self.slave.setDebugLogging(True, [])
@@ -237,10 +237,17 @@ class Fmu:
             pass
         try:
             self.slave.fmi2FreeInstance(self.slave.component)
-            _release_python_state(self.slave.dll)
-            self.slave.freeLibrary()
         finally:
+            self._unload()
+
+    def _unload(self) -> None:
+        """Release a pythonfmu binary's state, unload the library, remove the extracted files."""
+        try:
+            _release_python_state(self.slave.dll)
+        finally:
+            self.slave.freeLibrary()
             shutil.rmtree(self._unzipdir, ignore_errors=True)
+            _INSTANCES.pop(self._key, None)
 
     def __enter__(self):
         return self

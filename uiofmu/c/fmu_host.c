@@ -40,6 +40,16 @@ static int parse_refs(const char *text, fmi2ValueReference *out, int max) {
     return n;
 }
 
+/* Unload the FMU's library. pythonfmu 0.7.0 binaries release their interpreter state from a
+   library destructor after their static has already freed it; releasing it first, while the
+   library is loaded, leaves nothing behind for the destructor (see uiofmu/fmi.py). */
+static int unload(void *lib, int status) {
+    void (*release)(void) = (void (*)(void))dlsym(lib, "finalizePythonInterpreter");
+    if (release) release();
+    dlclose(lib);
+    return status;
+}
+
 #define LOAD(name) \
     name##TYPE *name = (name##TYPE *)dlsym(lib, #name); \
     if (!name) { fprintf(stderr, "missing symbol %s\n", #name); return 2; }
@@ -71,11 +81,17 @@ int main(int argc, char **argv) {
     fclose(f);
     fmi2CallbackFunctions cb = {logger, calloc, free, NULL, NULL};
     fmi2Component c = fmi2Instantiate("host", fmi2CoSimulation, argv[2], argv[3], &cb, fmi2False, fmi2False);
-    if (!c) { fprintf(stderr, "fmi2Instantiate failed\n"); return 2; }
+    if (!c) {
+        fprintf(stderr, "fmi2Instantiate failed\n");
+        free(data);
+        return unload(lib, 2);
+    }
     if (fmi2SetupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0) != fmi2OK ||
         fmi2EnterInitializationMode(c) != fmi2OK || fmi2ExitInitializationMode(c) != fmi2OK) {
         fprintf(stderr, "initialisation failed\n");
-        return 2;
+        fmi2FreeInstance(c);
+        free(data);
+        return unload(lib, 2);
     }
     double values[256];
     double t = 0.0, elapsed = 0.0;
@@ -110,11 +126,5 @@ int main(int argc, char **argv) {
     if (!status) fmi2Terminate(c);
     fmi2FreeInstance(c);
     free(data);
-    /* pythonfmu 0.7.0 binaries release their interpreter state from a library destructor
-       after their static has already freed it; releasing it here, while the library is
-       loaded, leaves nothing behind for the destructor (see uiofmu/fmi.py). */
-    void (*release)(void) = (void (*)(void))dlsym(lib, "finalizePythonInterpreter");
-    if (release) release();
-    dlclose(lib);
-    return status;
+    return unload(lib, status);
 }
