@@ -64,8 +64,8 @@ def _cmd_design(args) -> int:
     print(f"  certificate      {'verified' if cert['verified'] else 'NOT verified'} (CLARABEL {cert['status']})")
     t = card.data["timing"]
     rest = t["total_s"] - t["solver_s"] - t["lmi_assembly_s"]
-    print(f"  time             {t['total_s'] * 1e3:.1f} ms: CLARABEL {t['solver_s'] * 1e3:.1f} ms ({t['solves']} solve(s)), "
-          f"LMI assembly {t['lmi_assembly_s'] * 1e3:.1f} ms, rest {rest * 1e3:.1f} ms")
+    print(f"  time             {t['total_s'] * 1e3:.1f} ms: CLARABEL {t['solver_s'] * 1e3:.1f} ms "
+          f"({t['solves']} solve(s)), LMI assembly {t['lmi_assembly_s'] * 1e3:.1f} ms, rest {rest * 1e3:.1f} ms")
     return 0
 
 
