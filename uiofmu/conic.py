@@ -81,6 +81,12 @@ class Affine:
 
     # -- construction ------------------------------------------------------------------
     @classmethod
+    def constant(cls, value) -> "Affine":
+        """A constant matrix (no variable)."""
+        arr = np.array(value, dtype=float)
+        return cls(arr.shape, {None: arr})
+
+    @classmethod
     def variable(cls, name: str, spec) -> "Affine":
         """The variable ``name`` of spec ``("symmetric", n) | ("matrix", (r, c)) | ("scalar",)``."""
         if spec[0] == "symmetric":
@@ -121,8 +127,7 @@ class Affine:
                 raise TypeError("add a parameter times a matrix, not a bare parameter")
             other = other.const
         if not isinstance(other, Affine):
-            arr = np.broadcast_to(np.asarray(other, dtype=float), self.shape)
-            other = Affine(self.shape, {None: np.array(arr)})
+            other = Affine.constant(np.broadcast_to(np.asarray(other, dtype=float), self.shape))
         if other.shape != self.shape:
             raise ValueError(f"shape mismatch {self.shape} + {other.shape}")
         const = dict(self.const)
@@ -278,8 +283,7 @@ class ConicProblem:
         self.cones = []
         entry = row = 0
         for lmi in lmis:
-            F = lmi.matrix if isinstance(lmi.matrix, Affine) else Affine(np.shape(lmi.matrix),
-                                                                            {None: np.asarray(lmi.matrix, float)})
+            F = lmi.matrix if isinstance(lmi.matrix, Affine) else Affine.constant(lmi.matrix)
             m, n = F.shape
             rows, weights, count = _cone_map(m, n, lmi.equality)
             maps.append((rows + row, weights))

@@ -11,6 +11,11 @@ import numpy as np
 from .tolerances import RANK_RTOL
 
 
+def _count_above(s: np.ndarray, rank_rtol: float) -> int:
+    """The rank rule on singular values ``s`` (descending): those above ``rank_rtol * max(1, s_max)``."""
+    return int(np.sum(s > rank_rtol * max(1.0, s[0]))) if s.size else 0
+
+
 def rank(M: np.ndarray, rank_rtol: float = RANK_RTOL) -> int:
     """Numerical rank: singular values above ``rank_rtol * max(1, s_max)``.
 
@@ -33,8 +38,7 @@ def rank(M: np.ndarray, rank_rtol: float = RANK_RTOL) -> int:
     M = np.atleast_2d(np.asarray(M, dtype=float))
     if M.size == 0:
         return 0
-    s = np.linalg.svd(M, compute_uv=False)
-    return int(np.sum(s > rank_rtol * max(1.0, s[0])))
+    return _count_above(np.linalg.svd(M, compute_uv=False), rank_rtol)
 
 
 def _range_split(M: np.ndarray, rank_rtol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -43,7 +47,7 @@ def _range_split(M: np.ndarray, rank_rtol: float) -> tuple[np.ndarray, np.ndarra
     if M.size == 0:
         return np.zeros((M.shape[0], 0)), np.eye(M.shape[0])
     U, s, _ = np.linalg.svd(M, full_matrices=True)
-    r = int(np.sum(s > rank_rtol * max(1.0, s[0]))) if s.size else 0
+    r = _count_above(s, rank_rtol)
     return U[:, :r], U[:, r:]
 
 
@@ -132,9 +136,9 @@ def invariant_zeros(A: np.ndarray, E: np.ndarray, C: np.ndarray, D: np.ndarray |
     while A.shape[0] > 0:
         n = A.shape[0]
         # Step 1: D = [D1 0] with D1 of full column rank (right singular vectors).
-        if D.size and rank(D, rank_rtol):
-            U, s, Vt = np.linalg.svd(D, full_matrices=True)
-            r = int(np.sum(s > rank_rtol * max(1.0, s[0])))
+        U, s, Vt = np.linalg.svd(D, full_matrices=True) if D.size else (None, np.zeros(0), None)
+        r = _count_above(s, rank_rtol)
+        if r:
             V = Vt.T
             D1 = D @ V[:, :r]
             E1, E2 = E @ V[:, :r], E @ V[:, r:]
