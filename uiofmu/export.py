@@ -1,6 +1,6 @@
 """Packing observers and plants as FMI 2.0 Co-Simulation FMUs.
 
-Backend ``python`` (pythonfmu): one generic slave (:mod:`uiofmu.slave_template`) plus the
+Backend ``python`` (pythonfmu): one generic slave (``templates/pythonfmu_slave.py.tmpl``) plus the
 model as data (``resources/model.json``) plus a copy of the numpy-only runtime, in the
 shape of pythonfmu's csv builder. The host Python needs numpy and nothing else of uiofmu.
 """
@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import re
 import shutil
 import sys
 import tempfile
@@ -19,9 +18,10 @@ from . import __version__
 from .card import Card
 from .errors import FmuError
 from .plant import Plant
+from .text import fill_template, identifier, py_string
 
 #: The modules an FMU carries: the runtime and what it imports (numpy only).
-RUNTIME_MODULES = ("card", "errors", "matrices", "schedules", "tolerances", "runtime", "plant_runtime", "fmu_model",
+RUNTIME_MODULES = ("card", "errors", "text", "matrices", "schedules", "tolerances", "runtime", "plant_runtime", "fmu_model",
                    "mujoco_runtime")
 BACKENDS = ("c", "python")
 
@@ -37,12 +37,12 @@ def runtime_package() -> str:
 
 
 def model_identifier(name: str, role: str) -> str:
-    """A C identifier for the FMU's model (``two_room_building_observer``)."""
-    ident = re.sub(r"\W", "_", f"{name}_{role}").strip("_")
-    return ident if ident[:1].isalpha() else f"m_{ident}"
+    """The FMU's model identifier (``two_room_building_observer``): ASCII letters, digits and
+    underscores only, at most :data:`uiofmu.text.MAX_IDENTIFIER` characters."""
+    return identifier(name, role)
 
 
-def _build_python(spec: dict, identifier: str, description: str, output: Path, extra_files=()) -> Path:
+def _build_python(spec: dict, ident: str, description: str, output: Path, extra_files=()) -> Path:
     from pythonfmu.builder import FmuBuilder
 
     here = Path(__file__).parent
@@ -50,7 +50,7 @@ def _build_python(spec: dict, identifier: str, description: str, output: Path, e
     if output.suffix != ".fmu":
         raise FmuError(f"{output}: the FMU file name must end in .fmu")
     output.parent.mkdir(parents=True, exist_ok=True)
-    module = f"{identifier}_slave"
+    module = f"{ident}_slave"
     package = runtime_package()
     with tempfile.TemporaryDirectory(prefix="uiofmu_build_") as tmp:
         src = Path(tmp)
@@ -63,9 +63,9 @@ def _build_python(spec: dict, identifier: str, description: str, output: Path, e
         for name in RUNTIME_MODULES:
             shutil.copy2(here / f"{name}.py", pkg / f"{name}.py")
         (src / "model.json").write_text(json.dumps(spec), encoding="utf-8")
-        text = (here / "slave_template.py").read_text(encoding="utf-8")
-        text = (text.replace("UIOFMU_RT", package).replace("UiofmuModel", identifier)
-                .replace("FMU_DESCRIPTION", description.replace('"', "'")))
+        text = fill_template((here / "templates" / "pythonfmu_slave.py.tmpl").read_text(encoding="utf-8"),
+                             {"runtime": package, "class_name": ident},
+                             {"description": py_string(description)})
         script = src / f"{module}.py"
         script.write_text(text, encoding="utf-8")
         try:
