@@ -77,7 +77,7 @@ def test_cosim_with_csv_inputs(built, cli, tmp_path):
     (["--steps", "sometimes:3"], "--steps: unknown kind 'sometimes'"),
     (["--steps", "fixed:-1"], "fixed:H must be > 0"),
     (["--steps", "uniform:2:1"], "HMIN = 2 > HMAX = 1"),
-    (["--t-end", "-3"], "--t-end must be > 0"),
+    (["--t-end", "-3"], "--t-end: expected a finite time > 0"),
 ])
 def test_cosim_bad_arguments_exit_2(built, cli, tmp_path, args, fragment):
     _, d = built

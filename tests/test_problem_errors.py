@@ -76,7 +76,7 @@ CASES = [
      "signals.d[0][0]: unknown field(s) ['freq']"),
     ("signal-seed", GOOD + '[signals]\nd = [[{kind="random", seed=-1, std=1.0, hold=1.0}]]\n',
      "signals.d[0][0].seed: expected a non-negative integer"),
-    ("name-type", 'name = 3\n' + GOOD, "name: expected a non-empty string"),
+    ("name-type", 'name = 3\n' + GOOD, "name: expected a string, found int 3"),
     ("no-observer-exists", edit("C = [[1.0, 0.0]]", "C = [[0.0, 1.0]]"),
      "rank(CE) = 0 < rank(E) = 1: the unknown input cannot be decoupled"),
     ("decay-below-zero", edit('decay = "max"', "decay = 0.5"),

@@ -15,7 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from .errors import CardError
-from .matrices import freeze
+from .files import parse_json, read_text, write_atomic
+from .matrices import as_array, as_scalar, as_vector
+from .schedules import AXES
+from .text import check_name, check_text
+from .tolerances import STEP_RTOL
 
 FORMAT = "uiofmu.design"
 VERSION = 1
@@ -121,22 +125,210 @@ class Card:
         return _dump(self.data, 0) + "\n"
 
     def write(self, path) -> Path:
-        """Write the card to ``path`` (parents created)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(self.to_json(), encoding="utf-8")
-        return path
+        """Write the card to ``path`` atomically (parents created; an existing file is replaced
+        only once the new one is complete)."""
+        return write_atomic(path, self.to_json(), "design card")
 
 
-def _check_shape(name: str, arr: np.ndarray, dims: dict, lead: int) -> None:
-    want = tuple(dims[d] for d in RUNTIME_SHAPES[name])
-    if arr.ndim != lead + len(want) or arr.shape[lead:] != want:
-        raise CardError(f"card matrices.{name}: expected trailing shape {want} after {lead} schedule axes, "
-                        f"found {arr.shape}")
+#: Every family of the product (a card names one of them).
+FAMILY_NAMES = ("lti-uio", "ltv-auid", "switched", "sampled-data", "deadbeat-functional", "delayed-uio")
+#: Largest dimension a card may declare (states, inputs, outputs, observer states).
+MAX_DIM = 1000
+#: Most design intervals an interval schedule may list.
+MAX_INTERVALS = 256
+#: Keys a schedule may hold, per kind (``step_policy`` and ``step_rtol`` for all).
+SCHEDULE_KEYS = {"constant": {"dt"}, "interval": {"intervals", "h_prev0"}, "geometric": {"alpha", "dt"}}
+#: The step policies each schedule kind accepts (see :mod:`uiofmu.schedules`).
+KIND_POLICIES = {"constant": ("error",), "interval": ("error", "nearest"), "geometric": ("error", "count")}
+#: Longest free text (``bound``, ``generator``, solver names) a card may hold.
+MAX_TEXT = 1000
+
+
+def _table(value, key: str) -> dict:
+    if not isinstance(value, dict):
+        raise CardError(f"design card {key}: expected an object, found {_kind(value)}")
+    return value
+
+
+def _kind(value) -> str:
+    if isinstance(value, bool):
+        return f"the boolean {str(value).lower()}"
+    if isinstance(value, str):
+        return f"the string {value[:40]!r}" + ("..." if len(value) > 40 else "")
+    if value is None:
+        return "null"
+    return {"list": "a list", "dict": "an object", "int": f"the integer {value}",
+            "float": f"the number {value!r}"}.get(type(value).__name__, type(value).__name__)
+
+
+def _integer(value, key: str, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise CardError(f"design card {key}: expected an integer, found {_kind(value)}")
+    if not low <= value <= high:
+        raise CardError(f"design card {key}: expected an integer in [{low}, {high}], found {value}")
+    return value
+
+
+def _number(value, key: str, **bounds) -> float:
+    return as_scalar(value, f"design card {key}", error=CardError, **bounds)
+
+
+def _text(value, key: str, limit: int = MAX_TEXT) -> str:
+    return check_text(value, f"design card {key}", CardError, limit, allow_empty=True)
+
+
+def _choice(value, key: str, options: tuple) -> str:
+    if not isinstance(value, str) or value not in options:
+        raise CardError(f"design card {key}: expected one of {', '.join(map(repr, options))}, found {_kind(value)}")
+    return value
+
+
+def _check_schedule(spec, dt) -> dict:
+    """The ``schedule`` entry: its kind, its data and their ranges."""
+    spec = _table(spec, "schedule")
+    kind = _choice(spec.get("kind"), "schedule.kind", tuple(SCHEDULE_KEYS))
+    unknown = sorted(set(spec) - SCHEDULE_KEYS[kind] - {"kind", "step_policy", "step_rtol"})
+    if unknown:
+        raise CardError(f"design card schedule.{unknown[0]}: not a key of a {kind} schedule "
+                        f"(known: {', '.join(sorted(SCHEDULE_KEYS[kind] | {'kind', 'step_policy', 'step_rtol'}))})")
+    _choice(spec.get("step_policy", "error"), "schedule.step_policy", KIND_POLICIES[kind])
+    rtol = _number(spec.get("step_rtol", STEP_RTOL), "schedule.step_rtol", low=0.0, high=0.01)
+    if kind in ("constant", "geometric"):
+        if "dt" not in spec:
+            raise CardError(f"design card schedule.dt: required for a {kind} schedule")
+        step = _number(spec["dt"], "schedule.dt", low=0.0, open_low=True)
+        if dt is None or step != dt:
+            raise CardError(f"design card schedule.dt = {step!r} differs from dt = {dt!r}")
+    if kind == "geometric":
+        if "alpha" not in spec:
+            raise CardError("design card schedule.alpha: required for a geometric schedule")
+        _number(spec["alpha"], "schedule.alpha", low=0.0, high=1.0, open_low=True, open_high=True)
+    if kind == "interval":
+        if "intervals" not in spec:
+            raise CardError("design card schedule.intervals: required for an interval schedule")
+        values = spec["intervals"]
+        if not isinstance(values, list) or not 1 <= len(values) <= MAX_INTERVALS:
+            raise CardError(f"design card schedule.intervals: expected a list of 1 to {MAX_INTERVALS} steps, "
+                            f"found {_kind(values)}" + (f" of {len(values)}" if isinstance(values, list) else ""))
+        hs = [_number(h, f"schedule.intervals[{i}]", low=0.0, open_low=True) for i, h in enumerate(values)]
+        ordered = sorted(hs)
+        for a, b in zip(ordered, ordered[1:]):
+            if b - a <= 2 * rtol * b:
+                raise CardError(f"design card schedule.intervals: {a!r} and {b!r} s are not distinct steps "
+                                f"(step_rtol = {rtol:g})")
+        h0 = _number(spec.get("h_prev0", hs[0]), "schedule.h_prev0", low=0.0, open_low=True)
+        if not any(abs(h0 - h) <= rtol * h for h in hs):
+            raise CardError(f"design card schedule.h_prev0 = {h0!r} s is not one of the design intervals")
+    return spec
+
+
+def _check_matrices(mats, dims: dict, kind: str, schedule: dict) -> dict:
+    """Runtime matrices with their exact shapes; every other matrix a finite numeric array."""
+    mats = _table(mats, "matrices")
+    axes = AXES[kind]
+    count = len(schedule["intervals"]) if kind == "interval" else None
+    out = {}
+    for name, value in mats.items():
+        key = f"design card matrices.{name}"
+        _text(name, "matrices key", 64)
+        if name in RUNTIME_SHAPES:
+            lead = (count,) * axes.get(name, 0) if kind == "interval" else (None,) * axes.get(name, 0)
+            shape = lead + tuple(dims[d] for d in RUNTIME_SHAPES[name])
+            arr = as_array(value, key, shape, CardError)
+            if kind == "geometric" and name in axes and arr.shape[0] == 0:
+                raise CardError(f"{key}: a geometric schedule needs at least one coefficient")
+            out[name] = arr
+        else:
+            depth, probe = 0, value
+            while isinstance(probe, list) and depth < 5:
+                probe, depth = (probe[0] if probe else None), depth + 1
+            as_array(value, key, (None,) * depth, CardError)
+    absent = [k for k in CORE if k not in out]
+    if absent:
+        raise CardError(f"design card matrices: missing {', '.join(absent)}")
+    partial = [k for k in DHAT if k in out]
+    if partial and len(partial) != len(DHAT):
+        raise CardError(f"design card matrices: dhat needs all of {', '.join(DHAT)}, found only {', '.join(partial)}")
+    return out
+
+
+def check_card(data, require_verified: bool = True) -> dict:
+    """Check a design card document against the card schema, before anything uses it.
+
+    The card is data from someone else: every key a command, the runtime or an FMU reads is
+    checked for its type, its shape against ``dims``, finiteness and its range, and the
+    schedule for the values the runtime will index with. Free text (``name``, ``bound``) must
+    be printable and bounded; it never reaches generated code.
+
+    Parameters
+    ----------
+    data : object
+        The parsed JSON.
+    require_verified : bool
+        Also require ``certificate.verified`` to be the boolean ``true``.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        The runtime matrices, read-only.
+
+    Raises
+    ------
+    CardError
+        Naming the first key that is missing, of the wrong type or shape, or out of range.
+    """
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise CardError(f'not a uiofmu design card: "format" must be "{FORMAT}"')
+    missing = [k for k in REQUIRED if k not in data]
+    if missing:
+        raise CardError(f"design card: missing key(s) {', '.join(missing)}")
+    version = data["version"]
+    if isinstance(version, bool) or not isinstance(version, int) or version != VERSION:
+        raise CardError(f"design card version {repr(version)[:40]} is not supported (this uiofmu reads version {VERSION})")
+    _choice(data["family"], "family", FAMILY_NAMES)
+    check_name(data["name"], "design card name", CardError)
+    dims = _table(data["dims"], "dims")
+    for d in ("n", "m", "p", "q", "nz"):
+        if d not in dims:
+            raise CardError(f"design card dims.{d}: required")
+        _integer(dims[d], f"dims.{d}", 1 if d in ("n", "p") else 0, MAX_DIM)
+    time = _choice(data["time"], "time", ("continuous", "discrete"))
+    dt = data["dt"]
+    if dt is not None:
+        dt = _number(dt, "dt", low=0.0, open_low=True)
+    elif time == "discrete":
+        raise CardError("design card dt: a discrete design needs its period")
+    schedule = _check_schedule(data["schedule"], dt)
+    initial = _table(data["initial"], "initial")
+    if "xhat0" not in initial:
+        raise CardError("design card initial.xhat0: required (the initial estimate)")
+    as_vector(initial["xhat0"], "design card initial.xhat0", dims["n"], CardError)
+    cert = _table(data["certificate"], "certificate")
+    verified = cert.get("verified")
+    if not isinstance(verified, bool):
+        raise CardError(f"design card certificate.verified: expected true or false, found {_kind(verified)}")
+    if require_verified and verified is not True:
+        raise CardError("design card: its certificate is not verified (certificate.verified is false); "
+                        "it cannot be built or run")
+    for key in ("solver", "status"):
+        if key in cert:
+            _text(cert[key], f"certificate.{key}", 100)
+    _table(data["problem"], "problem")
+    for key in ("decay_bound", "overshoot_bound"):
+        if data.get(key) is not None:
+            value = _number(data[key], key, low=0.0)
+            if key == "decay_bound" and value >= 1.0:
+                raise CardError(f"design card decay_bound = {value!r}: a bound of 1 or more certifies no convergence")
+    if (data.get("decay_bound") is None) != (data.get("overshoot_bound") is None):
+        raise CardError("design card: decay_bound and overshoot_bound come together (one of them is missing)")
+    for key in ("bound", "generator"):
+        if key in data:
+            _text(data[key], key)
+    return _check_matrices(data["matrices"], dims, schedule["kind"], schedule)
 
 
 def card_from_data(data: dict, require_verified: bool = True) -> Card:
-    """Check a card document and build a :class:`Card`.
+    """Check a card document (:func:`check_card`) and build a :class:`Card`.
 
     Parameters
     ----------
@@ -154,39 +346,7 @@ def card_from_data(data: dict, require_verified: bool = True) -> Card:
     CardError
         Naming the missing or malformed key.
     """
-    from .schedules import schedule_axes
-
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise CardError(f'not a uiofmu design card: "format" must be "{FORMAT}"')
-    missing = [k for k in REQUIRED if k not in data]
-    if missing:
-        raise CardError(f"design card: missing key(s) {', '.join(missing)}")
-    if data["version"] != VERSION:
-        raise CardError(f"design card version {data['version']!r} is not supported (this uiofmu reads {VERSION})")
-    dims = data["dims"]
-    for d in ("n", "m", "p", "q", "nz"):
-        if not isinstance(dims.get(d), int) or dims[d] < 0:
-            raise CardError(f"design card dims.{d}: expected a non-negative integer, found {dims.get(d)!r}")
-    if require_verified and not data["certificate"].get("verified", False):
-        raise CardError("design card: its certificate is not verified (certificate.verified is false); "
-                        "it cannot be built or run")
-    lead = schedule_axes(data["schedule"])
-    mats = {}
-    for name, value in data["matrices"].items():
-        if name not in RUNTIME_SHAPES:
-            continue
-        try:
-            arr = np.array(value, dtype=float)
-        except (TypeError, ValueError):
-            raise CardError(f"card matrices.{name}: not a numeric array") from None
-        if not np.all(np.isfinite(arr)):
-            raise CardError(f"card matrices.{name}: contains non-finite numbers")
-        _check_shape(name, arr, dims, lead.get(name, 0))
-        mats[name] = freeze(arr)
-    absent = [k for k in CORE if k not in mats]
-    if absent:
-        raise CardError(f"design card matrices: missing {', '.join(absent)}")
-    return Card(data, mats)
+    return Card(data, check_card(data, require_verified))
 
 
 def read_card(path, require_verified: bool = True) -> Card:
@@ -195,6 +355,7 @@ def read_card(path, require_verified: bool = True) -> Card:
     Parameters
     ----------
     path : str or Path
+        A regular file of at most :data:`uiofmu.files.MAX_INPUT_BYTES`.
     require_verified : bool
         Refuse an unverified certificate (default).
 
@@ -202,11 +363,5 @@ def read_card(path, require_verified: bool = True) -> Card:
     -------
     Card
     """
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise CardError(f"{path}: no such design card") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CardError(f"{path}: not a readable JSON design card ({exc})") from None
-    return card_from_data(data, require_verified)
+    text = read_text(path, "design card", error=CardError)
+    return card_from_data(parse_json(text, f"{path}", error=CardError), require_verified)

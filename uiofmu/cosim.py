@@ -17,6 +17,7 @@ import numpy as np
 
 from .card import Card, card_from_data
 from .errors import FmuError
+from .files import atomic_output, check_output_dir, write_atomic
 from .families import certified_bound
 from .fmi import Fmu, FmuCallError, read_model_json
 from .inputs import CsvInputs, SignalInputs
@@ -55,11 +56,17 @@ class CosimResult:
 
 
 def observer_card(path) -> Card:
-    """The design card packed in an observer FMU built by uiofmu."""
+    """The design card packed in an observer FMU built by uiofmu, checked against the card schema
+    and with its certificate re-checked at the stored matrices (:func:`uiofmu.synthesis.recheck`)."""
+    from .synthesis import recheck
+
     spec = read_model_json(path)
-    if spec.get("kind") != "observer":
-        raise FmuError(f"{path}: this FMU is a {spec.get('kind')}, not an observer")
-    return card_from_data(spec["card"])
+    if spec.get("kind") != "observer" or "card" not in spec:
+        raise FmuError(f"{path}: this FMU is not an observer built by uiofmu (its model is a "
+                       f"{str(spec.get('kind'))[:40]!r})")
+    card = card_from_data(spec["card"])
+    recheck(card)
+    return card
 
 
 def default_steps(card: Card) -> str:
@@ -178,15 +185,14 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None) -> dic
     """
     from .report import plot_report
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_output_dir(out_dir, "output folder")
     cols = result.columns()
-    with open(out / "results.csv", "w", newline="") as f:
+    with atomic_output(out / "results.csv", "results table") as part, open(part, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(cols)
         for row in zip(*cols.values()):
             w.writerow(["" if isinstance(v, float) and math.isnan(v) else repr(float(v)) for v in row])
-    (out / "metrics.json").write_text(json.dumps(result.metrics, indent=2) + "\n")
+    write_atomic(out / "metrics.json", json.dumps(result.metrics, indent=2) + "\n", "metrics")
     plot_report(result, out / "report.png", title)
     return {"results": out / "results.csv", "metrics": out / "metrics.json", "report": out / "report.png"}
 

@@ -7,9 +7,14 @@ line prints its message on one line and exits with code 2. Anything else is a bu
 
 
 class UserError(Exception):
-    """Base of all errors a user can fix; the message names the key or the violated condition."""
+    """Base of all errors a user can fix; the message names the key or the violated condition.
+
+    ``user_error`` marks the class for the command line also in the copies of this module that
+    travel inside FMUs (the copy's classes are other classes with the same marker).
+    """
 
     exit_code = 2
+    user_error = True
 
 
 class ProblemError(UserError, ValueError):
@@ -30,3 +35,7 @@ class InfeasibleError(UserError):
 
 class FmuError(UserError):
     """An FMU could not be built, loaded or driven (the message says which and why)."""
+
+
+class NumericalError(UserError):
+    """Linear algebra failed on the numbers of a problem (badly scaled or overflowing data)."""

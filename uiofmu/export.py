@@ -17,11 +17,12 @@ from pathlib import Path
 from . import __version__
 from .card import Card
 from .errors import FmuError
+from .files import atomic_output, check_output_file
 from .plant import Plant
 from .text import fill_template, identifier, py_string
 
 #: The modules an FMU carries: the runtime and what it imports (numpy only).
-RUNTIME_MODULES = ("card", "errors", "text", "matrices", "schedules", "tolerances", "runtime", "plant_runtime", "fmu_model",
+RUNTIME_MODULES = ("card", "errors", "files", "text", "matrices", "schedules", "tolerances", "runtime", "plant_runtime", "fmu_model",
                    "mujoco_runtime")
 BACKENDS = ("c", "python")
 
@@ -46,14 +47,12 @@ def _build_python(spec: dict, ident: str, description: str, output: Path, extra_
     from pythonfmu.builder import FmuBuilder
 
     here = Path(__file__).parent
-    output = Path(output)
-    if output.suffix != ".fmu":
-        raise FmuError(f"{output}: the FMU file name must end in .fmu")
-    output.parent.mkdir(parents=True, exist_ok=True)
+    output = check_output_file(output, "FMU", ".fmu")
     module = f"{ident}_slave"
     package = runtime_package()
     with tempfile.TemporaryDirectory(prefix="uiofmu_build_") as tmp:
-        src = Path(tmp)
+        src = Path(tmp) / "src"
+        src.mkdir()
         pkg = src / package
         pkg.mkdir()
         # Import every module at once: the package is shared (by its content-named name) by all FMUs
@@ -69,15 +68,17 @@ def _build_python(spec: dict, ident: str, description: str, output: Path, extra_
         script = src / f"{module}.py"
         script.write_text(text, encoding="utf-8")
         try:
-            path = FmuBuilder.build_FMU(script, dest=output,
-                                        project_files=[pkg, src / "model.json", *map(Path, extra_files)],
-                                        canGetAndSetFMUstate=True, canSerializeFMUstate=True)
+            built = FmuBuilder.build_FMU(script, dest=Path(tmp) / "out" / f"{ident}.fmu",
+                                         project_files=[pkg, src / "model.json", *map(Path, extra_files)],
+                                         canGetAndSetFMUstate=True, canSerializeFMUstate=True)
         finally:
             for key in [k for k in sys.modules if k == module or k.split(".")[0] == package]:
                 sys.modules.pop(key)
             while str(src) in sys.path:
                 sys.path.remove(str(src))
-    return Path(path)
+        with atomic_output(output, "FMU") as part:
+            shutil.copyfile(built, part)
+    return output
 
 
 def default_backend() -> str:

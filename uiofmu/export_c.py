@@ -26,6 +26,7 @@ import numpy as np
 from . import __version__
 from .card import Card
 from .errors import CardError, FmuError
+from .files import atomic_output, check_output_file
 from .schedules import schedule_axes
 from .text import c_string
 from .tolerances import STEP_RTOL
@@ -177,9 +178,7 @@ def build_c_observer(card: Card, output, identifier: str, call_floor: bool = Fal
     ``call_floor`` builds a benchmark variant whose fmi2DoStep returns at once (the cost of the
     FMI call itself); never use it for anything else.
     """
-    output = Path(output)
-    if output.suffix != ".fmu":
-        raise FmuError(f"{output}: the FMU file name must end in .fmu")
+    output = check_output_file(output, "FMU", ".fmu")
     if platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
         raise FmuError("--backend c builds linux64 binaries only; the FMU's sources/ rebuild elsewhere")
     guid = str(uuid.uuid5(uuid.NAMESPACE_URL, "uiofmu:" + json.dumps(card.data, sort_keys=True)))
@@ -193,8 +192,7 @@ def build_c_observer(card: Card, output, identifier: str, call_floor: bool = Fal
         (src / "design_data.c").write_text(design_source(card, guid, identifier))
         lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64",
                              ["-DUIOFMU_CALL_FLOOR"] if call_floor else [])
-        output.parent.mkdir(parents=True, exist_ok=True)
-        with zipfile.ZipFile(output, "w", zipfile.ZIP_DEFLATED) as z:
+        with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
             z.writestr("modelDescription.xml", model_description(card, guid, identifier, ["observer.c", "design_data.c"]))
             z.write(lib, f"binaries/linux64/{identifier}.so")
             for f in sorted(src.iterdir()):

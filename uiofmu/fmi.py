@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import FmuError
+from .files import MAX_INPUT_BYTES, parse_json
 
 STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 
@@ -48,14 +49,33 @@ class FmuCallError(FmuError):
 
 
 def read_model_json(path) -> dict:
-    """The uiofmu model (``resources/model.json``) packed in an FMU built by uiofmu."""
+    """The uiofmu model (``resources/model.json``) packed in an FMU built by uiofmu.
+
+    Parameters
+    ----------
+    path : str or Path
+        A regular file; its ``resources/model.json`` is read only up to
+        :data:`uiofmu.files.MAX_INPUT_BYTES` and nested at most :data:`uiofmu.files.MAX_DEPTH` deep.
+
+    Returns
+    -------
+    dict
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FmuError(f"{path}: no such FMU" if not path.exists() else f"{path}: an FMU is a regular file")
     try:
         with zipfile.ZipFile(path) as z:
-            return json.loads(z.read("resources/model.json"))
-    except FileNotFoundError:
-        raise FmuError(f"{path}: no such FMU") from None
-    except (KeyError, zipfile.BadZipFile, json.JSONDecodeError):
-        raise FmuError(f"{path}: not an FMU built by uiofmu (no resources/model.json)") from None
+            info = z.getinfo("resources/model.json")
+            if info.file_size > MAX_INPUT_BYTES:
+                raise FmuError(f"{path}: resources/model.json has {info.file_size} bytes, more than {MAX_INPUT_BYTES}")
+            text = z.read(info).decode("utf-8")
+    except (KeyError, OSError, zipfile.BadZipFile, UnicodeDecodeError, RuntimeError, NotImplementedError):
+        raise FmuError(f"{path}: not an FMU built by uiofmu (no readable resources/model.json)") from None
+    spec = parse_json(text, f"{path}: resources/model.json", error=FmuError)
+    if not isinstance(spec, dict):
+        raise FmuError(f"{path}: resources/model.json is not a uiofmu model")
+    return spec
 
 
 _INSTANCES: "weakref.WeakValueDictionary[int, Fmu]" = weakref.WeakValueDictionary()
@@ -98,6 +118,11 @@ def _release_python_state(dll) -> None:
     finalize()
 
 
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0][:300] if text else type(exc).__name__
+
+
 class Fmu:
     """One instance of a Co-Simulation FMU, driven by fmpy.
 
@@ -133,7 +158,10 @@ class Fmu:
         self.messages: list[str] = []
         self._refs = {v.name: v.valueReference for v in self.description.modelVariables}
         self._vectors: dict = {}
-        self._unzipdir = extract(str(self.path))
+        try:
+            self._unzipdir = extract(str(self.path))
+        except Exception as exc:  # noqa: BLE001 - zipfile and OS errors of a broken archive
+            raise FmuError(f"{self.path}: cannot extract the FMU ({_first_line(exc)})") from None
 
         self._key = next(_KEYS)
         _INSTANCES[self._key] = self
@@ -143,9 +171,14 @@ class Fmu:
         self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         addLoggerProxy(byref(self._callbacks))
-        self.slave = FMU2Slave(guid=self.description.guid, unzipDirectory=self._unzipdir,
-                               modelIdentifier=self.description.coSimulation.modelIdentifier,
-                               instanceName=instance_name)
+        try:
+            self.slave = FMU2Slave(guid=self.description.guid, unzipDirectory=self._unzipdir,
+                                   modelIdentifier=self.description.coSimulation.modelIdentifier,
+                                   instanceName=instance_name)
+        except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for a missing binary
+            shutil.rmtree(self._unzipdir, ignore_errors=True)
+            _INSTANCES.pop(self._key, None)
+            raise FmuError(f"{self.path}: its binary for this platform cannot be loaded ({_first_line(exc)})") from None
         try:
             self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
         except Exception:  # noqa: BLE001 - fmpy raises a bare Exception here

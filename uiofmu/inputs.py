@@ -8,6 +8,7 @@ until the next row's.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 from pathlib import Path
@@ -15,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ProblemError
+from .files import read_text
 from .signals import Signal
 
 
@@ -46,11 +48,11 @@ class CsvInputs:
 
     def __init__(self, path, m: int, q: int):
         path = Path(path)
+        text = read_text(path, "input table", error=ProblemError)
         try:
-            with open(path, newline="") as f:
-                rows = list(csv.reader(f))
-        except OSError as exc:
-            raise ProblemError(f"--inputs {path}: cannot read it ({exc.strerror})") from None
+            rows = list(csv.reader(io.StringIO(text, newline="")))
+        except csv.Error as exc:
+            raise ProblemError(f"--inputs {path}: not a CSV table ({exc})") from None
         if not rows or not rows[0] or rows[0][0].strip() != "time":
             raise ProblemError(f"--inputs {path}: the first column must be 'time'")
         header = [h.strip() for h in rows[0]]
@@ -63,6 +65,8 @@ class CsvInputs:
             limit = {"u": m, "d": q}.get(kind)
             if limit is not None and not 1 <= idx <= limit:
                 raise ProblemError(f"--inputs {path}: column {name} but the plant has {limit} {kind} channel(s)")
+            if (kind, idx) in cols:
+                raise ProblemError(f"--inputs {path}: column {name} appears twice")
             cols[(kind, idx)] = j
         data = []
         for i, row in enumerate(rows[1:], start=2):

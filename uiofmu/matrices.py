@@ -25,7 +25,11 @@ def _describe(value) -> str:
 def _number(value, name: str, where: str, error) -> float:
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.floating, np.integer)):
         raise error(f"{name}{where}: expected a number, found {_describe(value)}")
-    x = float(value)
+    try:
+        x = float(value)
+    except OverflowError:
+        raise error(f"{name}{where}: expected a finite number, found an integer with {len(str(abs(value)))} "
+                    "digits, too large for a float") from None
     if not np.isfinite(x):
         raise error(f"{name}{where}: expected a finite number, found {x}")
     return x
@@ -135,6 +139,55 @@ def as_vector(value, name: str, size: int | None = None, error=ProblemError) -> 
     if size is not None and vec.shape[0] != size:
         raise error(f"{name}: expected {size} entries, found {vec.shape[0]}")
     return freeze(vec)
+
+
+def as_array(value, name: str, shape: tuple, error=ProblemError) -> np.ndarray:
+    """Normalise nested lists to a read-only float array of exactly ``shape``.
+
+    Parameters
+    ----------
+    value : nested lists of numbers
+        The array, outermost axis first.
+    name : str
+        The key, used in every message (``"matrices.N"``).
+    shape : tuple of int
+        The expected shape; an entry ``None`` accepts any length on that axis (the same for
+        every list on it).
+    error : type, optional
+        The exception class raised.
+
+    Returns
+    -------
+    numpy.ndarray
+
+    Raises
+    ------
+    error
+        Naming the first entry (``matrices.N[3][0][1]``) that is not a list of the expected
+        length, not a number, or not finite.
+
+    Examples
+    --------
+    >>> as_array([[[1, 2]], [[3, 4]]], "matrices.Xz", (2, 1, 2)).shape
+    (2, 1, 2)
+    """
+    want = list(shape)
+    flat = []
+    stack = [(value, 0, "")]
+    while stack:
+        item, axis, where = stack.pop()
+        if axis == len(want):
+            flat.append((where, _number(item, name, where, error)))
+            continue
+        if not isinstance(item, (list, tuple)):
+            raise error(f"{name}{where}: expected a list of {want[axis] if want[axis] is not None else 'some'} "
+                        f"entries (axis {axis} of an array of shape {tuple(shape)}), found {_describe(item)}")
+        if want[axis] is None:
+            want[axis] = len(item)
+        if len(item) != want[axis]:
+            raise error(f"{name}{where}: expected {want[axis]} entries on axis {axis}, found {len(item)}")
+        stack.extend((x, axis + 1, f"{where}[{i}]") for i, x in reversed(list(enumerate(item))))
+    return freeze(np.array([x for _, x in flat], dtype=float).reshape(want))
 
 
 def as_scalar(value, name: str, low: float | None = None, high: float | None = None,

@@ -24,17 +24,19 @@ around ``qpos = 0`` (slide or hinge joints with springs, no gravity, no contacts
 
 from __future__ import annotations
 
+import re
 import shutil
 import tempfile
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .errors import ProblemError
+from .files import parse_toml, read_text
 from .matrices import as_matrix, as_scalar, as_vector
 from .problem import Table
+from .text import MAX_NAME, check_name
 
 SPEC_FILE = "mujoco.toml"
 
@@ -60,28 +62,27 @@ def load_spec(path) -> MujocoSpec:
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     file = folder / SPEC_FILE
-    try:
-        doc = tomllib.loads(file.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ProblemError(f"{file}: no such MuJoCo plant spec") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ProblemError(f"{file}: not valid TOML ({exc})") from None
-    t = Table(doc.get("mujoco"), "mujoco")
+    doc = parse_toml(read_text(file, "MuJoCo plant spec", error=ProblemError), str(file), error=ProblemError)
+    top = Table(doc, "")
+    name = check_name(top.get("name", folder.name[:MAX_NAME] or "plant"), "name", ProblemError)
+    t = Table(top.get("mujoco"), "mujoco")
+    top.get("observer", None), top.get("signals", None)     # copied into the linearised problem file
+    top.done()
     model = t.get("model")
-    if not isinstance(model, str) or not (folder / model).is_file():
-        raise ProblemError(f"mujoco.model: expected the MJCF file name next to {SPEC_FILE}, found {model!r}")
-    joints = t.get("joints")
-    if not isinstance(joints, list) or not joints or not all(isinstance(j, str) for j in joints):
-        raise ProblemError(f"mujoco.joints: expected a list of joint names, found {joints!r}")
+    if not isinstance(model, str) or Path(model).name != model or not (folder / model).is_file():
+        raise ProblemError(f"mujoco.model: expected the name of the MJCF file in {folder}, found {_short(model)}")
+    joints = _names(t.get("joints"), "mujoco.joints", "joint")
+    if not joints:
+        raise ProblemError("mujoco.joints: name at least one joint")
     n = 2 * len(joints)
     spec = {
         "model": model, "joints": joints,
         "timestep": as_scalar(t.get("timestep", 1e-3), "mujoco.timestep", low=0.0, high=1e-3, open_low=True),
         "integrator": t.choice("integrator", ("RK4", "Euler", "implicit", "implicitfast"), "RK4"),
-        "u": list(t.get("u", [])), "d": list(t.get("d", [])),
+        "u": _names(t.get("u", []), "mujoco.u", "actuator"), "d": _names(t.get("d", []), "mujoco.d", "actuator"),
         "C": as_matrix(t.get("C"), "mujoco.C", cols=n).tolist(),
         "x0": as_vector(t.get("x0", [0.0] * n), "mujoco.x0", n).tolist(),
-        "parameters": dict(t.get("parameters", {})),
+        "parameters": _parameters(t.get("parameters", {})),
     }
     t.done()
     if not spec["d"]:
@@ -98,7 +99,37 @@ def load_spec(path) -> MujocoSpec:
         raise ProblemError(f"{file}: {exc}") from None
     except Exception as exc:  # noqa: BLE001 - MuJoCo's own parse errors
         raise ProblemError(f"{folder / model}: MuJoCo cannot load it ({exc})") from None
-    return MujocoSpec(doc.get("name", folder.name), folder, spec, doc)
+    return MujocoSpec(name, folder, spec, doc)
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:60] + "..."
+
+
+def _names(value, key: str, what: str) -> list:
+    """A list of MJCF object names (printable strings)."""
+    if not isinstance(value, list):
+        raise ProblemError(f"{key}: expected a list of {what} names, found {_short(value)}")
+    return [check_name(v, f"{key}[{i}]", ProblemError) for i, v in enumerate(value)]
+
+
+def _parameters(value) -> dict:
+    """``[mujoco.parameters]``: FMU parameter name (an identifier) -> ``"field:object"``."""
+    from .mujoco_runtime import PARAMETER_FIELDS
+
+    if not isinstance(value, dict):
+        raise ProblemError(f"mujoco.parameters: expected a table of name = \"field:object\", found {_short(value)}")
+    for name, target in value.items():
+        if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]{0,63}", name) or name in ("x0", "u", "d", "x", "y"):
+            raise ProblemError(f"mujoco.parameters.{_short(name)}: a parameter name is a letter followed by letters, "
+                               "digits or underscores (at most 64), other than x0, u, d, x, y")
+        field, _, obj = target.partition(":") if isinstance(target, str) else ("", "", "")
+        if field not in PARAMETER_FIELDS or not obj:
+            raise ProblemError(f"mujoco.parameters.{name}: expected \"field:object\" with field one of "
+                               f"{', '.join(PARAMETER_FIELDS)}, found {_short(target)}")
+        check_name(obj, f"mujoco.parameters.{name}", ProblemError)
+    return dict(value)
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,12 @@ def discretize(A: np.ndarray, inputs: np.ndarray, h: float) -> tuple[np.ndarray,
     aug = np.zeros((n + k, n + k))
     aug[:n, :n] = A
     aug[:n, n:] = inputs
-    ex = expm(aug * h)
+    with np.errstate(over="ignore", invalid="ignore"):
+        scaled = aug * h
+        ex = expm(scaled) if np.all(np.isfinite(scaled)) else scaled
+    if not np.all(np.isfinite(ex)):
+        raise ProblemError(f"sampling the plant over h = {h:g} s overflows (largest |A h| = "
+                           f"{float(np.abs(A).max()) * h:.3g}): choose a shorter period or rescale time")
     return ex[:n, :n], ex[:n, n:]
 
 

@@ -8,19 +8,21 @@ expected against what was found.
 from __future__ import annotations
 
 import copy
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from .card import FAMILY_NAMES
 from .errors import ProblemError
+from .files import parse_toml, read_text
 from .matrices import as_scalar, as_vector
 from .plant import Plant
 from .signals import Signal, parse_signals
+from .text import MAX_NAME, check_name
 
 _MISSING = object()
 
-#: Every family of the product, with the paper it comes from.
-KNOWN_FAMILIES = ("lti-uio", "ltv-auid", "switched", "sampled-data", "deadbeat-functional", "delayed-uio")
+#: Every family of the product.
+KNOWN_FAMILIES = FAMILY_NAMES
 
 
 class Table:
@@ -140,12 +142,10 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     -------
     Problem
     """
-    from .families import family_module
+    from .families import available_family
 
     top = Table(data, "")
-    name = top.get("name", default_name)
-    if not isinstance(name, str) or not name.strip():
-        raise ProblemError(f"name: expected a non-empty string, found {name!r}")
+    name = check_name(top.get("name", _model_name(default_name)[:MAX_NAME]), "name", ProblemError)
     pt = Table(top.get("plant"), "plant")
     time = pt.choice("time", ("continuous", "discrete"))
     for unsupported in ("modes", "scheduling"):
@@ -157,9 +157,9 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     pt.done()
     ot = Table(top.get("observer"), "observer")
     family = ot.get("family")
-    if family not in KNOWN_FAMILIES:
+    if not isinstance(family, str) or family not in KNOWN_FAMILIES:
         raise ProblemError(f"observer.family: unknown family {family!r} (families: {', '.join(KNOWN_FAMILIES)})")
-    module = family_module(family)
+    module = available_family(family)
     options = module.parse_options(ot, plant)
     ot.done()
     st = Table(top.get("signals", {}), "signals")
@@ -181,7 +181,8 @@ def load_problem(path) -> Problem:
     Parameters
     ----------
     path : str or Path
-        A TOML file, or a folder holding ``problem.toml`` (``plants/NAME``).
+        A TOML file, or a folder holding ``problem.toml`` (``plants/NAME``); a regular file of
+        at most :data:`uiofmu.files.MAX_INPUT_BYTES`, nested at most :data:`uiofmu.files.MAX_DEPTH` deep.
 
     Returns
     -------
@@ -195,16 +196,7 @@ def load_problem(path) -> Problem:
     path = Path(path)
     if path.is_dir():
         path = path / "problem.toml"
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ProblemError(f"{path}: no such problem file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ProblemError(f"{path}: cannot read the problem file ({exc})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ProblemError(f"{path}: not valid TOML ({exc})") from None
+    data = parse_toml(read_text(path, "problem file", error=ProblemError), str(path), error=ProblemError)
     if "mujoco" in data and "plant" not in data:
         raise ProblemError(f"{path} is a MuJoCo plant spec, not a problem file: linearise it first "
                            f"(uiofmu linearize {path.parent} -o problem.toml)")

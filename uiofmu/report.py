@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .files import atomic_output
+
 
 def plot_report(result, path, title: str | None = None) -> Path:
     """Write ``report.png``: states and estimates, error norm against the certified bound,
@@ -81,6 +83,7 @@ def plot_report(result, path, title: str | None = None) -> Path:
     if title:
         fig.suptitle(title)
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    with atomic_output(path, "report") as part:
+        fig.savefig(part, dpi=110, format="png")
     plt.close(fig)
     return path

@@ -19,6 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ProblemError
+from .files import read_text
+
+#: Most communication steps of one run.
+MAX_STEPS = 10_000_000
 
 
 def _positive(text: str, what: str) -> float:
@@ -64,11 +68,9 @@ def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
     kind, _, rest = spec.partition(":")
     rng = np.random.default_rng(seed)
     if kind == "file":
-        path = Path(rest)
-        try:
-            lines = path.read_text().splitlines()
-        except OSError as exc:
-            raise ProblemError(f"--steps file:{rest}: cannot read it ({exc.strerror})") from None
+        lines = read_text(Path(rest), "step file", error=ProblemError).splitlines()
+        if len(lines) > MAX_STEPS:
+            raise ProblemError(f"--steps file:{rest}: {len(lines)} lines, more than {MAX_STEPS} steps")
         steps = [_positive(line.split("#")[0].strip(), f"line {i + 1} of {rest}")
                  for i, line in enumerate(lines) if line.split("#")[0].strip()]
         if not steps:
@@ -122,6 +124,6 @@ def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
         step = draw()
         out.append(step)
         t += step
-        if len(out) > 10_000_000:
-            raise ProblemError(f"--steps {spec} with --t-end {t_end:g} needs more than 10 million steps")
+        if len(out) > MAX_STEPS:
+            raise ProblemError(f"--steps {spec} with --t-end {t_end:g} needs more than {MAX_STEPS} steps")
     return np.array(out)

@@ -2,19 +2,36 @@
 
 from __future__ import annotations
 
+import contextlib
 import platform
 import time
 
+import numpy as np
+
 from . import __version__
 from .card import FORMAT, VERSION, Card, card_from_data, to_lists
+from .errors import CardError, NumericalError
 from .existence import Existence
-from .families import family_module
+from .families import available_family
 from .problem import Problem
+
+
+@contextlib.contextmanager
+def _numerics(problem: Problem, stage: str):
+    """Linear algebra that fails on the problem's numbers is a problem the user can fix."""
+    try:
+        yield
+    except (np.linalg.LinAlgError, OverflowError, FloatingPointError) as exc:
+        A = problem.plant.A
+        raise NumericalError(f"{problem.name}: the {stage} failed numerically ({type(exc).__name__}: {exc}); "
+                             f"the plant's entries range up to {float(np.abs(A).max()):.3g} in A: rescale the "
+                             "units, or choose a smaller sampling period") from None
 
 
 def check(problem: Problem) -> Existence:
     """Existence analysis of the problem's family (``uiofmu check``)."""
-    return family_module(problem.family).check(problem)
+    with _numerics(problem, "existence analysis"):
+        return available_family(problem.family).check(problem)
 
 
 def design(problem: Problem) -> Card:
@@ -27,18 +44,55 @@ def design(problem: Problem) -> Card:
     InfeasibleError
         When the LMIs are infeasible or the certificate does not verify.
     """
-    return family_module(problem.family).design(problem)
+    with _numerics(problem, "design"):
+        return available_family(problem.family).design(problem)
 
 
 def verify(card: Card) -> list:
     """Re-check a design card's certificate from its stored matrices, without any solver.
+
+    Parameters
+    ----------
+    card : Card
+        A card that passed the card schema.
 
     Returns
     -------
     list of Check
         Every check with its value and bound; the card is certified when all hold.
     """
-    return family_module(card.family).verify(card)
+    return available_family(card.family, "design card family").verify(card)
+
+
+def recheck(card: Card) -> None:
+    """Insist that every check of a card's certificate holds at its stored matrices.
+
+    ``certificate.verified`` is only a claim of whoever wrote the card; ``build`` and ``cosim``
+    re-run the checks before they use a card.
+
+    Parameters
+    ----------
+    card : Card
+        A card that passed the card schema.
+
+    Raises
+    ------
+    CardError
+        When a matrix the checks need is missing or misshapen, or a check fails (named, with
+        its value and bound).
+    """
+    try:
+        failed = [c for c in verify(card) if not c.holds]
+    except KeyError as exc:
+        raise CardError(f"design card: its certificate cannot be re-checked: matrices.{exc.args[0]} or the "
+                        f"family result {exc.args[0]!r} is missing") from None
+    except (TypeError, ValueError, np.linalg.LinAlgError) as exc:
+        raise CardError(f"design card: its certificate cannot be re-checked ({exc})") from None
+    if failed:
+        c = failed[0]
+        raise CardError(f"design card: the certificate does not hold at the stored matrices: {c.name} = {c.value:.6g}, "
+                        f"required {'<=' if c.at_most else '>='} {c.bound:.6g}" +
+                        (f" (and {len(failed) - 1} more check(s))" if len(failed) > 1 else ""))
 
 
 def assemble_card(problem: Problem, *, nz: int, dt: float | None, schedule: dict, matrices: dict,

@@ -1,7 +1,7 @@
 """Free text from other people's files, made safe for where it goes (standard library only).
 
 Names and descriptions come from problem files and design cards. They reach generated code
-and XML only through this module: :func:`check_name` refuses control characters and
+and XML only through this module: :func:`check_text` refuses control characters and
 unbounded lengths, :func:`identifier` whitelists the characters of a C or Python identifier,
 :func:`c_string` and :func:`py_string` produce escaped literals, and
 :func:`fill_template` fills a template in one pass with checked fields.
@@ -23,8 +23,49 @@ _REFUSED = {"Cc", "Cf", "Cs", "Co", "Cn"}
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
 
+def check_text(value, key: str, error=ValueError, max_len: int = MAX_NAME, allow_empty: bool = False) -> str:
+    """Free text from a file: a string of at most ``max_len`` printable characters.
+
+    Parameters
+    ----------
+    value : object
+        What the file holds under ``key``.
+    key : str
+        The key, for the message.
+    error : type
+        Exception raised.
+    max_len : int
+        Longest accepted string.
+    allow_empty : bool
+        Accept an empty (or blank) string.
+
+    Returns
+    -------
+    str
+        ``value`` itself.
+
+    Raises
+    ------
+    error
+        For a non-string, an empty (unless allowed) or over-long string, or a control
+        character (named by its code point and position).
+    """
+    if not isinstance(value, str):
+        raise error(f"{key}: expected a string, found {type(value).__name__} {_short(value)}")
+    if not allow_empty and not value.strip():
+        raise error(f"{key}: expected a non-empty string, found {value!r}")
+    if len(value) > max_len:
+        raise error(f"{key}: at most {max_len} characters, found {len(value)}")
+    for i, ch in enumerate(value):
+        if unicodedata.category(ch) in _REFUSED:
+            raise error(f"{key}: character U+{ord(ch):04X} at position {i} is not allowed "
+                        "(control, format, surrogate or unassigned characters are refused)")
+    return value
+
+
 def check_name(value, key: str, error=ValueError) -> str:
-    """A model name: a non-empty string of at most :data:`MAX_NAME` printable characters.
+    """A model name: a non-empty string of at most :data:`MAX_NAME` printable characters
+    (see :func:`check_text`).
 
     Parameters
     ----------
@@ -38,25 +79,8 @@ def check_name(value, key: str, error=ValueError) -> str:
     Returns
     -------
     str
-        ``value`` itself.
-
-    Raises
-    ------
-    error
-        For a non-string, an empty or over-long string, or a control character (named by its
-        code point and position).
     """
-    if not isinstance(value, str):
-        raise error(f"{key}: expected a string, found {type(value).__name__} {_short(value)}")
-    if not value.strip():
-        raise error(f"{key}: expected a non-empty name, found {value!r}")
-    if len(value) > MAX_NAME:
-        raise error(f"{key}: at most {MAX_NAME} characters, found {len(value)}")
-    for i, ch in enumerate(value):
-        if unicodedata.category(ch) in _REFUSED:
-            raise error(f"{key}: character U+{ord(ch):04X} at position {i} is not allowed in a name "
-                        "(control, format, surrogate or unassigned)")
-    return value
+    return check_text(value, key, error)
 
 
 def _short(value, limit: int = 40) -> str:

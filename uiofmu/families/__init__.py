@@ -15,18 +15,37 @@ from __future__ import annotations
 
 from importlib import import_module
 
-from ..errors import ProblemError
+from ..errors import CardError, ProblemError
 
 #: Families available in this version, and their modules.
 FAMILIES = {"lti-uio": "lti_uio", "sampled-data": "sampled_data", "ltv-auid": "ltv_auid"}
 
 
-def family_module(name: str):
-    """The module implementing family ``name``."""
+def available_family(name: str, key: str = "observer.family"):
+    """The module implementing family ``name``.
+
+    Parameters
+    ----------
+    name : str
+        A family name.
+    key : str
+        Where the name came from, for the message (``"design card family"``).
+
+    Returns
+    -------
+    module
+
+    Raises
+    ------
+    ProblemError
+        For a family that is not available in this version (a card's family: CardError).
+    """
     if name not in FAMILIES:
-        raise ProblemError(f"observer.family: {name!r} is not available in this version of uiofmu "
-                           f"(available: {', '.join(sorted(FAMILIES))})")
+        error = CardError if key.startswith("design card") else ProblemError
+        raise error(f"{key}: {name!r} is not available in this version of uiofmu "
+                    f"(available: {', '.join(sorted(FAMILIES))})")
     return import_module(f"{__name__}.{FAMILIES[name]}")
+
 
 
 def certified_bound(card, e0, d):
@@ -48,7 +67,7 @@ def certified_bound(card, e0, d):
     """
     from ..certificate import geometric_bound
 
-    module = family_module(card.family)
+    module = available_family(card.family, "design card family")
     if hasattr(module, "certified_bound"):
         return module.certified_bound(card, e0, d)
     if card.data.get("decay_bound") is None:
