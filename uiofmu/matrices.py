@@ -172,6 +172,24 @@ def as_array(value, name: str, shape: tuple, error=ProblemError) -> np.ndarray:
     (2, 1, 2)
     """
     want = list(shape)
+    level = [value]
+    for axis in range(len(want)):            # fast path: nested lists of plain JSON numbers
+        if not all(type(item) is list for item in level):
+            break
+        if want[axis] is None and level:
+            want[axis] = len(level[0])
+        if any(len(item) != want[axis] for item in level):
+            break
+        level = [x for item in level for x in item]
+    else:
+        if all(type(x) is float or type(x) is int for x in level):
+            try:
+                arr = np.array(level, dtype=float)
+            except OverflowError:
+                arr = None
+            if arr is not None and np.all(np.isfinite(arr)):
+                return freeze(arr.reshape(want))
+    want = list(shape)
     flat = []
     stack = [(value, 0, "")]
     while stack:
