@@ -2,8 +2,12 @@
 
 A model lists its ports, each a named vector: parameters (set before initialisation),
 inputs, and outputs (computed on demand and cached until an input or the state changes).
-The pythonfmu slave (:mod:`uiofmu.slave_template`) maps ports to FMI variables
+The pythonfmu slave (``templates/pythonfmu_slave.py.tmpl``) maps ports to FMI variables
 ``name[1..size]`` without knowing what the model is; the C backend generates the same ports.
+
+States (:meth:`ObserverModel.get_state`, :meth:`PlantModel.get_state`) are plain JSON-ready
+data; ``set_state`` checks every field before it changes anything, because the state an
+importer hands back may be truncated, edited or another FMU's (:class:`StateRejected`).
 """
 
 from __future__ import annotations
@@ -14,6 +18,18 @@ from .card import card_from_data
 from .plant_runtime import PlantRuntime
 from .runtime import Runtime, RuntimeInputError
 from .schedules import StepRejected
+from .state import StateReader, StateRejected
+
+
+def _port_values(r: StateReader, key: str, ports: list) -> list:
+    """The port values of a state: one list per port, of ``port.size`` numbers each (they are
+    what the master sets through fmi2SetReal, so they may be non-finite: the FMU checks them
+    where they are used, at initialisation and at each step)."""
+    values = r.state[key]
+    if not isinstance(values, (list, tuple)) or len(values) != len(ports):
+        found = f"{len(values)} entries" if isinstance(values, (list, tuple)) else type(values).__name__
+        raise StateRejected(f"{r.what} state field {key!r}: expected {len(ports)} lists (one per port), found {found}")
+    return [r.vector(f"{key}.{port.name}", port.size, finite=False, value=vals) for port, vals in zip(ports, values)]
 
 
 class Port:
@@ -53,11 +69,12 @@ class ObserverModel:
 
     def initialize(self) -> None:
         """Take the parameters (called when leaving initialisation mode); raises StepRejected
-        for an h_prev0 that is not a design interval."""
+        for an h_prev0 that is not a design interval, and then nothing has changed."""
+        if len(self.parameters) > 1:                   # checked before anything changes
+            h_prev0 = float(self.parameters[1].values[0])
+            self.rt.schedule.output_matrices(0, h_prev0)
+            self.rt.h_prev0 = h_prev0
         self.rt.xhat0 = self.parameters[0].values.copy()
-        if len(self.parameters) > 1:
-            self.rt.h_prev0 = float(self.parameters[1].values[0])
-            self.rt.schedule.output_matrices(0, self.rt.h_prev0)
         self.rt.reset()
         self.dirty = True
 
@@ -81,13 +98,32 @@ class ObserverModel:
         self.dirty = True
 
     def get_state(self) -> dict:
-        """JSON-ready state (runtime and parameters)."""
+        """JSON-ready state.
+
+        Returns
+        -------
+        dict
+            ``runtime`` (:meth:`uiofmu.runtime.Runtime.get_state`) and ``parameters`` (the
+            parameter ports' values, one list per port).
+        """
         return {"runtime": self.rt.get_state(), "parameters": [p.values.tolist() for p in self.parameters]}
 
     def set_state(self, state: dict) -> None:
-        """Restore :meth:`get_state`."""
-        self.rt.set_state(state["runtime"])
-        for port, values in zip(self.parameters, state["parameters"]):
+        """Restore :meth:`get_state`; nothing changes unless every field is valid.
+
+        Parameters
+        ----------
+        state : dict
+
+        Raises
+        ------
+        StateRejected
+            The field that is missing, unknown or malformed is named.
+        """
+        r = StateReader(state, ("runtime", "parameters"), "observer")
+        params = _port_values(r, "parameters", self.parameters)
+        self.rt.set_state(state["runtime"])               # checks everything before it changes
+        for port, values in zip(self.parameters, params):
             port.values[:] = values
         self.dirty = True
 
@@ -138,15 +174,33 @@ class PlantModel:
         return []
 
     def get_state(self) -> dict:
-        """JSON-ready state."""
-        return {"runtime": self.rt.get_state()}
+        """JSON-ready state.
+
+        Returns
+        -------
+        dict
+            ``runtime`` (the runtime's ``get_state``) and ``parameters`` (the parameter ports'
+            values, which the master may have set after the last initialisation).
+        """
+        return {"runtime": self.rt.get_state(), "parameters": [p.values.tolist() for p in self.parameters]}
 
     def set_state(self, state: dict) -> None:
-        """Restore :meth:`get_state`."""
-        self.rt.set_state(state["runtime"])
-        self.parameters[0].values[:] = self.rt.x0
-        for i, port in enumerate(self.parameters[1:]):
-            port.values[0] = self.rt.params[i]
+        """Restore :meth:`get_state`; nothing changes unless every field is valid.
+
+        Parameters
+        ----------
+        state : dict
+
+        Raises
+        ------
+        StateRejected
+            The field that is missing, unknown or malformed is named.
+        """
+        r = StateReader(state, ("runtime", "parameters"), "plant")
+        params = _port_values(r, "parameters", self.parameters)
+        self.rt.set_state(state["runtime"])               # checks everything before it changes
+        for port, values in zip(self.parameters, params):
+            port.values[:] = values
         self.dirty = True
 
 
@@ -161,4 +215,4 @@ def make_model(spec: dict, resources: str = "."):
     return ObserverModel(spec)
 
 
-__all__ = ["ObserverModel", "PlantModel", "Port", "RuntimeInputError", "StepRejected", "make_model"]
+__all__ = ["ObserverModel", "PlantModel", "Port", "RuntimeInputError", "StateRejected", "StepRejected", "make_model"]

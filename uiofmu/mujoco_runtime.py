@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .runtime import check_step
+from .state import StateReader
 
 #: Model fields a plant's physical parameters may set (name -> the id kind it is indexed by).
 PARAMETER_FIELDS = {"body_mass": "body", "jnt_stiffness": "joint", "dof_damping": "joint",
@@ -138,21 +139,50 @@ class MujocoRuntime:
         self.data.time = t_end
 
     def get_state(self) -> dict:
-        """JSON-ready state."""
+        """JSON-ready state.
+
+        Returns
+        -------
+        dict
+            The MjData fields ``qpos``, ``qvel``, ``act``, ``ctrl``, ``time`` and the runtime's
+            ``x0``, ``params``, ``u``, ``d``, as Python floats (a JSON round trip is exact).
+        """
         d = self.data
         return {"qpos": d.qpos.tolist(), "qvel": d.qvel.tolist(), "act": d.act.tolist(), "ctrl": d.ctrl.tolist(),
                 "time": float(d.time), "x0": self.x0.tolist(), "params": self.params.tolist(),
                 "u": self.u.tolist(), "d": self.d.tolist()}
 
     def set_state(self, state: dict) -> None:
-        """Restore :meth:`get_state`."""
+        """Restore :meth:`get_state`, after checking every field (nothing changes otherwise).
+
+        Parameters
+        ----------
+        state : dict
+            Exactly the keys of :meth:`get_state`: ``qpos`` (nq), ``qvel`` (nv), ``act`` (na),
+            ``ctrl`` (nu), ``x0`` (n) and ``params`` (one per physical parameter) finite numbers;
+            ``time`` a finite number >= 0 (the runtime starts at 0 and only advances);
+            ``u`` (m) and ``d`` (q) numbers (inputs may be non-finite, as through fmi2SetReal:
+            the step refuses them).
+
+        Raises
+        ------
+        StateRejected
+            For a missing or unknown field, or one of the wrong type, length or value (named).
+        """
+        r = StateReader(state, ("qpos", "qvel", "act", "ctrl", "time", "x0", "params", "u", "d"), "MuJoCo plant")
+        m = self.model
+        time = r.number("time", 0.0)
+        new = {"qpos": r.vector("qpos", m.nq), "qvel": r.vector("qvel", m.nv), "act": r.vector("act", m.na),
+               "ctrl": r.vector("ctrl", m.nu), "x0": r.vector("x0", self.n),
+               "params": r.vector("params", len(self.param_names)),
+               "u": r.vector("u", self.m, finite=False), "d": r.vector("d", self.q, finite=False)}
         d = self.data
-        self.params[:] = state["params"]
+        self.params[:] = new["params"]
         self.apply_parameters()
-        d.qpos[:], d.qvel[:], d.ctrl[:] = state["qpos"], state["qvel"], state["ctrl"]
-        if len(state["act"]):
-            d.act[:] = state["act"]
-        d.time = state["time"]
-        self.x0 = np.array(state["x0"])
-        self.u[:], self.d[:] = state["u"], state["d"]
+        d.qpos[:], d.qvel[:], d.ctrl[:] = new["qpos"], new["qvel"], new["ctrl"]
+        if m.na:
+            d.act[:] = new["act"]
+        d.time = time
+        self.x0 = new["x0"]
+        self.u[:], self.d[:] = new["u"], new["d"]
         self._mj.mj_forward(self.model, d)

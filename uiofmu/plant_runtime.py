@@ -13,6 +13,7 @@ import numpy as np
 
 from .runtime import check_step
 from .schedules import StepRejected
+from .state import StateReader
 from .tolerances import STEP_RTOL
 
 
@@ -110,13 +111,35 @@ class PlantRuntime:
         self.x = Ad @ self.x + Bd @ self.u + Ed @ self.d + wd
 
     def get_state(self) -> dict:
-        """JSON-ready state."""
+        """JSON-ready state.
+
+        Returns
+        -------
+        dict
+            ``x``, ``x0``, ``u``, ``d`` as lists of Python floats and ``params`` (empty: a linear
+            plant has no physical parameters).
+        """
         return {"x": self.x.tolist(), "x0": self.x0.tolist(), "u": self.u.tolist(), "d": self.d.tolist(),
                 "params": []}
 
     def set_state(self, state: dict) -> None:
-        """Restore :meth:`get_state`."""
-        self.x = np.array(state["x"], dtype=float)
-        self.x0 = np.array(state["x0"], dtype=float)
-        self.u[:] = state["u"]
-        self.d[:] = state["d"]
+        """Restore :meth:`get_state`, after checking every field (nothing changes otherwise).
+
+        Parameters
+        ----------
+        state : dict
+            Exactly the keys of :meth:`get_state`: ``x`` and ``x0`` (n finite numbers), ``u`` (m)
+            and ``d`` (q) numbers (inputs may be non-finite, as through fmi2SetReal: the step
+            refuses them), ``params`` an empty list.
+
+        Raises
+        ------
+        StateRejected
+            For a missing or unknown field, or one of the wrong type, length or value (named).
+        """
+        r = StateReader(state, ("x", "x0", "u", "d", "params"), "plant")
+        new = {"x": r.vector("x", self.n), "x0": r.vector("x0", self.n), "u": r.vector("u", self.m, finite=False),
+               "d": r.vector("d", self.q, finite=False), "params": r.vector("params", 0)}
+        self.x, self.x0 = new["x"], new["x0"]
+        self.u[:] = new["u"]
+        self.d[:] = new["d"]

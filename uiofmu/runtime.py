@@ -24,6 +24,7 @@ import numpy as np
 
 from .card import Card
 from .schedules import StepRejected, make_schedule
+from .state import StateReader, StateRejected
 
 
 class RuntimeInputError(Exception):
@@ -103,20 +104,59 @@ class Runtime:
         self.h_prev = self.h_prev0
 
     def get_state(self) -> dict:
-        """Everything that defines the future outputs, as plain lists (JSON-ready)."""
+        """Everything that defines the future outputs, as plain lists (JSON-ready).
+
+        Returns
+        -------
+        dict
+            ``k``, ``z``, ``pred``, ``h_prev``, ``xhat0``, ``h_prev0``, ``y``, ``u``; floats are
+            Python floats, so a JSON round trip (``repr`` of each float) restores them exactly.
+        """
         return {"k": self.k, "z": self.z.tolist(), "pred": self.pred.tolist(), "h_prev": self.h_prev,
                 "xhat0": self.xhat0.tolist(), "h_prev0": self.h_prev0, "y": self.y.tolist(), "u": self.u.tolist()}
 
     def set_state(self, state: dict) -> None:
-        """Restore what :meth:`get_state` returned."""
-        self.k = int(state["k"])
-        self.z = np.array(state["z"], dtype=float)
-        self.pred = np.array(state["pred"], dtype=float)
-        self.h_prev = float(state["h_prev"])
-        self.xhat0 = np.array(state["xhat0"], dtype=float)
-        self.h_prev0 = float(state["h_prev0"])
-        self.y[:] = state["y"]
-        self.u[:] = state["u"]
+        """Restore what :meth:`get_state` returned, after checking every field.
+
+        Nothing changes unless the whole state is valid: a state may come from an importer
+        (deserialised bytes, another FMU's state), so each field is checked before use.
+
+        Parameters
+        ----------
+        state : dict
+            Exactly the keys of :meth:`get_state`: ``k`` a non-negative integer (at most 2**53);
+            ``z`` (nz), ``pred`` (p) and ``xhat0`` (n) finite numbers; ``h_prev`` and ``h_prev0``
+            finite steps > 0 and, for an interval schedule with ``step_policy = "error"`` (which
+            looks its matrices up by the previous step), design intervals; ``y`` (p) and ``u``
+            (m) numbers, which may be non-finite like any input set through fmi2SetReal (the
+            step refuses them).
+
+        Raises
+        ------
+        StateRejected
+            For a state that is not a dict, a missing or unknown field, or a field of the wrong
+            type, length or range; the message names the field.
+        """
+        r = StateReader(state, ("k", "z", "pred", "h_prev", "xhat0", "h_prev0", "y", "u"), "observer")
+
+        def step_length(key):
+            h = r.number(key, 0.0, open_low=True)
+            if hasattr(self.schedule, "intervals") and self.schedule.policy == "error":
+                try:
+                    self.schedule.index(h)
+                except StepRejected as exc:
+                    raise StateRejected(f"observer state field {key!r}: {exc}") from None
+            return h
+
+        k = r.count("k")
+        new = {"z": r.vector("z", self.nz), "pred": r.vector("pred", self.p), "xhat0": r.vector("xhat0", self.n),
+               "y": r.vector("y", self.p, finite=False), "u": r.vector("u", self.m, finite=False),
+               "h_prev": step_length("h_prev"), "h_prev0": step_length("h_prev0")}
+        self.k = k
+        self.z, self.pred, self.xhat0 = new["z"], new["pred"], new["xhat0"]
+        self.h_prev, self.h_prev0 = new["h_prev"], new["h_prev0"]
+        self.y[:] = new["y"]
+        self.u[:] = new["u"]
 
     # -- inputs ------------------------------------------------------------------------
     def set_y(self, y) -> None:
