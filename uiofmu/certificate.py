@@ -50,6 +50,11 @@ def lyapunov_check(name: str, N: np.ndarray, X: np.ndarray, rho: float, X_prev: 
     return Check(name, float(np.linalg.eigvalsh(0.5 * (Q + Q.T))[0]), verify_fraction * margin, at_most=False)
 
 
+def decay_check(rho: float) -> Check:
+    """``rho < 1``: a decay bound of 1 or more certifies no convergence, whatever else holds."""
+    return Check("decay bound < 1", float(rho), 1.0 - 2.0 ** -52)
+
+
 def positive_check(name: str, X: np.ndarray, margin: float = LMI_MARGIN,
                    verify_fraction: float = VERIFY_FRACTION) -> Check:
     """``X > 0`` by its smallest eigenvalue."""

@@ -11,8 +11,12 @@ An LMI system is written once, as a function ``build(v, p, ops)`` returning a li
 
 Strict inequalities are solved as ``F >= margin * I`` (:data:`~uiofmu.tolerances.LMI_MARGIN`,
 100x the solver tolerance) and accepted by the re-check when ``eig_min(F) >=
-VERIFY_FRACTION * margin``. A tunable is a parameter of the assembled problem, so a search
-changes only its part of the data between solves.
+VERIFY_FRACTION * margin``; equalities and non-strict LMIs are judged relative to the size of
+the point (:data:`~uiofmu.tolerances.POINT_RTOL`), as the solver's tolerance is. A system whose
+LMIs are homogeneous in the variables (all three families': only normalisations such as
+``X >= I`` have a constant part) is repaired exactly when a point misses a normalisation by
+round-off: the point is scaled up until it holds. A tunable is a parameter of the assembled
+problem, so a search changes only its part of the data between solves.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ import numpy as np
 
 from .errors import InfeasibleError
 from .progress import progress
-from .tolerances import LMI_MARGIN, SEARCH_TOL, SOLVER_TOL, VERIFY_FRACTION
+from .tolerances import LMI_MARGIN, POINT_RTOL, SEARCH_TOL, SOLVER_TOL, VERIFY_FRACTION
 
 
 @dataclass(frozen=True)
@@ -39,6 +43,14 @@ class Lmi:
     matrix: object
     strict: bool = True
     equality: bool = False
+
+
+#: Solver statuses that prove infeasibility; any other failure is numerical.
+INFEASIBLE = ("infeasible", "PrimalInfeasible")
+
+
+class NumericalDesignError(InfeasibleError):
+    """The solver failed numerically: no certificate was found, and none was proven impossible."""
 
 
 def _np_sym(M):
@@ -117,13 +129,50 @@ def eig_min(lmis: list[Lmi]) -> dict:
     return {lmi.name: out[lmi.name] for lmi in lmis}
 
 
+def point_scale(values: dict) -> float:
+    """``max(1, |x|_max)``: the size of a point, the largest entry of any of its variables."""
+    return max([1.0] + [float(np.abs(np.asarray(v, dtype=float)).max()) for v in values.values()
+                        if np.asarray(v).size])
+
+
+def rejected(eigs: dict, lmis: list[Lmi], scale: float = 1.0, margin: float = LMI_MARGIN,
+             verify_fraction: float = VERIFY_FRACTION, point_rtol: float = POINT_RTOL) -> dict:
+    """The LMIs that fail the re-check rule, with the bound each one missed.
+
+    A strict LMI needs ``eig_min >= verify_fraction * margin``; a non-strict LMI or an equality
+    ``eig_min >= -max(verify_fraction * margin, point_rtol * scale)`` (for an equality
+    ``eig_min`` is minus its largest residual), ``scale`` being :func:`point_scale`.
+
+    Parameters
+    ----------
+    eigs : dict of str to float
+        From :func:`eig_min`.
+    lmis : list of Lmi
+        The LMIs they belong to.
+    scale : float
+        The size of the point.
+    margin, verify_fraction, point_rtol : float
+        The rule's tolerances (:mod:`uiofmu.tolerances`).
+
+    Returns
+    -------
+    dict of str to (float, float)
+        ``name -> (eig_min, bound)`` of every LMI that fails.
+    """
+    loose = -max(verify_fraction * margin, point_rtol * scale)
+    out = {}
+    for l in lmis:
+        bound = verify_fraction * margin if l.strict and not l.equality else loose
+        if not eigs[l.name] >= bound:
+            out[l.name] = (eigs[l.name], bound)
+    return out
+
+
 def accepted(eigs: dict, lmis: list[Lmi], margin: float = LMI_MARGIN,
-             verify_fraction: float = VERIFY_FRACTION) -> bool:
-    """True when every LMI passes the re-check rule (see :class:`LmiSolution`); an equality
-    passes when its largest residual is below ``verify_fraction * margin`` (the family
-    then restores it exactly and re-checks the stored matrices)."""
-    bound = verify_fraction * margin
-    return all(eigs[l.name] >= (bound if l.strict and not l.equality else -bound) for l in lmis)
+             verify_fraction: float = VERIFY_FRACTION, scale: float = 1.0) -> bool:
+    """True when every LMI passes the re-check rule of :func:`rejected` (the family then
+    restores equalities exactly and re-checks the stored matrices)."""
+    return not rejected(eigs, lmis, scale, margin, verify_fraction)
 
 
 @dataclass
@@ -151,6 +200,10 @@ class LmiSystem:
         (:mod:`uiofmu.conic`); ``cvxpy`` builds the same LMIs as a cvxpy problem (the
         straightforward formulation, kept for comparison and for the infeasibility diagnosis).
         Both are re-checked the same way.
+    homogeneous : bool
+        Every LMI is linear in the variables except non-strict normalisations ``F_lin(x) - c I``
+        (``X >= I``): a point that misses a normalisation is then scaled by
+        ``s = max c / eig_min(F_lin)`` (every other LMI scales with it) instead of rejected.
 
     Attributes
     ----------
@@ -170,6 +223,7 @@ class LmiSystem:
     margin: float = LMI_MARGIN
     solver_tol: float = SOLVER_TOL
     backend: str = "direct"
+    homogeneous: bool = False
     _conic: object = field(init=False, repr=False, default=None)
     _vars: dict = field(init=False, repr=False)
     _params: dict = field(init=False, repr=False)
@@ -257,15 +311,60 @@ class LmiSystem:
         """The re-check of a returned point (the same for every backend); counts the solve."""
         self.solves += 1
         self.solver_time += solve_time
+        sol = self.recheck(values, pvals, status)
+        return LmiSolution(sol.values, pvals, status, sol.eig_min, sol.verified, solve_time,
+                           max(total - solve_time, 0.0), sol.objective, self.margin)
+
+    def recheck(self, values: dict, parameters: dict, status: str = "re-checked") -> LmiSolution:
+        """Re-check a point at the given parameter values, without solving (see :func:`rejected`).
+
+        A homogeneous system's point that misses a normalisation is scaled until it holds
+        (the scaled point is returned).
+
+        Parameters
+        ----------
+        values : dict of str to numpy.ndarray
+            The variables (empty: nothing to check, not verified).
+        parameters : dict of str to float
+            The parameter values.
+        status : str
+            Recorded in the solution.
+
+        Returns
+        -------
+        LmiSolution
+        """
+        pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
         eigs, ok, objective = {}, False, None
         if values:
             lmis = self.evaluate(values, pvals)
             eigs = eig_min(lmis)
-            ok = accepted(eigs, lmis, self.margin)
+            ok = accepted(eigs, lmis, self.margin, scale=point_scale(values))
+            if not ok and self.homogeneous:
+                values, lmis, eigs, ok = self._rescaled(values, pvals, lmis, eigs)
             if ok and self.objective:
                 objective = float(np.asarray(self.objective(values)))
-        return LmiSolution(values, pvals, status, eigs, ok, solve_time, max(total - solve_time, 0.0),
-                           objective, self.margin)
+        return LmiSolution(values, pvals, status, eigs, ok, 0.0, 0.0, objective, self.margin)
+
+    def _rescaled(self, values, pvals, lmis, eigs):
+        """The point scaled so that its normalisations hold (homogeneous systems)."""
+        zero = {k: np.zeros_like(np.asarray(v, dtype=float)) for k, v in values.items()}
+        need = 1.0
+        for lmi, const in zip(lmis, self.evaluate(zero, pvals)):
+            c = np.asarray(const.matrix, dtype=float)
+            if lmi.strict or lmi.equality or not np.any(c):
+                continue
+            low = float(np.linalg.eigvalsh(0.5 * (c + c.T))[0])
+            lin = np.asarray(lmi.matrix, dtype=float) - c
+            lin_low = float(np.linalg.eigvalsh(0.5 * (lin + lin.T))[0])
+            if low < 0 < lin_low:
+                need = max(need, -low / lin_low)
+        if need <= 1.0:
+            return values, lmis, eigs, False
+        scaled = {k: np.asarray(v, dtype=float) * (need * (1 + 1e-12)) for k, v in values.items()}
+        lmis = self.evaluate(scaled, pvals)
+        eigs = eig_min(lmis)
+        return scaled, lmis, eigs, accepted(eigs, lmis, self.margin, scale=point_scale(scaled))
 
     def diagnose(self, **parameters) -> dict:
         """Which LMIs cannot hold: a phase-1 problem with one slack per strict LMI.
@@ -314,16 +413,36 @@ class LmiSystem:
         sol = self.solve(**parameters)
         if sol.verified:
             return sol
+        self.refuse(sol)
+
+    def refuse(self, sol: LmiSolution):
+        """Raise the :class:`InfeasibleError` that explains why ``sol`` is not a certificate.
+
+        Parameters
+        ----------
+        sol : LmiSolution
+            A solution that did not verify.
+
+        Raises
+        ------
+        InfeasibleError
+            The LMIs the re-check rejects, with their values and bounds; or, when the solver
+            returned no point, its status and the LMIs that need slack.
+        """
         params = ", ".join(f"{k} = {v:.6g}" for k, v in sol.parameters.items())
         if sol.values:
-            bound = VERIFY_FRACTION * self.margin
-            bad = [f"{k}: eig_min = {v:.3g} < {bound:.1g}" for k, v in sol.eig_min.items() if v < bound]
+            lmis = self.evaluate(sol.values, sol.parameters)
+            bad = [f"{k}: eig_min = {v:.3g} < {b:.3g}"
+                   for k, (v, b) in rejected(sol.eig_min, lmis, point_scale(sol.values), self.margin).items()]
             raise InfeasibleError(f"{self.name} LMIs at {params}: CLARABEL answered {sol.status} but the re-check "
                                   f"rejects its point ({'; '.join(bad)})")
-        need = {k: v for k, v in self.diagnose(**parameters).items() if v > self.margin}
+        need = {k: v for k, v in self.diagnose(**sol.parameters).items() if v > self.margin}
         which = "; ".join(f"{k} needs slack {v:.3g}" for k, v in sorted(need.items(), key=lambda kv: -kv[1]))
-        raise InfeasibleError(f"{self.name} LMIs are infeasible at {params} (CLARABEL: {sol.status})"
-                              + (f": {which}" if which else ""))
+        if sol.status in INFEASIBLE:
+            raise InfeasibleError(f"{self.name} LMIs are infeasible at {params} (CLARABEL: {sol.status})"
+                                  + (f": {which}" if which else ""))
+        raise NumericalDesignError(f"{self.name} LMIs at {params}: CLARABEL failed numerically ({sol.status}), "
+                                   "which proves no infeasibility" + (f"; phase 1: {which}" if which else ""))
 
 
 @dataclass(frozen=True)
@@ -345,14 +464,17 @@ class SearchResult:
 
 def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_end: float,
            tol: float = SEARCH_TOL, label: str | None = None, transform: Callable | None = None,
-           name: str | None = None) -> SearchResult:
+           name: str | None = None, safe_end: float | None = None, walk: int = 30) -> SearchResult:
     """Bisection for the best value of one tunable, keeping only re-checked certificates.
 
     ``infeasible_end`` is a value known (from theory) not to verify, or the limit of the range;
     the best value is the one closest to it that still verifies, within ``tol``. The bracket
     comes from theory (zeros, fixed modes), and the search first tries the value ``tol`` inside
-    it: where theory's limit is reached (as for the building) one solve decides. Otherwise the
-    value at ``feasible_end`` must verify, and bisection narrows the bracket.
+    it (never past ``feasible_end``): where theory's limit is reached (as for the building) one
+    solve decides. Otherwise ``feasible_end`` is tried; when it does not verify either, values
+    ever closer to ``safe_end`` (the end of the range where the design gets easiest, itself
+    excluded: a decay of 1, an alpha of 0) are tried until one verifies, and bisection narrows
+    the bracket from there. Every value returned lies strictly between the two ends of the range.
 
     Parameters
     ----------
@@ -370,6 +492,11 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
         Maps the searched value to the parameter value (e.g. ``lambda r: r * r``).
     name : str, optional
         The user's name of the searched value (``"decay"``), recorded in the result.
+    safe_end : float, optional
+        Where feasibility grows, beyond ``feasible_end``; without it a failing
+        ``feasible_end`` ends the search.
+    walk : int
+        Most values tried between ``feasible_end`` and ``safe_end`` (each halves the distance).
 
     Returns
     -------
@@ -378,14 +505,15 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
     Raises
     ------
     InfeasibleError
-        When ``feasible_end`` itself does not verify.
+        When no value tried verifies (with the diagnosis at the one closest to ``safe_end``).
     """
     f = transform or (lambda x: x)
     t0 = time.perf_counter()
     good, bad = float(feasible_end), float(infeasible_end)
     steps = max(0, int(np.ceil(np.log2(max(abs(good - bad), tol) / tol))))
     with progress(total=steps + 2, desc=label or f"search {parameter}", unit="solve") as bar:
-        near = bad + (tol if good > bad else -tol)
+        step = min(tol, 0.5 * abs(good - bad))
+        near = bad + (step if good > bad else -step)
         best = system.solve(**{parameter: f(near)})
         bar.update()
         solves = 1
@@ -395,8 +523,16 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
         best = system.solve(**{parameter: f(good)})
         bar.update()
         solves += 1
+        for k in range(1, walk + 1 if safe_end is not None else 1):
+            if best.verified:
+                break
+            bad = good
+            good = float(feasible_end) + (safe_end - float(feasible_end)) * (1.0 - 0.5 ** k)
+            best = system.solve(**{parameter: f(good)})
+            solves += 1
+            bar.update()
         if not best.verified:
-            system.require(**{parameter: f(good)})  # raises with the diagnosis
+            system.refuse(best)
         while abs(good - bad) > tol:
             mid = 0.5 * (good + bad)
             sol = system.solve(**{parameter: f(mid)})
@@ -407,3 +543,71 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
             else:
                 bad = mid
     return SearchResult(good, best, solves, time.perf_counter() - t0, (good, bad), name or parameter)
+
+
+@dataclass(frozen=True)
+class Tuned:
+    """A tunable's value and the verified solution that certifies it (see :func:`tune`)."""
+
+    value: float
+    solution: LmiSolution
+    search: SearchResult | None
+    reused: bool = False
+
+
+def tune(system: LmiSystem, parameter: str, requested, *, feasible_end: float, infeasible_end: float,
+         safe_end: float, tol: float = SEARCH_TOL, label: str | None = None, transform: Callable | None = None,
+         name: str | None = None) -> Tuned:
+    """A tunable that is a number or ``"max"``: solve at the number, or search for the best value.
+
+    A number that does not verify directly is not refused yet: when the best value (searched
+    then) lies on its far side, the best value's point certifies the number too, because
+    the LMIs only get easier toward ``safe_end``; it is re-checked at the number and used. So
+    a value on the feasible side of a certified ``"max"`` always designs.
+
+    Parameters
+    ----------
+    system : LmiSystem
+        The family's LMIs.
+    parameter : str
+        The system parameter the tunable sets.
+    requested : float or "max"
+        The user's value.
+    feasible_end, infeasible_end, safe_end : float
+        See :func:`search`.
+    tol : float
+        Search tolerance.
+    label : str, optional
+        Progress-bar label of a search.
+    transform : callable, optional
+        Maps the tunable to the parameter value.
+    name : str, optional
+        The tunable's name in the card.
+
+    Returns
+    -------
+    Tuned
+
+    Raises
+    ------
+    InfeasibleError
+        When no certificate is found (the message explains the requested value's failure).
+    """
+    f = transform or (lambda x: x)
+    kwargs = dict(tol=tol, label=label, transform=transform, name=name, safe_end=safe_end)
+    if requested == "max":
+        found = search(system, parameter, feasible_end, infeasible_end, **kwargs)
+        return Tuned(found.value, found.solution, found)
+    value = float(requested)
+    sol = system.solve(**{parameter: f(value)})
+    if sol.verified:
+        return Tuned(value, sol, None)
+    try:
+        found = search(system, parameter, feasible_end, infeasible_end, **kwargs)
+    except InfeasibleError:
+        system.refuse(sol)
+    if (value - found.value) * (safe_end - found.value) >= 0:
+        reused = system.recheck(found.solution.values, {parameter: f(value)}, f"{found.solution.status} (reused)")
+        if reused.verified:
+            return Tuned(value, reused, None, reused=True)
+    system.refuse(sol)

@@ -20,6 +20,13 @@ SOLVER_TOL = 1e-8
 #: with numpy at the stored matrices, is at least ``VERIFY_FRACTION * LMI_MARGIN``.
 VERIFY_FRACTION = 0.1
 
+#: Equalities and non-strict LMIs at the solver's point are judged relative to the size of the
+#: point, as CLARABEL's own tolerance is: a residual (or a negative eigenvalue) is accepted up to
+#: ``max(VERIFY_FRACTION * LMI_MARGIN, POINT_RTOL * max(1, |x|_max))``, ``|x|_max`` the largest
+#: entry of any variable. Strict LMIs keep the absolute rule above, and the decision stays with
+#: the re-check at the stored matrices.
+POINT_RTOL = 1e-9
+
 #: Largest accepted residual of an identity the design must satisfy exactly
 #: (decoupling (I + MC)E = 0, PA - NP - LC = 0, ...), relative to the norms involved.
 IDENTITY_RTOL = 1e-9

@@ -26,10 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import certificate, identity_check, lyapunov_check, positive_check
+from ..certificate import certificate, decay_check, identity_check, lyapunov_check, positive_check
 from ..decoupling import decoupling_gain, parse_period, sampled_decoupling_conditions
 from ..existence import Condition, Existence, complex_list
-from ..lmi import Lmi, LmiSystem, search
+from ..lmi import Lmi, LmiSystem, tune
 from ..tolerances import SEARCH_TOL, ZERO_MARGIN
 
 NAME = "lti-uio"
@@ -97,7 +97,7 @@ def _lmis(PA, C):
         ]
 
     return LmiSystem(f"{NAME} decay", {"X": ("symmetric", n), "W": ("matrix", (n, p)), "t": ("scalar",)},
-                     {"rho2": 0.98}, build, objective=lambda v: v["t"])
+                     {"rho2": 0.98}, build, objective=lambda v: v["t"], homogeneous=True)
 
 
 def checks(matrices: dict, rho: float) -> list:
@@ -117,6 +117,7 @@ def checks(matrices: dict, rho: float) -> list:
         identity_check("||Xy + M||", g["Xy"] + g["M"], np.linalg.norm(g["M"], 2)),
         positive_check("eig_min(X)", X),
         lyapunov_check("eig_min(rho^2 X - N'XN)", N, X, rho),
+        decay_check(rho),
     ]
 
 
@@ -139,15 +140,11 @@ def design(problem):
     PA = P @ s.A
     system = _lmis(PA, C)
     largest = float(np.abs(fixed).max()) if fixed.size else 0.0
-    if opts.decay == "max":
-        found = search(system, "rho2", 0.5 * (1.0 + largest), largest, tol=SEARCH_TOL,
-                       label=f"{problem.name}: fastest decay", transform=lambda r: r * r, name="decay")
-        rho, sol = found.value, found.solution
-        searched = found.to_data()
-    else:
-        rho = float(opts.decay)
-        sol = system.require(rho2=rho * rho)
-        searched = None
+    tuned = tune(system, "rho2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
+                 safe_end=1.0, tol=SEARCH_TOL, label=f"{problem.name}: fastest decay", transform=lambda r: r * r,
+                 name="decay")
+    rho, sol = tuned.value, tuned.solution
+    searched = tuned.search.to_data() if tuned.search else None
     X, W = sol.values["X"], sol.values["W"]
     X = 0.5 * (X + X.T)
     K = np.linalg.solve(X, W)

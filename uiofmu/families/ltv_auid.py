@@ -33,11 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import certificate, identity_check, lyapunov_check, positive_check
+from ..certificate import certificate, decay_check, identity_check, lyapunov_check, positive_check
 from ..decoupling import decoupling_gain, parse_period, sampled_decoupling_conditions
 from ..errors import ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex
-from ..lmi import Lmi, LmiSystem, search
+from ..lmi import Lmi, LmiSystem, tune
 from ..structure import unobservable_modes
 from ..tolerances import SEARCH_TOL, ZERO_MARGIN
 
@@ -154,7 +154,8 @@ def _lmis(A1, A2, S1, C, eta):
 
     variables = {"X": ("symmetric", n), "G1": ("matrix", (n, n)), "G2": ("matrix", (n, n)),
                  "Tb1": ("matrix", (n, p)), "Tb2": ("matrix", (n, p)), "gamma": ("scalar",)}
-    return LmiSystem(f"{NAME} Theorem 2", variables, {"tau1": 2 * eta}, build, objective=lambda v: v["gamma"])
+    return LmiSystem(f"{NAME} Theorem 2", variables, {"tau1": 2 * eta}, build, objective=lambda v: v["gamma"],
+                     homogeneous=True)
 
 
 def coefficients(M, T1, T2, s, C, alpha) -> dict:
@@ -199,6 +200,7 @@ def checks(card_data: dict) -> list:
         positive_check("eig_min(X)", X),
         lyapunov_check("vertex 1: eig_min((1-tau_1) X - N_1'XN_1)", g["A1"] - g["T1"] @ C, X, np.sqrt(1 - tau1)),
         lyapunov_check("vertex 2: eig_min((1-tau_2) X - N_2'XN_2)", g["A2"] - g["T2"] @ C, X, np.sqrt(1 - tau2)),
+        decay_check(np.sqrt(1 - tau2)),
     ]
     worst = {"PA - NP - LC": 0.0, "G - PB": 0.0, "Xy + H": 0.0}
     for a in (1.0, alpha ** 5, 0.0):
@@ -245,16 +247,12 @@ def design(problem):
     C = plant.C
     M, A1, A2, S1 = _vertices(s, C, opts.alpha)
     system = _lmis(A1, A2, S1, C, opts.eta)
-    if opts.mu == "max":
-        limit = info["mu_limit"]
-        found = search(system, "tau1", limit * 1e-4, limit, tol=SEARCH_TOL * limit,
-                       label=f"{problem.name}: largest mu", transform=lambda m: opts.eta * (1 + m), name="mu")
-        mu, sol = found.value, found.solution
-        searched = found.to_data()
-    else:
-        mu = float(opts.mu)
-        sol = system.require(tau1=opts.eta * (1 + mu))
-        searched = None
+    limit = info["mu_limit"]
+    tuned = tune(system, "tau1", opts.mu, feasible_end=limit * 1e-4, infeasible_end=limit, safe_end=0.0,
+                 tol=SEARCH_TOL * limit, label=f"{problem.name}: largest mu", transform=lambda m: opts.eta * (1 + m),
+                 name="mu")
+    mu, sol = tuned.value, tuned.solution
+    searched = tuned.search.to_data() if tuned.search else None
     v = sol.values
     X = 0.5 * (v["X"] + v["X"].T)
     T1 = np.linalg.solve(v["G1"], v["Tb1"])

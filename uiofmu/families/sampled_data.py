@@ -36,11 +36,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import Check, certificate, identity_check, positive_check
+from ..certificate import Check, certificate, decay_check, identity_check, positive_check
 from ..decoupling import fixed_modes_condition, identifiability_condition, rank_condition, zeros_condition
 from ..errors import ProblemError
 from ..existence import Condition, Existence, complex_list
-from ..lmi import Lmi, LmiSystem, search
+from ..lmi import Lmi, LmiSystem, tune
 from ..schedules import STEP_POLICIES
 from ..tolerances import IDENTITY_RTOL, LMI_MARGIN, SEARCH_TOL, STEP_RTOL, VERIFY_FRACTION, ZERO_MARGIN
 
@@ -197,7 +197,8 @@ def _lmis(samples, C):
         variables[f"S{i}"] = ("matrix", (n, p))
         for j in range(N):
             variables[f"Q{i}_{j}"] = ("matrix", (n, p))
-    return LmiSystem(f"{NAME} (15)-(16)", variables, {"c": 0.99}, build, objective=lambda v: v["mu"])
+    return LmiSystem(f"{NAME} (15)-(16)", variables, {"c": 0.99}, build, objective=lambda v: v["mu"],
+                     homogeneous=True)
 
 
 def checks(matrices: dict, decay: float) -> list:
@@ -233,6 +234,7 @@ def checks(matrices: dict, decay: float) -> list:
                        float(scale12[worst12])),
         Check("min_ij eig_min(delta^2 Pl_j - L_ij' Pl_i L_ij)", float(lyap.min()), VERIFY_FRACTION * LMI_MARGIN,
               at_most=False),
+        decay_check(decay),
     ]
 
 
@@ -252,15 +254,11 @@ def design(problem):
     C, n, N = plant.C, plant.n, len(opts.intervals)
     system = _lmis(samples, C)
     limit = 1.0 - zmax * zmax
-    if opts.alpha == "max":
-        found = search(system, "c", 1e-3 * limit, limit, tol=SEARCH_TOL * limit,
-                       label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a, name="alpha")
-        alpha, sol = found.value, found.solution
-        searched = found.to_data()
-    else:
-        alpha = float(opts.alpha)
-        sol = system.require(c=1.0 - alpha)
-        searched = None
+    tuned = tune(system, "c", opts.alpha, feasible_end=1e-3 * limit, infeasible_end=limit, safe_end=0.0,
+                 tol=SEARCH_TOL * limit, label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a,
+                 name="alpha")
+    alpha, sol = tuned.value, tuned.solution
+    searched = tuned.search.to_data() if tuned.search else None
     v = sol.values
     Pl = [0.5 * (v[f"Pl{i}"] + v[f"Pl{i}"].T) for i in range(N)]
     K, G, Yx, Yu, Dy = [], [], [], [], []
