@@ -61,7 +61,7 @@ def positive_check(name: str, X: np.ndarray, margin: float = LMI_MARGIN,
     return Check(name, float(np.linalg.eigvalsh(0.5 * (X + X.T))[0]), verify_fraction * margin, at_most=False)
 
 
-def certificate(solution: LmiSolution, checks: list[Check], label: str) -> dict:
+def certificate(solution: LmiSolution, checks: list[Check], label: str, solver: str = "CLARABEL") -> dict:
     """Assemble the card's ``certificate`` entry and insist that it verifies.
 
     Parameters
@@ -72,6 +72,8 @@ def certificate(solution: LmiSolution, checks: list[Check], label: str) -> dict:
         Checks at the stored matrices.
     label : str
         Names the design in the error message.
+    solver : str
+        What found the point (``"none"`` for a closed form, whose point is re-checked all the same).
 
     Returns
     -------
@@ -88,7 +90,7 @@ def certificate(solution: LmiSolution, checks: list[Check], label: str) -> dict:
                               + "; ".join(f"{c.name} = {c.value:.3g} (needs {'<=' if c.at_most else '>='} "
                                           f"{c.bound:.3g})" for c in failed))
     return {
-        "solver": "CLARABEL",
+        "solver": solver,
         "status": solution.status,
         "parameters": solution.parameters,
         "lmi_margin": solution.margin,

@@ -68,7 +68,8 @@ def _cmd_design(args) -> int:
     search = card.data.get("search")
     if search:
         print(f"  search           {search['parameter']} over {search['solves']} solve(s) in {search['seconds']:.3f} s")
-    print(f"  certificate      {'verified' if cert['verified'] else 'NOT verified'} (CLARABEL {cert['status']})")
+    found = f"CLARABEL {cert['status']}" if cert["solver"] == "CLARABEL" else cert["status"]
+    print(f"  certificate      {'verified' if cert['verified'] else 'NOT verified'} ({found})")
     t = card.data["timing"]
     rest = t["total_s"] - t["solver_s"] - t["lmi_assembly_s"]
     print(f"  time             {t['total_s'] * 1e3:.1f} ms: CLARABEL {t['solver_s'] * 1e3:.1f} ms "

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from .existence import Condition, complex_list, format_complex
-from .structure import invariant_zeros, rank, unobservable_modes
-from .tolerances import RANK_RTOL, ZERO_MARGIN
+from .structure import invariant_zeros, pbh_margins, rank, unobservable_modes
+from .tolerances import RANK_RTOL, WEAK_MARGIN, ZERO_MARGIN
 
 
 def decoupling_gain(C: np.ndarray, E: np.ndarray) -> np.ndarray:
@@ -82,6 +82,50 @@ def fixed_modes_condition(A, E, C, where: str = "", rank_rtol: float = RANK_RTOL
                       "largest_modulus": largest}), fixed
 
 
+def weak_modes_condition(A, E, C, where: str = "", rank_rtol: float = RANK_RTOL,
+                         weak_margin: float = WEAK_MARGIN) -> Condition:
+    """The placeable modes of ``((I + MC) A, C)`` and how well ``C`` sees them (informational).
+
+    A mode whose PBH margin (:func:`uiofmu.structure.pbh_margins`) is below ``weak_margin``
+    can be placed only with gains of the order of ``1 / margin``: the condition then does not
+    hold, and its message names the mode and the margin (designs of such plants are the ones
+    that fail numerically; a slower decay or rescaled units help).
+
+    Parameters
+    ----------
+    A, E, C : arrays
+        The sampled plant.
+    where : str
+        Appended to the message (``" at h = 0.01 s"``).
+    rank_rtol : float
+        Margins at or below this count as fixed modes (not placeable).
+    weak_margin : float
+        Smallest margin of a mode that is placeable with moderate gains.
+
+    Returns
+    -------
+    Condition
+    """
+    modes, margins = pbh_margins(projector(C, E) @ A, C)
+    placeable = margins > rank_rtol
+    values = {"modes": complex_list(modes[placeable]), "pbh_margins": margins[placeable].tolist(),
+              "weak_margin": weak_margin}
+    if not placeable.any():
+        return Condition("well observable modes", True, False, f"no placeable mode{where}", values)
+    i = int(np.flatnonzero(placeable)[np.argmin(margins[placeable])])
+    weakest, margin = modes[i], float(margins[i])
+    values.update({"weakest_mode": complex_list([weakest])[0], "weakest_margin": margin})
+    if margin >= weak_margin:
+        return Condition("well observable modes", True, False,
+                         f"the weakest placeable mode {format_complex([weakest]) or f'{weakest.real:.6g}'}{where} has "
+                         f"PBH margin {margin:.3g} (gains of order {1 / margin:.3g} move it)", values)
+    return Condition("well observable modes", False, False,
+                     f"the mode {format_complex([weakest]) or f'{weakest.real:.6g}'} of ((I+MC)A, C){where} is placeable "
+                     f"only with gains of order 1/margin = {1 / margin:.3g} (PBH margin {margin:.3g} < {weak_margin:g}): "
+                     "designs may fail numerically or need very large gains; a slower decay or rescaled units help",
+                     values)
+
+
 def sampled_decoupling_conditions(plant, s, dt: float) -> tuple[list, np.ndarray, bool]:
     """The classical conditions on a plant sampled at ``dt`` (a discrete plant as it is).
 
@@ -107,7 +151,13 @@ def sampled_decoupling_conditions(plant, s, dt: float) -> tuple[list, np.ndarray
         conds.append(zeros_condition(s.A, s.E, plant.C, False, where)[0])
         fc, fixed = fixed_modes_condition(s.A, s.E, plant.C, where)
         conds.append(fc)
+        conds.append(weak_modes_condition(s.A, s.E, plant.C, where))
     return conds, fixed, rank_c.holds
+
+
+def detectable(conditions: list) -> bool:
+    """Whether the conditions of :func:`sampled_decoupling_conditions` found a detectable decoupled pair."""
+    return any(c.name == "detectable decoupled pair" and c.holds for c in conditions)
 
 
 def parse_period(table, plant, family: str) -> float:

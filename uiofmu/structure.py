@@ -69,21 +69,106 @@ def uncontrollable_modes(A: np.ndarray, B: np.ndarray, rank_rtol: float = RANK_R
     numpy.ndarray
         The uncontrollable modes (complex), sorted by decreasing modulus.
     """
-    K, Q = _range_split(B, rank_rtol)
-    while 0 < K.shape[1] < A.shape[0]:
-        grown, complement = _range_split(np.hstack([K, A @ K]), rank_rtol)
-        if grown.shape[1] == K.shape[1]:
-            break
-        K, Q = grown, complement
+    _, Q = controllable_split(A, B, rank_rtol)
     if not Q.shape[1]:
         return np.zeros(0, dtype=complex)
     modes = np.linalg.eigvals(Q.T @ A @ Q)
     return modes[np.argsort(-np.abs(modes), kind="stable")]
 
 
+def controllable_split(A: np.ndarray, B: np.ndarray, rank_rtol: float = RANK_RTOL) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal bases of the controllable subspace of ``(A, B)`` and of its complement.
+
+    The subspace is grown by orthonormal bases (``K <- orth([K, A K])``) from the range of ``B``.
+
+    Parameters
+    ----------
+    A : (n, n) array
+    B : (n, m) array
+    rank_rtol : float
+        Rank tolerance.
+
+    Returns
+    -------
+    K : (n, r) array
+        The controllable subspace (``A K`` stays in its span, ``B`` lies in it).
+    Q : (n, n - r) array
+        Its orthogonal complement.
+    """
+    K, Q = _range_split(B, rank_rtol)
+    while 0 < K.shape[1] < A.shape[0]:
+        grown, complement = _range_split(np.hstack([K, A @ K]), rank_rtol)
+        if grown.shape[1] == K.shape[1]:
+            break
+        K, Q = grown, complement
+    return K, Q
+
+
+def decay_gain(A: np.ndarray, C: np.ndarray, rho: float) -> np.ndarray:
+    """An output-injection gain ``K`` with every mode of ``A - K C`` inside ``rho``, without a solver.
+
+    ``K = rho L`` with ``L`` the steady-state Kalman gain of the scaled pair ``(A / rho, C)``
+    (unit noise covariances), from the discrete algebraic Riccati equation: ``A/rho - L C`` is
+    then Schur, i.e. ``A - K C`` decays faster than ``rho``, whenever the modes ``C`` does not see
+    are inside ``rho``. Modes already well inside ``rho`` are moved little, so the gains stay as
+    small as the decay allows (weakly observable modes still need large ones).
+
+    Parameters
+    ----------
+    A : (n, n) array
+        A discrete-time state matrix.
+    C : (p, n) array
+    rho : float
+        The decay to beat, in (0, 1].
+
+    Returns
+    -------
+    (n, p) array
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError, ValueError
+        When the Riccati equation has no stabilising solution (a mode ``C`` does not see is
+        not inside ``rho``).
+    """
+    from scipy.linalg import solve_discrete_are
+
+    n, p = C.shape[1], C.shape[0]
+    As = A / rho
+    P = solve_discrete_are(As.T, C.T, np.eye(n), np.eye(p))
+    return rho * np.linalg.solve(C @ P @ C.T + np.eye(p), C @ P @ As.T).T
+
+
 def unobservable_modes(A: np.ndarray, C: np.ndarray, rank_rtol: float = RANK_RTOL) -> np.ndarray:
     """Eigenvalues of ``A`` not seen through ``C`` (dual of :func:`uncontrollable_modes`)."""
     return uncontrollable_modes(A.T, C.T, rank_rtol)
+
+
+def pbh_margins(A: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How well each mode of ``A`` is seen through ``C``: the PBH observability margins.
+
+    ``m(lambda) = sigma_min([lambda I - A; C]) / max(||A||, ||C||)`` for each eigenvalue: 0 for a
+    mode ``C`` does not see, small for a mode that output injection moves only with large gains
+    (of the order of ``1 / m``).
+
+    Parameters
+    ----------
+    A : (n, n) array
+    C : (p, n) array
+
+    Returns
+    -------
+    modes : (n,) complex array
+        The eigenvalues of ``A``.
+    margins : (n,) array
+        Their relative PBH margins.
+    """
+    modes = np.linalg.eigvals(A)
+    n = A.shape[0]
+    scale = max(float(np.linalg.norm(A, 2)), float(np.linalg.norm(C, 2)), 1e-300)
+    margins = np.array([np.linalg.svd(np.vstack([lam * np.eye(n) - A, C.astype(complex)]), compute_uv=False)[-1]
+                        for lam in modes]) / scale
+    return modes, margins
 
 
 def invariant_zeros(A: np.ndarray, E: np.ndarray, C: np.ndarray, D: np.ndarray | None = None,

@@ -10,7 +10,7 @@ import numpy as np
 
 from . import __version__
 from .card import FORMAT, VERSION, Card, card_from_data, to_lists
-from .errors import CardError, NumericalError
+from .errors import CardError, InfeasibleError, NumericalError
 from .existence import Existence
 from .families import available_family
 from .problem import Problem
@@ -44,8 +44,15 @@ def design(problem: Problem) -> Card:
     InfeasibleError
         When the LMIs are infeasible or the certificate does not verify.
     """
+    family = available_family(problem.family)
     with _numerics(problem, "design"):
-        return available_family(problem.family).design(problem)
+        try:
+            return family.design(problem)
+        except InfeasibleError as exc:
+            weak = [c for c in family.check(problem).conditions if c.name == "well observable modes" and not c.holds]
+            if not weak:
+                raise
+            raise type(exc)(f"{exc}. {weak[0].message[0].upper()}{weak[0].message[1:]}") from None
 
 
 def verify(card: Card) -> list:

@@ -40,3 +40,7 @@ STEP_RTOL = 1e-6
 #: A continuous-time invariant zero is "stable" when its real part is below ``-ZERO_MARGIN``;
 #: a discrete-time one when its modulus is below ``1 - ZERO_MARGIN``.
 ZERO_MARGIN = 1e-9
+
+#: A placeable mode whose relative PBH margin is below this needs gains above about its inverse
+#: (1e4): ``check`` warns, and a failed design names it.
+WEAK_MARGIN = 1e-4

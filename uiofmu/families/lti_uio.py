@@ -17,19 +17,31 @@ minimising ``t`` (so ``sqrt(t)`` bounds the overshoot). ``X >= I`` normalises th
 homogeneous LMI. The certified bound is ``||e_k|| <= sqrt(cond X) rho^k ||e_0||``.
 ``decay = "max"`` bisects rho between the largest fixed mode (which no K can move: the
 invariant zeros) and 1. A continuous plant is designed on its exact sampling at ``dt``.
+
+``method = "riccati"`` needs no solver: ``K`` moves every placeable mode of ``(PA, C)`` inside
+the decay (the Kalman gain of the decay-scaled pair, :func:`uiofmu.structure.decay_gain`) and
+the discrete Lyapunov equation ``(N/rho)' X (N/rho) - X = -I`` certifies it
+(``rho^2 X - N'XN = rho^2 I``). It reaches the weakly observable modes that need gains of
+1e3..1e6, where the LMI's normalised variables lose the solver's precision. ``method = "auto"``
+(the default) designs with the LMI, which minimises the overshoot bound, and falls back to the
+Riccati design when the LMI finds no certificate; the card's ``design_method`` says which one
+certified it.
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..certificate import certificate, decay_check, identity_check, lyapunov_check, positive_check
-from ..decoupling import decoupling_gain, parse_period, sampled_decoupling_conditions
+from ..decoupling import decoupling_gain, detectable, parse_period, sampled_decoupling_conditions
 from ..existence import Condition, Existence, complex_list
-from ..lmi import Lmi, LmiSystem, tune
+from ..errors import InfeasibleError, ProblemError
+from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
+from ..structure import decay_gain
 from ..tolerances import SEARCH_TOL, ZERO_MARGIN
 
 NAME = "lti-uio"
@@ -53,21 +65,32 @@ class Options:
     decay: object
     dt: float
     xhat0: np.ndarray | None
+    method: str = "auto"
+
+
+#: Design methods: the LMI (least overshoot), the Riccati gain with a Lyapunov certificate, or the
+#: LMI with the Riccati design as fallback.
+METHODS = ("auto", "lmi", "riccati")
 
 
 def parse_options(table, plant) -> Options:
-    """Read ``[observer]``: ``decay`` (default ``"max"``), ``dt`` (continuous plants), ``xhat0``."""
+    """Read ``[observer]``: ``decay`` (default ``"max"``), ``dt`` (continuous plants), ``xhat0``, ``method``."""
     decay = table.tunable("decay", "max", low=0.0, high=1.0, open_low=True, open_high=True)
     dt = parse_period(table, plant, NAME)
     xhat0 = table.vector("xhat0", plant.n, None)
-    return Options(decay, dt, xhat0)
+    method = table.choice("method", METHODS, "auto")
+    if method == "riccati" and decay == "max":
+        raise ProblemError('observer.method = "riccati" needs a number for observer.decay: it has no fastest decay '
+                           '(without fixed modes any decay is reached, with gains that grow without bound); use '
+                           'method = "auto" or "lmi" for decay = "max"')
+    return Options(decay, dt, xhat0, method)
 
 
 def _analysis(problem):
     plant, opts = problem.plant, problem.options
     s = plant.sampled(opts.dt)
     conds, fixed, decouplable = sampled_decoupling_conditions(plant, s, opts.dt)
-    if opts.decay != "max" and decouplable and conds[-1].holds:
+    if opts.decay != "max" and decouplable and detectable(conds):
         largest = float(np.abs(fixed).max()) if fixed.size else 0.0
         ok = opts.decay > largest + ZERO_MARGIN
         conds.append(Condition(
@@ -126,6 +149,49 @@ def verify(card) -> list:
     return checks(card.data["matrices"], card.data["decay_bound"])
 
 
+def _riccati(PA, C, rho: float) -> Tuned:
+    """The Riccati design at decay ``rho``: the gain and its Lyapunov matrix, no solver.
+
+    The point is exact by construction (``rho^2 X - N'XN = rho^2 I``); what certifies it is the
+    re-check of :func:`checks` at the stored matrices, as for every design. The LMI's Schur
+    form is not evaluated: with the large gains of weakly observable modes its smallest
+    eigenvalue drowns in round-off, while the Lyapunov inequality itself does not.
+    """
+    from scipy.linalg import solve_discrete_lyapunov
+
+    K = decay_gain(PA, C, rho)
+    N = PA - K @ C
+    radius = float(np.abs(np.linalg.eigvals(N)).max())
+    if not radius < rho:
+        raise InfeasibleError(f"{NAME} Riccati design: N has spectral radius {radius:.6g}, not below the decay "
+                              f"{rho:.6g}")
+    with warnings.catch_warnings():       # ill-conditioned for large gains: the re-check at the stored matrices judges
+        warnings.simplefilter("ignore")
+        X = solve_discrete_lyapunov((N / rho).T, np.eye(len(N)))
+    X = 0.5 * (X + X.T)
+    values = {"X": X, "W": X @ K, "t": np.array(float(np.linalg.eigvalsh(X)[-1]))}
+    status = "closed form (Riccati gain, discrete Lyapunov equation)"
+    return Tuned(rho, LmiSolution(values, {"rho2": rho * rho}, status, {}, True, 0.0, 0.0), None)
+
+
+def _tuned(system: LmiSystem, PA, C, largest: float, opts: Options, name: str) -> tuple[Tuned, str]:
+    """The decay and its certificate by the requested method (see the module docstring)."""
+    if opts.method == "riccati":
+        return _riccati(PA, C, float(opts.decay)), "riccati"
+    try:
+        return tune(system, "rho2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
+                    safe_end=1.0, tol=SEARCH_TOL, label=f"{name}: fastest decay", transform=lambda r: r * r,
+                    name="decay"), "lmi"
+    except InfeasibleError as exc:
+        if opts.method == "lmi":
+            raise
+        rho = 0.5 * (1.0 + largest) if opts.decay == "max" else float(opts.decay)
+        try:
+            return _riccati(PA, C, rho), "riccati (the LMI found no certificate)"
+        except (InfeasibleError, ValueError, np.linalg.LinAlgError):
+            raise exc from None
+
+
 def design(problem):
     """Design the classical UIO and return its verified card."""
     from ..synthesis import assemble_card
@@ -140,9 +206,7 @@ def design(problem):
     PA = P @ s.A
     system = _lmis(PA, C)
     largest = float(np.abs(fixed).max()) if fixed.size else 0.0
-    tuned = tune(system, "rho2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
-                 safe_end=1.0, tol=SEARCH_TOL, label=f"{problem.name}: fastest decay", transform=lambda r: r * r,
-                 name="decay")
+    tuned, method = _tuned(system, PA, C, largest, opts, problem.name)
     rho, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
     X, W = sol.values["X"], sol.values["W"]
@@ -153,7 +217,8 @@ def design(problem):
     G = P @ s.B
     matrices = {"N": N, "L": L, "G": G, "c": P @ s.w, "Xz": np.eye(plant.n), "Xy": -M, "C": C,
                 "M": M, "K": K, "P": P, "X": X, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E}
-    cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}")
+    cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}",
+                       solver="CLARABEL" if method == "lmi" else "none")
     eigX = np.linalg.eigvalsh(X)
     if existence.holds("rank(CE) = q"):
         matrices.update({"Dy": np.linalg.pinv(C @ s.E), "Yx": C @ s.A, "Yu": C @ s.B, "Yc": C @ s.w})
@@ -168,6 +233,7 @@ def design(problem):
         "eigenvalues_N": complex_list(eigN),
         "spectral_radius_N": float(np.abs(eigN).max()),
         "search": searched,
+        "design_method": method,
     }
     xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(plant.n)
     schedule = {"kind": "constant", "dt": opts.dt, "step_policy": "error"}

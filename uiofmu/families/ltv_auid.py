@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import certificate, decay_check, identity_check, lyapunov_check, positive_check
-from ..decoupling import decoupling_gain, parse_period, sampled_decoupling_conditions
+from ..decoupling import decoupling_gain, detectable, parse_period, sampled_decoupling_conditions
 from ..errors import ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSystem, tune
@@ -97,7 +97,7 @@ def _analysis(problem):
     s = plant.sampled(opts.dt)
     conds, fixed, decouplable = sampled_decoupling_conditions(plant, s, opts.dt)
     info = {}
-    if decouplable and conds[-1].holds:
+    if decouplable and detectable(conds):
         zmax = float(np.abs(fixed).max()) if fixed.size else 0.0
         ok = np.sqrt(1 - opts.eta) > zmax + ZERO_MARGIN
         conds.append(Condition(

@@ -37,7 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import Check, certificate, decay_check, identity_check, positive_check
-from ..decoupling import fixed_modes_condition, identifiability_condition, rank_condition, zeros_condition
+from ..decoupling import (fixed_modes_condition, identifiability_condition, rank_condition, weak_modes_condition,
+                          zeros_condition)
 from ..errors import ProblemError
 from ..existence import Condition, Existence, complex_list
 from ..lmi import Lmi, LmiSystem, tune
@@ -144,6 +145,8 @@ def _analysis(problem):
                  for h, s in zip(opts.intervals, samples)]
         conds.append(_per_interval([z[0] for z in zeros], "stable sampled invariant zeros", opts.intervals))
         conds.append(_per_interval([f[0] for f in fixed], "detectable decoupled pairs", opts.intervals))
+        conds.append(_per_interval([weak_modes_condition(s.A, s.E, plant.C, f" at h = {h:g} s")
+                                    for h, s in zip(opts.intervals, samples)], "well observable modes", opts.intervals))
         for h, (_, modes) in zip(opts.intervals, fixed):
             if modes.size and np.abs(modes).max() > zmax:
                 zmax, zarg = float(np.abs(modes).max()), h
