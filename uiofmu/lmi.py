@@ -415,13 +415,16 @@ class LmiSystem:
             return sol
         self.refuse(sol)
 
-    def refuse(self, sol: LmiSolution):
+    def refuse(self, sol: LmiSolution, diagnose: bool = True):
         """Raise the :class:`InfeasibleError` that explains why ``sol`` is not a certificate.
 
         Parameters
         ----------
         sol : LmiSolution
             A solution that did not verify.
+        diagnose : bool
+            Name the LMIs that need slack (a phase-1 solve through cvxpy) when the solver
+            returned no point.
 
         Raises
         ------
@@ -436,7 +439,7 @@ class LmiSystem:
                    for k, (v, b) in rejected(sol.eig_min, lmis, point_scale(sol.values), self.margin).items()]
             raise InfeasibleError(f"{self.name} LMIs at {params}: CLARABEL answered {sol.status} but the re-check "
                                   f"rejects its point ({'; '.join(bad)})")
-        need = {k: v for k, v in self.diagnose(**sol.parameters).items() if v > self.margin}
+        need = {k: v for k, v in (self.diagnose(**sol.parameters) if diagnose else {}).items() if v > self.margin}
         which = "; ".join(f"{k} needs slack {v:.3g}" for k, v in sorted(need.items(), key=lambda kv: -kv[1]))
         if sol.status in INFEASIBLE:
             raise InfeasibleError(f"{self.name} LMIs are infeasible at {params} (CLARABEL: {sol.status})"
@@ -464,7 +467,8 @@ class SearchResult:
 
 def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_end: float,
            tol: float = SEARCH_TOL, label: str | None = None, transform: Callable | None = None,
-           name: str | None = None, safe_end: float | None = None, walk: int = 30) -> SearchResult:
+           name: str | None = None, safe_end: float | None = None, walk: int = 30,
+           diagnose: bool = True) -> SearchResult:
     """Bisection for the best value of one tunable, keeping only re-checked certificates.
 
     ``infeasible_end`` is a value known (from theory) not to verify, or the limit of the range;
@@ -497,6 +501,8 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
         ``feasible_end`` ends the search.
     walk : int
         Most values tried between ``feasible_end`` and ``safe_end`` (each halves the distance).
+    diagnose : bool
+        Name the LMIs that need slack when nothing verifies (see :meth:`LmiSystem.refuse`).
 
     Returns
     -------
@@ -532,7 +538,7 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
             solves += 1
             bar.update()
         if not best.verified:
-            system.refuse(best)
+            system.refuse(best, diagnose)
         while abs(good - bad) > tol:
             mid = 0.5 * (good + bad)
             sol = system.solve(**{parameter: f(mid)})
@@ -557,7 +563,7 @@ class Tuned:
 
 def tune(system: LmiSystem, parameter: str, requested, *, feasible_end: float, infeasible_end: float,
          safe_end: float, tol: float = SEARCH_TOL, label: str | None = None, transform: Callable | None = None,
-         name: str | None = None) -> Tuned:
+         name: str | None = None, diagnose: bool = True) -> Tuned:
     """A tunable that is a number or ``"max"``: solve at the number, or search for the best value.
 
     A number that does not verify directly is not refused yet: when the best value (searched
@@ -583,6 +589,8 @@ def tune(system: LmiSystem, parameter: str, requested, *, feasible_end: float, i
         Maps the tunable to the parameter value.
     name : str, optional
         The tunable's name in the card.
+    diagnose : bool
+        Name the LMIs that need slack in the error (a phase-1 solve through cvxpy).
 
     Returns
     -------
@@ -594,7 +602,7 @@ def tune(system: LmiSystem, parameter: str, requested, *, feasible_end: float, i
         When no certificate is found (the message explains the requested value's failure).
     """
     f = transform or (lambda x: x)
-    kwargs = dict(tol=tol, label=label, transform=transform, name=name, safe_end=safe_end)
+    kwargs = dict(tol=tol, label=label, transform=transform, name=name, safe_end=safe_end, diagnose=diagnose)
     if requested == "max":
         found = search(system, parameter, feasible_end, infeasible_end, **kwargs)
         return Tuned(found.value, found.solution, found)
@@ -605,9 +613,9 @@ def tune(system: LmiSystem, parameter: str, requested, *, feasible_end: float, i
     try:
         found = search(system, parameter, feasible_end, infeasible_end, **kwargs)
     except InfeasibleError:
-        system.refuse(sol)
+        system.refuse(sol, diagnose)
     if (value - found.value) * (safe_end - found.value) >= 0:
         reused = system.recheck(found.solution.values, {parameter: f(value)}, f"{found.solution.status} (reused)")
         if reused.verified:
             return Tuned(value, reused, None, reused=True)
-    system.refuse(sol)
+    system.refuse(sol, diagnose)

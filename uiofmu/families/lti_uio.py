@@ -159,7 +159,11 @@ def _riccati(PA, C, rho: float) -> Tuned:
     """
     from scipy.linalg import solve_discrete_lyapunov
 
-    K = decay_gain(PA, C, rho)
+    try:
+        K = decay_gain(PA, C, rho)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise InfeasibleError(f"{NAME} Riccati design at decay {rho:.6g}: the Riccati equation of the decay-scaled "
+                              f"pair has no usable solution ({str(exc).rstrip('.')})") from None
     N = PA - K @ C
     radius = float(np.abs(np.linalg.eigvals(N)).max())
     if not radius < rho:
@@ -169,7 +173,13 @@ def _riccati(PA, C, rho: float) -> Tuned:
         warnings.simplefilter("ignore")
         X = solve_discrete_lyapunov((N / rho).T, np.eye(len(N)))
     X = 0.5 * (X + X.T)
-    values = {"X": X, "W": X @ K, "t": np.array(float(np.linalg.eigvalsh(X)[-1]))}
+    for check in (positive_check("eig_min(X)", X), lyapunov_check("eig_min(rho^2 X - N'XN)", N, X, rho)):
+        if not check.holds:
+            eig = np.linalg.eigvalsh(X)
+            raise InfeasibleError(f"{NAME} Riccati design at decay {rho:.6g}: {check.name} = {check.value:.3g} "
+                                  f"(needs >= {check.bound:.3g}) in double precision, with cond(X) = "
+                                  f"{eig[-1] / max(eig[0], 1e-300):.3g} and gains up to {np.abs(K).max():.3g}")
+    values = {"X": X, "W": X @ K, "K": K, "t": np.array(float(np.linalg.eigvalsh(X)[-1]))}
     status = "closed form (Riccati gain, discrete Lyapunov equation)"
     return Tuned(rho, LmiSolution(values, {"rho2": rho * rho}, status, {}, True, 0.0, 0.0), None)
 
@@ -181,15 +191,15 @@ def _tuned(system: LmiSystem, PA, C, largest: float, opts: Options, name: str) -
     try:
         return tune(system, "rho2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
                     safe_end=1.0, tol=SEARCH_TOL, label=f"{name}: fastest decay", transform=lambda r: r * r,
-                    name="decay"), "lmi"
+                    name="decay", diagnose=opts.method == "lmi"), "lmi"
     except InfeasibleError as exc:
         if opts.method == "lmi":
             raise
         rho = 0.5 * (1.0 + largest) if opts.decay == "max" else float(opts.decay)
         try:
             return _riccati(PA, C, rho), "riccati (the LMI found no certificate)"
-        except (InfeasibleError, ValueError, np.linalg.LinAlgError):
-            raise exc from None
+        except (InfeasibleError, ValueError, np.linalg.LinAlgError) as fallback:
+            raise type(exc)(f"{exc}; the solver-free fallback fails too: {fallback}") from None
 
 
 def design(problem):
@@ -211,7 +221,7 @@ def design(problem):
     searched = tuned.search.to_data() if tuned.search else None
     X, W = sol.values["X"], sol.values["W"]
     X = 0.5 * (X + X.T)
-    K = np.linalg.solve(X, W)
+    K = sol.values["K"] if "K" in sol.values else np.linalg.solve(X, W)     # the Riccati design gives K itself
     N = PA - K @ C
     L = K - N @ M
     G = P @ s.B

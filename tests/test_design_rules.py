@@ -1,0 +1,200 @@
+"""The rules that keep designs honest and free of spurious failures.
+
+A decay bound of 1 or more never certifies; equalities and non-strict LMIs at the solver's
+point are judged relative to its size while strict LMIs and the stored-matrix re-check stay
+absolute; homogeneous LMIs are repaired by scaling; searches stay inside their range and walk
+toward the easy end; a value on the feasible side of a certified best one always designs.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import uiofmu
+from uiofmu.card import card_from_data
+from uiofmu.certificate import certificate, decay_check
+from uiofmu.errors import CardError, InfeasibleError
+from uiofmu.lmi import Lmi, LmiSystem, accepted, eig_min, point_scale, search, tune
+from uiofmu.problem import problem_from_data
+
+DC_MOTOR = {"time": "continuous", "A": [[0.0, 1.0, 0.0], [0.0, -10.0, 1.0], [0.0, -0.02, -2.0]],
+            "B": [[0.0], [0.0], [2.0]], "E": [[0.0], [-100.0], [0.0]], "C": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]}
+NEAR_UNIT_FIXED_MODE = {"time": "discrete", "dt": 0.1, "A": [[0.0, 1.0], [-0.5, 0.99999]], "B": [[0.0], [1.0]],
+                        "E": [[0.2], [0.0]], "C": [[1.0, 0.0]]}
+
+
+def _problem(plant, **observer):
+    return problem_from_data({"name": "p", "plant": plant, "observer": observer})
+
+
+def _toy(homogeneous=False):
+    """``X >= 1`` and ``(1 - s) X > 0``: feasible for s < 1, homogeneous apart from the normalisation."""
+    def build(v, prm, ops):
+        return [Lmi("X >= 1", v["X"] - ops.eye(1), strict=False),
+                Lmi("(1 - s) X > 0", (1.0 - prm["s"]) * v["X"] + 0.0 * ops.eye(1))]
+    return LmiSystem("toy", {"X": ("symmetric", 1)}, {"s": 0.0}, build, homogeneous=homogeneous)
+
+
+# -- a bound that does not contract never certifies ----------------------------------------------
+
+def test_a_fixed_mode_next_to_the_unit_circle_certifies_a_decay_below_one():
+    """The reproducer that used to write a verified card with decay bound 1.00009."""
+    card = uiofmu.design(_problem(NEAR_UNIT_FIXED_MODE, family="lti-uio", decay="max"))
+    assert 0.99999 < card.data["decay_bound"] < 1.0
+    assert card.data["certificate"]["verified"] and all(c.holds for c in uiofmu.verify(card))
+    assert card.data["certificate"]["checks"]["decay bound < 1"]["holds"]
+
+
+def test_a_bound_of_one_fails_the_certificate_and_the_schema(example1_card):
+    assert not decay_check(1.0).holds and not decay_check(1.00009).holds and decay_check(0.999999).holds
+    data = json.loads(example1_card[0].to_json())
+    data["decay_bound"] = 1.0
+    with pytest.raises(CardError, match="a bound of 1 or more certifies no convergence"):
+        card_from_data(data)
+
+
+def test_the_first_search_point_stays_inside_a_narrow_bracket():
+    """The bracket (0.99999, 0.999995) is narrower than the tolerance: the first point tried is inside it."""
+    found = search(_toy(), "s", 0.4, 0.99999 ** 0, tol=1e-4, transform=lambda x: x)
+    assert found.value < 1.0
+    narrow = search(_toy(), "s", 0.999995, 1.0, tol=1e-4)
+    assert 0.999995 <= narrow.value < 1.0
+
+
+# -- relative acceptance, absolute strictness -----------------------------------------------------
+
+def _equality_system():
+    def build(v, prm, ops):
+        return [Lmi("x = y", v["x"] - v["y"], equality=True), Lmi("x > 0", v["x"] + 0.0 * ops.eye(1))]
+    return build
+
+
+def test_equalities_are_judged_relative_to_the_size_of_the_point():
+    build = _equality_system()
+    from uiofmu.lmi import NUMPY_OPS
+
+    def verdict(x, y):
+        values = {"x": np.array([[x]]), "y": np.array([[y]])}
+        lmis = build(values, {}, NUMPY_OPS)
+        return accepted(eig_min(lmis), lmis, scale=point_scale(values))
+
+    assert verdict(6e7, 6e7 + 3.6e-6)          # 6e-14 relative: as exact as double precision allows
+    assert not verdict(1.0, 1.0 + 3.6e-6)      # the same residual on a point of size 1 is a violation
+    assert not verdict(6e7, 6e7 * (1 + 1e-6))  # a residual of 1e-6 relative is not round-off
+    assert not verdict(-1e-9, -1e-9)           # strict LMIs keep the absolute margin at any scale
+
+
+def test_the_dc_motor_designs_at_a_fixed_alpha():
+    """Spuriously rejected before: residuals of 9e-13 relative to |S|, |Q| of 6e7 failed an absolute rule."""
+    card = uiofmu.design(_problem(DC_MOTOR, family="sampled-data", intervals=[0.01, 0.02, 0.03, 0.04, 0.05],
+                                  alpha=0.9))
+    assert card.data["alpha"] == 0.9 and card.data["certificate"]["verified"]
+    assert all(c.holds for c in uiofmu.verify(card))
+
+
+def test_relative_acceptance_never_replaces_the_stored_matrix_check(building_card):
+    """A point the solver-side rule accepts still has to pass the checks at the matrices the runtime uses."""
+    from uiofmu.families.sampled_data import checks
+
+    card = building_card[0]
+    mats = {k: np.array(v) for k, v in card.data["matrices"].items()}
+    sol = type("S", (), {"status": "optimal", "parameters": {}, "margin": 1e-6, "eig_min": {}, "verified": True,
+                         "solve_time": 0.0})()
+    certificate(sol, checks(mats, card.data["decay_bound"]), "building")           # the stored matrices pass
+    mats["N"] = mats["N"] * 1.05                                                    # a gain the point did not give
+    with pytest.raises(InfeasibleError, match="does not survive the re-check at the stored matrices"):
+        certificate(sol, checks(mats, card.data["decay_bound"]), "building")
+
+
+# -- homogeneous repair ----------------------------------------------------------------------------
+
+def test_a_point_that_misses_a_normalisation_by_round_off_is_scaled_not_rejected():
+    point = {"X": np.array([[1.0 - 1e-6]])}
+    assert not _toy().recheck(point, {"s": 0.5}).verified
+    repaired = _toy(homogeneous=True).recheck(point, {"s": 0.5})
+    assert repaired.verified and repaired.values["X"][0, 0] >= 1.0
+    assert not _toy(homogeneous=True).recheck({"X": np.array([[-1.0]])}, {"s": 0.5}).verified   # no scale helps
+
+
+# -- searches and monotone answers -----------------------------------------------------------------
+
+def test_a_search_walks_toward_the_easy_end_when_its_first_guess_fails():
+    """Feasible for s < 1 only: from the guess 1.5 the search walks toward the safe end 0 and certifies."""
+    found = search(_toy(), "s", 1.5, 2.0, tol=1e-3, safe_end=0.0)
+    assert found.solution.verified and 1.0 - 2e-3 < found.value < 1.0
+    with pytest.raises(InfeasibleError):
+        search(_toy(), "s", 1.5, 2.0, tol=1e-3)        # without a safe end there is nowhere to go
+
+
+def test_a_value_on_the_feasible_side_of_the_best_reuses_its_certificate():
+    tuned = tune(_toy(), "s", 0.3, feasible_end=0.5, infeasible_end=2.0, safe_end=0.0, tol=1e-3)
+    assert tuned.value == 0.3 and tuned.solution.verified
+    with pytest.raises(InfeasibleError):
+        tune(_toy(), "s", 1.2, feasible_end=0.5, infeasible_end=2.0, safe_end=0.0, tol=1e-3)
+
+
+@pytest.mark.parametrize("path,key,side", [
+    ("examples/seed000_example1.toml", "decay", +1),
+    ("examples/seed000_example1_ltv.toml", "mu", -1),
+    ("plants/two_room_building/problem.toml", "alpha", -1),
+])
+def test_values_on_the_feasible_side_of_max_design(path, key, side):
+    from tests.conftest import ROOT
+
+    doc = __import__("tomllib").loads((ROOT / path).read_text())
+    doc["observer"][key] = "max"
+    best = uiofmu.design(problem_from_data(doc)).data[key]
+    for frac in (0.999, 0.9, 0.5):
+        value = 1 - (1 - best) * frac if side > 0 else best * frac
+        doc["observer"][key] = value
+        card = uiofmu.design(problem_from_data(doc))
+        assert card.data["certificate"]["verified"] and card.data["decay_bound"] < 1.0, (key, value)
+
+
+# -- weak modes and the solver-free design ---------------------------------------------------------
+
+def test_check_names_a_weakly_observable_mode():
+    report = uiofmu.check(_problem(DC_MOTOR, family="lti-uio", dt=0.01, decay="max"))
+    weak = next(c for c in report.conditions if c.name == "well observable modes")
+    assert not weak.holds and not weak.required and report.exists
+    assert abs(weak.values["weakest_margin"] - 1.65e-7) < 0.01e-7
+    assert "gains of order 1/margin = 6.06e+06" in weak.message
+
+
+def test_the_weak_mode_is_reached_by_the_fallback():
+    """The DC motor sampled at 0.01 s: decay 0.3 needs gains of 5e6, beyond the LMI's precision; the
+    solver-free fallback certifies it (and its overshoot bound says what such gains cost)."""
+    card = uiofmu.design(_problem(DC_MOTOR, family="lti-uio", dt=0.01, decay=0.3))
+    assert card.data["design_method"].startswith("riccati") and card.data["decay_bound"] == 0.3
+    assert all(c.holds for c in uiofmu.verify(card)) and card.data["overshoot_bound"] > 1e6
+
+
+def test_a_failed_design_names_the_weak_mode():
+    with pytest.raises(InfeasibleError, match=r"fallback fails too: .*cond\(X\) = .*The mode 0.980199 .*PBH margin 1.65e-07"):
+        uiofmu.design(_problem(DC_MOTOR, family="lti-uio", dt=0.01, decay=0.1))
+
+
+@pytest.mark.parametrize("plant,decay", [(DC_MOTOR, 0.9), (NEAR_UNIT_FIXED_MODE, 0.999995)])
+def test_the_riccati_design_certifies_without_a_solver(plant, decay):
+    options = {"dt": 0.01} if plant["time"] == "continuous" else {}
+    card = uiofmu.design(_problem(plant, family="lti-uio", decay=decay, method="riccati", **options))
+    assert card.data["design_method"] == "riccati" and card.data["certificate"]["solver"] == "none"
+    assert card.data["timing"]["solves"] == 0
+    assert all(c.holds for c in uiofmu.verify(card))
+    N = np.array(card.data["matrices"]["N"])
+    assert np.abs(np.linalg.eigvals(N)).max() < decay
+    e = np.random.default_rng(3).normal(size=len(N))
+    over, ratio = card.data["overshoot_bound"], []
+    for k in range(200):                          # the error dynamics e+ = N e against the certified bound
+        ratio.append(np.linalg.norm(np.linalg.matrix_power(N, k) @ e) / (over * decay ** k * np.linalg.norm(e)))
+    assert max(ratio) <= 1 + 1e-9
+
+
+def test_riccati_needs_a_number():
+    from uiofmu.errors import ProblemError
+
+    with pytest.raises(ProblemError, match='method = "riccati" needs a number'):
+        _problem(DC_MOTOR, family="lti-uio", dt=0.01, method="riccati")
