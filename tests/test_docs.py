@@ -11,7 +11,8 @@ import pytest
 
 MODULES = ["uiofmu.problem", "uiofmu.plant", "uiofmu.synthesis", "uiofmu.card", "uiofmu.runtime", "uiofmu.export",
            "uiofmu.export_c", "uiofmu.cosim", "uiofmu.steps", "uiofmu.validate", "uiofmu.mujoco_plant",
-           "uiofmu.lmi", "uiofmu.conic", "uiofmu.structure", "uiofmu.matrices", "uiofmu.metrics", "uiofmu.fmi"]
+           "uiofmu.lmi", "uiofmu.conic", "uiofmu.structure", "uiofmu.matrices", "uiofmu.metrics", "uiofmu.fmi",
+           "uiofmu.pythonfmu_guard", "uiofmu.files", "uiofmu.text", "uiofmu.state"]
 
 
 def public_functions():

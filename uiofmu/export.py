@@ -14,7 +14,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from . import __version__
+from . import __version__, pythonfmu_guard
 from .card import Card
 from .errors import FmuError
 from .files import atomic_output, check_output_file
@@ -76,6 +76,8 @@ def _build_python(spec: dict, ident: str, description: str, output: Path, extra_
                 sys.modules.pop(key)
             while str(src) in sys.path:
                 sys.path.remove(str(src))
+        if pythonfmu_guard.available():       # a native guard in front of pythonfmu's binary (see its module)
+            pythonfmu_guard.guard_fmu(built)
         with atomic_output(output, "FMU") as part:
             shutil.copyfile(built, part)
     return output
