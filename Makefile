@@ -4,7 +4,9 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test fmus examples clean
+.PHONY: demo test fmus examples clean fuzz
+
+FUZZ_SECONDS ?= 600
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -17,6 +19,12 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# a long fuzzing campaign: the C FMU's call sequences under ASan + UBSan (all families), then
+# hostile problem files, cards, step specs and tables through the command line
+fuzz: $(STAMP)
+	$(PY) tests/cfuzz.py --seconds $(FUZZ_SECONDS) --family all
+	$(PY) tests/fuzz_campaign.py --seconds $(FUZZ_SECONDS)
 
 fmus: $(STAMP)
 	$(PY) examples/build_fmus.py --out fmus

@@ -69,6 +69,24 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
     by :func:`repr` after a finiteness check, every array with its length checked against the
     dims, the two strings as escaped C literals (:func:`uiofmu.text.c_string`). No text of the
     card (its name, description or problem) is ever written into it.
+
+    The struct is written with designated initialisers, and every array with its length as the
+    C compiler counts it (``UIOFMU_LENGTH``), so the runtime checks each matrix's
+    ``count x rows x cols`` against the data actually compiled in before it reads any of it.
+
+    Parameters
+    ----------
+    card : Card
+        A checked design card.
+    guid : str
+        The FMU's GUID without braces.
+    identifier : str
+        The model identifier (an ASCII identifier).
+
+    Returns
+    -------
+    str
+        The C source.
     """
     d = card.dims
     sched = card.schedule
@@ -78,7 +96,7 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
     axes = schedule_axes(sched)
     for name in MATRIX_ORDER:
         if name not in card.matrices:
-            fields.append("{0, 0, 0, 0}")
+            fields.append(f"        [M_{name}] = {{0, 0, 0, 0, 0}},")
             continue
         arr = card.matrices[name]
         lead = axes.get(name, 0)
@@ -86,20 +104,24 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
         shape = arr.shape[lead:]
         rows, cols = (shape[0], 1) if len(shape) == 1 else shape
         lines.append(f"static const double m_{name}[] = {_doubles(arr, f'matrices.{name}', count * rows * cols)};")
-        fields.append(f"{{{count}, {rows}, {cols}, m_{name}}}")
+        fields.append(f"        [M_{name}] = {{{int(count)}, {int(rows)}, {int(cols)}, m_{name}, "
+                      f"UIOFMU_LENGTH(m_{name})}},")
     intervals = sched.get("intervals", [])
     lines.append(f"static const double intervals[] = {_doubles(intervals, 'schedule.intervals', len(intervals))};")
     lines.append(f"static const double xhat0[] = {_doubles(card.data['initial']['xhat0'], 'initial.xhat0', d['n'])};")
     dt = sched.get("dt") or 0.0
     lines += ["", "const UiofmuDesign UIOFMU_DESIGN = {",
-              f"    {c_string('{' + guid + '}')}, {c_string(identifier)},",
-              f"    {int(d['n'])}, {int(d['m'])}, {int(d['p'])}, {int(d['q'])}, {int(d['nz'])}, {int(card.has_dhat)},",
-              f"    {KINDS[kind]}, {POLICIES[sched.get('step_policy', 'error')]},",
-              f"    {_double(dt, 'schedule.dt')}, {_double(sched.get('alpha', 0.0), 'schedule.alpha')}, "
-              f"{_double(sched.get('h_prev0', dt), 'schedule.h_prev0')}, "
-              f"{_double(sched.get('step_rtol', STEP_RTOL), 'schedule.step_rtol')},",
-              f"    {len(intervals)}, intervals, xhat0,",
-              "    {" + ", ".join(fields) + "}", "};", ""]
+              f"    .guid = {c_string('{' + guid + '}')},",
+              f"    .model = {c_string(identifier)},",
+              f"    .n = {int(d['n'])}, .m = {int(d['m'])}, .p = {int(d['p'])}, .q = {int(d['q'])}, "
+              f".nz = {int(d['nz'])}, .has_dhat = {int(card.has_dhat)},",
+              f"    .kind = {KINDS[kind]}, .policy = {POLICIES[sched.get('step_policy', 'error')]},",
+              f"    .dt = {_double(dt, 'schedule.dt')}, .alpha = {_double(sched.get('alpha', 0.0), 'schedule.alpha')}, "
+              f".h_prev0 = {_double(sched.get('h_prev0', dt), 'schedule.h_prev0')}, "
+              f".step_rtol = {_double(sched.get('step_rtol', STEP_RTOL), 'schedule.step_rtol')},",
+              f"    .nintervals = {len(intervals)}, .intervals = intervals, .intervals_length = UIOFMU_LENGTH(intervals),",
+              "    .xhat0 = xhat0, .xhat0_length = UIOFMU_LENGTH(xhat0),",
+              "    .mat = {", *fields, "    },", "};", ""]
     return "\n".join(lines)
 
 

@@ -7,14 +7,23 @@
  *              (i: index of h_k, j: index of h_{k-1})
  *   geometric: count = number of polynomial coefficients in a = alpha^k
  * C is never scheduled. count = 0 marks an absent matrix (no dhat).
+ *
+ * Every array travels with its length as the C compiler counts it (UIOFMU_LENGTH), so
+ * fmi2Instantiate can check count x rows x cols against the data actually there before it
+ * reads any of it (an empty array is written as {0.0}: length 1).
  */
 #ifndef UIOFMU_DESIGN_H
 #define UIOFMU_DESIGN_H
+
+#include <stddef.h>
+
+#define UIOFMU_LENGTH(array) (sizeof(array) / sizeof((array)[0]))
 
 typedef struct {
     int count;
     int rows, cols;
     const double *data;
+    size_t length; /* number of doubles in data */
 } UiofmuMatrix;
 
 enum { UIOFMU_CONSTANT = 0, UIOFMU_INTERVAL = 1, UIOFMU_GEOMETRIC = 2 };
@@ -31,6 +40,8 @@ typedef struct {
     const double *intervals;
     const double *xhat0;
     UiofmuMatrix mat[M_COUNT];
+    size_t intervals_length; /* number of doubles in intervals (1 when there are none) */
+    size_t xhat0_length;     /* number of doubles in xhat0 */
 } UiofmuDesign;
 
 extern const UiofmuDesign UIOFMU_DESIGN;
