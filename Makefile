@@ -7,6 +7,7 @@ STAMP  := $(VENV)/.installed
 .PHONY: demo test fmus examples clean fuzz
 
 FUZZ_SECONDS ?= 600
+FUZZ_SEED    ?= 0
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -24,7 +25,7 @@ test: $(STAMP)
 # hostile problem files, cards, step specs and tables through the command line
 fuzz: $(STAMP)
 	$(PY) tests/cfuzz.py --seconds $(FUZZ_SECONDS) --family all
-	$(PY) tests/fuzz_campaign.py --seconds $(FUZZ_SECONDS)
+	$(PY) tests/fuzz_campaign.py --cases 300 --seed $(FUZZ_SEED) --seconds $(FUZZ_SECONDS)
 
 fmus: $(STAMP)
 	$(PY) examples/build_fmus.py --out fmus

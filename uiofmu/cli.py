@@ -11,6 +11,7 @@ import json
 import math
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from .files import check_output_dir, check_output_file, write_atomic
@@ -240,6 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     from . import __version__
     parser.add_argument("--version", action="version", version=f"uiofmu {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    parser.commands = sub.choices
     sub.required = True
 
     p = sub.add_parser("check", help="existence analysis: rank conditions, invariant zeros, detectability",
@@ -335,9 +337,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``uiofmu`` console script."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)[:200]}")
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            # numbers that overflow become an exit-2 message of the step that meets them; numpy's
+            # warnings on the way there would only add lines to it
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return args.func(args)
     except KeyboardInterrupt:
         print(f"uiofmu {args.command}: interrupted", file=sys.stderr)
         return 130

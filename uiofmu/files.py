@@ -162,7 +162,7 @@ def parse_json(text: str, what: str, error=InputFileError):
     except RecursionError:
         raise error(f"{what}: nested too deep (the limit is {MAX_DEPTH} levels)") from None
     except ValueError as exc:
-        raise error(f"{what}: not valid JSON ({exc})") from None
+        raise error(f"{what}: not valid JSON ({str(exc)[:300]})") from None
     check_depth(data, what, error=error)
     return data
 
@@ -187,8 +187,8 @@ def parse_toml(text: str, what: str, error=InputFileError) -> dict:
         data = tomllib.loads(text)
     except RecursionError:
         raise error(f"{what}: nested too deep (the limit is {MAX_DEPTH} levels)") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise error(f"{what}: not valid TOML ({exc})") from None
+    except (tomllib.TOMLDecodeError, ValueError) as exc:     # ValueError: an integer of more than 4300 digits
+        raise error(f"{what}: not valid TOML ({str(exc)[:300]})") from None
     check_depth(data, what, error=error)
     return data
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import itertools
 import json
 import shutil
+import tempfile
 import weakref
 import zipfile
 from ctypes import byref
@@ -158,9 +159,11 @@ class Fmu:
         self.messages: list[str] = []
         self._refs = {v.name: v.valueReference for v in self.description.modelVariables}
         self._vectors: dict = {}
+        self._unzipdir = tempfile.mkdtemp(prefix="uiofmu_fmu_")
         try:
-            self._unzipdir = extract(str(self.path))
+            extract(str(self.path), unzipdir=self._unzipdir)
         except Exception as exc:  # noqa: BLE001 - zipfile and OS errors of a broken archive
+            shutil.rmtree(self._unzipdir, ignore_errors=True)
             raise FmuError(f"{self.path}: cannot extract the FMU ({_first_line(exc)})") from None
 
         self._key = next(_KEYS)

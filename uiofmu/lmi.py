@@ -204,6 +204,10 @@ class LmiSystem:
         Every LMI is linear in the variables except non-strict normalisations ``F_lin(x) - c I``
         (``X >= I``): a point that misses a normalisation is then scaled by
         ``s = max c / eig_min(F_lin)`` (every other LMI scales with it) instead of rejected.
+    certify : callable, optional
+        ``certify(values, parameters) -> bool``: the family's checks at the matrices the runtime
+        would store from a point the LMI re-check accepts. A point they reject counts as not
+        verified, so a search goes on to a value that certifies instead of failing after it.
 
     Attributes
     ----------
@@ -224,6 +228,7 @@ class LmiSystem:
     solver_tol: float = SOLVER_TOL
     backend: str = "direct"
     homogeneous: bool = False
+    certify: Callable | None = None
     _conic: object = field(init=False, repr=False, default=None)
     _vars: dict = field(init=False, repr=False)
     _params: dict = field(init=False, repr=False)
@@ -342,6 +347,11 @@ class LmiSystem:
             ok = accepted(eigs, lmis, self.margin, scale=point_scale(values))
             if not ok and self.homogeneous:
                 values, lmis, eigs, ok = self._rescaled(values, pvals, lmis, eigs)
+            if ok and self.certify is not None:
+                try:
+                    ok = bool(self.certify(values, pvals))
+                except (np.linalg.LinAlgError, ValueError):
+                    ok = False
             if ok and self.objective:
                 objective = float(np.asarray(self.objective(values)))
         return LmiSolution(values, pvals, status, eigs, ok, 0.0, 0.0, objective, self.margin)
@@ -437,6 +447,10 @@ class LmiSystem:
             lmis = self.evaluate(sol.values, sol.parameters)
             bad = [f"{k}: eig_min = {v:.3g} < {b:.3g}"
                    for k, (v, b) in rejected(sol.eig_min, lmis, point_scale(sol.values), self.margin).items()]
+            if not bad:
+                raise InfeasibleError(f"{self.name} LMIs at {params}: CLARABEL answered {sol.status} and the LMIs "
+                                      "hold, but the observer built from its point fails the checks at the stored "
+                                      "matrices (its gains are too large for them in double precision)")
             raise InfeasibleError(f"{self.name} LMIs at {params}: CLARABEL answered {sol.status} but the re-check "
                                   f"rejects its point ({'; '.join(bad)})")
         need = {k: v for k, v in (self.diagnose(**sol.parameters) if diagnose else {}).items() if v > self.margin}

@@ -28,8 +28,8 @@ def _number(value, name: str, where: str, error) -> float:
     try:
         x = float(value)
     except OverflowError:
-        raise error(f"{name}{where}: expected a finite number, found an integer with {len(str(abs(value)))} "
-                    "digits, too large for a float") from None
+        raise error(f"{name}{where}: expected a finite number, found an integer of about "
+                    f"{int(int(value).bit_length() * 0.30103) + 1} digits, too large for a float") from None
     if not np.isfinite(x):
         raise error(f"{name}{where}: expected a finite number, found {x}")
     return x

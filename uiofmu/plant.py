@@ -16,6 +16,10 @@ from .errors import ProblemError
 from .matrices import as_matrix, as_scalar, as_vector, freeze
 
 
+#: Largest magnitude of a plant entry: products of a few such numbers stay finite in double precision.
+MAX_ENTRY = 1e100
+
+
 @dataclass(frozen=True)
 class Sampled:
     """A plant over one step: ``x+ = A x + B u + E d + w`` (inputs held over the step)."""
@@ -166,6 +170,12 @@ class Plant:
             raise ProblemError(f"{prefix}.w: the affine term is defined for discrete plants only")
         w = freeze(np.zeros(n)) if w is None else as_vector(w, f"{prefix}.w", size=n)
         x0 = freeze(np.zeros(n)) if x0 is None else as_vector(x0, f"{prefix}.x0", size=n)
+        for key, M in (("A", A), ("B", B), ("E", E), ("C", C), ("w", w), ("x0", x0)):
+            big = np.argwhere(np.abs(M) > MAX_ENTRY)
+            if big.size:
+                at = "".join(f"[{i}]" for i in big[0])
+                raise ProblemError(f"{prefix}.{key}{at}: {float(M[tuple(big[0])]):g} is out of range: entries up to "
+                                   f"{MAX_ENTRY:g} in magnitude (products of such numbers overflow); rescale the units")
         return cls(time=time, A=A, B=B, E=E, C=C, w=w, dt=dt, x0=x0)
 
     def sampled(self, h: float | None = None) -> Sampled:

@@ -64,8 +64,8 @@ def parse_term(table, name: str) -> Term:
         raise ProblemError(f"{name}: expected a table like {{kind=\"sine\", amplitude=1.0, frequency_hz=0.1}}, "
                            f"found {type(table).__name__}")
     kind = table.get("kind")
-    if kind not in _FIELDS:
-        raise ProblemError(f"{name}.kind: expected one of {sorted(_FIELDS)}, found {kind!r}")
+    if not isinstance(kind, str) or kind not in _FIELDS:
+        raise ProblemError(f"{name}.kind: expected one of {sorted(_FIELDS)}, found {repr(kind)[:60]}")
     unknown = set(table) - _FIELDS[kind] - {"kind"}
     if unknown:
         raise ProblemError(f"{name}: unknown field(s) {sorted(unknown)} for kind {kind!r} "

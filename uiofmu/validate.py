@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .card import card_from_data
+from .errors import FmuError
 from .fmi import Fmu, FmuCallError, read_model_json
 from .plant import Plant
 from .runtime import Runtime
@@ -148,14 +149,19 @@ def validate(path, steps: int = 200, seed: int = 0) -> Validation:
     from fmpy.validation import validate_fmu
 
     spec = read_model_json(path)
-    report = Validation(str(path), spec.get("kind", "?"))
+    kinds = {"observer": ("card", _observer), "plant": ("plant", _plant), "mujoco": ("mujoco", _mujoco)}
+    kind = spec.get("kind")
+    if not isinstance(kind, str) or kind not in kinds or kinds[kind][0] not in spec:
+        raise FmuError(f"{path}: resources/model.json is not a uiofmu model (kind {repr(kind)[:40]}; expected one of "
+                       f"{', '.join(kinds)} with its {'/'.join(k for k, _ in kinds.values())} entry)")
+    report = Validation(str(path), kind)
     report.problems = list(validate_fmu(str(path)))
     if report.problems:
         return report
     rng = np.random.default_rng(seed)
     with Fmu(path, "validation") as fmu:
         try:
-            {"observer": _observer, "plant": _plant, "mujoco": _mujoco}[report.kind](fmu, spec, report, steps, rng)
+            kinds[kind][1](fmu, spec, report, steps, rng)
         except FmuCallError as exc:
             report.problems.append(f"{exc} ({'; '.join(exc.messages)})")
     return report

@@ -126,8 +126,9 @@ def _lmis(PA, C):
 def checks(matrices: dict, rho: float) -> list:
     """The certificate's checks at the stored matrices (used by the design and by :func:`verify`).
 
-    Decoupling ``(I+MC)E = 0``, the observer identities ``PA - NP - LC = 0`` and
-    ``PB = G``, ``X > 0`` and the decay ``rho^2 X - N'XN > 0``.
+    Decoupling ``(I+MC)E = 0``, the observer identities ``PA - NP - LC = 0``, ``PB = G`` and
+    ``c = P w``, the output ``xhat = z - M y`` (``Xz = I``, ``Xy = -M``), ``X > 0`` and the decay
+    ``rho^2 X - N'XN > 0``: every matrix the runtime uses is checked.
     """
     g = {k: np.asarray(v, dtype=float) for k, v in matrices.items()}
     P, A, B, E, C = g["P"], g["A_sampled"], g["B_sampled"], g["E_sampled"], g["C"]
@@ -138,6 +139,8 @@ def checks(matrices: dict, rho: float) -> list:
         identity_check("||PB - G||", P @ B - G, np.linalg.norm(B, 2) if B.size else 0.0),
         identity_check("||P - (I + MC)||", P - np.eye(len(P)) - g["M"] @ C, 1.0),
         identity_check("||Xy + M||", g["Xy"] + g["M"], np.linalg.norm(g["M"], 2)),
+        identity_check("||Xz - I||", g["Xz"] - np.eye(len(P)), 1.0),
+        identity_check("||c - P w||", g["c"] - P @ g["w_sampled"], np.linalg.norm(g["w_sampled"])),
         positive_check("eig_min(X)", X),
         lyapunov_check("eig_min(rho^2 X - N'XN)", N, X, rho),
         decay_check(rho),
@@ -226,7 +229,8 @@ def design(problem):
     L = K - N @ M
     G = P @ s.B
     matrices = {"N": N, "L": L, "G": G, "c": P @ s.w, "Xz": np.eye(plant.n), "Xy": -M, "C": C,
-                "M": M, "K": K, "P": P, "X": X, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E}
+                "M": M, "K": K, "P": P, "X": X, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E,
+                "w_sampled": s.w}
     cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}",
                        solver="CLARABEL" if method == "lmi" else "none")
     eigX = np.linalg.eigvalsh(X)

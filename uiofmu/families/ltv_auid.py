@@ -187,8 +187,9 @@ def checks(card_data: dict) -> list:
 
     Both vertex decays ``N_i' X N_i < (1 - tau_i) X``; ``X > 0``; decoupling
     ``(I + MC) E = 0``; and at ``a`` in {1, alpha^5, 0} the observer identities
-    ``P_{k+1} A - N_k P_k - L_k C = 0``, ``G_k = P_{k+1} B``, ``H_k = (1 - a) M`` from the
-    stored polynomial matrices.
+    ``P_{k+1} A - N_k P_k - L_k C = 0``, ``G_k = P_{k+1} B``, ``c_k = P_{k+1} w``, the output
+    ``xhat = z - H_k y`` (``Xz = I``, ``Xy = -H_k``, ``H_k = (1 - a) M``) from the stored
+    polynomial matrices: every matrix the runtime uses is checked.
     """
     g = {k: np.asarray(v, dtype=float) for k, v in card_data["matrices"].items()}
     alpha, tau1, tau2 = card_data["alpha"], card_data["tau1"], card_data["tau2"]
@@ -202,16 +203,20 @@ def checks(card_data: dict) -> list:
         lyapunov_check("vertex 2: eig_min((1-tau_2) X - N_2'XN_2)", g["A2"] - g["T2"] @ C, X, np.sqrt(1 - tau2)),
         decay_check(np.sqrt(1 - tau2)),
     ]
-    worst = {"PA - NP - LC": 0.0, "G - PB": 0.0, "Xy + H": 0.0}
+    worst = {"PA - NP - LC": 0.0, "G - PB": 0.0, "Xy + H": 0.0, "Xz - I": 0.0, "c - Pw": 0.0}
     for a in (1.0, alpha ** 5, 0.0):
         P_next = np.eye(n) + M @ C - alpha * a * M @ C
         P_now = np.eye(n) + (1 - a) * M @ C
-        N, L, G, Xy = (_poly(g[k], a) for k in ("N", "L", "G", "Xy"))
+        N, L, G, Xy, Xz, c = (_poly(g[k], a) for k in ("N", "L", "G", "Xy", "Xz", "c"))
         worst["PA - NP - LC"] = max(worst["PA - NP - LC"], float(np.linalg.norm(P_next @ A - N @ P_now - L @ C, 2)))
         worst["G - PB"] = max(worst["G - PB"], float(np.linalg.norm(G - P_next @ B, 2)) if B.size else 0.0)
         worst["Xy + H"] = max(worst["Xy + H"], float(np.linalg.norm(Xy + (1 - a) * M, 2)))
+        worst["Xz - I"] = max(worst["Xz - I"], float(np.linalg.norm(Xz - np.eye(n), 2)))
+        worst["c - Pw"] = max(worst["c - Pw"], float(np.linalg.norm(c - P_next @ g["w_sampled"])))
     scale = 1.0 + np.linalg.norm(A, 2) * (1 + np.linalg.norm(M, 2) * np.linalg.norm(C, 2)) ** 2
-    out += [identity_check(f"max_k ||{k}||", np.array([v]), scale) for k, v in worst.items()]
+    scales = {"c - Pw": (1 + np.linalg.norm(M, 2) * np.linalg.norm(C, 2)) * np.linalg.norm(g["w_sampled"]),
+              "Xz - I": 1.0}
+    out += [identity_check(f"max_k ||{k}||", np.array([v]), scales.get(k, scale)) for k, v in worst.items()]
     return out
 
 
@@ -259,7 +264,8 @@ def design(problem):
     T2 = np.linalg.solve(v["G2"], v["Tb2"])
     tau1, tau2 = opts.eta * (1 + mu), opts.eta
     matrices = {**coefficients(M, T1, T2, s, C, opts.alpha), "C": C, "M": M, "T1": T1, "T2": T2, "X": X,
-                "A1": A1, "A2": A2, "S1": S1, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E}
+                "A1": A1, "A2": A2, "S1": S1, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E,
+                "w_sampled": s.w}
     if not existence.holds("rank(CE) = q"):
         for k in ("Dy", "Yx", "Yu", "Yc"):
             matrices.pop(k)

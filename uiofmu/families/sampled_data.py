@@ -42,6 +42,7 @@ from ..decoupling import (fixed_modes_condition, identifiability_condition, rank
 from ..errors import ProblemError
 from ..existence import Condition, Existence, complex_list
 from ..lmi import Lmi, LmiSystem, tune
+from ..card import MAX_INTERVALS
 from ..schedules import STEP_POLICIES
 from ..tolerances import IDENTITY_RTOL, LMI_MARGIN, SEARCH_TOL, STEP_RTOL, VERIFY_FRACTION, ZERO_MARGIN
 
@@ -82,8 +83,8 @@ def _intervals(table) -> tuple:
         hi = sub.scalar("max", low=0.0, open_low=True)
         count = sub.get("count")
         sub.done()
-        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
-            raise ProblemError(f"{key}.count: expected a positive integer, found {count!r}")
+        if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_INTERVALS:
+            raise ProblemError(f"{key}.count: expected an integer from 1 to {MAX_INTERVALS}, found {repr(count)[:40]}")
         if hi < lo or (count == 1 and hi != lo):
             raise ProblemError(f"{key}: expected min <= max (and min = max for count = 1), found {lo:g}, {hi:g}")
         values = np.linspace(lo, hi, count)
@@ -92,6 +93,8 @@ def _intervals(table) -> tuple:
     else:
         raise ProblemError(f"{key}: expected a list of intervals in s or a table {{min, max, count}}, "
                            f"found {type(value).__name__}")
+    if values.size > MAX_INTERVALS:
+        raise ProblemError(f"{key}: at most {MAX_INTERVALS} intervals, found {values.size}")
     if values.size == 0 or np.any(values <= 0):
         raise ProblemError(f"{key}: expected positive intervals, found {values.tolist()}")
     values = np.sort(values)
@@ -224,14 +227,17 @@ def checks(matrices: dict, decay: float) -> list:
     Q = decay * decay * Pl[None, :] - np.swapaxes(L, -1, -2) @ Pl[:, None] @ L
     lyap = np.linalg.eigvalsh(0.5 * (Q + np.swapaxes(Q, -1, -2)))[..., 0]
     ratio = lambda r, s: (r / (IDENTITY_RTOL * np.maximum(1.0, s)))  # noqa: E731
-    worst13 = int(np.argmax(ratio(fro(Pi @ E), two(E))))
+    scale13 = two(E) + two(K) * two(C @ E)                           # (I - K C) E = E - K (C E)
+    worst13 = int(np.argmax(ratio(fro(Pi @ E), scale13)))
     worstG = int(np.argmax(ratio(fro(g["G"] - Pi @ B), two(B) if B.size else np.zeros(N))))
     worst12 = np.unravel_index(int(np.argmax(ratio(fro(res12), scale12))), (N, N))
     return [
-        identity_check("(13) max_i ||(I - K_i C) E_i||", (Pi @ E)[worst13], np.linalg.norm(E[worst13], 2)),
+        identity_check("(13) max_i ||(I - K_i C) E_i||", (Pi @ E)[worst13], float(scale13[worst13])),
         identity_check("max_i ||G_i - (I - K_i C) B_i||", (g["G"] - Pi @ B)[worstG],
                        np.linalg.norm(B[worstG], 2) if B.size else 0.0),
         identity_check("max_j ||Xy_j - K_j||", (g["Xy"] - K).reshape(-1), 1.0 + float(np.abs(K).max())),
+        identity_check("max_j ||Xz_j - I||", (g["Xz"] - np.eye(n)).reshape(-1), 1.0),
+        identity_check("max_i ||c_i||", g["c"].reshape(-1), 1.0),
         positive_check("min_i eig_min(Pl_i)", Pl[int(np.argmin(np.linalg.eigvalsh(Pl)[:, 0]))]),
         identity_check("(12) max_ij ||L_ij - (I-K_iC)A_i - L_ij K_j C + P_ij C||", res12[worst12],
                        float(scale12[worst12])),
@@ -246,23 +252,24 @@ def verify(card) -> list:
     return checks(card.data["matrices"], card.data["decay_bound"])
 
 
-def design(problem):
-    """Design the sampled-data UIO (Corollary 2) and return its verified card."""
-    from ..synthesis import assemble_card
+def observer_matrices(v: dict, samples, C) -> dict:
+    """The runtime's matrices (and the certificate's) from a point of the LMIs (18)-(19).
 
-    started = time.perf_counter()
-    existence, samples, zmax = _analysis(problem)
-    existence.require()
-    plant, opts = problem.plant, problem.options
-    C, n, N = plant.C, plant.n, len(opts.intervals)
-    system = _lmis(samples, C)
-    limit = 1.0 - zmax * zmax
-    tuned = tune(system, "c", opts.alpha, feasible_end=1e-3 * limit, infeasible_end=limit, safe_end=0.0,
-                 tol=SEARCH_TOL * limit, label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a,
-                 name="alpha")
-    alpha, sol = tuned.value, tuned.solution
-    searched = tuned.search.to_data() if tuned.search else None
-    v = sol.values
+    Parameters
+    ----------
+    v : dict of str to numpy.ndarray
+        The LMI variables ``Pl_i``, ``S_i``, ``Q_ij``.
+    samples : list of Sampled
+        The plant at each design interval.
+    C : (p, n) array
+
+    Returns
+    -------
+    dict
+        ``N``, ``L``, ``G``, ``c``, ``Xz``, ``Xy``, ``C``, ``K``, ``Pl``, the sampled plant and
+        ``Dy``, ``Yx``, ``Yu``, ``Yc`` (the family drops these when dhat is not identifiable).
+    """
+    N, n, p = len(samples), C.shape[1], C.shape[0]
     Pl = [0.5 * (v[f"Pl{i}"] + v[f"Pl{i}"].T) for i in range(N)]
     K, G, Yx, Yu, Dy = [], [], [], [], []
     for i, s in enumerate(samples):
@@ -279,15 +286,38 @@ def design(problem):
     PiA = np.array([(np.eye(n) - K[i] @ C) @ s.A for i, s in enumerate(samples)])
     Lm = PiA[:, None] - Gq @ C                                                   # (18)
     Pm = Gq + Lm @ np.array(K)[None, :]                                          # (19), sign corrected
-    matrices = {
+    return {
         "N": Lm, "L": Pm, "G": np.array(G), "c": np.zeros((N, n)),
         "Xz": np.array([np.eye(n)] * N), "Xy": np.array(K), "C": C,
         "K": np.array(K), "Pl": np.array(Pl),
         "A_sampled": np.array([s.A for s in samples]), "B_sampled": np.array([s.B for s in samples]),
         "E_sampled": np.array([s.E for s in samples]),
+        "Dy": np.array(Dy), "Yx": np.array(Yx), "Yu": np.array(Yu), "Yc": np.zeros((N, p)),
     }
-    if existence.holds("rank(C E(h)) = q"):
-        matrices.update({"Dy": np.array(Dy), "Yx": np.array(Yx), "Yu": np.array(Yu), "Yc": np.zeros((N, plant.p))})
+
+
+def design(problem):
+    """Design the sampled-data UIO (Corollary 2) and return its verified card."""
+    from ..synthesis import assemble_card
+
+    started = time.perf_counter()
+    existence, samples, zmax = _analysis(problem)
+    existence.require()
+    plant, opts = problem.plant, problem.options
+    C, n, N = plant.C, plant.n, len(opts.intervals)
+    system = _lmis(samples, C)
+    system.certify = lambda v, prm: all(c.holds for c in checks(observer_matrices(v, samples, C), np.sqrt(prm["c"])))
+    limit = 1.0 - zmax * zmax
+    tuned = tune(system, "c", opts.alpha, feasible_end=1e-3 * limit, infeasible_end=limit, safe_end=0.0,
+                 tol=SEARCH_TOL * limit, label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a,
+                 name="alpha")
+    alpha, sol = tuned.value, tuned.solution
+    searched = tuned.search.to_data() if tuned.search else None
+    matrices = observer_matrices(sol.values, samples, C)
+    Pl = list(matrices["Pl"])
+    if not existence.holds("rank(C E(h)) = q"):
+        for k in ("Dy", "Yx", "Yu", "Yc"):
+            matrices.pop(k)
     decay = float(np.sqrt(1.0 - alpha))
     cert = certificate(sol, checks(matrices, decay), f"{NAME} design of {problem.name}")
     eig = np.array([np.linalg.eigvalsh(P) for P in Pl])
@@ -304,8 +334,8 @@ def design(problem):
         "lmi_size": {"lmis": N * N, "lmi_dim": 2 * n, "normalisation_lmis": 2 * N, "equalities": N,
                      "scalar_variables": 1 + N * n * (n + 1) // 2 + N * n * plant.p + N * N * n * plant.p},
         "search": searched,
-        "spectral_radius_max": float(np.abs(np.linalg.eigvals(Lm)).max()),
-        "eigenvalues_L_constant": [complex_list(e) for e in np.linalg.eigvals(Lm[np.arange(N), np.arange(N)])],
+        "spectral_radius_max": float(np.abs(np.linalg.eigvals(matrices["N"])).max()),
+        "eigenvalues_L_constant": [complex_list(e) for e in np.linalg.eigvals(matrices["N"][np.arange(N), np.arange(N)])],
     }
     xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(n)
     schedule = {"kind": "interval", "intervals": list(opts.intervals), "h_prev0": opts.h_prev0,
