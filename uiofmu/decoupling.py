@@ -107,7 +107,7 @@ def weak_modes_condition(A, E, C, where: str = "", rank_rtol: float = RANK_RTOL,
     Condition
     """
     modes, margins = pbh_margins(projector(C, E) @ A, C)
-    placeable = margins > rank_rtol
+    placeable = (margins > rank_rtol) & (np.abs(modes) > 1e-6)     # a mode at 0 needs no gain to move it
     values = {"modes": complex_list(modes[placeable]), "pbh_margins": margins[placeable].tolist(),
               "weak_margin": weak_margin}
     if not placeable.any():

@@ -14,6 +14,7 @@ from .errors import CardError, InfeasibleError, NumericalError
 from .existence import Existence
 from .families import available_family
 from .problem import Problem
+from .tolerances import LMI_MARGIN
 
 
 @contextlib.contextmanager
@@ -49,10 +50,26 @@ def design(problem: Problem) -> Card:
         try:
             return family.design(problem)
         except InfeasibleError as exc:
-            weak = [c for c in family.check(problem).conditions if c.name == "well observable modes" and not c.holds]
-            if not weak:
+            notes = _tight_spots(family.check(problem).conditions)
+            if not notes:
                 raise
-            raise type(exc)(f"{exc}. {weak[0].message[0].upper()}{weak[0].message[1:]}") from None
+            raise type(exc)(f"{exc}. " + ". ".join(n[0].upper() + n[1:] for n in notes)) from None
+
+
+#: A decay limit this close to its bound leaves the LMIs' margins almost no room.
+TIGHT = 1e-3
+
+
+def _tight_spots(conditions) -> list:
+    """What makes a design hard, from the existence report: weakly observable modes, and a
+    fixed mode or sampled zero so close to the unit circle that the decay has little room."""
+    notes = [c.message for c in conditions if c.name == "well observable modes" and not c.holds]
+    for c in conditions:
+        room = c.values.get("alpha_limit", 1.0 - c.values.get("largest_fixed_modulus", 0.0) ** 2)
+        if c.holds and isinstance(room, float) and 0 < room < TIGHT:
+            notes.append(f"{c.message}: that leaves the design a room of {room:.3g} against LMI margins of "
+                         f"{LMI_MARGIN:g}")
+    return notes
 
 
 def verify(card: Card) -> list:
