@@ -28,10 +28,14 @@ def test_demo(cli, tmp_path):
     ("quarter_car.py", ["dhat_vs_d.png", "quarter-car/report.png", "quarter-car-ltv/metrics.json"]),
     ("seed000_ltv_vs_classical.py", ["fig1_x2_estimates.png", "fig2_eigenvalues.png", "fig6_alpha.png",
                                      "ltv/metrics.json", "example1_comparison.json"]),
+    ("card_from_someone_else.py", ["observer.fmu", "hostile.fmu"]),
 ])
 def test_example_scripts(script, outputs):
     proc = subprocess.run([sys.executable, str(EXAMPLES / script)], capture_output=True, text=True, cwd=EXAMPLES)
     assert proc.returncode == 0, proc.stderr
+    if script == "card_from_someone_else.py":
+        assert "payload in the C sources: False" in proc.stdout and "unchanged after the refused builds: True" in proc.stdout
+        assert "PWNED exists: False" in proc.stdout and proc.stdout.count("exit 2") == 2
     folder = EXAMPLES / "out" / {"seed000_ltv_vs_classical.py": "seed000_ltv"}.get(script, script.removesuffix(".py"))
     for name in outputs:
         assert (folder / name).stat().st_size > 0
