@@ -221,12 +221,17 @@ def check_output_file(path, what: str, suffix: str | None = None) -> Path:
         raise OutputError(f"{path} exists and is not a regular file; refusing to replace it with the {what}")
     if suffix and path.suffix != suffix:
         raise OutputError(f"{path}: the {what} file name must end in {suffix}")
+    _check_parents(path)
+    return path
+
+
+def _check_parents(path: Path) -> None:
+    """Refuse a path whose nearest existing parent is not a folder."""
     for parent in path.parents:
         if parent.exists():
             if not parent.is_dir():
                 raise OutputError(f"{path}: {parent} is not a folder")
             break
-    return path
 
 
 def check_output_dir(path, what: str = "output folder") -> Path:
@@ -246,11 +251,7 @@ def check_output_dir(path, what: str = "output folder") -> Path:
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise OutputError(f"{path} exists and is not a folder; give the {what} another name")
-    for parent in path.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise OutputError(f"{path}: {parent} is not a folder")
-            break
+    _check_parents(path)
     return path
 
 

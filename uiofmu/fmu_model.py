@@ -46,7 +46,43 @@ class Port:
         return int(self.values.shape[0])
 
 
-class ObserverModel:
+class StatefulModel:
+    """What observer and plant models share: their state is the runtime's plus the parameter ports'."""
+
+    kind = "model"
+
+    def get_state(self) -> dict:
+        """JSON-ready state.
+
+        Returns
+        -------
+        dict
+            ``runtime`` (the runtime's ``get_state``) and ``parameters`` (the parameter ports'
+            values, one list per port: the master may have set them after the last initialisation).
+        """
+        return {"runtime": self.rt.get_state(), "parameters": [p.values.tolist() for p in self.parameters]}
+
+    def set_state(self, state: dict) -> None:
+        """Restore :meth:`get_state`; nothing changes unless every field is valid.
+
+        Parameters
+        ----------
+        state : dict
+
+        Raises
+        ------
+        StateRejected
+            The field that is missing, unknown or malformed is named.
+        """
+        r = StateReader(state, ("runtime", "parameters"), self.kind)
+        params = _port_values(r, "parameters", self.parameters)
+        self.rt.set_state(state["runtime"])               # checks everything before it changes
+        for port, values in zip(self.parameters, params):
+            port.values[:] = values
+        self.dirty = True
+
+
+class ObserverModel(StatefulModel):
     """The observer of a design card as FMU ports: ``y, u -> xhat, r, dhat``."""
 
     kind = "observer"
@@ -97,38 +133,9 @@ class ObserverModel:
         self.rt.step(h)
         self.dirty = True
 
-    def get_state(self) -> dict:
-        """JSON-ready state.
-
-        Returns
-        -------
-        dict
-            ``runtime`` (:meth:`uiofmu.runtime.Runtime.get_state`) and ``parameters`` (the
-            parameter ports' values, one list per port).
-        """
-        return {"runtime": self.rt.get_state(), "parameters": [p.values.tolist() for p in self.parameters]}
-
-    def set_state(self, state: dict) -> None:
-        """Restore :meth:`get_state`; nothing changes unless every field is valid.
-
-        Parameters
-        ----------
-        state : dict
-
-        Raises
-        ------
-        StateRejected
-            The field that is missing, unknown or malformed is named.
-        """
-        r = StateReader(state, ("runtime", "parameters"), "observer")
-        params = _port_values(r, "parameters", self.parameters)
-        self.rt.set_state(state["runtime"])               # checks everything before it changes
-        for port, values in zip(self.parameters, params):
-            port.values[:] = values
-        self.dirty = True
 
 
-class PlantModel:
+class PlantModel(StatefulModel):
     """A plant as FMU ports: ``u, d -> y, x``; parameters ``x0`` and the runtime's physical ones.
 
     The runtime is a linear :class:`~uiofmu.plant_runtime.PlantRuntime` or a
@@ -172,36 +179,6 @@ class PlantModel:
     def notices(self) -> list:
         """Messages for the log (none for plants)."""
         return []
-
-    def get_state(self) -> dict:
-        """JSON-ready state.
-
-        Returns
-        -------
-        dict
-            ``runtime`` (the runtime's ``get_state``) and ``parameters`` (the parameter ports'
-            values, which the master may have set after the last initialisation).
-        """
-        return {"runtime": self.rt.get_state(), "parameters": [p.values.tolist() for p in self.parameters]}
-
-    def set_state(self, state: dict) -> None:
-        """Restore :meth:`get_state`; nothing changes unless every field is valid.
-
-        Parameters
-        ----------
-        state : dict
-
-        Raises
-        ------
-        StateRejected
-            The field that is missing, unknown or malformed is named.
-        """
-        r = StateReader(state, ("runtime", "parameters"), "plant")
-        params = _port_values(r, "parameters", self.parameters)
-        self.rt.set_state(state["runtime"])               # checks everything before it changes
-        for port, values in zip(self.parameters, params):
-            port.values[:] = values
-        self.dirty = True
 
 
 def make_model(spec: dict, resources: str = "."):
