@@ -14,7 +14,6 @@ co-simulation with the MuJoCo plant FMU -> report. The same chain on the command
 
 import copy
 
-import numpy as np
 
 from _common import OUT, ROOT, main_guard
 

@@ -8,7 +8,6 @@ import json
 import numpy as np
 import pytest
 
-import uiofmu
 from uiofmu.errors import ProblemError
 from uiofmu.metrics import settling_index
 from uiofmu.steps import step_sequence

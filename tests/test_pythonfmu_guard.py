@@ -34,7 +34,6 @@ from uiofmu.export import build_observer, build_plant
 from uiofmu.export_c import build_host, c_compiler, fmi_headers
 from uiofmu.fmi import Fmu
 from uiofmu.validate import validate
-from tests.conftest import ROOT
 
 
 OBS = "two_room_building_observer"

@@ -11,7 +11,6 @@ import csv
 import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 

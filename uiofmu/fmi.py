@@ -12,7 +12,6 @@ instance passes its own key as ``componentEnvironment`` and the logger files the
 from __future__ import annotations
 
 import itertools
-import json
 import shutil
 import tempfile
 import weakref
