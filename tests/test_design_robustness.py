@@ -1,4 +1,5 @@
-"""Design robustness on random problems not from the papers, and the issue's two reproducers.
+"""Design robustness on random problems not from the papers, and two reproducers that failed
+before (a decay bound of 1.00009 certified; a DC motor refused at alpha = 0.9).
 
 The sample is the start of the campaign of ``benchmarks/design_robustness.py`` (campaign seed
 :data:`SEED`, :data:`SAMPLE` problems per family, at most :data:`KNOBS` states and intervals so
@@ -168,7 +169,7 @@ def test_check_and_design_agree(sample, family):
             assert r.max.kind == "no-observer", (r.name, r.max.kind, r.max.message)
 
 
-# -- the issue's reproducers -------------------------------------------------------------------
+# -- the two reproducers --------------------------------------------------------------------------
 
 LTI_DECAY_ABOVE_ONE = """
 name = "lti-decay-above-one"
@@ -211,7 +212,7 @@ def _design_cli(cli, tmp_path, text):
     return cli("design", path, "-o", out), out
 
 
-def test_issue_lti_decay_max_never_certifies_a_bound_of_one(cli, tmp_path):
+def test_lti_decay_max_never_certifies_a_bound_of_one(cli, tmp_path):
     """The only fixed mode sits 1e-5 inside the unit circle: a verified card with decay_bound < 1,
     or exit 2 with a message naming the mode and its margin; never a bound >= 1."""
     res, out = _design_cli(cli, tmp_path, LTI_DECAY_ABOVE_ONE)
@@ -229,7 +230,7 @@ def test_issue_lti_decay_max_never_certifies_a_bound_of_one(cli, tmp_path):
         assert dr.names_weak_mode(res.err, weak), res.err
 
 
-def test_issue_dc_motor_designs_at_a_fixed_alpha_below_the_max(cli, tmp_path):
+def test_dc_motor_designs_at_a_fixed_alpha_below_the_max(cli, tmp_path):
     """alpha = "max" certifies 0.9999, so alpha = 0.9 must design (and verify)."""
     res, out = _design_cli(cli, tmp_path, DC_MOTOR_LOAD_TORQUE)
     assert res.code == 0, res.err
