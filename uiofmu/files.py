@@ -141,6 +141,18 @@ def _no_constant(name: str):
     raise ValueError(f"{name} is not a number a design card may hold")
 
 
+def _parsed(load, text: str, what: str, error, kind: str):
+    """``load(text)``, its failures as ``error`` naming ``what``, then the depth limit."""
+    try:
+        data = load(text)
+    except RecursionError:
+        raise error(f"{what}: nested too deep (the limit is {MAX_DEPTH} levels)") from None
+    except ValueError as exc:      # the decoders' errors, and integers of more than 4300 digits
+        raise error(f"{what}: not valid {kind} ({str(exc)[:300]})") from None
+    check_depth(data, what, error=error)
+    return data
+
+
 def parse_json(text: str, what: str, error=InputFileError):
     """Parse JSON data: no ``NaN``/``Infinity``, at most :data:`MAX_DEPTH` levels.
 
@@ -157,14 +169,7 @@ def parse_json(text: str, what: str, error=InputFileError):
     -------
     object
     """
-    try:
-        data = json.loads(text, parse_constant=_no_constant)
-    except RecursionError:
-        raise error(f"{what}: nested too deep (the limit is {MAX_DEPTH} levels)") from None
-    except ValueError as exc:
-        raise error(f"{what}: not valid JSON ({str(exc)[:300]})") from None
-    check_depth(data, what, error=error)
-    return data
+    return _parsed(lambda s: json.loads(s, parse_constant=_no_constant), text, what, error, "JSON")
 
 
 def parse_toml(text: str, what: str, error=InputFileError) -> dict:
@@ -183,14 +188,7 @@ def parse_toml(text: str, what: str, error=InputFileError) -> dict:
     -------
     dict
     """
-    try:
-        data = tomllib.loads(text)
-    except RecursionError:
-        raise error(f"{what}: nested too deep (the limit is {MAX_DEPTH} levels)") from None
-    except (tomllib.TOMLDecodeError, ValueError) as exc:     # ValueError: an integer of more than 4300 digits
-        raise error(f"{what}: not valid TOML ({str(exc)[:300]})") from None
-    check_depth(data, what, error=error)
-    return data
+    return _parsed(tomllib.loads, text, what, error, "TOML")
 
 
 def check_output_file(path, what: str, suffix: str | None = None) -> Path:
