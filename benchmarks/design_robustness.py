@@ -225,6 +225,11 @@ _MODE = re.compile(rf"modes?(?:\(s\))?\s+({_NUM})(?:\s*±\s*({_NUM})j)?", re.I)
 _MARGIN = re.compile(rf"margin[^0-9+\-.;]{{0,24}}({_NUM})", re.I)
 
 
+#: A sampled-data message that names the intervals without a certificate (alone or in pairs).
+_INTERVALS = re.compile(r"the pair\(s\) [0-9.e+-]+ and [0-9.e+-]+ s|interval\(s\) [0-9.e+-]+.* alone have no "
+                        r"certificate|no Lyapunov function was found")
+
+
 def weak_mode_named(message: str, weak: dict) -> str:
     """How ``message`` names the weak mode and its margin: ``"fixed mode"`` (a number equal to
     the modulus, real or imaginary part of the largest fixed mode, to 1e-4 relative, one within
@@ -499,6 +504,7 @@ def summarise(results: list[Result]) -> dict:
                 c["... message names weak mode"] += bool(r.names_weak)
                 c["... ... a fixed mode + its margin"] += r.weak_kind == "fixed mode"
                 c["... ... a weakly observable mode + PBH margin"] += r.weak_kind == "weakly observable mode"
+                c["... message names the intervals that fail together"] += bool(_INTERVALS.search(r.max.message))
                 c[f"... max {r.max.kind}"] += 1
             c["max timeout"] += r.max.kind == "timeout"
         for _, o in r.fixed:
@@ -558,7 +564,7 @@ def goals(c: Counter) -> list[tuple[str, str, bool]]:
 ROWS = ["problems", "check exists", "check none", "check none, built to exist", "check error", "max certified",
         "max certified, check exists", "max failed, check exists", "... message names weak mode",
         "... ... a fixed mode + its margin", "... ... a weakly observable mode + PBH margin",
-        "... max rejected", "... max infeasible", "... max other", "... max timeout", "... max exit1",
+        "... message names the intervals that fail together", "... max rejected", "... max infeasible", "... max other", "... max timeout", "... max exit1",
         "fixed tried", "fixed designed", "fixed rejected", "fixed infeasible", "fixed other error", "fixed timeout",
         "fixed exit 1", "monotonicity violations", "theory-side tried (max failed)",
         "theory-side designed (max failed)", "false certificates", "... bound >= 1", "... verify fails",

@@ -1,6 +1,6 @@
 """Design speed: the direct conic assembly against the straightforward cvxpy formulation.
 
-    .venv/bin/python benchmarks/design_speed.py [--quick] [--repeat R] [--only TEXT]
+    .venv/bin/python benchmarks/design_speed.py [--quick] [--repeat R] [--only TEXT] [--backend B]
 
 For the building (seed 004), seed 000 Example 1 and random sampled-data problems (n = 4, 8, 16
 states; 6 and 12 intervals, alpha = "max", except n = 16 with 12 intervals: one solve at
@@ -74,6 +74,10 @@ class _TimedSolver:
             type(self).clock += time.perf_counter() - t0
 
 
+#: The LMI backends compared.
+BACKENDS = ("cvxpy", "direct")
+
+
 def timed_design(problem, backend: str) -> dict:
     """One design with every LmiSystem on ``backend``; its card and times."""
     make = lmi.LmiSystem.__init__
@@ -106,7 +110,10 @@ def main():
     parser.add_argument("--quick", action="store_true", help="only the building, Example 1 and n = 4")
     parser.add_argument("--repeat", type=int, default=21, help="runs of designs under 0.2 s (median shown)")
     parser.add_argument("--only", metavar="TEXT", help="only the cases whose label contains TEXT")
+    parser.add_argument("--backend", choices=BACKENDS, action="append",
+                        help="only this LMI backend (repeatable; default both)")
     args = parser.parse_args()
+    backends = tuple(args.backend or BACKENDS)
     example1 = uiofmu.load_problem(ROOT / "examples" / "seed000_example1.toml")
     cases = [("building (seed 004)", uiofmu.load_problem(ROOT / "plants" / "two_room_building")),
              ("seed 000 Example 1", example1)]
@@ -116,12 +123,12 @@ def main():
         cases.append(("random n=16, 12 int., a=0.1", random_problem(16, 12, seed=1612, alpha=0.1)))
     if args.only:
         cases = [c for c in cases if args.only in c[0]]
-    for backend in ("cvxpy", "direct"):     # imports and first-call costs out of the way
+    for backend in backends:                # imports and first-call costs out of the way
         timed_design(example1, backend)
     print(f"{'case':26s} {'backend':7s} {'total s':>9s} {'CLARABEL':>9s} {'ratio':>6s} {'assembly':>9s} "
           f"{'search s':>9s} {'solves':>6s} {'s/solve':>8s}  found")
     for label, problem in cases:
-        for backend in ("cvxpy", "direct"):
+        for backend in backends:
             try:
                 r = median_design(problem, backend, args.repeat)
             except uiofmu.UserError as exc:

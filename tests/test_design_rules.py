@@ -198,3 +198,91 @@ def test_riccati_needs_a_number():
 
     with pytest.raises(ProblemError, match='method = "riccati" needs a number'):
         _problem(DC_MOTOR, family="lti-uio", dt=0.01, method="riccati")
+
+
+# -- state scaling: the same LMIs in balanced coordinates ------------------------------------------
+
+def _badly_scaled(plant, exponents):
+    """``plant`` in coordinates ``x = diag(10**exponents) xs``: the same system, other units."""
+    T = np.diag(10.0 ** np.asarray(exponents, dtype=float))
+    Ti = np.linalg.inv(T)
+    A, B, E, C = (np.array(plant[k], dtype=float) for k in "ABEC")
+    return {**plant, "A": (Ti @ A @ T).tolist(), "B": (Ti @ B).tolist(), "E": (Ti @ E).tolist(),
+            "C": (C @ T).tolist()}
+
+
+def test_scaling_maps_the_lmis_by_congruence():
+    """An LMI point of the scaled coordinates, mapped back, gives the plant's LMI matrices
+    ``D' F D`` with ``D = diag(T^-1, T^-1)``: feasibility is the same in both coordinates."""
+    from uiofmu.families import sampled_data as sd
+    from uiofmu.scaling import scaled_output, scaled_step, state_scaling
+
+    plant = problem_from_data({"name": "p", "plant": _badly_scaled(DC_MOTOR, [0, 3, -2]),
+                               "observer": {"family": "sampled-data", "intervals": [0.01, 0.02]}}).plant
+    samples = [plant.sampled(h) for h in (0.01, 0.02)]
+    t = state_scaling(plant.A)
+    assert np.all(t <= 1.0) and t.max() == 1.0 and np.all(np.log2(t) == np.round(np.log2(t)))
+    assert t.min() < 1e-3                                        # the states 1e5 apart are brought together
+    rng = np.random.default_rng(3)
+    values = {"mu": np.array(5.0)}
+    for i in range(2):
+        values[f"Pl{i}"] = (lambda R: R @ R.T + np.eye(3))(rng.standard_normal((3, 3)))
+        values[f"S{i}"] = rng.standard_normal((3, 2))
+        for j in range(2):
+            values[f"Q{i}_{j}"] = rng.standard_normal((3, 2))
+    scaled = sd._lmis([scaled_step(s, t) for s in samples], scaled_output(plant.C, t))
+    plain = sd._lmis(samples, plant.C)
+    prm = {"c": 0.9}
+    Ti = np.diag(1.0 / t)
+    for ms, mp in zip(scaled.evaluate(values, prm), plain.evaluate(sd.in_plant_coordinates(values, t), prm)):
+        if ms.name.startswith("(15)"):
+            D = np.kron(np.eye(2), Ti)
+            np.testing.assert_allclose(np.asarray(mp.matrix), D.T @ np.asarray(ms.matrix) @ D,
+                                       rtol=1e-9, atol=1e-9 * np.abs(mp.matrix).max())
+        elif ms.name.startswith("(16)"):                       # E normalised in each: equal up to a factor
+            a, b = np.asarray(mp.matrix), Ti.T @ np.asarray(ms.matrix)
+            assert np.linalg.matrix_rank(np.column_stack([a.ravel(), b.ravel()]), tol=1e-9 * np.abs(a).max()) <= 1
+
+
+@pytest.mark.parametrize("family,key,value", [("sampled-data", "alpha", 0.02), ("lti-uio", "decay", 0.99)])
+def test_a_plant_in_other_units_designs_and_records_its_scaling(family, key, value):
+    observer = {"family": family, key: value}
+    observer.update({"intervals": [0.01, 0.02]} if family == "sampled-data" else {"dt": 0.05})
+    card = uiofmu.design(_problem(_badly_scaled(DC_MOTOR, [0, 3, -2]), **observer))
+    assert card.data["certificate"]["verified"] and all(c.holds for c in uiofmu.verify(card))
+    scaling = card.data["scaling"]
+    assert scaling["kind"] == "balance" and min(scaling["state"]) < 1e-3
+
+
+def test_balanced_plants_design_as_without_scaling(building_card):
+    assert building_card[0].data["scaling"]["state"] == [1.0, 1.0]
+    data = json.loads(building_card[0].to_json())["problem"]
+    data["observer"]["scaling"] = "none"
+    plain = uiofmu.design(problem_from_data(data))
+    assert plain.data["alpha"] == building_card[0].data["alpha"]
+    assert plain.data["scaling"] == {**building_card[0].data["scaling"], "kind": "none"}
+
+
+def test_a_badly_scaled_weak_mode_designs_in_balanced_coordinates():
+    """A campaign plant (E entries 1e7, C rows 0.03 and 3, PBH margin 2e-9) whose "max" search
+    failed in the plant's coordinates: balanced, it certifies."""
+    from uiofmu.random_plants import random_problem
+
+    problem = problem_from_data(random_problem("sampled-data", 7000022))
+    card = uiofmu.design(problem)
+    assert card.data["certificate"]["verified"] and all(c.holds for c in uiofmu.verify(card))
+    assert 0 < card.data["alpha"] and card.data["decay_bound"] < 1
+
+
+def test_a_failed_interval_set_names_the_pair_that_has_no_certificate():
+    """Two intervals that design alone but not together (a campaign plant, seed 11000116): the
+    message names the pair and says what to do; either interval alone designs."""
+    from uiofmu.random_plants import random_problem
+
+    data = random_problem("sampled-data", 11000116)
+    h1, h2 = data["observer"]["intervals"]
+    with pytest.raises(InfeasibleError, match=rf"the pair\(s\) {h1:g} and {h2:g} s have none.*drop one interval"):
+        uiofmu.design(problem_from_data(data))
+    for h in (h1, h2):
+        alone = uiofmu.design(problem_from_data({**data, "observer": {**data["observer"], "intervals": [h]}}))
+        assert alone.data["certificate"]["verified"] and all(c.holds for c in uiofmu.verify(alone))

@@ -383,7 +383,8 @@ class LmiSystem:
         -------
         dict of str to float
             The slack each LMI needs (0 where it can hold), for the message of an
-            infeasible design.
+            infeasible design; empty when the phase-1 problem itself was not solved to
+            optimality (its slacks would prove nothing).
         """
         cp = _cvxpy()
         if self._problem is None:
@@ -408,6 +409,8 @@ class LmiSystem:
                 warnings.simplefilter("ignore", UserWarning)
                 prob.solve(solver=cp.CLARABEL)
         except cp.error.SolverError:
+            return {}
+        if prob.status != cp.OPTIMAL:
             return {}
         return {k: float(s.value) for k, s in slack.items() if s.value is not None}
 

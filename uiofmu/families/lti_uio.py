@@ -13,7 +13,8 @@ so that ``e+ = N e``. ``K`` comes from the LMI (Schur form of ``N' X N < rho^2 X
     [[rho^2 X,  (X P A - W C)'],
      [X P A - W C,          X ]]  > 0,    I <= X <= t I,   K = X^{-1} W,
 
-minimising ``t`` (so ``sqrt(t)`` bounds the overshoot). ``X >= I`` normalises the otherwise
+minimising ``t`` (so ``sqrt(t)`` bounds the overshoot), solved in the balanced coordinates of
+:mod:`uiofmu.scaling` (``observer.scaling``). ``X >= I`` normalises the otherwise
 homogeneous LMI. The certified bound is ``||e_k|| <= sqrt(cond X) rho^k ||e_0||``.
 ``decay = "max"`` bisects rho between the largest fixed mode (which no K can move: the
 invariant zeros) and 1. A continuous plant is designed on its exact sampling at ``dt``.
@@ -32,7 +33,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -41,6 +42,8 @@ from ..decoupling import decoupling_gain, detectable, parse_period, sampled_deco
 from ..existence import Condition, Existence, complex_list
 from ..errors import InfeasibleError, ProblemError
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
+from ..scaling import SCALINGS, lyapunov_back, product_back, scaled_output, state_scaling
+from ..scaling import to_data as scaling_data
 from ..structure import decay_gain
 from ..tolerances import SEARCH_TOL, ZERO_MARGIN
 
@@ -60,12 +63,17 @@ class Options:
         Design period (the plant's for a discrete plant; ``observer.dt`` for a continuous one).
     xhat0 : numpy.ndarray or None
         Initial estimate (default zeros).
+    method : {"auto", "lmi", "riccati"}
+        Design method (see the module docstring).
+    scaling : {"balance", "none"}
+        The coordinates the LMI is solved in (:mod:`uiofmu.scaling`).
     """
 
     decay: object
     dt: float
     xhat0: np.ndarray | None
     method: str = "auto"
+    scaling: str = "balance"
 
 
 #: Design methods: the LMI (least overshoot), the Riccati gain with a Lyapunov certificate, or the
@@ -74,7 +82,8 @@ METHODS = ("auto", "lmi", "riccati")
 
 
 def parse_options(table, plant) -> Options:
-    """Read ``[observer]``: ``decay`` (default ``"max"``), ``dt`` (continuous plants), ``xhat0``, ``method``."""
+    """Read ``[observer]``: ``decay`` (default ``"max"``), ``dt`` (continuous plants), ``xhat0``, ``method``,
+    ``scaling``."""
     decay = table.tunable("decay", "max", low=0.0, high=1.0, open_low=True, open_high=True)
     dt = parse_period(table, plant, NAME)
     xhat0 = table.vector("xhat0", plant.n, None)
@@ -83,7 +92,7 @@ def parse_options(table, plant) -> Options:
         raise ProblemError('observer.method = "riccati" needs a number for observer.decay: it has no fastest decay '
                            '(without fixed modes any decay is reached, with gains that grow without bound); use '
                            'method = "auto" or "lmi" for decay = "max"')
-    return Options(decay, dt, xhat0, method)
+    return Options(decay, dt, xhat0, method, table.choice("scaling", SCALINGS, "balance"))
 
 
 def _analysis(problem):
@@ -187,20 +196,25 @@ def _riccati(PA, C, rho: float) -> Tuned:
     return Tuned(rho, LmiSolution(values, {"rho2": rho * rho}, status, {}, True, 0.0, 0.0), None)
 
 
-def _tuned(system: LmiSystem, PA, C, largest: float, opts: Options, name: str) -> tuple[Tuned, str]:
-    """The decay and its certificate by the requested method (see the module docstring)."""
+def _tuned(PA, C, t, largest: float, opts: Options, name: str) -> tuple[Tuned, str, LmiSystem]:
+    """The decay and its certificate by the requested method (see the module docstring), and
+    the LMI system (solved in the coordinates scaled by ``t``, :mod:`uiofmu.scaling`)."""
+    system = _lmis(PA * t[None, :] / t[:, None], scaled_output(C, t))
     if opts.method == "riccati":
-        return _riccati(PA, C, float(opts.decay)), "riccati"
+        return _riccati(PA, C, float(opts.decay)), "riccati", system
     try:
-        return tune(system, "rho2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
-                    safe_end=1.0, tol=SEARCH_TOL, label=f"{name}: fastest decay", transform=lambda r: r * r,
-                    name="decay", diagnose=opts.method == "lmi"), "lmi"
+        tuned = tune(system, "rho2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
+                     safe_end=1.0, tol=SEARCH_TOL, label=f"{name}: fastest decay", transform=lambda r: r * r,
+                     name="decay", diagnose=opts.method == "lmi")
+        v = tuned.solution.values
+        back = {**v, "X": lyapunov_back(v["X"], t), "W": product_back(v["W"], t)}
+        return replace(tuned, solution=replace(tuned.solution, values=back)), "lmi", system
     except InfeasibleError as exc:
         if opts.method == "lmi":
             raise
         rho = 0.5 * (1.0 + largest) if opts.decay == "max" else float(opts.decay)
         try:
-            return _riccati(PA, C, rho), "riccati (the LMI found no certificate)"
+            return _riccati(PA, C, rho), "riccati (the LMI found no certificate)", system
         except (InfeasibleError, ValueError, np.linalg.LinAlgError) as fallback:
             raise type(exc)(f"{exc}; the solver-free fallback fails too: {fallback}") from None
 
@@ -217,9 +231,9 @@ def design(problem):
     M = decoupling_gain(C, s.E)
     P = np.eye(plant.n) + M @ C
     PA = P @ s.A
-    system = _lmis(PA, C)
+    t = state_scaling(plant.A, opts.scaling)
     largest = float(np.abs(fixed).max()) if fixed.size else 0.0
-    tuned, method = _tuned(system, PA, C, largest, opts, problem.name)
+    tuned, method, system = _tuned(PA, C, t, largest, opts, problem.name)
     rho, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
     X, W = sol.values["X"], sol.values["W"]
@@ -248,6 +262,7 @@ def design(problem):
         "spectral_radius_N": float(np.abs(eigN).max()),
         "search": searched,
         "design_method": method,
+        "scaling": scaling_data(t if method == "lmi" else np.ones(plant.n), opts.scaling),
     }
     xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(plant.n)
     schedule = {"kind": "constant", "dt": opts.dt, "step_policy": "error"}

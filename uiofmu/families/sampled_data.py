@@ -15,7 +15,8 @@ gives ``e_{k+1} = L_ij e_k`` when (12) ``L_ij = (I - K_i C) A_i + L_ij K_j C - P
     (15)  [[Pl_i, Pl_i A_i - S_i C A_i - Q_ij C], [*, (1 - alpha) Pl_j]] > 0    for all i, j
           I <= Pl_i <= mu I   (normalisation; mu minimised: the overshoot bound is sqrt(mu))
 
-and the gains ``K_i = Pl_i^{-1} S_i``, ``L_ij = (I - K_i C) A_i - Pl_i^{-1} Q_ij C``,
+solved in the balanced coordinates of :mod:`uiofmu.scaling` (``observer.scaling``), and the
+gains ``K_i = Pl_i^{-1} S_i``, ``L_ij = (I - K_i C) A_i - Pl_i^{-1} Q_ij C``,
 ``P_ij = Pl_i^{-1} Q_ij + L_ij K_j``. The paper prints (19) with ``- L_ij K_j``, which
 violates (12) (residual 1.5 on the building); the ``+`` sign is the one that satisfies it.
 ``K_i`` is then moved onto the affine set ``K C E_i = E_i`` (a change of the order of the
@@ -39,10 +40,12 @@ import numpy as np
 from ..certificate import Check, certificate, decay_check, identity_check, positive_check
 from ..decoupling import (fixed_modes_condition, identifiability_condition, rank_condition, weak_modes_condition,
                           zeros_condition)
-from ..errors import ProblemError
+from ..errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list
 from ..lmi import Lmi, LmiSystem, tune
 from ..card import MAX_INTERVALS
+from ..scaling import SCALINGS, lyapunov_back, product_back, scaled_output, scaled_step, state_scaling
+from ..scaling import to_data as scaling_data
 from ..schedules import STEP_POLICIES
 from ..tolerances import IDENTITY_RTOL, LMI_MARGIN, SEARCH_TOL, STEP_RTOL, VERIFY_FRACTION, ZERO_MARGIN
 
@@ -65,6 +68,8 @@ class Options:
         The interval assumed before the first sample, h_{-1} (default the first interval).
     step_policy : {"error", "nearest"}
         What the runtime does with a step that is not a design interval.
+    scaling : {"balance", "none"}
+        The coordinates the LMIs are solved in (:mod:`uiofmu.scaling`).
     """
 
     intervals: tuple
@@ -72,6 +77,7 @@ class Options:
     xhat0: np.ndarray | None
     h_prev0: float
     step_policy: str
+    scaling: str = "balance"
 
 
 def _intervals(table) -> tuple:
@@ -106,7 +112,7 @@ def _intervals(table) -> tuple:
 
 
 def parse_options(table, plant) -> Options:
-    """Read ``intervals``, ``alpha``, ``xhat0``, ``h_prev0`` and ``step_policy``."""
+    """Read ``intervals``, ``alpha``, ``xhat0``, ``h_prev0``, ``step_policy`` and ``scaling``."""
     if not plant.continuous:
         raise ProblemError(f'observer.family: "{NAME}" samples a continuous plant; plant.time is "discrete" '
                            '(use "lti-uio" for a discrete plant)')
@@ -118,7 +124,7 @@ def parse_options(table, plant) -> Options:
         raise ProblemError(f"observer.h_prev0: {h_prev0:g} s is not one of the intervals "
                            f"{', '.join(f'{h:g}' for h in intervals)} s")
     policy = table.choice("step_policy", STEP_POLICIES, "error")
-    return Options(intervals, alpha, xhat0, h_prev0, policy)
+    return Options(intervals, alpha, xhat0, h_prev0, policy, table.choice("scaling", SCALINGS, "balance"))
 
 
 def _per_interval(conds: list[Condition], name: str, intervals) -> Condition:
@@ -252,6 +258,13 @@ def verify(card) -> list:
     return checks(card.data["matrices"], card.data["decay_bound"])
 
 
+def in_plant_coordinates(v: dict, t) -> dict:
+    """The LMI variables of the scaled coordinates (:mod:`uiofmu.scaling`) in the plant's:
+    ``Pl_i`` by congruence, ``S_i`` and ``Q_ij`` (products ``Pl K``) from the left."""
+    return {k: lyapunov_back(x, t) if k.startswith("Pl") else product_back(x, t) if k[0] in "SQ" else x
+            for k, x in v.items()}
+
+
 def observer_matrices(v: dict, samples, C) -> dict:
     """The runtime's matrices (and the certificate's) from a point of the LMIs (18)-(19).
 
@@ -296,6 +309,44 @@ def observer_matrices(v: dict, samples, C) -> dict:
     }
 
 
+#: Interval sets up to this size get every pair tried when a design fails.
+DIAGNOSED_PAIRS = 8
+
+
+def _interval_diagnosis(samples, C, t, intervals, alpha: float) -> str:
+    """Which intervals admit no certificate together, when the whole set admits none.
+
+    Corollary 2 needs one Lyapunov function per interval that decreases over every pair of
+    successive intervals; each interval may design alone while a pair of them does not.
+    Solves the LMIs at ``alpha`` for each interval alone and (for at most
+    :data:`DIAGNOSED_PAIRS` intervals) for each pair, and names the smallest failing sets.
+    """
+    if len(samples) < 2:
+        return ""
+    Cs = scaled_output(C, t)
+    steps = [scaled_step(s, t) for s in samples]
+
+    def certifies(ks):
+        return _lmis([steps[k] for k in ks], Cs).solve(c=1.0 - alpha).verified
+
+    fmt = lambda ks: " and ".join(f"{intervals[k]:g}" for k in ks) + " s"       # noqa: E731
+    alone = [k for k in range(len(samples)) if not certifies((k,))]
+    if alone:
+        return (f"at alpha = {alpha:.3g} the LMIs of interval(s) {fmt(alone)} alone have no certificate "
+                "either: remove them from observer.intervals")
+    if len(samples) > DIAGNOSED_PAIRS:
+        return (f"at alpha = {alpha:.3g} every interval alone has a certificate, but no Lyapunov function "
+                "was found that decreases over every succession of the set's intervals")
+    pairs = [(i, j) for i in range(len(samples)) for j in range(i + 1, len(samples)) if not certifies((i, j))]
+    if not pairs:
+        return (f"at alpha = {alpha:.3g} every interval and every pair of intervals has a certificate, but the "
+                "whole set has none")
+    return (f"at alpha = {alpha:.3g} every interval alone has a certificate, but the pair(s) "
+            f"{'; '.join(fmt(p) for p in pairs[:4])}{' ...' if len(pairs) > 4 else ''} have none (no Lyapunov "
+            "function was found that decreases over their successions): drop one interval of each pair, or "
+            "narrow the range")
+
+
 def design(problem):
     """Design the sampled-data UIO (Corollary 2) and return its verified card."""
     from ..synthesis import assemble_card
@@ -305,15 +356,24 @@ def design(problem):
     existence.require()
     plant, opts = problem.plant, problem.options
     C, n, N = plant.C, plant.n, len(opts.intervals)
-    system = _lmis(samples, C)
-    system.certify = lambda v, prm: all(c.holds for c in checks(observer_matrices(v, samples, C), np.sqrt(prm["c"])))
+    t = state_scaling(plant.A, opts.scaling)
+    system = _lmis([scaled_step(s, t) for s in samples], scaled_output(C, t))
+
+    def matrices_at(v):
+        return observer_matrices(in_plant_coordinates(v, t), samples, C)
+
+    system.certify = lambda v, prm: all(c.holds for c in checks(matrices_at(v), np.sqrt(prm["c"])))
     limit = 1.0 - zmax * zmax
-    tuned = tune(system, "c", opts.alpha, feasible_end=1e-3 * limit, infeasible_end=limit, safe_end=0.0,
-                 tol=SEARCH_TOL * limit, label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a,
-                 name="alpha")
+    try:
+        tuned = tune(system, "c", opts.alpha, feasible_end=1e-3 * limit, infeasible_end=limit, safe_end=0.0,
+                     tol=SEARCH_TOL * limit, label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a,
+                     name="alpha")
+    except InfeasibleError as exc:
+        note = _interval_diagnosis(samples, C, t, opts.intervals, 1e-3 * limit)
+        raise type(exc)(f"{exc}; {note}" if note else str(exc)) from None
     alpha, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
-    matrices = observer_matrices(sol.values, samples, C)
+    matrices = matrices_at(sol.values)
     Pl = list(matrices["Pl"])
     if not existence.holds("rank(C E(h)) = q"):
         for k in ("Dy", "Yx", "Yu", "Yc"):
@@ -334,6 +394,7 @@ def design(problem):
         "lmi_size": {"lmis": N * N, "lmi_dim": 2 * n, "normalisation_lmis": 2 * N, "equalities": N,
                      "scalar_variables": 1 + N * n * (n + 1) // 2 + N * n * plant.p + N * N * n * plant.p},
         "search": searched,
+        "scaling": scaling_data(t, opts.scaling),
         "spectral_radius_max": float(np.abs(np.linalg.eigvals(matrices["N"])).max()),
         "eigenvalues_L_constant": [complex_list(e) for e in np.linalg.eigvals(matrices["N"][np.arange(N), np.arange(N)])],
     }
