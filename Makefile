@@ -4,22 +4,33 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test fmus examples clean fuzz
+.PHONY: install demo test test-fast lint fmus examples clean fuzz
 
 FUZZ_SECONDS ?= 600
 FUZZ_SEED    ?= 0
 
+# quiet: one line says what happens; pip's own errors still show
 $(STAMP): pyproject.toml
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test,mujoco,control]"
-	touch $(STAMP)
+	@echo "installing uiofmu (editable) with its test, mujoco and control extras into $(VENV)/ ..."
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@$(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip
+	@$(PY) -m pip install --quiet --disable-pip-version-check -e ".[test,mujoco,control]"
+	@touch $(STAMP)
+
+install: $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/uiofmu demo --out out/demo
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# the suite without the tests marked valgrind, cmake, mujoco or slow (see pyproject.toml)
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not valgrind and not cmake and not mujoco and not slow"
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
 
 # a long fuzzing campaign: the C FMU's call sequences under ASan + UBSan (all families), then
 # hostile problem files, cards, step specs and tables through the command line

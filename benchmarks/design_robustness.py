@@ -4,14 +4,14 @@
                                                      [--timeout T] [--worst K] [--tracebacks K]
                                                      [--reproducers DIR] [--json FILE]
 
-For every problem of :mod:`uiofmu.random_plants` (``--count`` per family, default 150; ``--quick``
+For every problem of :mod:`uiofmu.families.random_plants` (``--count`` per family, default 150; ``--quick``
 15), in this process, one after the other:
 
 1. ``uiofmu.check``: does an observer exist?
 2. ``uiofmu.design`` with the searched value at ``"max"`` (lti-uio ``decay``, ltv-auid ``mu``,
    sampled-data ``alpha``): certified? which value?
 3. When "max" certified a value, a design at each fixed value on its feasible side
-   (:func:`uiofmu.random_plants.fixed_values`: slower decays for lti-uio, smaller alpha and mu):
+   (:func:`uiofmu.families.random_plants.fixed_values`: slower decays for lti-uio, smaller alpha and mu):
    designed, rejected by the re-check (``InfeasibleError`` whose message says the re-check
    refused the point, or a ``CardError``), infeasible (any other ``InfeasibleError``), or another
    error. Every failure there is a **monotonicity violation**: the LMIs at such a value are
@@ -23,10 +23,13 @@ For every problem of :mod:`uiofmu.random_plants` (``--count`` per family, defaul
    random unknown input, random known input and random initial error; a step violates the
    bound when ``||x_k - xhat_k|| > (1 + 1e-9) b_k + 1e-12 max(1, ||x_k||)``, and the error
    recursion ``e+ = N e`` of the card's own matrices is run alongside. Sampled-data runs draw each
-   step from the design intervals. A violation of the plant + runtime run alone, within
-   :data:`ROUNDOFF_FRACTION` of the magnitudes inside the observer (``Xz z``, ``Xy y``: large gains
-   put double precision's floor there, while the certified bound falls on toward 0), is reported
-   as "round-off floor only" and not counted as a false certificate.
+   step from the design intervals. A violation of the plant + runtime run alone is reported as
+   "round-off floor only", not counted as a false certificate, when double precision explains it:
+   every step's leak (the run's error ``e_{k+1}`` minus the recursion's ``N_k e_k``) is within
+   :data:`LEAK_EPS` of the magnitudes that step adds up (``A x``, ``E d``, ``B u``, ``Xz z``,
+   ``Xy y``, ``L y``), and the error stays below the bound plus those leaks carried forward by
+   the certified decay, ``overshoot * sum_j decay^(k-1-j) ||leak_j||`` (an identity that holds
+   to round-off, times a state of 1e4, leaks far more than the bound that falls toward 0).
 5. When "max" fails where the check says an observer exists, whether its message names the
    weak mode and its margin (:func:`weak_mode_named`: the largest fixed mode, computed here
    independently of the family code, with its margin ``1 - |z|``, ``1 - |z|^2`` or the family's
@@ -66,7 +69,7 @@ import numpy as np  # noqa: E402
 import uiofmu  # noqa: E402
 from uiofmu.errors import CardError, InfeasibleError, NoObserverError, UserError  # noqa: E402
 from uiofmu.problem import problem_from_data, to_toml  # noqa: E402
-from uiofmu.random_plants import (FAMILY_CODES, SEARCHED, campaign_draws, fixed_values,  # noqa: E402
+from uiofmu.families.random_plants import (FAMILY_CODES, SEARCHED, campaign_draws, fixed_values,  # noqa: E402
                                   with_value)
 
 FAMILIES = tuple(FAMILY_CODES)
@@ -265,10 +268,10 @@ def names_weak_mode(message: str, weak: dict) -> bool:
 
 # -- simulation --------------------------------------------------------------------------------
 
-#: A simulated violation counts as round-off when the error is at most this fraction of the
-#: largest magnitude the observer adds up (``||x||``, ``||Xz|| ||z||``, ``||Xy|| ||y||``,
-#: ``||L|| ||y||``): about 1e6 times the machine epsilon.
-ROUNDOFF_FRACTION = 1e-10
+#: A step's leak counts as round-off when it is at most this fraction of the magnitudes the
+#: step adds up (``||A|| ||x||``, ``||E|| ||d||``, ``||B|| ||u||``, ``||Xz|| ||z||``,
+#: ``||Xy|| ||y||``, ``||L|| ||y||``): about 4500 times the machine epsilon.
+LEAK_EPS = 1e-12
 
 
 def _gain(card, key: str) -> float:
@@ -291,8 +294,9 @@ def simulate(card, problem, rng, steps: int = SIM_STEPS) -> dict:
         in the error recursion), ``recursion`` (the error recursion ``e_{k+1} = N_k e_k + S_k d_k``
         with the card's own ``N`` from its schedule, ``S_k = -alpha^{k+1} M C E`` for ltv-auid
         and 0 otherwise, violates the bound: the certificate itself is wrong), ``roundoff`` (only
-        the plant + runtime run violates it, and every violating step has an error within
-        :data:`ROUNDOFF_FRACTION` of the observer's internal magnitudes), ``worst_ratio``
+        the plant + runtime run violates it, every step leaks within :data:`LEAK_EPS` of its
+        magnitudes, and the error stays under the bound plus the leaks carried forward),
+        ``worst_leak`` (largest leak over magnitude), ``worst_ratio``
         (largest ``||e_k|| / allowance_k``), ``at`` (the first violating step with its numbers),
         ``bound`` None when the card certifies none.
     """
@@ -322,6 +326,9 @@ def simulate(card, problem, rng, steps: int = SIM_STEPS) -> dict:
     err = np.empty(steps + 1)
     xn = np.empty(steps + 1)
     inner = np.empty(steps + 1)
+    leak = np.zeros(steps + 1)              # leak[k + 1]: what step k added beyond N_k e_k
+    magnitude = np.ones(steps + 1)
+    real_prev = None
     for k in range(steps + 1):
         h = float(hs[k]) if k < steps else float(hs[-1])
         s = plant.sampled(h) if plant.continuous else plant.sampled()
@@ -331,17 +338,26 @@ def simulate(card, problem, rng, steps: int = SIM_STEPS) -> dict:
         y = plant.C @ x
         rt.set_y(y)
         rt.set_u(u[k])
-        err[k] = float(np.linalg.norm(x - rt.xhat()))
+        real = x - rt.xhat()
+        err[k] = float(np.linalg.norm(real))
         xn[k] = float(np.linalg.norm(x))
         inner[k] = max(xn[k], gz * float(np.linalg.norm(rt.z)), gy * float(np.linalg.norm(y)))
         rec[k] = float(np.linalg.norm(e))
+        if real_prev is not None:
+            leak[k] = float(np.linalg.norm(real - real_prev))
+            magnitude[k] = max(magnitude[k], inner[k])
         if k == steps:
             break
         rt.step(h)
+        Nk = sched.step_matrices(k, h, h_prev)["N"]
+        magnitude[k + 1] = max(1.0, inner[k], float(np.linalg.norm(s.A, 2)) * xn[k],
+                               float(np.linalg.norm(s.E @ d[k])), float(np.linalg.norm(s.B @ u[k])))
         x = s.A @ x + s.B @ u[k] + s.E @ d[k] + s.w
-        e = sched.step_matrices(k, h, h_prev)["N"] @ e
+        real_prev = Nk @ real                          # the recursion's step from the run's own error
+        e = Nk @ e
         if S is not None:
             e = e + card.data["alpha"] ** (k + 1) * (S @ d[k])
+            real_prev = real_prev + card.data["alpha"] ** (k + 1) * (S @ d[k])
         h_prev = h
     bound = certified_bound(card, e0, d)
     if bound is None:
@@ -352,14 +368,21 @@ def simulate(card, problem, rng, steps: int = SIM_STEPS) -> dict:
     bad = np.flatnonzero(ratio > 1.0)
     rec_bad = np.flatnonzero(rec > allow)
     at = None
-    roundoff = (bool(bad.size) and not rec_bad.size
-                and bool(np.all(err[bad] <= ROUNDOFF_FRACTION * np.maximum(1.0, inner[bad]))))
+    carried = np.zeros(steps + 1)           # overshoot * sum_j decay^(k-1-j) ||leak_j||
+    over, decay = float(card.data.get("overshoot_bound") or 1.0), float(card.data.get("decay_bound") or 1.0)
+    for k in range(1, steps + 1):
+        carried[k] = decay * carried[k - 1] + over * leak[k]
+    worst_leak = float((leak / magnitude).max())
+    roundoff = (bool(bad.size) and not rec_bad.size and worst_leak <= LEAK_EPS
+                and bool(np.all(err[bad] <= allow[bad] + (1 + BOUND_RTOL) * carried[bad])))
     first = bad if bad.size else rec_bad
     if first.size:
         k = int(first[0])
         at = {"k": k, "error": float(err[k]), "recursion": float(rec[k]), "bound": float(bound[k]),
-              "x_norm": float(xn[k]), "inner": float(inner[k]), "e0": float(np.linalg.norm(e0))}
+              "x_norm": float(xn[k]), "inner": float(inner[k]), "e0": float(np.linalg.norm(e0)),
+              "carried": float(carried[k]), "worst_leak": worst_leak}
     return {"violated": bool(bad.size or rec_bad.size), "roundoff": roundoff, "recursion": bool(rec_bad.size),
+            "worst_leak": worst_leak,
             "worst_ratio": float(ratio.max()), "worst_recursion_ratio": float((rec / allow).max()), "at": at,
             "bound": True}
 
@@ -368,8 +391,8 @@ def judge_card(card, problem, rng) -> list[tuple[str, str]]:
     """Why a verified card is a false certificate: ``(tag, text)`` pairs, empty for none. Tags:
     ``bound >= 1``, ``verify``, ``simulation (error recursion)`` (the card's own error recursion
     leaves the bound), ``simulation`` (the plant + runtime run leaves it by more than round-off)
-    and ``simulation (round-off)`` (only the plant + runtime run, within
-    :data:`ROUNDOFF_FRACTION` of the observer's internal magnitudes; see :func:`simulate`)."""
+    and ``simulation (round-off)`` (only the plant + runtime run, by leaks within
+    :data:`LEAK_EPS` of each step's magnitudes, carried forward; see :func:`simulate`)."""
     reasons = []
     data = card.data
     if not data.get("certificate", {}).get("verified"):
@@ -393,7 +416,9 @@ def judge_card(card, problem, rng) -> list[tuple[str, str]]:
             reasons.append((tag, f"bound violated in simulation ({tag}) at k = {a['k']}: ||e|| = {a['error']:.6g} "
                                  f"(recursion {a['recursion']:.6g}) > bound "
                                  f"{a['bound']:.6g} (||x|| = {a['x_norm']:.3g}, internal magnitude "
-                                 f"{a['inner']:.3g}, ||e0|| = {a['e0']:.3g}, worst ratio {sim['worst_ratio']:.6g}, "
+                                 f"{a['inner']:.3g}, leaks carried forward {a['carried']:.3g}, worst leak "
+                                 f"{a['worst_leak']:.3g} of a step's magnitude, ||e0|| = {a['e0']:.3g}, "
+                                 f"worst ratio {sim['worst_ratio']:.6g}, "
                                  f"decay_bound {data.get('decay_bound')!r}, "
                                  f"overshoot {data.get('overshoot_bound')!r})"))
     except Exception as exc:             # noqa: BLE001
@@ -519,7 +544,8 @@ def summarise(results: list[Result]) -> dict:
         for _, o in r.fallback:
             c["theory-side tried (max failed)"] += 1
             c["theory-side designed (max failed)"] += o.kind == "ok"
-        roundoff = sum(all(tag == "simulation (round-off)" for tag, _ in reasons) for _, reasons in r.false_certificates)
+        roundoff = sum(all(tag == "simulation (round-off)" for tag, _ in reasons)
+                       for _, reasons in r.false_certificates)
         c["false certificates"] += len(r.false_certificates) - roundoff
         c["round-off floor only (not counted)"] += roundoff
         c["... bound >= 1"] += sum(any(t == "bound >= 1" for t, _ in rs) for _, rs in r.false_certificates)
@@ -564,7 +590,8 @@ def goals(c: Counter) -> list[tuple[str, str, bool]]:
 ROWS = ["problems", "check exists", "check none", "check none, built to exist", "check error", "max certified",
         "max certified, check exists", "max failed, check exists", "... message names weak mode",
         "... ... a fixed mode + its margin", "... ... a weakly observable mode + PBH margin",
-        "... message names the intervals that fail together", "... max rejected", "... max infeasible", "... max other", "... max timeout", "... max exit1",
+        "... message names the intervals that fail together", "... max rejected", "... max infeasible",
+        "... max other", "... max timeout", "... max exit1",
         "fixed tried", "fixed designed", "fixed rejected", "fixed infeasible", "fixed other error", "fixed timeout",
         "fixed exit 1", "monotonicity violations", "theory-side tried (max failed)",
         "theory-side designed (max failed)", "false certificates", "... bound >= 1", "... verify fails",
@@ -708,7 +735,8 @@ def main(argv=None) -> int:
         byname = {r.name: r for r in everything}
         for _, family, seed, name, what, msg in worst:
             r = byname[name]
-            header = (f"{what}: {family} seed {seed} (uiofmu.random_plants.random_problem({family!r}, {seed}))\n"
+            header = (f"{what}: {family} seed {seed} "
+                      f"(uiofmu.families.random_plants.random_problem({family!r}, {seed}))\n"
                       f"{_short(msg, 2000)}")
             (args.reproducers / f"{name}.toml").write_text(to_toml(r.doc, header))
     traces = [(r, stage, o) for r in everything for stage, o in r.exits1]

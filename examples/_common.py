@@ -1,12 +1,18 @@
-"""Small helpers shared by the example scripts (paths and the design-build-run chain)."""
+"""Small helpers shared by the example scripts (paths and the design-build-run chain).
+
+Each script writes into ``OUT / NAME``: ``OUT`` is the folder named by the environment variable
+``UIOFMU_EXAMPLES_OUT`` when it is set (the tests point it at a temporary folder), else
+``examples/out``.
+"""
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-OUT = ROOT / "examples" / "out"
+OUT = Path(os.environ.get("UIOFMU_EXAMPLES_OUT") or ROOT / "examples" / "out").resolve()
 
 
 def design_and_build(problem_path, out: Path):

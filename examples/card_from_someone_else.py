@@ -10,7 +10,8 @@ script designs seed 000 Example 1, then builds four versions of its card with th
    `build` re-checks the certificate at the card's own matrices;
 4. a family that would rewrite the pythonfmu slave's class line: refused by the card schema.
 
-An existing FMU at the output path survives every refused build. Writes into examples/out/card_from_someone_else/.
+An existing FMU at the output path survives every refused build. Writes into
+examples/out/card_from_someone_else/ ($UIOFMU_EXAMPLES_OUT/card_from_someone_else/ when set).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import json
 import subprocess
 import sys
 import zipfile
+from pathlib import Path
 
 from _common import OUT, ROOT
 
@@ -61,8 +63,8 @@ def main():
     print(f"4. code as the family         exit {res.returncode}: {res.stderr.strip()[:160]}")
 
     kept = (out / "observer.fmu").read_bytes() == before
-    print(f"the FMU built in step 1 is unchanged after the refused builds: {kept}; "
-          f"PWNED exists: {(out / 'PWNED').exists() or (ROOT / 'PWNED').exists()}")
+    pwned = any((folder / "PWNED").exists() for folder in (out, ROOT, Path.cwd()))   # where the builds ran
+    print(f"the FMU built in step 1 is unchanged after the refused builds: {kept}; PWNED exists: {pwned}")
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ co-simulation with the MuJoCo plant FMU -> report. The same chain on the command
     uiofmu cosim --plant out/qc.fmu --observer out/sd.fmu --steps choice:0.005,0.01,0.02,0.03,0.04,0.05 --out out/qc
 
     python examples/quarter_car.py               # writes examples/out/quarter_car/
+    UIOFMU_EXAMPLES_OUT=/tmp/ex python examples/quarter_car.py  # writes /tmp/ex/quarter_car/
 """
 
 import copy

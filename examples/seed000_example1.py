@@ -7,6 +7,7 @@ d_k = sin(2k) cos(3k), dt = 0.1 s) and plots x2 against its estimate and the err
 against the certified bound.
 
     python examples/seed000_example1.py          # writes examples/out/seed000_example1/
+    UIOFMU_EXAMPLES_OUT=/tmp/ex python examples/seed000_example1.py  # writes /tmp/ex/seed000_example1/
 """
 
 import numpy as np

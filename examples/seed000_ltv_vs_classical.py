@@ -11,6 +11,7 @@ the zeros are the paper's 0.995 and 0.999, the LTV observer is designed with mu 
 (the paper finds mu = 15) and compared for alpha in {0.9, 0.98, 0.99, 0.993}.
 
     python examples/seed000_ltv_vs_classical.py    # writes examples/out/seed000_ltv/
+    UIOFMU_EXAMPLES_OUT=/tmp/ex python examples/seed000_ltv_vs_classical.py  # writes /tmp/ex/seed000_ltv/
 """
 
 import copy
@@ -51,7 +52,8 @@ def example1(plt, out):
     kc, kl = rc.metrics["steps_to_1pct"], rl.metrics["steps_to_1pct"]
     lam0 = max(abs(complex(*z)) for z in lcard.data["eigenvalues_N_k0"])
     summary = {"classical_steps_to_1pct": kc, "ltv_steps_to_1pct": kl, "speedup": kc / kl,
-               "classical_final_error": rc.metrics["final_error_norm"], "ltv_final_error": rl.metrics["final_error_norm"],
+               "classical_final_error": rc.metrics["final_error_norm"],
+               "ltv_final_error": rl.metrics["final_error_norm"],
                "invariant_zero": lcard.data["invariant_zeros"][0][0], "largest_eigenvalue_N_at_k0": lam0,
                "T1": lcard.data["matrices"]["T1"], "T2": lcard.data["matrices"]["T2"], "gamma": lcard.data["gamma"]}
     (out / "example1_comparison.json").write_text(json.dumps(summary, indent=2) + "\n")

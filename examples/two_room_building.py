@@ -10,6 +10,7 @@ faster than it. The script designs the best certified one (alpha = "max", about 
 says so.
 
     python examples/two_room_building.py        # writes examples/out/two_room_building/
+    UIOFMU_EXAMPLES_OUT=/tmp/ex python examples/two_room_building.py  # writes /tmp/ex/two_room_building/
 """
 
 import numpy as np

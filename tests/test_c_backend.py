@@ -34,7 +34,8 @@ def test_c_fmu_equals_runtime(cfmus, family):
     assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
     with zipfile.ZipFile(path) as z:
         names = set(z.namelist())
-    assert {"sources/observer.c", "sources/design_data.c", f"binaries/linux64/{md.coSimulation.modelIdentifier}.so"} <= names
+    binary = f"binaries/linux64/{md.coSimulation.modelIdentifier}.so"
+    assert {"sources/observer.c", "sources/design_data.c", binary} <= names
     report = validate(path, steps=400, seed=17)
     assert report.ok and report.max_rel_diff <= 1e-12
 
@@ -98,7 +99,8 @@ def test_many_instances_share_nothing(cfmus):
         outs = np.zeros((count, steps, 2))
         for k in range(steps):
             for i, f in enumerate(fmus):
-                f.set("y", ys[i, k]); f.set("u", us[i, k])
+                f.set("y", ys[i, k])
+                f.set("u", us[i, k])
                 outs[i, k] = f.get("xhat")
                 f.step(0.1 * k, 0.1)
     finally:
@@ -107,7 +109,8 @@ def test_many_instances_share_nothing(cfmus):
     for i in range(count):
         rt = Runtime(card, xhat0=[float(i), -float(i)])
         for k in range(steps):
-            rt.set_y(ys[i, k]); rt.set_u(us[i, k])
+            rt.set_y(ys[i, k])
+            rt.set_u(us[i, k])
             np.testing.assert_allclose(outs[i, k], rt.xhat(), rtol=1e-12, atol=1e-14)
             rt.step(0.1)
 
@@ -121,7 +124,8 @@ def test_state_and_serialisation(cfmus):
     def drive(fmu, a, b):
         out = []
         for k in range(a, b):
-            fmu.set("y", ys[k]); fmu.set("u", [5.0])
+            fmu.set("y", ys[k])
+            fmu.set("u", [5.0])
             out.append(np.concatenate([fmu.get("xhat"), fmu.get("dhat")]))
             fmu.step(0.0, H[k])
         return np.array(out)
@@ -156,7 +160,8 @@ def _host_run(cfmus, family, tmp_path, wrapper=(), refused_at=None):
     for k in range(60):
         h = float(steps[int(rng.integers(len(steps)))]) if k != refused_at else 0.75 * steps[0]
         y, u = rng.normal(size=rt.p), rng.normal(size=rt.m)
-        rt.set_y(y); rt.set_u(u)
+        rt.set_y(y)
+        rt.set_u(u)
         expect.append(np.concatenate([rt.xhat(), rt.residual()]))
         if k != refused_at:
             rt.step(h)
@@ -183,12 +188,14 @@ def test_c_host_without_python(cfmus, family, tmp_path):
 VALGRIND = ("valgrind", "--error-exitcode=3", "--leak-check=full", "--errors-for-leak-kinds=definite", "--quiet")
 
 
+@pytest.mark.valgrind
 def test_c_host_under_valgrind(cfmus, tmp_path):
     proc, _ = _host_run(cfmus, "ltv-auid", tmp_path, wrapper=VALGRIND)
     assert proc.returncode == 0, proc.stderr
     assert "ERROR SUMMARY" not in proc.stderr or "0 errors" in proc.stderr
 
 
+@pytest.mark.valgrind
 def test_c_host_under_valgrind_with_a_refused_step(cfmus, tmp_path):
     """A step outside the design intervals: fmi2Discard with its log line, no memory error or leak."""
     proc, _ = _host_run(cfmus, "sampled-data", tmp_path, wrapper=VALGRIND, refused_at=20)
@@ -222,6 +229,7 @@ def test_libcosimpy_runs_the_c_fmu(cfmus):
     np.testing.assert_allclose(got, rt.xhat(), rtol=1e-12)
 
 
+@pytest.mark.cmake
 def test_fmpy_compile_rebuilds_from_sources(cfmus, tmp_path):
     """The binary removed, fmpy's build (cmake, its own FMI headers) makes a new one from sources/."""
     from fmpy import extract

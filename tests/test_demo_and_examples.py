@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -22,21 +23,28 @@ def test_demo(cli, tmp_path):
         assert (tmp_path / "demo" / name).stat().st_size > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("script,outputs", [
     ("seed000_example1.py", ["figure1_classical.png", "report.png", "metrics.json"]),
     ("two_room_building.py", ["figure1.png", "figure2.png", "report.png", "metrics.json"]),
-    ("quarter_car.py", ["dhat_vs_d.png", "quarter-car/report.png", "quarter-car-ltv/metrics.json"]),
+    pytest.param("quarter_car.py", ["dhat_vs_d.png", "quarter-car/report.png", "quarter-car-ltv/metrics.json"],
+                 marks=pytest.mark.mujoco),
     ("seed000_ltv_vs_classical.py", ["fig1_x2_estimates.png", "fig2_eigenvalues.png", "fig6_alpha.png",
                                      "ltv/metrics.json", "example1_comparison.json"]),
     ("card_from_someone_else.py", ["observer.fmu", "hostile.fmu"]),
 ])
-def test_example_scripts(script, outputs):
-    proc = subprocess.run([sys.executable, str(EXAMPLES / script)], capture_output=True, text=True, cwd=EXAMPLES)
+def test_example_scripts(script, outputs, tmp_path):
+    """Each script runs in a temporary folder and writes there (UIOFMU_EXAMPLES_OUT), not into examples/out."""
+    env = {**os.environ, "UIOFMU_EXAMPLES_OUT": str(tmp_path / "out")}
+    proc = subprocess.run([sys.executable, str(EXAMPLES / script)], capture_output=True, text=True, cwd=tmp_path,
+                          env=env)
     assert proc.returncode == 0, proc.stderr
     if script == "card_from_someone_else.py":
-        assert "payload in the C sources: False" in proc.stdout and "unchanged after the refused builds: True" in proc.stdout
+        assert "payload in the C sources: False" in proc.stdout
+        assert "unchanged after the refused builds: True" in proc.stdout
         assert "PWNED exists: False" in proc.stdout and proc.stdout.count("exit 2") == 2
-    folder = EXAMPLES / "out" / {"seed000_ltv_vs_classical.py": "seed000_ltv"}.get(script, script.removesuffix(".py"))
+        assert not (tmp_path / "PWNED").exists()
+    folder = tmp_path / "out" / {"seed000_ltv_vs_classical.py": "seed000_ltv"}.get(script, script.removesuffix(".py"))
     for name in outputs:
         assert (folder / name).stat().st_size > 0
     for metrics in folder.glob("**/metrics.json"):

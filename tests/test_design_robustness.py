@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 import uiofmu
-from uiofmu import random_plants as rpl
+from uiofmu.families import random_plants as rpl
 from uiofmu.card import card_from_data
 from uiofmu.problem import problem_from_data
 from uiofmu.structure import invariant_zeros, rank
@@ -269,3 +269,20 @@ def test_judge_card_catches_a_tampered_card():
     data["matrices"]["N"] = (1.5 * np.asarray(data["matrices"]["N"]) + 0.5 * np.eye(problem.plant.n)).tolist()
     tags = {tag for tag, _ in dr.judge_card(card_from_data(data), problem, np.random.default_rng(1))}
     assert {"verify", "simulation (error recursion)"} <= tags
+
+
+def test_a_leak_beyond_round_off_is_not_the_floor():
+    """An output gain changed by 1e-7 relative leaks ``y`` into the error at every step while the
+    error recursion (``N`` alone) stays under the bound: the simulation must call it a false
+    certificate, not double precision's floor."""
+    doc = rpl.random_problem("lti-uio", 3, plant_class="well-conditioned", time="discrete")
+    problem = problem_from_data(doc)
+    card = uiofmu.design(problem)
+    data = dict(card.data)
+    data["matrices"] = dict(data["matrices"])
+    data["matrices"]["L"] = (np.asarray(data["matrices"]["L"]) * (1 + 1e-7)).tolist()
+    sim = dr.simulate(card_from_data(data), problem, np.random.default_rng(1))
+    assert sim["violated"] and not sim["recursion"] and not sim["roundoff"]
+    assert sim["worst_leak"] > dr.LEAK_EPS
+    honest = dr.simulate(card, problem, np.random.default_rng(1))
+    assert honest["worst_leak"] <= dr.LEAK_EPS and (not honest["violated"] or honest["roundoff"])

@@ -173,7 +173,8 @@ def test_the_weak_mode_is_reached_by_the_fallback():
 
 
 def test_a_failed_design_names_the_weak_mode():
-    with pytest.raises(InfeasibleError, match=r"fallback fails too: .*cond\(X\) = .*The mode 0.980199 .*PBH margin 1.65e-07"):
+    match = r"fallback fails too: .*cond\(X\) = .*The mode 0.980199 .*PBH margin 1.65e-07"
+    with pytest.raises(InfeasibleError, match=match):
         uiofmu.design(_problem(DC_MOTOR, family="lti-uio", dt=0.01, decay=0.1))
 
 
@@ -266,7 +267,7 @@ def test_balanced_plants_design_as_without_scaling(building_card):
 def test_a_badly_scaled_weak_mode_designs_in_balanced_coordinates():
     """A campaign plant (E entries 1e7, C rows 0.03 and 3, PBH margin 2e-9) whose "max" search
     failed in the plant's coordinates: balanced, it certifies."""
-    from uiofmu.random_plants import random_problem
+    from uiofmu.families.random_plants import random_problem
 
     problem = problem_from_data(random_problem("sampled-data", 7000022))
     card = uiofmu.design(problem)
@@ -277,7 +278,7 @@ def test_a_badly_scaled_weak_mode_designs_in_balanced_coordinates():
 def test_a_failed_interval_set_names_the_pair_that_has_no_certificate():
     """Two intervals that design alone but not together (a campaign plant, seed 11000116): the
     message names the pair and says what to do; either interval alone designs."""
-    from uiofmu.random_plants import random_problem
+    from uiofmu.families.random_plants import random_problem
 
     data = random_problem("sampled-data", 11000116)
     h1, h2 = data["observer"]["intervals"]

@@ -116,15 +116,20 @@ def test_two_instances_are_independent(fmus):
         outs_a, outs_b = [], []
         t = 0.0
         for k in range(30):  # interleaved calls
-            a.set("y", ya[k]); a.set("u", u[k])
-            b.set("y", yb[k]); b.set("u", u[k])
-            outs_a.append(a.get("xhat")); outs_b.append(b.get("xhat"))
-            a.step(t, 0.1); b.step(t, 0.1)
+            a.set("y", ya[k])
+            a.set("u", u[k])
+            b.set("y", yb[k])
+            b.set("u", u[k])
+            outs_a.append(a.get("xhat"))
+            outs_b.append(b.get("xhat"))
+            a.step(t, 0.1)
+            b.step(t, 0.1)
             t += 0.1
     for ys, x0, outs in ((ya, [0.0, 0.0], outs_a), (yb, [3.0, 3.0], outs_b)):
         rt = Runtime(card, xhat0=x0)
         for k in range(30):
-            rt.set_y(ys[k]); rt.set_u(u[k])
+            rt.set_y(ys[k])
+            rt.set_u(u[k])
             assert np.array_equal(rt.xhat(), outs[k])
             rt.step(0.1)
 
@@ -154,7 +159,8 @@ def test_bad_calls_give_a_status_and_a_log_line(fmus, case, fragment):
         assert info.value.status == expected
         assert any(fragment in m for m in info.value.messages), info.value.messages
         if case != "before-init":                      # the instance still works afterwards
-            fmu.set("y", [1.0]); fmu.set("u", [0.0])
+            fmu.set("y", [1.0])
+            fmu.set("u", [0.0])
             fmu.step(0.0, 0.1)
             assert np.all(np.isfinite(fmu.get("xhat")))
 
@@ -224,6 +230,7 @@ with Fmu(sys.argv[1], "o") as fmu:
 """
 
 
+@pytest.mark.valgrind
 def test_a_closed_pythonfmu_instance_leaves_a_clean_heap_at_exit(example1_card, tmp_path):
     """pythonfmu 0.7.0 binaries free their interpreter state at exit and then write into it
     from a library destructor (glibc then aborts at exit, now and then). After ``Fmu.close``

@@ -249,6 +249,7 @@ def _card_mutation(bases, index: int):
     return base, pool[(index // 3) % len(pool)]
 
 
+@pytest.mark.slow
 @settings(max_examples=35, **FUZZ)
 @given(st.integers(0, 10**9), st.integers(0, 2**31))
 def test_every_card_field_through_build_python(bases, work, index, seed):
@@ -438,6 +439,7 @@ def test_injection_through_a_problem_name(bases, work):
 # ---------------------------------------------------------------------------------------------
 # (c) co-simulation arguments, outputs and input files
 # ---------------------------------------------------------------------------------------------
+@pytest.mark.slow
 @settings(max_examples=10, **FUZZ)
 @given(st.integers(0, 2**31), st.sampled_from(["steps", "steps", "seed", "t-end", "out", "inputs", "inputs", "fmus"]))
 def test_cosim_arguments(bases, work, seed, kind):

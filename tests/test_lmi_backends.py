@@ -40,11 +40,46 @@ def _with(system, backend):
 
 @pytest.mark.parametrize("index", range(3))
 def test_same_verdicts_on_feasible_and_infeasible_cases(index):
+    """Both backends verify the feasible value, refuse the infeasible one, and name the
+    solver's answers with the same (cvxpy's) status words."""
     label, make, param, good, bad = systems()[index]
+    statuses = {}
     for backend in ("direct", "cvxpy"):
         system = make(backend)
-        assert system.solve(**{param: good}).verified, (label, backend)
-        assert not system.solve(**{param: bad}).verified, (label, backend)
+        ok, refused = system.solve(**{param: good}), system.solve(**{param: bad})
+        assert ok.verified, (label, backend)
+        assert not refused.verified, (label, backend)
+        statuses[backend] = (ok.status, refused.status)
+    assert statuses["direct"] == statuses["cvxpy"], (label, statuses)
+    assert statuses["direct"][1] in ("infeasible", "infeasible_inaccurate"), (label, statuses)
+
+
+CVXPY_STATUSES = ("optimal", "optimal_inaccurate", "infeasible", "infeasible_inaccurate", "unbounded",
+                  "unbounded_inaccurate", "user_limit", "solver_error")
+
+
+def test_direct_backend_speaks_cvxpys_status_words():
+    """Every CLARABEL status comes out of the direct backend in cvxpy's words (its CLARABEL
+    interface's mapping); only a proof of infeasibility counts as infeasible, not an "almost"."""
+    import clarabel
+
+    from uiofmu.conic import cvxpy_status
+    from uiofmu.lmi import INFEASIBLE
+
+    names = [s for s in dir(clarabel.SolverStatus) if not s.startswith("_")]
+    assert {"Solved", "PrimalInfeasible", "AlmostPrimalInfeasible", "NumericalError"} <= set(names)
+    for name in names:
+        status = cvxpy_status(getattr(clarabel.SolverStatus, name))
+        assert status.split(":")[0] in CVXPY_STATUSES, (name, status)
+        assert cvxpy_status(name) == status
+    expected = {"Solved": "optimal", "AlmostSolved": "optimal_inaccurate", "PrimalInfeasible": "infeasible",
+                "AlmostPrimalInfeasible": "infeasible_inaccurate", "DualInfeasible": "unbounded",
+                "AlmostDualInfeasible": "unbounded_inaccurate", "MaxIterations": "user_limit",
+                "MaxTime": "user_limit", "NumericalError": "solver_error: CLARABEL answered NumericalError",
+                "InsufficientProgress": "solver_error: CLARABEL answered InsufficientProgress"}
+    assert {k: cvxpy_status(k) for k in expected} == expected
+    assert cvxpy_status("SomethingNew") == "solver_error: CLARABEL answered SomethingNew"
+    assert INFEASIBLE == ("infeasible",)
 
 
 def test_max_searches_agree_within_the_tolerance():

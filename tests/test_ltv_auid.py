@@ -110,7 +110,8 @@ def test_k_survives_save_and_restore(fmus):
     def drive(fmu, a, b, t):
         out = []
         for j in range(a, b):
-            fmu.set("y", ys[j]); fmu.set("u", us[j])
+            fmu.set("y", ys[j])
+            fmu.set("u", us[j])
             out.append(fmu.get("xhat"))
             fmu.step(t, 0.1)
             t += 0.1

@@ -18,6 +18,8 @@ from uiofmu.problem import problem_from_data
 from uiofmu.validate import validate
 from tests.conftest import ROOT
 
+pytestmark = pytest.mark.mujoco
+
 FOLDER = ROOT / "plants" / "quarter_car"
 
 

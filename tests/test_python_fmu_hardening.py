@@ -358,7 +358,8 @@ RAW = [("truncated", {"bytes": "truncated"}, "are not a serialised uiofmu state"
        ("phase", _field(["phase"], "flying"), "state field 'phase' = 'flying'"),
        ("extra-envelope-field", _field(["spare"], 1), "state fields"),
        ("no-model", _field(["model"], delete=True), "state fields"),
-       ("parameters-length", _field(["model", "parameters", 0], [1.0]), "'parameters.xhat0': expected a list of 2 numbers"),
+       ("parameters-length", _field(["model", "parameters", 0], [1.0]),
+        "'parameters.xhat0': expected a list of 2 numbers"),
        ("parameters-type", _field(["model", "parameters", 0, 0], "a"), "'parameters.xhat0'[0]: expected a number")]
 
 OBSERVER_FIELDS = [
@@ -400,7 +401,7 @@ MUJOCO_FIELDS = [
 
 @pytest.mark.parametrize("which,hs,fields", [("obs", BUILDING_STEPS, OBSERVER_FIELDS),
                                              ("plant", BUILDING_STEPS, PLANT_FIELDS),
-                                             ("mj", CAR_STEPS, MUJOCO_FIELDS)])
+                                             pytest.param("mj", CAR_STEPS, MUJOCO_FIELDS, marks=pytest.mark.mujoco)])
 def test_bad_states_are_refused_field_by_field(fmus, tmp_path, which, hs, fields):
     cases = [c for c in RAW if which == "obs" or not c[0].startswith("parameters")] + fields
     res = run_child(tmp_path, "states", {"path": fmus[which], "hs": hs, "tampers": [[c[0], c[1]] for c in cases]})
@@ -533,6 +534,7 @@ def test_plant_runtime_set_state_checks_every_field():
     assert rt.get_state() == good
 
 
+@pytest.mark.mujoco
 def test_mujoco_runtime_set_state_checks_every_field():
     spec = load_spec(QUARTER_CAR)
     rt = MujocoRuntime(spec.mujoco, QUARTER_CAR)

@@ -580,6 +580,7 @@ def test_the_c_host_runs_the_guarded_fmu_as_the_unguarded_one(fmus, tmp_path):
 VALGRIND = ("valgrind", "--error-exitcode=3", "--leak-check=full", "--errors-for-leak-kinds=definite", "--quiet")
 
 
+@pytest.mark.valgrind
 def test_the_guard_under_valgrind_in_the_c_host(fmus, tmp_path):
     """The guard in front of a stand-in for pythonfmu's binary (no Python: valgrind would spend half
     a minute on the interpreter and numpy; set UIOFMU_VALGRIND_PYTHON=1 for that run too)."""

@@ -14,7 +14,7 @@ from uiofmu.structure import invariant_zeros, rank, uncontrollable_modes, unobse
 def pencil_min_sv(A, E, C, z):
     n, q, p = A.shape[0], E.shape[1], C.shape[0]
     S = np.block([[A - z * np.eye(n), E], [C, np.zeros((p, q))]])
-    return np.linalg.svd(S, compute_uv=False)[-1] if S.shape[0] >= S.shape[1] else np.linalg.svd(S.T, compute_uv=False)[-1]
+    return np.linalg.svd(S if S.shape[0] >= S.shape[1] else S.T, compute_uv=False)[-1]
 
 
 def assert_same_set(got, ref, atol=1e-8):

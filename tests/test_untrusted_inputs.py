@@ -167,6 +167,7 @@ def _replace(data, path, value):
     target[path[-1]] = value
 
 
+@pytest.mark.slow
 def test_hostile_text_in_every_field_never_reaches_generated_code(building_card):
     """Each field of a card replaced by each hostile string: refused by the schema, or accepted as
     data that never appears in the generated C, XML or Python source."""

@@ -17,6 +17,7 @@ import numpy as np
 from .errors import CardError
 from .files import parse_json, read_text, write_atomic
 from .matrices import as_array, as_scalar, as_vector
+from .registry import KNOWN
 from .schedules import AXES
 from .text import check_name, check_text
 from .tolerances import STEP_RTOL
@@ -130,8 +131,6 @@ class Card:
         return write_atomic(path, self.to_json(), "design card")
 
 
-#: Every family of the product (a card names one of them).
-FAMILY_NAMES = ("lti-uio", "ltv-auid", "switched", "sampled-data", "deadbeat-functional", "delayed-uio")
 #: Largest dimension a card may declare (states, inputs, outputs, observer states).
 MAX_DIM = 1000
 #: Most design intervals an interval schedule may list.
@@ -284,8 +283,9 @@ def check_card(data, require_verified: bool = True) -> dict:
         raise CardError(f"design card: missing key(s) {', '.join(missing)}")
     version = data["version"]
     if isinstance(version, bool) or not isinstance(version, int) or version != VERSION:
-        raise CardError(f"design card version {repr(version)[:40]} is not supported (this uiofmu reads version {VERSION})")
-    _choice(data["family"], "family", FAMILY_NAMES)
+        raise CardError(f"design card version {repr(version)[:40]} is not supported "
+                        f"(this uiofmu reads version {VERSION})")
+    _choice(data["family"], "family", KNOWN)
     check_name(data["name"], "design card name", CardError)
     dims = _table(data["dims"], "dims")
     for d in ("n", "m", "p", "q", "nz"):

@@ -182,7 +182,8 @@ def _cmd_validate(args) -> int:
         print(json.dumps(report.to_data(), indent=2))
     else:
         print(f"{args.fmu}: {report.kind} FMU")
-        print(f"  validate_fmu         {'no problem' if not report.problems else str(len(report.problems)) + ' problem(s)'}")
+        found = f"{len(report.problems)} problem(s)" if report.problems else "no problem"
+        print(f"  validate_fmu         {found}")
         for prob in report.problems:
             print(f"    - {prob}")
         if not report.problems:
@@ -239,6 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Design unknown-input observers from a TOML problem file, certify them, and ship them "
                     "as FMI 2.0 Co-Simulation FMUs.")
     from . import __version__
+    from .registry import summary
     parser.add_argument("--version", action="version", version=f"uiofmu {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     parser.commands = sub.choices
@@ -258,7 +260,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "at the stored matrices, and write the design card (JSON). A tunable set to "
                                    "\"max\" is searched from the limit the existence analysis gives. Prints the "
                                    "bounds, the search and where the time went (CLARABEL, LMI assembly, the rest); "
-                                   "the card keeps the times under \"timing\".")
+                                   "the card keeps the times under \"timing\". Families (observer.family): "
+                                   f"{summary()}.")
     p.add_argument("problem", help="problem file (TOML) or a plants/NAME folder")
     p.add_argument("-o", "--output", metavar="DESIGN.json", help="card path (default: NAME.design.json)")
     p.set_defaults(func=_cmd_design)
@@ -266,7 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("build", help="pack a design card as an FMI 2.0 Co-Simulation FMU",
                        description="Pack the observer of a design card as an FMI 2.0 Co-Simulation FMU with inputs "
                                    "y[i], u[i], outputs xhat[i], r[i] (and dhat[i]), parameter xhat0[i] (and "
-                                   "h_prev0 for sampled-data observers).")
+                                   "h_prev0 for observers scheduled on design intervals).")
     p.add_argument("design", help="design card (JSON) from `uiofmu design`")
     p.add_argument("-o", "--output", metavar="OBS.fmu", help="FMU path (default: NAME_observer.fmu)")
     p.add_argument("--backend", choices=["c", "python"],
@@ -326,8 +329,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=_cmd_validate)
 
-    p = sub.add_parser("demo", help="the main job: two-room building, sampled-data UIO, packet drop-outs",
-                       description="Design the sampled-data UIO of the two-room building (seed 004) with the "
+    p = sub.add_parser("demo", help="the main job: two-room building (seed 004), packet drop-outs",
+                       description="Design the observer of the two-room building (seed 004, its problem file) with the "
                                    "largest certified decay, build observer and plant FMUs, co-simulate two days "
                                    "with random packet drop-outs and report measured against certified convergence.")
     p.add_argument("--out", default="out/demo", metavar="DIR", help="output folder (default out/demo)")

@@ -22,6 +22,44 @@ import scipy.sparse as sp
 
 SQRT2 = math.sqrt(2.0)
 
+#: CLARABEL's statuses in cvxpy's words, as cvxpy's CLARABEL interface names them, so that both
+#: backends of :class:`uiofmu.lmi.LmiSystem` report the same status. "Almost" answers are
+#: cvxpy's ``*_inaccurate`` (not a proof); a status CLARABEL adds later is a ``solver_error``.
+CLARABEL_STATUS = {
+    "Solved": "optimal",
+    "AlmostSolved": "optimal_inaccurate",
+    "PrimalInfeasible": "infeasible",
+    "AlmostPrimalInfeasible": "infeasible_inaccurate",
+    "DualInfeasible": "unbounded",
+    "AlmostDualInfeasible": "unbounded_inaccurate",
+    "MaxIterations": "user_limit",
+    "MaxTime": "user_limit",
+    "NumericalError": "solver_error",
+    "InsufficientProgress": "solver_error",
+    "Unsolved": "solver_error",
+}
+
+
+def cvxpy_status(clarabel_status) -> str:
+    """CLARABEL's status in cvxpy's vocabulary (see :data:`CLARABEL_STATUS`).
+
+    Parameters
+    ----------
+    clarabel_status : clarabel.SolverStatus or str
+        The status of a CLARABEL solution.
+
+    Returns
+    -------
+    str
+        ``optimal``, ``optimal_inaccurate``, ``infeasible``, ``infeasible_inaccurate``,
+        ``unbounded``, ``unbounded_inaccurate`` or ``user_limit``; a solver error is
+        ``"solver_error: CLARABEL answered NAME"`` (as the cvxpy backend prefixes its
+        ``SolverError``).
+    """
+    name = str(clarabel_status).removeprefix("SolverStatus.")
+    status = CLARABEL_STATUS.get(name, "solver_error")
+    return f"solver_error: CLARABEL answered {name}" if status == "solver_error" else status
+
 
 class ParamAffine:
     """``const + sum_p coef_p * p``: a scalar affine in the parameters."""
@@ -362,7 +400,7 @@ class ConicProblem:
         t0 = time.perf_counter()                      # CLARABEL's own time: its setup and its solve
         sol = clarabel.DefaultSolver(self.P, self.q, A, b, self.cones, settings).solve()
         solver_time = time.perf_counter() - t0
-        status = {"Solved": "optimal", "AlmostSolved": "optimal_inaccurate"}.get(str(sol.status), str(sol.status))
+        status = cvxpy_status(sol.status)
         if status not in ("optimal", "optimal_inaccurate"):
             return None, status, solver_time
         return self.unpack(np.array(sol.x)), status, solver_time

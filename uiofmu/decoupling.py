@@ -120,8 +120,9 @@ def weak_modes_condition(A, E, C, where: str = "", rank_rtol: float = RANK_RTOL,
                          f"the weakest placeable mode {format_complex([weakest]) or f'{weakest.real:.6g}'}{where} has "
                          f"PBH margin {margin:.3g} (gains of order {1 / margin:.3g} move it)", values)
     return Condition("well observable modes", False, False,
-                     f"the mode {format_complex([weakest]) or f'{weakest.real:.6g}'} of ((I+MC)A, C){where} is placeable "
-                     f"only with gains of order 1/margin = {1 / margin:.3g} (PBH margin {margin:.3g} < {weak_margin:g}): "
+                     f"the mode {format_complex([weakest]) or f'{weakest.real:.6g}'} of ((I+MC)A, C){where} is "
+                     f"placeable only with gains of order 1/margin = {1 / margin:.3g} "
+                     f"(PBH margin {margin:.3g} < {weak_margin:g}): "
                      "designs may fail numerically or need very large gains; a slower decay or rescaled units help",
                      values)
 

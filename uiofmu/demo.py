@@ -1,8 +1,9 @@
 """The main job, ``uiofmu demo``: the two-room building of seed 004 with packet drop-outs.
 
-Design the sampled-data UIO with the largest certified decay, build the observer and plant
-FMUs, co-simulate them with random drop-outs (nominal 10 min sampling, each sample lost with
-probability 0.3, at most 11 in a row) over two simulated days, and report.
+Design the observer of the building's problem file (``plants/two_room_building``) with the
+largest certified decay, build the observer and plant FMUs, co-simulate them with random
+drop-outs (nominal 10 min sampling, each sample lost with probability 0.3, at most 11 in a
+row) over two simulated days, and report.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ def run_demo(out, say=print) -> dict:
     say(f"  FMUs                 {obs}, {plant}")
     steps = step_sequence(DEMO_STEPS, DEMO_T_END, seed=DEMO_SEED)
     result = cosimulate(plant, obs, steps)
-    paths = write_outputs(result, out, title=f"{problem.name}: sampled-data UIO under packet drop-outs "
+    paths = write_outputs(result, out, title=f"{problem.name}: {problem.family} observer under packet drop-outs "
                                               f"({DEMO_STEPS}, seed {DEMO_SEED})")
     from .cli import print_summary
 

@@ -22,7 +22,8 @@ from .plant import Plant
 from .text import fill_template, identifier, py_string
 
 #: The modules an FMU carries: the runtime and what it imports (numpy only).
-RUNTIME_MODULES = ("card", "errors", "files", "text", "matrices", "schedules", "state", "tolerances", "runtime",
+RUNTIME_MODULES = ("card", "errors", "files", "text", "matrices", "registry", "schedules", "state", "tolerances",
+                   "runtime",
                    "plant_runtime", "fmu_model", "mujoco_runtime")
 BACKENDS = ("c", "python")
 

@@ -119,7 +119,8 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
               f"    .dt = {_double(dt, 'schedule.dt')}, .alpha = {_double(sched.get('alpha', 0.0), 'schedule.alpha')}, "
               f".h_prev0 = {_double(sched.get('h_prev0', dt), 'schedule.h_prev0')}, "
               f".step_rtol = {_double(sched.get('step_rtol', STEP_RTOL), 'schedule.step_rtol')},",
-              f"    .nintervals = {len(intervals)}, .intervals = intervals, .intervals_length = UIOFMU_LENGTH(intervals),",
+              f"    .nintervals = {len(intervals)}, .intervals = intervals, "
+              ".intervals_length = UIOFMU_LENGTH(intervals),",
               "    .xhat0 = xhat0, .xhat0_length = UIOFMU_LENGTH(xhat0),",
               "    .mat = {", *fields, "    },", "};", ""]
     return "\n".join(lines)
@@ -215,7 +216,8 @@ def build_c_observer(card: Card, output, identifier: str, call_floor: bool = Fal
         lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64",
                              ["-DUIOFMU_CALL_FLOOR"] if call_floor else [])
         with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
-            z.writestr("modelDescription.xml", model_description(card, guid, identifier, ["observer.c", "design_data.c"]))
+            sources = ["observer.c", "design_data.c"]
+            z.writestr("modelDescription.xml", model_description(card, guid, identifier, sources))
             z.write(lib, f"binaries/linux64/{identifier}.so")
             for f in sorted(src.iterdir()):
                 z.write(f, f"sources/{f.name}")

@@ -60,7 +60,8 @@ class CsvInputs:
         for j, name in enumerate(header[1:], start=1):
             m_ = re.fullmatch(r"(u|d|mode|theta)\[([1-9]\d{0,8})\]|(mode)", name)
             if not m_:
-                raise ProblemError(f"--inputs {path}: unknown column {name[:60]!r} (expected u[i], d[i], mode, theta[i])")
+                raise ProblemError(f"--inputs {path}: unknown column {name[:60]!r} "
+                                   "(expected u[i], d[i], mode, theta[i])")
             kind, idx = (m_.group(1), int(m_.group(2))) if m_.group(1) else ("mode", 1)
             limit = {"u": m, "d": q}.get(kind)
             if limit is not None and not 1 <= idx <= limit:

@@ -46,7 +46,7 @@ class Lmi:
 
 
 #: Solver statuses that prove infeasibility; any other failure is numerical.
-INFEASIBLE = ("infeasible", "PrimalInfeasible")
+INFEASIBLE = ("infeasible",)
 
 
 class NumericalDesignError(InfeasibleError):
@@ -182,7 +182,7 @@ class LmiSystem:
     Parameters
     ----------
     name : str
-        Shown in messages (e.g. ``"lti-uio decay"``).
+        Shown in messages (e.g. ``"my-family decay"``).
     variables : dict
         ``name -> ("symmetric", n) | ("matrix", (rows, cols)) | ("scalar",)``.
     parameters : dict

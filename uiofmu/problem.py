@@ -11,19 +11,15 @@ import copy
 from dataclasses import dataclass
 from pathlib import Path
 
-from .card import FAMILY_NAMES
 from .errors import ProblemError
 from .files import parse_toml, read_text
 from .matrices import as_scalar, as_vector
 from .plant import Plant
+from .registry import AVAILABLE, KNOWN
 from .signals import Signal, parse_signals
 from .text import MAX_NAME, check_name
 
 _MISSING = object()
-
-#: Every family of the product.
-KNOWN_FAMILIES = FAMILY_NAMES
-
 
 class Table:
     """Read one TOML table key by key; :meth:`done` rejects the keys nobody read.
@@ -105,7 +101,7 @@ class Problem:
         Used for FMU model names.
     plant : Plant
     family : str
-        One of :data:`KNOWN_FAMILIES`.
+        One of :data:`uiofmu.registry.KNOWN`.
     options : object
         The family's frozen options (see the family module).
     u, d : tuple of Signal
@@ -157,8 +153,9 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     pt.done()
     ot = Table(top.get("observer"), "observer")
     family = ot.get("family")
-    if not isinstance(family, str) or family not in KNOWN_FAMILIES:
-        raise ProblemError(f"observer.family: unknown family {family!r} (families: {', '.join(KNOWN_FAMILIES)})")
+    if not isinstance(family, str):
+        raise ProblemError(f"observer.family: expected a family name, found {type(family).__name__} "
+                           f"(families: {', '.join(KNOWN)})")
     module = available_family(family)
     options = module.parse_options(ot, plant)
     ot.done()
@@ -171,8 +168,7 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
 
 
 def _available() -> list[str]:
-    from .families import FAMILIES
-    return sorted(FAMILIES)
+    return sorted(AVAILABLE)
 
 
 def load_problem(path) -> Problem:

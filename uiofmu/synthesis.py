@@ -12,7 +12,7 @@ from . import __version__
 from .card import FORMAT, VERSION, Card, card_from_data, to_lists
 from .errors import CardError, InfeasibleError, NumericalError
 from .existence import Existence
-from .families import available_family
+from .families import DesignResult, available_family
 from .problem import Problem
 from .tolerances import LMI_MARGIN
 
@@ -32,11 +32,15 @@ def _numerics(problem: Problem, stage: str):
 def check(problem: Problem) -> Existence:
     """Existence analysis of the problem's family (``uiofmu check``)."""
     with _numerics(problem, "existence analysis"):
-        return available_family(problem.family).check(problem)
+        return available_family(problem.family).analyse(problem).existence
 
 
 def design(problem: Problem) -> Card:
-    """Solve the family's design, verify its certificate, return the card (``uiofmu design``).
+    """Analyse, solve the family's design, verify its certificate, return the card (``uiofmu design``).
+
+    The skeleton every family shares: the existence analysis must hold, the family designs
+    (:class:`~uiofmu.families.DesignResult`), a failure is completed with what makes the
+    problem hard, and the card is assembled and timed here.
 
     Raises
     ------
@@ -46,14 +50,18 @@ def design(problem: Problem) -> Card:
         When the LMIs are infeasible or the certificate does not verify.
     """
     family = available_family(problem.family)
+    started = time.perf_counter()
     with _numerics(problem, "design"):
+        analysis = family.analyse(problem)
+        analysis.existence.require()
         try:
-            return family.design(problem)
+            result = family.design(problem, analysis)
         except InfeasibleError as exc:
-            notes = _tight_spots(family.check(problem).conditions)
+            notes = _tight_spots(analysis.existence.conditions)
             if not notes:
                 raise
             raise type(exc)(f"{exc}. " + ". ".join(n[0].upper() + n[1:] for n in notes)) from None
+    return assemble_card(problem, result, analysis.existence, started)
 
 
 #: A decay limit this close to its bound leaves the LMIs' margins almost no room.
@@ -119,32 +127,16 @@ def recheck(card: Card) -> None:
                         (f" (and {len(failed) - 1} more check(s))" if len(failed) > 1 else ""))
 
 
-def assemble_card(problem: Problem, *, nz: int, dt: float | None, schedule: dict, matrices: dict,
-                  certificate: dict, xhat0, results: dict, existence: Existence, lmi, started: float) -> Card:
+def assemble_card(problem: Problem, result: DesignResult, existence: Existence, started: float) -> Card:
     """The design card of a finished design (shared by every family).
 
     Parameters
     ----------
     problem : Problem
-    nz : int
-        Dimension of the observer's internal state ``z``.
-    dt : float or None
-        Design period.
-    schedule : dict
-        The runtime schedule entry (``kind`` and its data).
-    matrices : dict
-        Runtime matrices (see :data:`uiofmu.card.RUNTIME_SHAPES`) plus family matrices
-        users look at.
-    certificate : dict
-        From :func:`uiofmu.certificate.certificate`.
-    xhat0 : array_like
-        Initial estimate.
-    results : dict
-        Family results at top level (``invariant_zeros``, ``decay_bound``, ...).
+    result : DesignResult
+        The family's design.
     existence : Existence
         The existence analysis the design passed.
-    lmi : LmiSystem
-        The design's LMI system (its assembly time, solves and solver time go to ``timing``).
     started : float
         ``time.perf_counter()`` when the design started (``timing.total_s`` ends here).
 
@@ -152,22 +144,22 @@ def assemble_card(problem: Problem, *, nz: int, dt: float | None, schedule: dict
     -------
     Card
     """
-    plant = problem.plant
+    plant, lmi = problem.plant, result.lmi
     data = {
         "format": FORMAT,
         "version": VERSION,
         "family": problem.family,
         "name": problem.name,
         "generator": f"uiofmu {__version__} (python {platform.python_version()})",
-        "dims": {"n": plant.n, "m": plant.m, "p": plant.p, "q": plant.q, "nz": nz},
+        "dims": {"n": plant.n, "m": plant.m, "p": plant.p, "q": plant.q, "nz": result.nz},
         "time": plant.time,
-        "dt": dt,
-        "schedule": schedule,
-        "initial": {"xhat0": to_lists(xhat0)},
-        **to_lists(results),
+        "dt": result.dt,
+        "schedule": result.schedule,
+        "initial": {"xhat0": to_lists(np.zeros(plant.n) if result.xhat0 is None else result.xhat0)},
+        **to_lists(result.results),
         "existence": to_lists(existence.to_data()),
-        "matrices": to_lists(matrices),
-        "certificate": to_lists(certificate),
+        "matrices": to_lists(result.matrices),
+        "certificate": to_lists(result.certificate),
         "problem": problem.data,
         "timing": {"total_s": time.perf_counter() - started, "lmi_assembly_s": lmi.assembly_time,
                    "solver_s": lmi.solver_time, "solves": lmi.solves, "backend": lmi.backend},

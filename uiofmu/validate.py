@@ -3,6 +3,13 @@
 An observer FMU is run side by side with the reference runtime (:class:`uiofmu.runtime.Runtime`)
 on random inputs and a random sequence of the steps its schedule admits; a plant FMU against
 the exact discretisation of its plant (scipy's matrix exponential) on random steps.
+
+The relative difference divides by one scale for the whole run: the largest absolute
+difference over every sample and every output channel, divided by
+``max(1, largest |reference value| over every sample and every output channel)``. One
+scale means the largest difference is judged against the size of the outputs over the run
+(a difference at a sample where the outputs happen to be small is not inflated), and the
+floor 1 makes outputs near zero compared absolutely.
 """
 
 from __future__ import annotations
@@ -25,7 +32,13 @@ PLANT_RTOL = 1e-9
 
 @dataclass
 class Validation:
-    """The outcome of :func:`validate`."""
+    """The outcome of :func:`validate`.
+
+    ``max_abs_diff`` is the largest absolute difference between FMU and reference over the
+    run (every sample, every output channel); ``scale`` is ``max(1, largest |reference
+    value|)`` over the same run; ``max_rel_diff = max_abs_diff / scale``, one scale for the
+    whole run, is what ``tolerance`` bounds.
+    """
 
     path: str
     kind: str
@@ -34,6 +47,7 @@ class Validation:
     max_abs_diff: float = 0.0
     max_rel_diff: float = 0.0
     tolerance: float = EQUALITY_RTOL
+    scale: float = 1.0
 
     @property
     def ok(self) -> bool:
@@ -43,15 +57,22 @@ class Validation:
     def to_data(self) -> dict:
         """JSON-ready form."""
         return {"path": self.path, "kind": self.kind, "problems": self.problems, "steps": self.steps,
-                "max_abs_diff": self.max_abs_diff, "max_rel_diff": self.max_rel_diff,
+                "max_abs_diff": self.max_abs_diff, "max_rel_diff": self.max_rel_diff, "scale": self.scale,
                 "tolerance": self.tolerance, "ok": self.ok}
 
 
 def _compare(report: Validation, got: np.ndarray, ref: np.ndarray) -> None:
-    diff = np.abs(got - ref)
-    scale = max(1.0, float(np.abs(ref).max()) if ref.size else 1.0)
-    report.max_abs_diff = max(report.max_abs_diff, float(diff.max()) if diff.size else 0.0)
-    report.max_rel_diff = max(report.max_rel_diff, report.max_abs_diff / scale)
+    """Fold one sample into the run's largest difference and its one scale (see the module).
+
+    A NaN difference counts as infinite (``max`` would drop it); the scale takes only finite
+    reference values."""
+    got, ref = np.asarray(got, dtype=float), np.asarray(ref, dtype=float)
+    if ref.size:
+        diff = np.abs(got - ref)
+        report.max_abs_diff = max(report.max_abs_diff, float(np.where(np.isnan(diff), np.inf, diff).max()))
+        finite = np.abs(ref[np.isfinite(ref)])
+        report.scale = max(report.scale, float(finite.max()) if finite.size else 1.0)
+    report.max_rel_diff = report.max_abs_diff / report.scale
 
 
 def _observer(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
@@ -144,7 +165,9 @@ def validate(path, steps: int = 200, seed: int = 0) -> Validation:
     Returns
     -------
     Validation
-        ``problems`` lists what fmpy's ``validate_fmu`` found and any refused call.
+        ``problems`` lists what fmpy's ``validate_fmu`` found and any refused call;
+        ``max_rel_diff`` is the run's largest absolute difference divided by one scale for the
+        whole run, ``max(1, largest |reference value|)`` over every sample and channel.
     """
     from fmpy.validation import validate_fmu
 

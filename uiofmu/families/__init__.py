@@ -1,24 +1,83 @@
-"""Observer families. Each module provides the same three functions:
+"""Observer families: one module each, all with the same contract.
 
+A family module (named in :data:`uiofmu.registry.FAMILIES`) provides:
+
+``NAME``
+    Its name (the registry's key).
 ``parse_options(table, plant)``
     Read the family's keys of ``[observer]`` into a frozen options object.
-``check(problem)``
-    The existence analysis, an :class:`~uiofmu.existence.Existence`.
-``design(problem)``
-    Solve, verify and return a :class:`~uiofmu.card.Card`.
+``analyse(problem) -> Analysis``
+    The existence analysis, and whatever of it the design reuses.
+``design(problem, analysis) -> DesignResult``
+    Solve and certify (``analysis.existence`` holds); :func:`uiofmu.synthesis.design` times
+    it, fills in the defaults and assembles the card.
+``verify(card) -> list of Check``
+    The certificate's checks at a card's stored matrices, without any solver.
+``certified_bound(card, e0, d)`` (optional)
+    The bound on ``||e_k||`` of a run, when it is not ``overshoot * decay**k * ||e_0||``.
 
-Families differ in how they design matrices and how the schedule picks them, never in
-how the runtime steps.
+Families differ in how they design matrices and how the schedule picks them, never in how
+the runtime steps.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from importlib import import_module
 
 from ..errors import CardError, ProblemError
+from ..existence import Existence
+from ..registry import AVAILABLE, FAMILIES, KNOWN
 
-#: Families available in this version, and their modules.
-FAMILIES = {"lti-uio": "lti_uio", "sampled-data": "sampled_data", "ltv-auid": "ltv_auid"}
+
+@dataclass(frozen=True)
+class Analysis:
+    """What :func:`analyse` found: the existence report and the family's own findings.
+
+    Attributes
+    ----------
+    existence : Existence
+    data : dict
+        Whatever of the analysis the design reuses (sampled plants, fixed modes, limits).
+    """
+
+    existence: Existence
+    data: dict = field(default_factory=dict)
+
+
+@dataclass
+class DesignResult:
+    """A family's finished design, before it becomes a card.
+
+    Attributes
+    ----------
+    nz : int
+        Dimension of the observer's internal state ``z``.
+    dt : float or None
+        Design period (None for interval schedules).
+    schedule : dict
+        The runtime schedule entry (``kind`` and its data).
+    matrices : dict
+        Runtime matrices (see :data:`uiofmu.card.RUNTIME_SHAPES`) plus the family matrices
+        users look at and its checks use.
+    certificate : dict
+        From :func:`uiofmu.certificate.certificate`.
+    results : dict
+        Family results at the card's top level (``decay_bound``, ``overshoot_bound``, ...).
+    lmi : LmiSystem
+        The design's LMI system (its assembly time, solves and solver time go to ``timing``).
+    xhat0 : array_like or None
+        Initial estimate (None: zeros).
+    """
+
+    nz: int
+    dt: float | None
+    schedule: dict
+    matrices: dict
+    certificate: dict
+    results: dict
+    lmi: object
+    xhat0: object = None
 
 
 def available_family(name: str, key: str = "observer.family"):
@@ -38,14 +97,16 @@ def available_family(name: str, key: str = "observer.family"):
     Raises
     ------
     ProblemError
-        For a family that is not available in this version (a card's family: CardError).
+        For a family that is unknown or not available in this version (a card's family:
+        CardError).
     """
-    if name not in FAMILIES:
-        error = CardError if key.startswith("design card") else ProblemError
+    error = CardError if key.startswith("design card") else ProblemError
+    if name not in KNOWN:
+        raise error(f"{key}: unknown family {name!r} (families: {', '.join(KNOWN)})")
+    if name not in AVAILABLE:
         raise error(f"{key}: {name!r} is not available in this version of uiofmu "
-                    f"(available: {', '.join(sorted(FAMILIES))})")
-    return import_module(f"{__name__}.{FAMILIES[name]}")
-
+                    f"(available: {', '.join(sorted(AVAILABLE))})")
+    return import_module(f"{__name__}.{FAMILIES[name].module}")
 
 
 def certified_bound(card, e0, d):

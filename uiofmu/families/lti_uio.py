@@ -31,21 +31,38 @@ certified it.
 
 from __future__ import annotations
 
-import time
 import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..certificate import certificate, decay_check, identity_check, lyapunov_check, positive_check
-from ..decoupling import decoupling_gain, detectable, parse_period, sampled_decoupling_conditions
-from ..existence import Condition, Existence, complex_list
+from ..certificate import (
+    certificate,
+    decay_check,
+    identity_check,
+    lyapunov_check,
+    positive_check,
+)
+from ..decoupling import (
+    decoupling_gain,
+    detectable,
+    parse_period,
+    sampled_decoupling_conditions,
+)
 from ..errors import InfeasibleError, ProblemError
+from ..existence import Condition, Existence, complex_list
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
-from ..scaling import SCALINGS, lyapunov_back, product_back, scaled_output, state_scaling
+from ..scaling import (
+    SCALINGS,
+    lyapunov_back,
+    product_back,
+    scaled_output,
+    state_scaling,
+)
 from ..scaling import to_data as scaling_data
 from ..structure import decay_gain
 from ..tolerances import SEARCH_TOL, ZERO_MARGIN
+from . import Analysis, DesignResult
 
 NAME = "lti-uio"
 
@@ -111,9 +128,10 @@ def _analysis(problem):
     return Existence(NAME, tuple(conds)), s, fixed
 
 
-def check(problem) -> Existence:
+def analyse(problem) -> Analysis:
     """Rank condition, invariant zeros, detectability of ((I+MC)A, C), requested decay."""
-    return _analysis(problem)[0]
+    existence, s, fixed = _analysis(problem)
+    return Analysis(existence, {"sampled": s, "fixed": fixed})
 
 
 def _lmis(PA, C):
@@ -219,13 +237,9 @@ def _tuned(PA, C, t, largest: float, opts: Options, name: str) -> tuple[Tuned, s
             raise type(exc)(f"{exc}; the solver-free fallback fails too: {fallback}") from None
 
 
-def design(problem):
-    """Design the classical UIO and return its verified card."""
-    from ..synthesis import assemble_card
-
-    started = time.perf_counter()
-    existence, s, fixed = _analysis(problem)
-    existence.require()
+def design(problem, analysis: Analysis) -> DesignResult:
+    """Design the classical UIO: its gain, certificate and runtime matrices."""
+    existence, s, fixed = analysis.existence, analysis.data["sampled"], analysis.data["fixed"]
     plant, opts = problem.plant, problem.options
     C = plant.C
     M = decoupling_gain(C, s.E)
@@ -264,8 +278,5 @@ def design(problem):
         "design_method": method,
         "scaling": scaling_data(t if method == "lmi" else np.ones(plant.n), opts.scaling),
     }
-    xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(plant.n)
     schedule = {"kind": "constant", "dt": opts.dt, "step_policy": "error"}
-    return assemble_card(problem, nz=plant.n, dt=opts.dt, schedule=schedule, matrices=matrices,
-                         certificate=cert, xhat0=xhat0, results=results, existence=existence,
-                         lmi=system, started=started)
+    return DesignResult(plant.n, opts.dt, schedule, matrices, cert, results, system, opts.xhat0)

@@ -28,18 +28,29 @@ both vertices; ``N' X N`` is matrix-convex in ``N``, so ``N_k' X N_k < (1 - eta_
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import certificate, decay_check, identity_check, lyapunov_check, positive_check
-from ..decoupling import decoupling_gain, detectable, parse_period, sampled_decoupling_conditions
+from ..certificate import (
+    certificate,
+    decay_check,
+    identity_check,
+    lyapunov_check,
+    positive_check,
+)
+from ..decoupling import (
+    decoupling_gain,
+    detectable,
+    parse_period,
+    sampled_decoupling_conditions,
+)
 from ..errors import ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSystem, tune
 from ..structure import unobservable_modes
 from ..tolerances import SEARCH_TOL, ZERO_MARGIN
+from . import Analysis, DesignResult
 
 NAME = "ltv-auid"
 
@@ -130,9 +141,10 @@ def _analysis(problem):
     return Existence(NAME, tuple(conds)), s, fixed, info
 
 
-def check(problem) -> Existence:
+def analyse(problem) -> Analysis:
     """The classical conditions, the zero limit on eta and the transient vertex's limit on mu."""
-    return _analysis(problem)[0]
+    existence, s, fixed, info = _analysis(problem)
+    return Analysis(existence, {"sampled": s, "fixed": fixed, "info": info})
 
 
 def _lmis(A1, A2, S1, C, eta):
@@ -241,13 +253,10 @@ def certified_bound(card, e0, d) -> np.ndarray:
     return b / np.sqrt(lo)
 
 
-def design(problem):
-    """Design the LTV observer (procedure steps 1-9, Theorem 2) and return its verified card."""
-    from ..synthesis import assemble_card
-
-    started = time.perf_counter()
-    existence, s, fixed, info = _analysis(problem)
-    existence.require()
+def design(problem, analysis: Analysis) -> DesignResult:
+    """Design the LTV observer (procedure steps 1-9, Theorem 2)."""
+    existence, s, fixed, info = (analysis.existence, analysis.data["sampled"], analysis.data["fixed"],
+                                 analysis.data["info"])
     plant, opts = problem.plant, problem.options
     C = plant.C
     M, A1, A2, S1 = _vertices(s, C, opts.alpha)
@@ -287,8 +296,5 @@ def design(problem):
         "norm_MCE": float(np.linalg.norm(M @ C @ s.E, 2)),
         "search": searched,
     })
-    xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(plant.n)
     schedule = {"kind": "geometric", "alpha": opts.alpha, "dt": opts.dt, "step_policy": opts.step_policy}
-    return assemble_card(problem, nz=plant.n, dt=opts.dt, schedule=schedule, matrices=matrices,
-                         certificate=cert, xhat0=xhat0, results=results, existence=existence,
-                         lmi=system, started=started)
+    return DesignResult(plant.n, opts.dt, schedule, matrices, cert, results, system, opts.xhat0)

@@ -32,22 +32,47 @@ No exactly-decoupling observer converges faster than the sampled invariant zeros
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import Check, certificate, decay_check, identity_check, positive_check
-from ..decoupling import (fixed_modes_condition, identifiability_condition, rank_condition, weak_modes_condition,
-                          zeros_condition)
+from ..card import MAX_INTERVALS
+from ..certificate import (
+    Check,
+    certificate,
+    decay_check,
+    identity_check,
+    positive_check,
+)
+from ..decoupling import (
+    fixed_modes_condition,
+    identifiability_condition,
+    rank_condition,
+    weak_modes_condition,
+    zeros_condition,
+)
 from ..errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list
 from ..lmi import Lmi, LmiSystem, tune
-from ..card import MAX_INTERVALS
-from ..scaling import SCALINGS, lyapunov_back, product_back, scaled_output, scaled_step, state_scaling
+from ..scaling import (
+    SCALINGS,
+    lyapunov_back,
+    product_back,
+    scaled_output,
+    scaled_step,
+    state_scaling,
+)
 from ..scaling import to_data as scaling_data
 from ..schedules import STEP_POLICIES
-from ..tolerances import IDENTITY_RTOL, LMI_MARGIN, SEARCH_TOL, STEP_RTOL, VERIFY_FRACTION, ZERO_MARGIN
+from ..tolerances import (
+    IDENTITY_RTOL,
+    LMI_MARGIN,
+    SEARCH_TOL,
+    STEP_RTOL,
+    VERIFY_FRACTION,
+    ZERO_MARGIN,
+)
+from . import Analysis, DesignResult
 
 NAME = "sampled-data"
 
@@ -180,9 +205,10 @@ def _analysis(problem):
     return Existence(NAME, tuple(conds)), samples, zmax
 
 
-def check(problem) -> Existence:
+def analyse(problem) -> Analysis:
     """Rank conditions, sampled invariant zeros and the decay they allow, for every interval."""
-    return _analysis(problem)[0]
+    existence, samples, zmax = _analysis(problem)
+    return Analysis(existence, {"samples": samples, "largest_zero": zmax})
 
 
 def _lmis(samples, C):
@@ -347,13 +373,9 @@ def _interval_diagnosis(samples, C, t, intervals, alpha: float) -> str:
             "narrow the range")
 
 
-def design(problem):
-    """Design the sampled-data UIO (Corollary 2) and return its verified card."""
-    from ..synthesis import assemble_card
-
-    started = time.perf_counter()
-    existence, samples, zmax = _analysis(problem)
-    existence.require()
+def design(problem, analysis: Analysis) -> DesignResult:
+    """Design the sampled-data UIO (Corollary 2)."""
+    existence, samples, zmax = analysis.existence, analysis.data["samples"], analysis.data["largest_zero"]
     plant, opts = problem.plant, problem.options
     C, n, N = plant.C, plant.n, len(opts.intervals)
     t = state_scaling(plant.A, opts.scaling)
@@ -382,6 +404,7 @@ def design(problem):
     cert = certificate(sol, checks(matrices, decay), f"{NAME} design of {problem.name}")
     eig = np.array([np.linalg.eigvalsh(P) for P in Pl])
     zeros = existence.value("stable sampled invariant zeros", "per_interval")
+    diagonal = matrices["N"][np.arange(N), np.arange(N)]            # L_ii: a constant interval
     results = {
         "alpha": alpha,
         "decay_bound": decay,
@@ -396,11 +419,8 @@ def design(problem):
         "search": searched,
         "scaling": scaling_data(t, opts.scaling),
         "spectral_radius_max": float(np.abs(np.linalg.eigvals(matrices["N"])).max()),
-        "eigenvalues_L_constant": [complex_list(e) for e in np.linalg.eigvals(matrices["N"][np.arange(N), np.arange(N)])],
+        "eigenvalues_L_constant": [complex_list(e) for e in np.linalg.eigvals(diagonal)],
     }
-    xhat0 = opts.xhat0 if opts.xhat0 is not None else np.zeros(n)
     schedule = {"kind": "interval", "intervals": list(opts.intervals), "h_prev0": opts.h_prev0,
                 "step_policy": opts.step_policy, "step_rtol": STEP_RTOL}
-    return assemble_card(problem, nz=n, dt=None, schedule=schedule, matrices=matrices,
-                         certificate=cert, xhat0=xhat0, results=results, existence=existence,
-                         lmi=system, started=started)
+    return DesignResult(n, None, schedule, matrices, cert, results, system, opts.xhat0)

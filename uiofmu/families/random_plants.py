@@ -300,7 +300,7 @@ def _balanced(A, E, C):
 def _zeros_match(A, E, C, built, discrete) -> bool:
     """Whether the invariant zeros of (A, E, C) are the built-in ones: each within 1e-6
     (relative) and within 1 % of its distance to the stability limit."""
-    from .structure import invariant_zeros
+    from ..structure import invariant_zeros
 
     z = invariant_zeros(A, E, C)
     if len(z) != len(built):
