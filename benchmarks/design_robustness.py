@@ -67,7 +67,7 @@ if str(ROOT) not in sys.path:
 import numpy as np  # noqa: E402
 
 import uiofmu  # noqa: E402
-from uiofmu.errors import CardError, InfeasibleError, NoObserverError, UserError  # noqa: E402
+from uiofmu.runtime.errors import CardError, InfeasibleError, NoObserverError, UserError  # noqa: E402
 from uiofmu.problem import problem_from_data, to_toml  # noqa: E402
 from uiofmu.families.random_plants import (FAMILY_CODES, SEARCHED, campaign_draws, fixed_values,  # noqa: E402
                                   with_value)
@@ -301,8 +301,8 @@ def simulate(card, problem, rng, steps: int = SIM_STEPS) -> dict:
         ``bound`` None when the card certifies none.
     """
     from uiofmu.families import certified_bound
-    from uiofmu.runtime import Runtime
-    from uiofmu.schedules import make_schedule
+    from uiofmu.runtime.observer import Runtime
+    from uiofmu.runtime.schedules import make_schedule
 
     plant = problem.plant
     n, q, m = plant.n, plant.q, plant.m

@@ -29,9 +29,9 @@ import numpy as np  # noqa: E402
 from fmpy import read_model_description  # noqa: E402
 
 import uiofmu  # noqa: E402
-from uiofmu.export import build_observer, model_identifier  # noqa: E402
-from uiofmu.export_c import build_c_observer, build_host  # noqa: E402
-from uiofmu.fmi import Fmu  # noqa: E402
+from uiofmu.fmu.export import build_observer, model_identifier  # noqa: E402
+from uiofmu.fmu.c_backend import build_c_observer, build_host  # noqa: E402
+from uiofmu.cosim.fmi import Fmu  # noqa: E402
 
 
 def via_fmpy(path, steps, n):

@@ -18,7 +18,7 @@ OUT = Path(os.environ.get("UIOFMU_EXAMPLES_OUT") or ROOT / "examples" / "out").r
 def design_and_build(problem_path, out: Path):
     """Design a problem, build its observer and plant FMUs; return (problem, card, observer, plant)."""
     import uiofmu
-    from uiofmu.export import build_observer, build_plant
+    from uiofmu.fmu.export import build_observer, build_plant
 
     problem = uiofmu.load_problem(problem_path)
     card = uiofmu.design(problem)

@@ -25,12 +25,12 @@ def main():
     import matplotlib.pyplot as plt
 
     import uiofmu
-    from uiofmu.cosim import cosimulate, write_outputs
-    from uiofmu.export import build_observer
+    from uiofmu.cosim.master import cosimulate, write_outputs
+    from uiofmu.fmu.export import build_observer
     from uiofmu.mujoco_plant import build_mujoco_plant, linearize, load_spec, problem_document
     from uiofmu.problem import to_toml
     from uiofmu.problem import problem_from_data
-    from uiofmu.steps import step_sequence
+    from uiofmu.cosim.steps import step_sequence
 
     out = OUT / "quarter_car"
     out.mkdir(parents=True, exist_ok=True)

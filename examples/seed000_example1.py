@@ -20,8 +20,8 @@ def main():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from uiofmu.cosim import cosimulate, write_outputs
-    from uiofmu.steps import step_sequence
+    from uiofmu.cosim.master import cosimulate, write_outputs
+    from uiofmu.cosim.steps import step_sequence
 
     out = OUT / "seed000_example1"
     problem, card, obs, plant = design_and_build(ROOT / "examples" / "seed000_example1.toml", out)

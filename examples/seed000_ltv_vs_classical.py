@@ -25,7 +25,7 @@ EX = ROOT / "examples"
 
 
 def run(plant, obs, steps, out, title):
-    from uiofmu.cosim import cosimulate, write_outputs
+    from uiofmu.cosim.master import cosimulate, write_outputs
 
     result = cosimulate(plant, obs, steps)
     write_outputs(result, out, title=title)
@@ -34,7 +34,7 @@ def run(plant, obs, steps, out, title):
 
 def eigen_trace(card, ks):
     """Eigenvalues of N_k over k, from the runtime's own schedule."""
-    from uiofmu.runtime import Runtime
+    from uiofmu.runtime.observer import Runtime
 
     sched = Runtime(card).schedule
     return np.array([np.sort(np.abs(np.linalg.eigvals(sched.step_matrices(int(k), card.dt, card.dt)["N"])))
@@ -42,7 +42,7 @@ def eigen_trace(card, ks):
 
 
 def example1(plt, out):
-    from uiofmu.steps import step_sequence
+    from uiofmu.cosim.steps import step_sequence
 
     _, ccard, cobs, plant = design_and_build(EX / "seed000_example1.toml", out / "fmus")
     _, lcard, lobs, _ = design_and_build(EX / "seed000_example1_ltv.toml", out / "fmus")
@@ -83,7 +83,7 @@ def example1(plt, out):
 def example2(plt, out):
     import uiofmu
     from uiofmu.problem import problem_from_data, to_toml
-    from uiofmu.steps import step_sequence
+    from uiofmu.cosim.steps import step_sequence
 
     printed = uiofmu.load_problem(EX / "seed000_example2_printed.toml")
     for family in ("lti-uio", "ltv-auid"):

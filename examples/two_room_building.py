@@ -24,10 +24,10 @@ def main():
     import matplotlib.pyplot as plt
 
     import uiofmu
-    from uiofmu.cosim import cosimulate, write_outputs
-    from uiofmu.errors import NoObserverError
+    from uiofmu.cosim.master import cosimulate, write_outputs
+    from uiofmu.runtime.errors import NoObserverError
     from uiofmu.problem import problem_from_data
-    from uiofmu.steps import step_sequence
+    from uiofmu.cosim.steps import step_sequence
 
     path = ROOT / "plants" / "two_room_building" / "problem.toml"
     out = OUT / "two_room_building"

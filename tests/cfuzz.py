@@ -182,7 +182,7 @@ def design_family(name: str):
 
     Returns
     -------
-    uiofmu.card.Card
+    uiofmu.runtime.card.Card
     """
     import uiofmu
 
@@ -197,16 +197,16 @@ def with_step_policy(card, policy: str):
 
     Parameters
     ----------
-    card : uiofmu.card.Card
+    card : uiofmu.runtime.card.Card
         The design.
     policy : str
         ``"error"``, ``"nearest"`` or ``"count"``.
 
     Returns
     -------
-    uiofmu.card.Card
+    uiofmu.runtime.card.Card
     """
-    from uiofmu.card import card_from_data
+    from uiofmu.runtime.card import card_from_data
 
     data = json.loads(json.dumps(card.data))
     data["schedule"]["step_policy"] = policy
@@ -223,9 +223,9 @@ def load_card(path):
 
     Returns
     -------
-    uiofmu.card.Card
+    uiofmu.runtime.card.Card
     """
-    from uiofmu.card import read_card
+    from uiofmu.runtime.card import read_card
 
     return read_card(path)
 
@@ -252,7 +252,7 @@ def extract_sources(card, out_dir: Path, runtime_rev: str | None = None) -> Path
 
     Parameters
     ----------
-    card : uiofmu.card.Card
+    card : uiofmu.runtime.card.Card
         The design.
     out_dir : Path
         Where to build (the FMU is ``out_dir/observer.fmu``).
@@ -261,8 +261,8 @@ def extract_sources(card, out_dir: Path, runtime_rev: str | None = None) -> Path
         were there (to measure an older runtime); default: build the FMU as it is now and
         extract its ``sources/``.
     """
-    from uiofmu.export import build_observer
-    from uiofmu.export_c import fmi_headers
+    from uiofmu.fmu.export import build_observer
+    from uiofmu.fmu.c_backend import fmi_headers
 
     out_dir = Path(out_dir)
     src = out_dir / "sources"
@@ -364,7 +364,7 @@ def prepare(family: str, card, work: Path, runtime_rev: str | None = None) -> Ta
     ----------
     family : str
         Its name in the table.
-    card : uiofmu.card.Card
+    card : uiofmu.runtime.card.Card
         The design.
     work : Path
         A directory of its own.

@@ -11,11 +11,11 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from uiofmu.export import build_observer
-from uiofmu.export_c import build_host
-from uiofmu.fmi import Fmu, FmuCallError
-from uiofmu.runtime import Runtime
-from uiofmu.validate import validate
+from uiofmu.fmu.export import build_observer
+from uiofmu.fmu.c_backend import build_host
+from uiofmu.cosim.fmi import Fmu, FmuCallError
+from uiofmu.runtime.observer import Runtime
+from uiofmu.cosim.validate import validate
 
 
 @pytest.fixture(scope="module")

@@ -23,10 +23,10 @@ import numpy as np
 import pytest
 from fmpy import read_model_description
 
-from uiofmu.card import card_from_data
-from uiofmu.export import build_observer
-from uiofmu.errors import FmuError
-from uiofmu.fmi import Fmu, FmuCallError
+from uiofmu.runtime.card import card_from_data
+from uiofmu.fmu.export import build_observer
+from uiofmu.runtime.errors import FmuError
+from uiofmu.cosim.fmi import Fmu, FmuCallError
 
 import cfuzz
 

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from uiofmu.card import card_from_data, read_card
-from uiofmu.errors import CardError
+from uiofmu.runtime.card import card_from_data, read_card
+from uiofmu.runtime.errors import CardError
 
 
 def test_round_trip_is_bit_identical(example1_card, tmp_path):

@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from uiofmu.errors import ProblemError
-from uiofmu.metrics import settling_index
-from uiofmu.steps import step_sequence
+from uiofmu.runtime.errors import ProblemError
+from uiofmu.cosim.metrics import settling_index
+from uiofmu.cosim.steps import step_sequence
 
 
 @pytest.fixture(scope="module")

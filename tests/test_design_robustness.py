@@ -27,7 +27,7 @@ import pytest
 
 import uiofmu
 from uiofmu.families import random_plants as rpl
-from uiofmu.card import card_from_data
+from uiofmu.runtime.card import card_from_data
 from uiofmu.problem import problem_from_data
 from uiofmu.structure import invariant_zeros, rank
 

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 import uiofmu
-from uiofmu.card import card_from_data
+from uiofmu.runtime.card import card_from_data
 from uiofmu.certificate import certificate, decay_check
-from uiofmu.errors import CardError, InfeasibleError
+from uiofmu.runtime.errors import CardError, InfeasibleError
 from uiofmu.lmi import Lmi, LmiSystem, accepted, eig_min, point_scale, search, tune
 from uiofmu.problem import problem_from_data
 
@@ -195,7 +195,7 @@ def test_the_riccati_design_certifies_without_a_solver(plant, decay):
 
 
 def test_riccati_needs_a_number():
-    from uiofmu.errors import ProblemError
+    from uiofmu.runtime.errors import ProblemError
 
     with pytest.raises(ProblemError, match='method = "riccati" needs a number'):
         _problem(DC_MOTOR, family="lti-uio", dt=0.01, method="riccati")

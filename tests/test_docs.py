@@ -58,7 +58,7 @@ CASES = list(public_objects())
 
 def test_the_walk_finds_the_modules():
     modules = public_modules()
-    for name in ("uiofmu.problem", "uiofmu.validate", "uiofmu.conic", "uiofmu.families"):
+    for name in ("uiofmu.problem", "uiofmu.cosim.validate", "uiofmu.conic", "uiofmu.families"):
         assert name in modules
     assert len(CASES) > 100
 

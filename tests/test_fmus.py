@@ -11,10 +11,10 @@ import pytest
 from fmpy.validation import validate_fmu
 
 import uiofmu
-from uiofmu.export import build_observer, build_plant
-from uiofmu.fmi import Fmu, FmuCallError
-from uiofmu.runtime import Runtime
-from uiofmu.validate import validate
+from uiofmu.fmu.export import build_observer, build_plant
+from uiofmu.cosim.fmi import Fmu, FmuCallError
+from uiofmu.runtime.observer import Runtime
+from uiofmu.cosim.validate import validate
 
 
 @pytest.fixture(scope="module", params=["python", "c"])
@@ -224,7 +224,7 @@ def test_log_lines_reach_the_instance_that_wrote_them(fmus):
 
 SCRIPT = """
 import sys
-from uiofmu.fmi import Fmu
+from uiofmu.cosim.fmi import Fmu
 with Fmu(sys.argv[1], "o") as fmu:
     fmu.initialize(0.0); fmu.set("y", [1.0]); fmu.step(0.0, 0.1)
 """

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 import uiofmu
-from uiofmu.errors import InfeasibleError, NoObserverError
+from uiofmu.runtime.errors import InfeasibleError, NoObserverError
 from uiofmu.lmi import Lmi, LmiSystem, search
 from uiofmu.synthesis import verify
-from uiofmu.tolerances import SEARCH_TOL
+from uiofmu.runtime.tolerances import SEARCH_TOL
 
 
 def test_example1_properties(example1_card):
@@ -34,7 +34,7 @@ def test_tampered_card_fails_recheck(example1_card):
     N[1, 1] += 0.02
     mats["N"] = N.tolist()
     data["matrices"] = mats
-    bad = uiofmu.card.card_from_data(data)
+    bad = uiofmu.runtime.card.card_from_data(data)
     failed = {c.name for c in verify(bad) if not c.holds}
     assert "eig_min(rho^2 X - N'XN)" in failed and "||PA - NP - LC||" in failed
 

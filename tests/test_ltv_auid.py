@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import uiofmu
-from uiofmu.export import build_observer, build_plant
-from uiofmu.fmi import Fmu, FmuCallError
-from uiofmu.runtime import Runtime
-from uiofmu.schedules import StepRejected
-from uiofmu.validate import validate
+from uiofmu.fmu.export import build_observer, build_plant
+from uiofmu.cosim.fmi import Fmu, FmuCallError
+from uiofmu.runtime.observer import Runtime
+from uiofmu.runtime.schedules import StepRejected
+from uiofmu.cosim.validate import validate
 from tests.conftest import EXAMPLES
 
 
@@ -151,7 +151,7 @@ def test_step_policies(ltv_card):
         rt.step(0.3)
     data = json.loads(card.to_json())
     data["schedule"]["step_policy"] = "count"
-    rt = Runtime(uiofmu.card.card_from_data(data))
+    rt = Runtime(uiofmu.runtime.card.card_from_data(data))
     rt.set_y([1.0])
     rt.step(0.3)
     rt.step(0.05)

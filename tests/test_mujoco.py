@@ -10,12 +10,12 @@ import pytest
 from fmpy.validation import validate_fmu
 
 import uiofmu
-from uiofmu.export import build_observer
-from uiofmu.fmi import Fmu
+from uiofmu.fmu.export import build_observer
+from uiofmu.cosim.fmi import Fmu
 from uiofmu.mujoco_plant import build_mujoco_plant, linearize, load_spec
-from uiofmu.mujoco_runtime import MujocoRuntime
+from uiofmu.runtime.mujoco_runtime import MujocoRuntime
 from uiofmu.problem import problem_from_data
-from uiofmu.validate import validate
+from uiofmu.cosim.validate import validate
 from tests.conftest import ROOT
 
 pytestmark = pytest.mark.mujoco

@@ -1,10 +1,10 @@
 """Bad calls into pythonfmu FMUs (backend "python"): refused with a log line, never fatal, never a crash.
 
-What pythonfmu 0.7.0's native binary allows (see ``uiofmu/templates/pythonfmu_slave.py.tmpl``):
+What pythonfmu 0.7.0's native binary allows (see ``uiofmu/fmu/templates/pythonfmu_slave.py.tmpl``):
 a Python exception becomes fmi2Fatal and leaves the instance with dangling pointers, a method
 that returns gives fmi2OK (``do_step`` returning False gives fmi2Discard). So the slave refuses
 a bad fmi2SetReal / fmi2GetReal / fmi2SetFMUstate with an fmi2Error log line and changes
-nothing, and the native guard in front of the binary (:mod:`uiofmu.pythonfmu_guard`) turns
+nothing, and the native guard in front of the binary (:mod:`uiofmu.fmu.pythonfmu_guard`) turns
 that line into the status fmi2Error; these tests check both, against a reference instance
 driven alike.
 
@@ -24,14 +24,14 @@ import numpy as np
 import pytest
 
 import uiofmu
-from uiofmu.card import card_from_data
-from uiofmu.export import build_observer, build_plant
-from uiofmu.fmu_model import ObserverModel, StateRejected
+from uiofmu.runtime.card import card_from_data
+from uiofmu.fmu.export import build_observer, build_plant
+from uiofmu.runtime.fmu_model import ObserverModel, StateRejected
 from uiofmu.mujoco_plant import build_mujoco_plant, load_spec
-from uiofmu.mujoco_runtime import MujocoRuntime
-from uiofmu.plant_runtime import PlantRuntime
-from uiofmu.runtime import Runtime
-from uiofmu.schedules import StepRejected
+from uiofmu.runtime.mujoco_runtime import MujocoRuntime
+from uiofmu.runtime.plant_runtime import PlantRuntime
+from uiofmu.runtime.observer import Runtime
+from uiofmu.runtime.schedules import StepRejected
 from tests.conftest import ROOT
 
 QUARTER_CAR = ROOT / "plants" / "quarter_car"
@@ -51,8 +51,8 @@ import zipfile
 
 import numpy as np
 
-from uiofmu.errors import FmuError
-from uiofmu.fmi import Fmu, FmuCallError
+from uiofmu.runtime.errors import FmuError
+from uiofmu.cosim.fmi import Fmu, FmuCallError
 
 
 def call(fmu, function, *args):
@@ -224,7 +224,7 @@ def rezip(path, out, change):
 def scenario_instantiate(a):
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
-    from uiofmu.fmi import _release_python_state
+    from uiofmu.cosim.fmi import _release_python_state
 
     res = {}
     work = pathlib.Path(a["work"])

@@ -1,4 +1,5 @@
-"""The native guard in front of pythonfmu's binary (``uiofmu/pythonfmu_guard.py``, ``c/pythonfmu_guard.c``).
+"""The native guard in front of pythonfmu's binary (``uiofmu/fmu/pythonfmu_guard.py``,
+``uiofmu/fmu/c/pythonfmu_guard.c``).
 
 Unguarded, pythonfmu 0.7.0's binary instantiates whatever GUID and type it is given, crashes on
 resource locations it cannot read, and answers fmi2OK to every call uiofmu's slave refuses
@@ -28,12 +29,12 @@ from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
 import uiofmu
-import uiofmu.pythonfmu_guard as pg
-from uiofmu.errors import FmuError
-from uiofmu.export import build_observer, build_plant
-from uiofmu.export_c import build_host, c_compiler, fmi_headers
-from uiofmu.fmi import Fmu
-from uiofmu.validate import validate
+import uiofmu.fmu.pythonfmu_guard as pg
+from uiofmu.runtime.errors import FmuError
+from uiofmu.fmu.export import build_observer, build_plant
+from uiofmu.fmu.c_backend import build_host, c_compiler, fmi_headers
+from uiofmu.cosim.fmi import Fmu
+from uiofmu.cosim.validate import validate
 
 
 OBS = "two_room_building_observer"
@@ -456,7 +457,7 @@ def test_only_live_states_of_this_fmu_reach_pythonfmu(fmus, tmp_path):
 # -- valid runs: bit for bit, in every importer --------------------------------------------
 
 def _drive(path, rng_seed, steps=40):
-    """Outputs, state bytes and the outputs after a state round trip of a random run via uiofmu.fmi."""
+    """Outputs, state bytes and the outputs after a state round trip of a random run via uiofmu.cosim.fmi."""
     rng = np.random.default_rng(rng_seed)
     out = []
     with Fmu(path, "bitwise") as fmu:

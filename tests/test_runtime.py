@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import uiofmu
-from uiofmu.runtime import Runtime, RuntimeInputError
-from uiofmu.schedules import StepRejected
+from uiofmu.runtime.observer import Runtime, RuntimeInputError
+from uiofmu.runtime.schedules import StepRejected
 
 
 def simulate(card, plant, steps, rng, xhat0):
@@ -102,7 +102,7 @@ def test_bad_steps_and_inputs(example1_card):
 
 
 def test_runtime_does_not_import_the_solver():
-    code = ("import sys, uiofmu.runtime, uiofmu.card; "
+    code = ("import sys, uiofmu.runtime.observer, uiofmu.runtime.card; "
             "bad = [m for m in ('cvxpy', 'clarabel', 'scipy', 'matplotlib') if m in sys.modules]; "
             "print(bad); sys.exit(1 if bad else 0)")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)

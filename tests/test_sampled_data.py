@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import uiofmu
-from uiofmu.export import build_observer, build_plant
-from uiofmu.fmi import Fmu, FmuCallError
-from uiofmu.runtime import Runtime
-from uiofmu.schedules import StepRejected
-from uiofmu.validate import validate
+from uiofmu.fmu.export import build_observer, build_plant
+from uiofmu.cosim.fmi import Fmu, FmuCallError
+from uiofmu.runtime.observer import Runtime
+from uiofmu.runtime.schedules import StepRejected
+from uiofmu.cosim.validate import validate
 
 
 def test_certificate_is_rechecked(building_card):
@@ -124,7 +124,7 @@ def test_cosimulation_respects_the_bound(building_fmus, cli, tmp_path):
 def _policy_card(card, policy):
     data = json.loads(card.to_json())
     data["schedule"]["step_policy"] = policy
-    return uiofmu.card.card_from_data(data)
+    return uiofmu.runtime.card.card_from_data(data)
 
 
 def test_step_outside_the_set_error_policy(building_card, building_fmus):

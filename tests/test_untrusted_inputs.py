@@ -18,11 +18,11 @@ from pathlib import Path
 
 import pytest
 
-from uiofmu.card import card_from_data
-from uiofmu.errors import CardError
-from uiofmu.export import model_identifier
-from uiofmu.export_c import design_source, model_description
-from uiofmu.text import c_string, fill_template, identifier, py_string
+from uiofmu.runtime.card import card_from_data
+from uiofmu.runtime.errors import CardError
+from uiofmu.fmu.export import model_identifier
+from uiofmu.fmu.c_backend import design_source, model_description
+from uiofmu.runtime.text import c_string, fill_template, identifier, py_string
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -172,7 +172,7 @@ def test_hostile_text_in_every_field_never_reaches_generated_code(building_card)
     """Each field of a card replaced by each hostile string: refused by the schema, or accepted as
     data that never appears in the generated C, XML or Python source."""
     base = json.loads(building_card[0].to_json())
-    template = (ROOT / "uiofmu" / "templates" / "pythonfmu_slave.py.tmpl").read_text()
+    template = (ROOT / "uiofmu" / "fmu" / "templates" / "pythonfmu_slave.py.tmpl").read_text()
     benign = _code_shape(fill_template(template, {"runtime": "rt", "class_name": "Model"},
                                        {"description": py_string("benign")}))
     tried = refused = 0
@@ -364,9 +364,9 @@ def test_devices_fifos_and_huge_files_are_refused(tmp_path, cli, example1_card):
 
 
 def test_step_files_and_input_tables_are_bounded(tmp_path, example1_card):
-    from uiofmu.errors import ProblemError
-    from uiofmu.inputs import CsvInputs
-    from uiofmu.steps import step_sequence
+    from uiofmu.runtime.errors import ProblemError
+    from uiofmu.cosim.inputs import CsvInputs
+    from uiofmu.cosim.steps import step_sequence
 
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from uiofmu.validate import Validation, _compare
+from uiofmu.cosim.validate import Validation, _compare
 
 
 def test_relative_difference_divides_by_one_scale_for_the_whole_run():

@@ -9,7 +9,7 @@ The Python API follows the data flow of the command line::
     card.write("design.json")
     rt      = uiofmu.Runtime(card)             # the reference runtime (numpy only)
 
-Names are imported on first use, so ``import uiofmu.runtime`` stays numpy-only.
+Names are imported on first use, so ``import uiofmu.runtime.observer`` stays numpy-only.
 """
 
 from importlib import import_module
@@ -17,12 +17,12 @@ from importlib import import_module
 __version__ = "0.1.0"
 
 _EXPORTS = {
-    "Card": "card", "read_card": "card",
-    "CardError": "errors", "InfeasibleError": "errors", "NoObserverError": "errors",
-    "ProblemError": "errors", "UserError": "errors", "FmuError": "errors",
+    "Card": "runtime.card", "read_card": "runtime.card",
+    "CardError": "runtime.errors", "InfeasibleError": "runtime.errors", "NoObserverError": "runtime.errors",
+    "ProblemError": "runtime.errors", "UserError": "runtime.errors", "FmuError": "runtime.errors",
     "Plant": "plant", "plant_from_statespace": "plant",
     "Problem": "problem", "load_problem": "problem", "make_problem": "problem",
-    "Runtime": "runtime",
+    "Runtime": "runtime.observer",
     "check": "synthesis", "design": "synthesis", "verify": "synthesis",
 }
 

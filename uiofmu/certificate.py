@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InfeasibleError
+from .runtime.errors import InfeasibleError
 from .lmi import LmiSolution
-from .tolerances import IDENTITY_RTOL, LMI_MARGIN, VERIFY_FRACTION
+from .runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, VERIFY_FRACTION
 
 
 @dataclass(frozen=True)

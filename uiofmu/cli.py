@@ -14,8 +14,8 @@ import sys
 import warnings
 from pathlib import Path
 
-from .files import check_output_dir, check_output_file, write_atomic
-from .text import identifier
+from .runtime.files import check_output_dir, check_output_file, write_atomic
+from .runtime.text import identifier
 
 EPILOG = """\
 typical session:
@@ -79,8 +79,8 @@ def _cmd_design(args) -> int:
 
 
 def _cmd_build(args) -> int:
-    from .card import read_card
-    from .export import build_observer, default_backend, model_identifier
+    from .runtime.card import read_card
+    from .fmu.export import build_observer, default_backend, model_identifier
     from .synthesis import recheck
 
     card = read_card(args.design)
@@ -93,7 +93,7 @@ def _cmd_build(args) -> int:
 
 
 def _cmd_plant(args) -> int:
-    from .export import build_plant, model_identifier
+    from .fmu.export import build_plant, model_identifier
     from .mujoco_plant import build_mujoco_plant, is_mujoco_plant, load_spec
     from .problem import load_problem
 
@@ -157,7 +157,7 @@ def print_summary(metrics: dict, paths: dict | None = None, file=None) -> None:
 
 
 def _cmd_cosim(args) -> int:
-    from .cosim import (cosimulate, default_steps, default_t_end, load_inputs, observer_card, step_sequence,
+    from .cosim.master import (cosimulate, default_steps, default_t_end, load_inputs, observer_card, step_sequence,
                         write_outputs)
 
     check_output_dir(args.out, "--out folder")
@@ -174,8 +174,8 @@ def _cmd_cosim(args) -> int:
 
 
 def _cmd_validate(args) -> int:
-    from .errors import FmuError
-    from .validate import validate
+    from .runtime.errors import FmuError
+    from .cosim.validate import validate
 
     report = validate(args.fmu, steps=args.steps, seed=args.seed)
     if args.json:
@@ -240,7 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Design unknown-input observers from a TOML problem file, certify them, and ship them "
                     "as FMI 2.0 Co-Simulation FMUs.")
     from . import __version__
-    from .registry import summary
+    from .runtime.registry import summary
     parser.add_argument("--version", action="version", version=f"uiofmu {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     parser.commands = sub.choices

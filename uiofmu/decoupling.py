@@ -13,7 +13,7 @@ import numpy as np
 
 from .existence import Condition, complex_list, format_complex
 from .structure import invariant_zeros, pbh_margins, rank, unobservable_modes
-from .tolerances import RANK_RTOL, WEAK_MARGIN, ZERO_MARGIN
+from .runtime.tolerances import RANK_RTOL, WEAK_MARGIN, ZERO_MARGIN
 
 
 def decoupling_gain(C: np.ndarray, E: np.ndarray) -> np.ndarray:
@@ -163,7 +163,7 @@ def detectable(conditions: list) -> bool:
 
 def parse_period(table, plant, family: str) -> float:
     """``observer.dt``: required for a continuous plant, refused for a discrete one (its dt is used)."""
-    from .errors import ProblemError
+    from .runtime.errors import ProblemError
 
     if plant.continuous:
         if not table.has("dt"):

@@ -33,10 +33,10 @@ def run_demo(out, say=print) -> dict:
     say : callable
         Where the progress lines go.
     """
-    from .cosim import cosimulate, write_outputs
-    from .export import build_observer, build_plant
+    from .cosim.master import cosimulate, write_outputs
+    from .fmu.export import build_observer, build_plant
     from .problem import load_problem
-    from .steps import step_sequence
+    from .cosim.steps import step_sequence
     from .synthesis import design
 
     out = Path(out)

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import NoObserverError
+from .runtime.errors import NoObserverError
 
 
 def complex_list(values) -> list:

@@ -9,10 +9,10 @@ An LMI system is written once, as a function ``build(v, p, ops)`` returning a li
 * with the numpy arrays the solver returned (``ops = NUMPY_OPS``) to re-check every LMI by
   its eigenvalues, without the solver.
 
-Strict inequalities are solved as ``F >= margin * I`` (:data:`~uiofmu.tolerances.LMI_MARGIN`,
+Strict inequalities are solved as ``F >= margin * I`` (:data:`~uiofmu.runtime.tolerances.LMI_MARGIN`,
 100x the solver tolerance) and accepted by the re-check when ``eig_min(F) >=
 VERIFY_FRACTION * margin``; equalities and non-strict LMIs are judged relative to the size of
-the point (:data:`~uiofmu.tolerances.POINT_RTOL`), as the solver's tolerance is. A system whose
+the point (:data:`~uiofmu.runtime.tolerances.POINT_RTOL`), as the solver's tolerance is. A system whose
 LMIs are homogeneous in the variables (all three families': only normalisations such as
 ``X >= I`` have a constant part) is repaired exactly when a point misses a normalisation by
 round-off: the point is scaled up until it holds. A tunable is a parameter of the assembled
@@ -29,9 +29,9 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import InfeasibleError
+from .runtime.errors import InfeasibleError
 from .progress import progress
-from .tolerances import LMI_MARGIN, POINT_RTOL, SEARCH_TOL, SOLVER_TOL, VERIFY_FRACTION
+from .runtime.tolerances import LMI_MARGIN, POINT_RTOL, SEARCH_TOL, SOLVER_TOL, VERIFY_FRACTION
 
 
 @dataclass(frozen=True)
@@ -152,7 +152,7 @@ def rejected(eigs: dict, lmis: list[Lmi], scale: float = 1.0, margin: float = LM
     scale : float
         The size of the point.
     margin, verify_fraction, point_rtol : float
-        The rule's tolerances (:mod:`uiofmu.tolerances`).
+        The rule's tolerances (:mod:`uiofmu.runtime.tolerances`).
 
     Returns
     -------

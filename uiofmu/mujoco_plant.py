@@ -32,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ProblemError
-from .files import parse_toml, read_text
-from .matrices import as_matrix, as_scalar, as_vector
+from .runtime.errors import ProblemError
+from .runtime.files import parse_toml, read_text
+from .runtime.matrices import as_matrix, as_scalar, as_vector
 from .problem import Table
-from .text import MAX_NAME, check_name
+from .runtime.text import MAX_NAME, check_name
 
 SPEC_FILE = "mujoco.toml"
 
@@ -87,7 +87,7 @@ def load_spec(path) -> MujocoSpec:
     t.done()
     if not spec["d"]:
         raise ProblemError("mujoco.d: name at least one actuator for the unknown input")
-    from .mujoco_runtime import MujocoRuntime
+    from .runtime.mujoco_runtime import MujocoRuntime
 
     try:
         import mujoco  # noqa: F401
@@ -116,7 +116,7 @@ def _names(value, key: str, what: str) -> list:
 
 def _parameters(value) -> dict:
     """``[mujoco.parameters]``: FMU parameter name (an identifier) -> ``"field:object"``."""
-    from .mujoco_runtime import PARAMETER_FIELDS
+    from .runtime.mujoco_runtime import PARAMETER_FIELDS
 
     if not isinstance(value, dict):
         raise ProblemError(f"mujoco.parameters: expected a table of name = \"field:object\", found {_short(value)}")
@@ -162,7 +162,7 @@ def linearize(spec: MujocoSpec, eps: float = 1e-6) -> Linearization:
     """
     import mujoco
 
-    from .mujoco_runtime import MujocoRuntime
+    from .runtime.mujoco_runtime import MujocoRuntime
 
     rt = MujocoRuntime(spec.mujoco, spec.folder)
     m, d = rt.model, rt.data
@@ -241,7 +241,7 @@ def problem_document(spec: MujocoSpec, lin: Linearization) -> dict:
 def build_mujoco_plant(spec: MujocoSpec, output) -> Path:
     """The MuJoCo plant FMU (pythonfmu; the MJCF packed as a resource)."""
     from . import __version__
-    from .export import _build_python, model_identifier
+    from .fmu.export import _build_python, model_identifier
 
     ident = model_identifier(spec.name, "plant")
     desc = f"MuJoCo plant {spec.name}, {spec.mujoco['integrator']} substeps of {spec.mujoco['timestep']:g} s " \

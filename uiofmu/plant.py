@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import expm
 
-from .errors import ProblemError
-from .matrices import as_matrix, as_scalar, as_vector, freeze
+from .runtime.errors import ProblemError
+from .runtime.matrices import as_matrix, as_scalar, as_vector, freeze
 
 
 #: Largest magnitude of a plant entry: products of a few such numbers stay finite in double precision.

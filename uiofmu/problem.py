@@ -1,7 +1,7 @@
 """Problem files (TOML) turned into a typed, immutable :class:`Problem`.
 
 A problem file is data: it is parsed with :mod:`tomllib`, never evaluated. Every malformed
-or inconsistent file raises :class:`~uiofmu.errors.ProblemError` naming the key and what was
+or inconsistent file raises :class:`~uiofmu.runtime.errors.ProblemError` naming the key and what was
 expected against what was found.
 """
 
@@ -11,13 +11,13 @@ import copy
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import ProblemError
-from .files import parse_toml, read_text
-from .matrices import as_scalar, as_vector
+from .runtime.errors import ProblemError
+from .runtime.files import parse_toml, read_text
+from .runtime.matrices import as_scalar, as_vector
 from .plant import Plant
-from .registry import AVAILABLE, KNOWN
+from .runtime.registry import AVAILABLE, KNOWN
 from .signals import Signal, parse_signals
-from .text import MAX_NAME, check_name
+from .runtime.text import MAX_NAME, check_name
 
 _MISSING = object()
 
@@ -57,7 +57,7 @@ class Table:
         return default
 
     def scalar(self, key: str, default=_MISSING, **bounds) -> float:
-        """A finite number within bounds (see :func:`~uiofmu.matrices.as_scalar`)."""
+        """A finite number within bounds (see :func:`~uiofmu.runtime.matrices.as_scalar`)."""
         value = self.get(key, default)
         return value if value is default else as_scalar(value, self.key(key), **bounds)
 
@@ -101,7 +101,7 @@ class Problem:
         Used for FMU model names.
     plant : Plant
     family : str
-        One of :data:`uiofmu.registry.KNOWN`.
+        One of :data:`uiofmu.runtime.registry.KNOWN`.
     options : object
         The family's frozen options (see the family module).
     u, d : tuple of Signal
@@ -178,7 +178,8 @@ def load_problem(path) -> Problem:
     ----------
     path : str or Path
         A TOML file, or a folder holding ``problem.toml`` (``plants/NAME``); a regular file of
-        at most :data:`uiofmu.files.MAX_INPUT_BYTES`, nested at most :data:`uiofmu.files.MAX_DEPTH` deep.
+        at most :data:`uiofmu.runtime.files.MAX_INPUT_BYTES`, nested at most
+        :data:`uiofmu.runtime.files.MAX_DEPTH` deep.
 
     Returns
     -------

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ProblemError
-from .matrices import as_scalar
+from .runtime.errors import ProblemError
+from .runtime.matrices import as_scalar
 
 _FIELDS = {
     "constant": {"value"},

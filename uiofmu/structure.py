@@ -1,14 +1,14 @@
 """Structural analysis of linear systems: ranks, uncontrollable modes, invariant zeros.
 
 Everything here uses orthogonal transformations (SVD) and one rank rule,
-:func:`rank`, whose tolerance is documented in :mod:`uiofmu.tolerances`.
+:func:`rank`, whose tolerance is documented in :mod:`uiofmu.runtime.tolerances`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .tolerances import RANK_RTOL
+from .runtime.tolerances import RANK_RTOL
 
 
 def _count_above(s: np.ndarray, rank_rtol: float) -> int:
@@ -24,7 +24,7 @@ def rank(M: np.ndarray, rank_rtol: float = RANK_RTOL) -> int:
     M : array_like
         Any matrix (an empty one has rank 0).
     rank_rtol : float
-        Relative tolerance (default :data:`~uiofmu.tolerances.RANK_RTOL`).
+        Relative tolerance (default :data:`~uiofmu.runtime.tolerances.RANK_RTOL`).
 
     Returns
     -------

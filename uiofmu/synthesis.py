@@ -9,12 +9,12 @@ import time
 import numpy as np
 
 from . import __version__
-from .card import FORMAT, VERSION, Card, card_from_data, to_lists
-from .errors import CardError, InfeasibleError, NumericalError
+from .runtime.card import FORMAT, VERSION, Card, card_from_data, to_lists
+from .runtime.errors import CardError, InfeasibleError, NumericalError
 from .existence import Existence
 from .families import DesignResult, available_family
 from .problem import Problem
-from .tolerances import LMI_MARGIN
+from .runtime.tolerances import LMI_MARGIN
 
 
 @contextlib.contextmanager

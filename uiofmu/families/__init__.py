@@ -1,6 +1,6 @@
 """Observer families: one module each, all with the same contract.
 
-A family module (named in :data:`uiofmu.registry.FAMILIES`) provides:
+A family module (named in :data:`uiofmu.runtime.registry.FAMILIES`) provides:
 
 ``NAME``
     Its name (the registry's key).
@@ -25,9 +25,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from importlib import import_module
 
-from ..errors import CardError, ProblemError
+from ..runtime.errors import CardError, ProblemError
 from ..existence import Existence
-from ..registry import AVAILABLE, FAMILIES, KNOWN
+from ..runtime.registry import AVAILABLE, FAMILIES, KNOWN
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ class DesignResult:
     schedule : dict
         The runtime schedule entry (``kind`` and its data).
     matrices : dict
-        Runtime matrices (see :data:`uiofmu.card.RUNTIME_SHAPES`) plus the family matrices
+        Runtime matrices (see :data:`uiofmu.runtime.card.RUNTIME_SHAPES`) plus the family matrices
         users look at and its checks use.
     certificate : dict
         From :func:`uiofmu.certificate.certificate`.

@@ -49,7 +49,7 @@ from ..decoupling import (
     parse_period,
     sampled_decoupling_conditions,
 )
-from ..errors import InfeasibleError, ProblemError
+from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..scaling import (
@@ -61,7 +61,7 @@ from ..scaling import (
 )
 from ..scaling import to_data as scaling_data
 from ..structure import decay_gain
-from ..tolerances import SEARCH_TOL, ZERO_MARGIN
+from ..runtime.tolerances import SEARCH_TOL, ZERO_MARGIN
 from . import Analysis, DesignResult
 
 NAME = "lti-uio"

@@ -45,11 +45,11 @@ from ..decoupling import (
     parse_period,
     sampled_decoupling_conditions,
 )
-from ..errors import ProblemError
+from ..runtime.errors import ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSystem, tune
 from ..structure import unobservable_modes
-from ..tolerances import SEARCH_TOL, ZERO_MARGIN
+from ..runtime.tolerances import SEARCH_TOL, ZERO_MARGIN
 from . import Analysis, DesignResult
 
 NAME = "ltv-auid"

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..card import MAX_INTERVALS
+from ..runtime.card import MAX_INTERVALS
 from ..certificate import (
     Check,
     certificate,
@@ -51,7 +51,7 @@ from ..decoupling import (
     weak_modes_condition,
     zeros_condition,
 )
-from ..errors import InfeasibleError, ProblemError
+from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list
 from ..lmi import Lmi, LmiSystem, tune
 from ..scaling import (
@@ -63,8 +63,8 @@ from ..scaling import (
     state_scaling,
 )
 from ..scaling import to_data as scaling_data
-from ..schedules import STEP_POLICIES
-from ..tolerances import (
+from ..runtime.schedules import STEP_POLICIES
+from ..runtime.tolerances import (
     IDENTITY_RTOL,
     LMI_MARGIN,
     SEARCH_TOL,

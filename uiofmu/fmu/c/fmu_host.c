@@ -42,7 +42,7 @@ static int parse_refs(const char *text, fmi2ValueReference *out, int max) {
 
 /* Unload the FMU's library. pythonfmu 0.7.0 binaries release their interpreter state from a
    library destructor after their static has already freed it; releasing it first, while the
-   library is loaded, leaves nothing behind for the destructor (see uiofmu/fmi.py). */
+   library is loaded, leaves nothing behind for the destructor (see uiofmu/cosim/fmi.py). */
 static int unload(void *lib, int status) {
     void (*release)(void) = (void (*)(void))dlsym(lib, "finalizePythonInterpreter");
     if (release) release();

@@ -1,7 +1,7 @@
 """How the runtime picks its matrices at each communication step.
 
 A schedule is the only thing that differs between families at run time; the step itself
-(:mod:`uiofmu.runtime`) is the same for all. Kinds:
+(:mod:`uiofmu.runtime.observer`) is the same for all. Kinds:
 
 ``constant``
     One set of matrices, designed for the period ``dt``. A step of another length follows

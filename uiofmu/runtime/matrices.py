@@ -55,7 +55,7 @@ def as_matrix(value, name: str, rows: int | None = None, cols: int | None = None
     rows, cols : int, optional
         The expected number of rows and columns; ``None`` accepts any.
     error : type, optional
-        The exception class raised (default :class:`~uiofmu.errors.ProblemError`).
+        The exception class raised (default :class:`~uiofmu.runtime.errors.ProblemError`).
 
     Returns
     -------

@@ -23,13 +23,13 @@ from xml.etree.ElementTree import Element, SubElement, tostring
 
 import numpy as np
 
-from . import __version__
-from .card import Card
-from .errors import CardError, FmuError
-from .files import atomic_output, check_output_file
-from .schedules import schedule_axes
-from .text import c_string
-from .tolerances import STEP_RTOL
+from .. import __version__
+from ..runtime.card import Card
+from ..runtime.errors import CardError, FmuError
+from ..runtime.files import atomic_output, check_output_file
+from ..runtime.schedules import schedule_axes
+from ..runtime.text import c_string
+from ..runtime.tolerances import STEP_RTOL
 
 HERE = Path(__file__).parent / "c"
 MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc")
@@ -67,7 +67,7 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
 
     Only numbers, the GUID and the model identifier reach the source: every float is written
     by :func:`repr` after a finiteness check, every array with its length checked against the
-    dims, the two strings as escaped C literals (:func:`uiofmu.text.c_string`). No text of the
+    dims, the two strings as escaped C literals (:func:`uiofmu.runtime.text.c_string`). No text of the
     card (its name, description or problem) is ever written into it.
 
     The struct is written with designated initialisers, and every array with its length as the
@@ -128,7 +128,7 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
 
 def model_description(card: Card, guid: str, identifier: str, sources: list[str]) -> bytes:
     """``modelDescription.xml`` with the ports of the python backend."""
-    from .fmu_model import ObserverModel
+    from ..runtime.fmu_model import ObserverModel
 
     model = ObserverModel({"card": card.data})
     model.refresh()

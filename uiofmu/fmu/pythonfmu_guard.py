@@ -24,8 +24,8 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree
 
-from .errors import FmuError
-from .files import atomic_output
+from ..runtime.errors import FmuError
+from ..runtime.files import atomic_output
 
 #: The guard's source.
 SOURCE = Path(__file__).parent / "c" / "pythonfmu_guard.c"
@@ -51,7 +51,7 @@ def available() -> bool:
     bool
         False leaves pythonfmu's binary as it is (the FMU works, without the guard's checks).
     """
-    from .export_c import c_compiler, fmi_headers
+    from .c_backend import c_compiler, fmi_headers
 
     return (platform.system() == "Linux" and platform.machine() in ("x86_64", "AMD64")
             and c_compiler() is not None and (fmi_headers() / "fmi2Functions.h").is_file())
@@ -125,7 +125,7 @@ def compile_guard(guid: str, model: str, out_dir) -> Path:
     FmuError
         No compiler, or the compiler failed.
     """
-    from .export_c import c_compiler, fmi_headers
+    from .c_backend import c_compiler, fmi_headers
 
     guid, model = check_guid(guid), check_model_identifier(model)
     cc = c_compiler()

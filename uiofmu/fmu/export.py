@@ -14,33 +14,36 @@ import sys
 import tempfile
 from pathlib import Path
 
-from . import __version__, pythonfmu_guard
-from .card import Card
-from .errors import FmuError
-from .files import atomic_output, check_output_file
-from .plant import Plant
-from .text import fill_template, identifier, py_string
+from .. import __version__
+from . import pythonfmu_guard
+from ..runtime.card import Card
+from ..runtime.errors import FmuError
+from ..runtime.files import atomic_output, check_output_file
+from ..plant import Plant
+from ..runtime.text import fill_template, identifier, py_string
 
-#: The modules an FMU carries: the runtime and what it imports (numpy only).
-RUNTIME_MODULES = ("card", "errors", "files", "text", "matrices", "registry", "schedules", "state", "tolerances",
-                   "runtime",
-                   "plant_runtime", "fmu_model", "mujoco_runtime")
+#: What an FMU carries: the package :mod:`uiofmu.runtime`, copied whole (numpy only).
+RUNTIME = Path(__file__).resolve().parents[1] / "runtime"
 BACKENDS = ("c", "python")
+
+
+def runtime_files() -> list[Path]:
+    """The files of :data:`RUNTIME`, in a fixed order (every ``.py`` file of the folder)."""
+    return sorted(RUNTIME.glob("*.py"))
 
 
 def runtime_package() -> str:
     """Name of the runtime copy inside an FMU: it changes with the runtime's source, so FMUs built
     by different uiofmu versions load side by side in one process without sharing modules."""
-    here = Path(__file__).parent
     digest = hashlib.sha256()
-    for name in RUNTIME_MODULES:
-        digest.update((here / f"{name}.py").read_bytes())
+    for path in runtime_files():
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
     return f"uiofmu_rt_{digest.hexdigest()[:12]}"
 
 
 def model_identifier(name: str, role: str) -> str:
     """The FMU's model identifier (``two_room_building_observer``): ASCII letters, digits and
-    underscores only, at most :data:`uiofmu.text.MAX_IDENTIFIER` characters."""
+    underscores only, at most :data:`uiofmu.runtime.text.MAX_IDENTIFIER` characters."""
     return identifier(name, role)
 
 
@@ -56,12 +59,8 @@ def _build_python(spec: dict, ident: str, description: str, output: Path, extra_
         src.mkdir()
         pkg = src / package
         pkg.mkdir()
-        # Import every module at once: the package is shared (by its content-named name) by all FMUs
-        # of this runtime in a process, and the folder it was first loaded from may be removed.
-        (pkg / "__init__.py").write_text(f'"""uiofmu {__version__} runtime (numpy; mujoco for MuJoCo plants)."""\n\n'
-                                         f'from . import {", ".join(RUNTIME_MODULES)}  # noqa: F401\n')
-        for name in RUNTIME_MODULES:
-            shutil.copy2(here / f"{name}.py", pkg / f"{name}.py")
+        for path in runtime_files():                  # its __init__ imports every module at once
+            shutil.copy2(path, pkg / path.name)
         (src / "model.json").write_text(json.dumps(spec), encoding="utf-8")
         text = fill_template((here / "templates" / "pythonfmu_slave.py.tmpl").read_text(encoding="utf-8"),
                              {"runtime": package, "class_name": ident},
@@ -86,7 +85,7 @@ def _build_python(spec: dict, ident: str, description: str, output: Path, extra_
 
 def default_backend() -> str:
     """``c`` where a C compiler is found, else ``python``."""
-    from .export_c import c_compiler
+    from .c_backend import c_compiler
 
     return "c" if c_compiler() else "python"
 
@@ -113,7 +112,7 @@ def build_observer(card: Card, output, backend: str | None = None) -> Path:
         raise FmuError(f"--backend: expected one of {', '.join(BACKENDS)}, found {backend!r}")
     ident = model_identifier(card.name, "observer")
     if backend == "c":
-        from .export_c import build_c_observer
+        from .c_backend import build_c_observer
 
         return build_c_observer(card, output, ident)
     desc = f"{card.family} unknown-input observer of {card.name} (uiofmu {__version__})"

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .runtime import check_step
+from .stepping import check_step
 from .schedules import StepRejected
 from .state import StateReader
 from .tolerances import STEP_RTOL

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .runtime import check_step
+from .stepping import check_step
 from .state import StateReader
 
 #: Model fields a plant's physical parameters may set (name -> the id kind it is indexed by).

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FmuError
-from .files import MAX_INPUT_BYTES, parse_json
+from ..runtime.errors import FmuError
+from ..runtime.files import MAX_INPUT_BYTES, parse_json
 
 STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 
@@ -55,7 +55,7 @@ def read_model_json(path) -> dict:
     ----------
     path : str or Path
         A regular file; its ``resources/model.json`` is read only up to
-        :data:`uiofmu.files.MAX_INPUT_BYTES` and nested at most :data:`uiofmu.files.MAX_DEPTH` deep.
+        :data:`uiofmu.runtime.files.MAX_INPUT_BYTES` and nested at most :data:`uiofmu.runtime.files.MAX_DEPTH` deep.
 
     Returns
     -------

@@ -14,15 +14,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .card import Card, card_from_data
-from .errors import FmuError
-from .files import atomic_output, check_output_dir, write_atomic
-from .families import certified_bound
+from ..runtime.card import Card, card_from_data
+from ..runtime.errors import FmuError
+from ..runtime.files import atomic_output, check_output_dir, write_atomic
+from ..families import certified_bound
 from .fmi import Fmu, FmuCallError, read_model_json
 from .inputs import CsvInputs, SignalInputs
 from .metrics import error_metrics
-from .progress import progress
-from .runtime import Runtime
+from ..progress import progress
+from ..runtime.observer import Runtime
 from .steps import step_sequence
 
 
@@ -57,7 +57,7 @@ class CosimResult:
 def observer_card(path) -> Card:
     """The design card packed in an observer FMU built by uiofmu, checked against the card schema
     and with its certificate re-checked at the stored matrices (:func:`uiofmu.synthesis.recheck`)."""
-    from .synthesis import recheck
+    from ..synthesis import recheck
 
     spec = read_model_json(path)
     if spec.get("kind") != "observer" or "card" not in spec:
@@ -87,7 +87,7 @@ def default_t_end(card: Card, floor: int = 50, cap: int = 5000) -> float:
 
 def default_inputs(card: Card):
     """The problem's ``[signals]`` recorded in the card."""
-    from .problem import problem_from_data
+    from ..problem import problem_from_data
 
     problem = problem_from_data(card.data["problem"], default_name=card.name)
     return SignalInputs(problem.u, problem.d)
@@ -104,7 +104,7 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         uiofmu (its design card gives the default inputs and the certified bound), has inputs
         ``y``, ``u`` and outputs ``xhat``, ``r`` (and ``dhat``).
     steps : array_like
-        Step lengths h_0, h_1, ... (see :func:`uiofmu.steps.step_sequence`).
+        Step lengths h_0, h_1, ... (see :func:`uiofmu.cosim.steps.step_sequence`).
     inputs : object, optional
         Has ``u(t)`` and ``d(t)``; by default the signals of the observer's problem.
     plant_x0, xhat0 : array_like, optional

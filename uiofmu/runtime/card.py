@@ -137,7 +137,7 @@ MAX_DIM = 1000
 MAX_INTERVALS = 256
 #: Keys a schedule may hold, per kind (``step_policy`` and ``step_rtol`` for all).
 SCHEDULE_KEYS = {"constant": {"dt"}, "interval": {"intervals", "h_prev0"}, "geometric": {"alpha", "dt"}}
-#: The step policies each schedule kind accepts (see :mod:`uiofmu.schedules`).
+#: The step policies each schedule kind accepts (see :mod:`uiofmu.runtime.schedules`).
 KIND_POLICIES = {"constant": ("error",), "interval": ("error", "nearest"), "geometric": ("error", "count")}
 #: Longest free text (``bound``, ``generator``, solver names) a card may hold.
 MAX_TEXT = 1000
@@ -355,7 +355,7 @@ def read_card(path, require_verified: bool = True) -> Card:
     Parameters
     ----------
     path : str or Path
-        A regular file of at most :data:`uiofmu.files.MAX_INPUT_BYTES`.
+        A regular file of at most :data:`uiofmu.runtime.files.MAX_INPUT_BYTES`.
     require_verified : bool
         Refuse an unverified certificate (default).
 

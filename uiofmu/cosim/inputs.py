@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ProblemError
-from .files import read_text
-from .signals import Signal
+from ..runtime.errors import ProblemError
+from ..runtime.files import read_text
+from ..signals import Signal
 
 
 class SignalInputs:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .files import atomic_output
+from ..runtime.files import atomic_output
 
 
 def plot_report(result, path, title: str | None = None) -> Path:

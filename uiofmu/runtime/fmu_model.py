@@ -2,7 +2,7 @@
 
 A model lists its ports, each a named vector: parameters (set before initialisation),
 inputs, and outputs (computed on demand and cached until an input or the state changes).
-The pythonfmu slave (``templates/pythonfmu_slave.py.tmpl``) maps ports to FMI variables
+The pythonfmu slave (``uiofmu/fmu/templates/pythonfmu_slave.py.tmpl``) maps ports to FMI variables
 ``name[1..size]`` without knowing what the model is; the C backend generates the same ports.
 
 States (:meth:`ObserverModel.get_state`, :meth:`PlantModel.get_state`) are plain JSON-ready
@@ -16,7 +16,7 @@ import numpy as np
 
 from .card import card_from_data
 from .plant_runtime import PlantRuntime
-from .runtime import Runtime, RuntimeInputError
+from .observer import Runtime, RuntimeInputError
 from .schedules import StepRejected
 from .state import StateReader, StateRejected
 
@@ -138,8 +138,8 @@ class ObserverModel(StatefulModel):
 class PlantModel(StatefulModel):
     """A plant as FMU ports: ``u, d -> y, x``; parameters ``x0`` and the runtime's physical ones.
 
-    The runtime is a linear :class:`~uiofmu.plant_runtime.PlantRuntime` or a
-    :class:`~uiofmu.mujoco_runtime.MujocoRuntime`; both hold ``x0``, ``u``, ``d``, ``x``, ``y()``,
+    The runtime is a linear :class:`~uiofmu.runtime.plant_runtime.PlantRuntime` or a
+    :class:`~uiofmu.runtime.mujoco_runtime.MujocoRuntime`; both hold ``x0``, ``u``, ``d``, ``x``, ``y()``,
     ``step(h)`` and their physical parameters ``param_names``, ``params``, ``apply_parameters()``.
     """
 

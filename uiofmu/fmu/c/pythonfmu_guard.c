@@ -38,7 +38,7 @@
  *
  * Compile: cc -std=c99 -shared -fPIC -fvisibility=hidden -DGUARD_GUID='"..."'
  *          -DGUARD_MODEL='"..."' -I<fmi2 headers> pythonfmu_guard.c -ldl -pthread
- * (uiofmu/pythonfmu_guard.py does this with the GUID and model identifier of the FMU's
+ * (uiofmu/fmu/pythonfmu_guard.py does this with the GUID and model identifier of the FMU's
  * modelDescription.xml, both checked before they become string literals).
  */
 #define _GNU_SOURCE

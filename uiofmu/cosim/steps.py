@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ProblemError
-from .files import read_text
+from ..runtime.errors import ProblemError
+from ..runtime.files import read_text
 
 #: Most communication steps of one run.
 MAX_STEPS = 10_000_000

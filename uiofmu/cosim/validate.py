@@ -1,6 +1,6 @@
 """``uiofmu validate``: the static check of fmpy, then the FMU against the reference.
 
-An observer FMU is run side by side with the reference runtime (:class:`uiofmu.runtime.Runtime`)
+An observer FMU is run side by side with the reference runtime (:class:`uiofmu.runtime.observer.Runtime`)
 on random inputs and a random sequence of the steps its schedule admits; a plant FMU against
 the exact discretisation of its plant (scipy's matrix exponential) on random steps.
 
@@ -18,11 +18,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .card import card_from_data
-from .errors import FmuError
+from ..runtime.card import card_from_data
+from ..runtime.errors import FmuError
 from .fmi import Fmu, FmuCallError, read_model_json
-from .plant import Plant
-from .runtime import Runtime
+from ..plant import Plant
+from ..runtime.observer import Runtime
 
 #: Largest accepted relative difference between an FMU and its reference.
 EQUALITY_RTOL = 1e-12
@@ -128,7 +128,7 @@ def _mujoco(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
     """A MuJoCo plant FMU against MuJoCo driven directly with the same steps (identical)."""
     from pathlib import Path
 
-    from .mujoco_runtime import MujocoRuntime
+    from ..runtime.mujoco_runtime import MujocoRuntime
 
     ref = MujocoRuntime(spec["mujoco"], Path(fmu.resources))
     report.tolerance = 0.0

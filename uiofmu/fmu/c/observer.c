@@ -2,7 +2,7 @@
  *
  * One generic file for every observer family: the design (matrices and schedule) comes from
  * design_data.c, generated from the design card. The step semantics are those of the
- * reference runtime (uiofmu/runtime.py):
+ * reference runtime (uiofmu/runtime/observer.py):
  *
  *   outputs at t_k:  xhat_k = Xz z_k + Xy y_k   (xhat_0 = the parameter xhat0)
  *                    r_k    = y_k - C xhat_k

@@ -1,0 +1,12 @@
+"""What ships inside every FMU: the card schema, the observer and plant runtimes, the FMU models.
+
+numpy only (``mujoco_runtime`` also imports mujoco, on first use). The folder is copied whole into
+each pythonfmu FMU, under a name derived from its content, and imports nothing from the rest of
+uiofmu; ``tests/test_runtime_package.py`` holds it to that. Every module is imported here, at
+once: FMUs of one runtime share the package in a process, and the folder it was first loaded
+from may be gone by the time a later module would be needed.
+"""
+
+from . import (card, errors, files, fmu_model, matrices, mujoco_runtime, observer, plant_runtime,  # noqa: F401
+               registry, schedules, state, stepping, text, tolerances)
+from .observer import Runtime, RuntimeInputError  # noqa: F401
