@@ -44,7 +44,8 @@ def test_same_interface_as_the_python_backend(cfmus, tmp_path):
     card, path = cfmus[0]["sampled-data"]
     py = build_observer(card, tmp_path / "py.fmu", backend="python")
     a, b = read_model_description(str(path)), read_model_description(str(py))
-    key = lambda v: (v.name, v.valueReference, v.causality, v.variability, float(v.start))  # noqa: E731
+    key = lambda v: (v.name, v.valueReference, v.causality, v.variability, v.initial,  # noqa: E731
+                     None if v.start is None else float(v.start))
     assert [key(v) for v in a.modelVariables] == [key(v) for v in b.modelVariables]
 
 

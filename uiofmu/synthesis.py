@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from . import __version__
-from .runtime.card import FORMAT, VERSION, Card, card_from_data, to_lists
+from .runtime.card import FORMAT, VERSION, Card, card_from_data, declared_ports, to_lists
 from .runtime.errors import CardError, InfeasibleError, NumericalError
 from .existence import Existence
 from .families import DesignResult, available_family
@@ -161,7 +161,9 @@ def assemble_card(problem: Problem, result: DesignResult, existence: Existence, 
         "matrices": to_lists(result.matrices),
         "certificate": to_lists(result.certificate),
         "problem": problem.data,
+        "kernel": "affine",
         "timing": {"total_s": time.perf_counter() - started, "lmi_assembly_s": lmi.assembly_time,
                    "solver_s": lmi.solver_time, "solves": lmi.solves, "backend": lmi.backend},
     }
+    data["ports"] = [port.to_data() for port in declared_ports(data, result.matrices)]
     return card_from_data(data)

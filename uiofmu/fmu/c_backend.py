@@ -28,6 +28,7 @@ from ..runtime.card import Card
 from ..runtime.errors import CardError, FmuError
 from ..runtime.files import atomic_output, check_output_file
 from ..runtime.schedules import schedule_axes
+from ..runtime.ports import model_structure
 from ..runtime.text import c_string
 from ..runtime.tolerances import STEP_RTOL
 
@@ -126,6 +127,32 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
     return "\n".join(lines)
 
 
+def write_variables(root, ports) -> None:
+    """``<ModelVariables>`` and ``<ModelStructure>`` of a declaration (value references in its order).
+
+    Parameters are ``fixed`` and ``exact`` with their start values; inputs ``continuous`` with
+    theirs; outputs ``calculated`` (their first values follow from the parameters and, for those
+    that declare it, the inputs; :func:`uiofmu.runtime.ports.model_structure`).
+    """
+    variables = SubElement(root, "ModelVariables")
+    index = 0
+    for port in ports:
+        for i in range(port.size):
+            attrs = {"name": f"{port.name}[{i + 1}]", "valueReference": str(index), "causality": port.causality,
+                     "description": port.description}
+            start = {"start": repr(float(port.values[i]))}
+            if port.causality == "parameter":
+                attrs.update(variability="fixed", initial="exact")
+            elif port.causality == "output":
+                attrs.update(variability="continuous", initial="calculated")
+                start = {}
+            else:
+                attrs["variability"] = "continuous"
+            SubElement(SubElement(variables, "ScalarVariable", attrs), "Real", start)
+            index += 1
+    model_structure(root, ports)
+
+
 def model_description(card: Card, guid: str, identifier: str, sources: list[str]) -> bytes:
     """``modelDescription.xml`` with the ports of the python backend."""
     from ..runtime.fmu_model import ObserverModel
@@ -148,28 +175,7 @@ def model_description(card: Card, guid: str, identifier: str, sources: list[str]
     cats = SubElement(root, "LogCategories")
     for name in ("logStatusWarning", "logStatusDiscard", "logStatusError"):
         SubElement(cats, "Category", {"name": name})
-    variables = SubElement(root, "ModelVariables")
-    outputs = []
-    index = 0
-    for group, causality in ((model.parameters, "parameter"), (model.inputs, "input"), (model.outputs, "output")):
-        for port in group:
-            for i in range(port.size):
-                attrs = {"name": f"{port.name}[{i + 1}]", "valueReference": str(index), "causality": causality,
-                         "description": port.description}
-                if causality == "parameter":
-                    attrs.update(variability="fixed", initial="exact")
-                elif causality == "output":
-                    attrs.update(variability="continuous", initial="exact")
-                    outputs.append(index + 1)
-                else:
-                    attrs["variability"] = "continuous"
-                sv = SubElement(variables, "ScalarVariable", attrs)
-                SubElement(sv, "Real", {"start": repr(float(port.values[i]))})
-                index += 1
-    structure = SubElement(root, "ModelStructure")
-    out = SubElement(structure, "Outputs")
-    for i in outputs:
-        SubElement(out, "Unknown", {"index": str(i)})
+    write_variables(root, model.ports)
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
 
 

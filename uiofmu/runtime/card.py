@@ -17,6 +17,7 @@ import numpy as np
 from .errors import CardError
 from .files import parse_json, read_text, write_atomic
 from .matrices import as_array, as_scalar, as_vector
+from .ports import check_declared, observer_ports
 from .registry import KNOWN
 from .schedules import AXES
 from .text import check_name, check_text
@@ -121,6 +122,16 @@ class Card:
         """Whether the card estimates the unknown input."""
         return all(k in self.matrices for k in DHAT)
 
+    @property
+    def kernel(self) -> str:
+        """The runtime kernel that steps the observer (:data:`KERNELS`)."""
+        return self.data.get("kernel", "affine")
+
+    @property
+    def ports(self) -> list:
+        """The observer's ports (:mod:`uiofmu.runtime.ports`), from its kernel, dims and schedule."""
+        return declared_ports(self.data, self.matrices)
+
     def to_json(self) -> str:
         """The card as text."""
         return _dump(self.data, 0) + "\n"
@@ -131,6 +142,9 @@ class Card:
         return write_atomic(path, self.to_json(), "design card")
 
 
+#: Runtime kernels: how an observer steps. ``affine``: ``z+ = N z + L y + G u + c``,
+#: ``xhat = Xz z + Xy y`` with the matrices its schedule picks (:mod:`uiofmu.runtime.observer`).
+KERNELS = ("affine",)
 #: Largest dimension a card may declare (states, inputs, outputs, observer states).
 MAX_DIM = 1000
 #: Most design intervals an interval schedule may list.
@@ -324,7 +338,18 @@ def check_card(data, require_verified: bool = True) -> dict:
     for key in ("bound", "generator"):
         if key in data:
             _text(data[key], key)
-    return _check_matrices(data["matrices"], dims, schedule["kind"], schedule)
+    _choice(data.get("kernel", "affine"), "kernel", KERNELS)
+    matrices = _check_matrices(data["matrices"], dims, schedule["kind"], schedule)
+    if "ports" in data:
+        check_declared(data["ports"], declared_ports(data, matrices))
+    return matrices
+
+
+
+def declared_ports(data: dict, matrices: dict) -> list:
+    """The ports the card's kernel implements for its dims, schedule and matrices."""
+    feeds_y = bool(np.any(np.asarray(matrices["Xy"]) != 0))
+    return observer_ports(data["dims"], data["schedule"]["kind"], "Dy" in matrices, feeds_y)
 
 
 def card_from_data(data: dict, require_verified: bool = True) -> Card:

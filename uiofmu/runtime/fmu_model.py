@@ -16,6 +16,7 @@ import numpy as np
 
 from .card import card_from_data
 from .plant_runtime import PlantRuntime
+from .ports import PortSpec, plant_ports
 from .observer import Runtime, RuntimeInputError
 from .schedules import StepRejected
 from .state import StateReader, StateRejected
@@ -33,20 +34,37 @@ def _port_values(r: StateReader, key: str, ports: list) -> list:
 
 
 class Port:
-    """A named vector of FMI Real variables ``name[1..size]``."""
+    """A declared port (:class:`~uiofmu.runtime.ports.PortSpec`) with the array holding its values."""
 
-    def __init__(self, name: str, values: np.ndarray, description: str):
-        self.name = name
+    def __init__(self, spec: PortSpec, values: np.ndarray):
+        if values.shape != (spec.size,):
+            raise ValueError(f"port {spec.name}: {values.shape[0]} values for a port of size {spec.size}")
+        self.spec = spec
         self.values = values
-        self.description = description
+
+    name = property(lambda self: self.spec.name, doc="The port's name.")
+    description = property(lambda self: self.spec.description, doc="What the port carries.")
+    causality = property(lambda self: self.spec.causality, doc="parameter, input or output.")
+    depends = property(lambda self: self.spec.depends, doc="The input ports an output depends on.")
 
     @property
     def size(self) -> int:
         """Number of scalar variables."""
-        return int(self.values.shape[0])
+        return self.spec.size
 
 
-class StatefulModel:
+class PortsModel:
+    """A model's ports: all of them in declaration order (``ports``, the order of their value
+    references) and by causality (``parameters``, ``inputs``, ``outputs``)."""
+
+    def _declare(self, specs: list, arrays: dict) -> None:
+        """Each declared port over its array in ``arrays`` (a new zero vector where none)."""
+        self.ports = [Port(s, np.zeros(s.size) if arrays.get(s.name) is None else arrays[s.name]) for s in specs]
+        self.parameters, self.inputs, self.outputs = ([p for p in self.ports if p.causality == c]
+                                                      for c in ("parameter", "input", "output"))
+
+
+class StatefulModel(PortsModel):
     """What observer and plant models share: their state is the runtime's plus the parameter ports'."""
 
     kind = "model"
@@ -90,17 +108,9 @@ class ObserverModel(StatefulModel):
     def __init__(self, spec: dict):
         self.card = card_from_data(spec["card"])
         self.rt = Runtime(self.card)
-        n, p, q = self.rt.n, self.rt.p, self.rt.q
-        self.parameters = [Port("xhat0", self.rt.xhat0.copy(), "initial state estimate at the start time")]
-        if self.card.schedule["kind"] == "interval":
-            self.parameters.append(Port("h_prev0", np.array([self.rt.h_prev0]),
-                                        "sampling interval assumed before the first step, h_{-1} [s]"))
-        self.inputs = [Port("y", self.rt.y, "measured outputs at the current communication point"),
-                       Port("u", self.rt.u, "known inputs at the current communication point")]
-        self.outputs = [Port("xhat", np.zeros(n), "state estimate at the current communication point"),
-                        Port("r", np.zeros(p), "output residual y - C xhat")]
-        if self.rt.has_dhat:
-            self.outputs.append(Port("dhat", np.zeros(q), "unknown-input estimate over the last step"))
+        arrays = {"xhat0": self.rt.xhat0.copy(), "h_prev0": np.array([self.rt.h_prev0]), "y": self.rt.y,
+                  "u": self.rt.u}
+        self._declare(self.card.ports, arrays)
         self.dirty = True
 
     def initialize(self) -> None:
@@ -147,13 +157,11 @@ class PlantModel(StatefulModel):
 
     def __init__(self, rt, param_targets: dict | None = None):
         self.rt = rt
-        self.parameters = [Port("x0", rt.x0.copy(), "initial state")]
-        for i, name in enumerate(rt.param_names):
-            self.parameters.append(Port(name, rt.params[i:i + 1].copy(), f"physical parameter {param_targets[name]}"))
-        self.inputs = [Port("u", rt.u, "known inputs (held over the step)"),
-                       Port("d", rt.d, "unknown inputs (held over the step)")]
-        self.outputs = [Port("y", np.zeros(rt.p), "measured outputs C x"),
-                        Port("x", np.zeros(rt.n), "true state (for validation)")]
+        physical = [(name, param_targets[name]) for name in rt.param_names]
+        arrays = {"x0": rt.x0.copy(), "u": rt.u, "d": rt.d,
+                  **{name: rt.params[i:i + 1].copy() for i, name in enumerate(rt.param_names)}}
+        specs = plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical)
+        self._declare(specs, arrays)
         self.dirty = True
 
     def initialize(self) -> None:

@@ -1,0 +1,152 @@
+"""The ports of an FMU, declared once: the models, ``modelDescription.xml`` and the C table use it.
+
+A port is a named vector of FMI variables ``name[1..size]`` of one causality and one type. Its
+value references are the positions of its elements in the declaration: the ports in order,
+each element after the other, from 0. An output declares the inputs it depends on at the same
+communication point (``depends``): ``xhat = Xz z + Xy y`` depends on ``y`` when the kernel feeds
+``y`` through, the plant's ``y = C x`` on none; importers that check for algebraic loops read
+it from ``<ModelStructure>``.
+
+The declaration of an observer follows from its card (kernel, dims, schedule, dhat) and is
+written into the card by ``uiofmu design``; :func:`check_declared` refuses a card whose
+declaration differs from the one its kernel implements.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from xml.etree.ElementTree import SubElement
+
+from .errors import CardError
+
+CAUSALITIES = ("parameter", "input", "output")
+TYPES = ("Real", "Integer")
+
+
+@dataclass(frozen=True)
+class PortSpec:
+    """One port.
+
+    Attributes
+    ----------
+    name : str
+        FMI variables are ``name[1]`` .. ``name[size]``.
+    size : int
+    causality : {"parameter", "input", "output"}
+        Parameters are fixed (set before initialisation), inputs continuous, outputs computed.
+    description : str
+    type : {"Real", "Integer"}
+    depends : tuple of str
+        Outputs: the input ports they depend on at the same communication point.
+    """
+
+    name: str
+    size: int
+    causality: str
+    description: str
+    type: str = "Real"
+    depends: tuple = ()
+
+    def to_data(self) -> dict:
+        """The card's JSON form."""
+        return {**asdict(self), "depends": list(self.depends)}
+
+
+def value_references(ports) -> dict:
+    """``{port name: first value reference}`` of a declaration."""
+    out, vr = {}, 0
+    for port in ports:
+        out[port.name] = vr
+        vr += port.size
+    return out
+
+
+def model_structure(root, ports) -> None:
+    """Append ``<ModelStructure>`` for variables written in declaration order (value reference =
+    index - 1): every output under ``<Outputs>`` with the inputs it depends on (``dependencies``,
+    possibly empty: no feedthrough) and under ``<InitialUnknowns>`` (outputs are ``calculated``)."""
+    first, index, outputs = {}, 1, []
+    for port in ports:
+        first[port.name] = index
+        if port.causality == "output":
+            outputs += [(index + i, port) for i in range(port.size)]
+        index += port.size
+    sizes = {port.name: port.size for port in ports}
+    structure = SubElement(root, "ModelStructure")
+    if outputs:
+        out = SubElement(structure, "Outputs")
+        for i, port in outputs:
+            deps = [first[name] + k for name in port.depends for k in range(sizes[name])]
+            SubElement(out, "Unknown", {"index": str(i), "dependencies": " ".join(map(str, deps))})
+        init = SubElement(structure, "InitialUnknowns")
+        for i, _ in outputs:
+            SubElement(init, "Unknown", {"index": str(i)})
+
+
+def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool = True) -> list:
+    """The declaration of the affine observer kernel (every family today).
+
+    Parameters
+    ----------
+    dims : dict
+        The card's ``dims`` (``n``, ``m``, ``p``, ``q``).
+    schedule_kind : str
+        ``interval`` adds the parameter ``h_prev0``.
+    has_dhat : bool
+        Adds the output ``dhat``.
+    feeds_y : bool
+        Whether ``xhat`` depends on the ``y`` of the same communication point (``Xy != 0``).
+
+    Returns
+    -------
+    list of PortSpec
+    """
+    n, m, p, q = dims["n"], dims["m"], dims["p"], dims["q"]
+    through = ("y",) if feeds_y else ()
+    ports = [PortSpec("xhat0", n, "parameter", "initial state estimate at the start time")]
+    if schedule_kind == "interval":
+        ports.append(PortSpec("h_prev0", 1, "parameter", "sampling interval assumed before the first step, h_{-1} [s]"))
+    ports += [PortSpec("y", p, "input", "measured outputs at the current communication point"),
+              PortSpec("u", m, "input", "known inputs at the current communication point"),
+              PortSpec("xhat", n, "output", "state estimate at the current communication point", depends=through),
+              PortSpec("r", p, "output", "output residual y - C xhat", depends=("y",))]
+    if has_dhat:
+        ports.append(PortSpec("dhat", q, "output", "unknown-input estimate over the last step", depends=("y",)))
+    return ports
+
+
+def plant_ports(n: int, m: int, p: int, q: int, parameters=()) -> list:
+    """The declaration of a plant: parameters ``x0`` and the physical ``(name, what)`` pairs,
+    inputs ``u``, ``d`` (held over the step), outputs ``y = C x`` and ``x`` (no feedthrough)."""
+    ports = [PortSpec("x0", n, "parameter", "initial state")]
+    ports += [PortSpec(name, 1, "parameter", f"physical parameter {what}") for name, what in parameters]
+    return ports + [PortSpec("u", m, "input", "known inputs (held over the step)"),
+                    PortSpec("d", q, "input", "unknown inputs (held over the step)"),
+                    PortSpec("y", p, "output", "measured outputs C x"),
+                    PortSpec("x", n, "output", "true state (for validation)")]
+
+
+def check_declared(declared, expected: list) -> None:
+    """Refuse a card whose ``ports`` differ from what its kernel implements.
+
+    Parameters
+    ----------
+    declared : object
+        The card's ``ports`` entry (parsed JSON).
+    expected : list of PortSpec
+
+    Raises
+    ------
+    CardError
+        Naming the first port that differs.
+    """
+    if not isinstance(declared, list):
+        raise CardError(f"design card ports: expected a list of ports, found {type(declared).__name__}")
+    want = [p.to_data() for p in expected]
+    for i, (have, port) in enumerate(zip(declared, want)):
+        if have != port:
+            shown = {k: have.get(k) for k in port} if isinstance(have, dict) else have
+            raise CardError(f"design card ports[{i}]: expected {port}, found {repr(shown)[:200]}")
+    if len(declared) != len(want):
+        raise CardError(f"design card ports: the kernel has {len(want)} ports "
+                        f"({', '.join(p['name'] for p in want)}), the card declares {len(declared)}")
