@@ -139,3 +139,33 @@ d = [[{kind = "random", seed = 3, std = 1.0, hold = 0.05}]]
     # the default horizon runs until the certified bound reaches 1e-3 of the initial error
     assert m["final_error_norm"] <= 1e-3 * m["certified_overshoot"] * m["initial_error_norm"]
     assert m["steps_to_1pct"] is not None
+
+
+@pytest.mark.parametrize("header,fragment", [
+    ("time,u[1]", "missing column(s) d[1]"),
+    ("time,u[1],d[1],mode[1]", "unknown column 'mode[1]' (the FMUs take u[1..1], d[1..1])"),
+    ("time,u[1],d[1],y[1]", "unknown column 'y[1]'"),            # y comes from the plant, not the table
+])
+def test_every_csv_column_is_used_and_every_input_has_one(built, cli, tmp_path, header, fragment):
+    _, d = built
+    table = tmp_path / "in.csv"
+    table.write_text(header + "\n" + ",".join(["0"] * len(header.split(","))) + "\n")
+    res = cli("cosim", "--plant", d / "plant.fmu", "--observer", d / "obs.fmu", "--inputs", table,
+              "--out", tmp_path / "r")
+    assert res.code == 2 and fragment in res.err, res.err
+
+
+def test_signals_are_routed_by_name(built):
+    """The observer's y comes from the plant's y; u (both FMUs) and d (the plant) from the source;
+    an input nothing gives is named."""
+    from uiofmu.cosim.fmi import Fmu
+    from uiofmu.cosim.master import routes
+    from uiofmu.runtime.errors import FmuError
+
+    _, d = built
+    with Fmu(d / "plant.fmu", "plant") as plant, Fmu(d / "obs.fmu", "observer") as obs:
+        assert routes(plant, obs, {"u": 1, "d": 1}) == (["y"], ["u"])
+        with pytest.raises(FmuError, match=r"the plant FMU takes the input d\[1\.\.1\], which no plant output"):
+            routes(plant, obs, {"u": 1})
+        with pytest.raises(FmuError, match="the plant FMU takes 1 inputs u, the input source gives 2"):
+            routes(plant, obs, {"u": 2, "d": 1})

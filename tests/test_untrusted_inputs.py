@@ -376,10 +376,10 @@ def test_step_files_and_input_tables_are_bounded(tmp_path, example1_card):
     binary = tmp_path / "in.csv"
     binary.write_bytes(b"time,u[1]\n0,\x00\xff\n")
     with pytest.raises(ProblemError, match="not UTF-8 text"):
-        CsvInputs(binary, 1, 1)
+        CsvInputs(binary, {"u": 1, "d": 1})
     binary.write_bytes(b"time,u[1]\n0,\x001\n")
     with pytest.raises(ProblemError, match="contains a NUL character"):
-        CsvInputs(binary, 1, 1)
+        CsvInputs(binary, {"u": 1, "d": 1})
 
 
 @pytest.mark.parametrize("text,fragment", [

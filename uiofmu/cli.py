@@ -165,7 +165,7 @@ def _cmd_cosim(args) -> int:
     spec = args.steps or default_steps(card)
     t_end = args.t_end if args.t_end is not None else default_t_end(card)
     steps = step_sequence(spec, t_end, seed=args.seed)
-    inputs = load_inputs(args.inputs, args.plant) if args.inputs else None
+    inputs = load_inputs(args.inputs, args.plant, args.observer) if args.inputs else None
     result = cosimulate(args.plant, args.observer, steps, inputs)
     paths = write_outputs(result, args.out, title=f"{card.name}: {card.family} observer, steps {spec}")
     print(f"{card.name}: co-simulation of {Path(args.observer).name} against {Path(args.plant).name}")
@@ -305,8 +305,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "  dropout:H:P:MAX      nominal H, each sample lost with probability P, at most "
                                    "MAX in a row (--seed)\n"
                                    "  file:PATH            one step per line\n\n"
-                                   "inputs: the [signals] of the observer's problem, or --inputs CSV with columns "
-                                   "time,u[1],...,d[1],... (each row held from its time).")
+                                   "signals are routed by name: each observer input named like a plant output (y) "
+                                   "takes it; the plant's inputs and the observer's others (u, d, ...) come from the "
+                                   "[signals] of the observer's problem, or from --inputs CSV with a column "
+                                   "time and one per element of each of them (u[1],...,d[1],...; an unknown or "
+                                   "missing column is an error), each row held from its time.")
     p.add_argument("--plant", required=True, metavar="P.fmu", help="plant FMU (inputs u, d; outputs y, x)")
     p.add_argument("--observer", required=True, metavar="O.fmu", help="observer FMU built by uiofmu")
     p.add_argument("--steps", metavar="SPEC",

@@ -209,6 +209,16 @@ class Fmu:
             self._vectors[name] = refs
         return self._vectors[name]
 
+    def ports(self, causality: str) -> dict:
+        """The vectors ``name[1..k]`` of one causality (``"input"``, ``"output"``, ``"parameter"``),
+        as ``{name: k}`` in the order of the model description."""
+        out: dict = {}
+        for v in self.description.modelVariables:
+            if v.causality == causality and v.name.endswith("]") and "[" in v.name:
+                name = v.name[:v.name.index("[")]
+                out[name] = out.get(name, 0) + 1
+        return out
+
     @property
     def resources(self) -> str:
         """The extracted ``resources`` folder."""

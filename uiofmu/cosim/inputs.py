@@ -1,7 +1,10 @@
 """Co-simulation inputs: the problem's ``[signals]`` or a CSV file, held between rows (ZOH).
 
-A CSV has a header ``time,u[1],...,d[1],...`` (any subset of the plant's ``u`` and ``d``
-channels; a missing channel is zero) and one row per change; each row holds from its time
+An input source offers named vectors (``sizes``: ``{"u": m, "d": q, ...}``) and their values at
+a time (``values(t)``); the master routes each to the FMU inputs of the same name. A CSV has a
+header ``time,u[1],...,d[1],...`` with one column for every element of every input the master
+asks the table for (the plant's inputs and the observer's that no plant output feeds: ``u``,
+``d``, ``mode``, ``theta``, ...), no other, and one row per change; each row holds from its time
 until the next row's.
 """
 
@@ -21,18 +24,15 @@ from ..signals import Signal
 
 
 class SignalInputs:
-    """Inputs from signal definitions (sums of terms per channel)."""
+    """Inputs from signal definitions (sums of terms per channel): the vectors ``u`` and ``d``."""
 
     def __init__(self, u: tuple[Signal, ...], d: tuple[Signal, ...]):
         self.u_signals, self.d_signals = u, d
+        self.sizes = {"u": len(u), "d": len(d)}
 
-    def u(self, t: float) -> np.ndarray:
-        """Known inputs at time t."""
-        return np.array([s(t) for s in self.u_signals])
-
-    def d(self, t: float) -> np.ndarray:
-        """Unknown inputs at time t."""
-        return np.array([s(t) for s in self.d_signals])
+    def values(self, t: float) -> dict:
+        """``{"u": u(t), "d": d(t)}``."""
+        return {"u": np.array([s(t) for s in self.u_signals]), "d": np.array([s(t) for s in self.d_signals])}
 
 
 class CsvInputs:
@@ -42,12 +42,17 @@ class CsvInputs:
     ----------
     path : str or Path
         The file.
-    m, q : int
-        Numbers of known and unknown inputs of the plant.
+    sizes : dict of str to int
+        The vectors the table must give (one column ``name[i]`` per element): every column of
+        the table is one of them, and every one of them has its column.
+    owners : dict of str to str, optional
+        Which FMU takes each vector (``"plant"``, ``"observer"``), for the messages.
     """
 
-    def __init__(self, path, m: int, q: int):
+    def __init__(self, path, sizes: dict, owners: dict | None = None):
         path = Path(path)
+        self.sizes = {k: int(v) for k, v in sizes.items() if v}
+        owners = owners or {}
         text = read_text(path, "input table", error=ProblemError)
         try:
             rows = list(csv.reader(io.StringIO(text, newline="")))
@@ -56,19 +61,23 @@ class CsvInputs:
         if not rows or not rows[0] or rows[0][0].strip() != "time":
             raise ProblemError(f"--inputs {path}: the first column must be 'time'")
         header = [h.strip() for h in rows[0]]
+        expected = ", ".join(f"{k}[1..{v}]" for k, v in self.sizes.items()) or "none"
         cols = {}
         for j, name in enumerate(header[1:], start=1):
-            m_ = re.fullmatch(r"(u|d|mode|theta)\[([1-9]\d{0,8})\]|(mode)", name)
-            if not m_:
-                raise ProblemError(f"--inputs {path}: unknown column {name[:60]!r} "
-                                   "(expected u[i], d[i], mode, theta[i])")
-            kind, idx = (m_.group(1), int(m_.group(2))) if m_.group(1) else ("mode", 1)
-            limit = {"u": m, "d": q}.get(kind)
-            if limit is not None and not 1 <= idx <= limit:
-                raise ProblemError(f"--inputs {path}: column {name} but the plant has {limit} {kind} channel(s)")
+            m_ = re.fullmatch(r"([A-Za-z_][A-Za-z0-9_]{0,63})\[([1-9]\d{0,8})\]", name)
+            if not m_ or m_.group(1) not in self.sizes:
+                raise ProblemError(f"--inputs {path}: unknown column {name[:60]!r} (the FMUs take {expected})")
+            kind, idx = m_.group(1), int(m_.group(2))
+            if not 1 <= idx <= self.sizes[kind]:
+                raise ProblemError(f"--inputs {path}: column {name} but the {owners.get(kind, 'FMUs')} has "
+                                   f"{self.sizes[kind]} {kind} channel(s)")
             if (kind, idx) in cols:
                 raise ProblemError(f"--inputs {path}: column {name} appears twice")
             cols[(kind, idx)] = j
+        missing = [f"{k}[{i}]" for k, v in self.sizes.items() for i in range(1, v + 1) if (k, i) not in cols]
+        if missing:
+            raise ProblemError(f"--inputs {path}: missing column(s) {', '.join(missing[:8])}"
+                               f"{' ...' if len(missing) > 8 else ''} (the FMUs take {expected})")
         data = []
         for i, row in enumerate(rows[1:], start=2):
             if not row or all(not c.strip() for c in row):
@@ -88,21 +97,14 @@ class CsvInputs:
         if np.any(np.diff(table[:, 0]) < 0):
             raise ProblemError(f"--inputs {path}: times must not decrease")
         self.times = table[:, 0]
-        self.u_table = np.zeros((len(table), m))
-        self.d_table = np.zeros((len(table), q))
+        self.tables = {k: np.zeros((len(table), v)) for k, v in self.sizes.items()}
         for (kind, idx), j in cols.items():
-            if kind == "u":
-                self.u_table[:, idx - 1] = table[:, j]
-            elif kind == "d":
-                self.d_table[:, idx - 1] = table[:, j]
+            self.tables[kind][:, idx - 1] = table[:, j]
 
     def _row(self, t: float) -> int:
         return max(int(np.searchsorted(self.times, t + 1e-12 * max(1.0, abs(t)), side="right")) - 1, 0)
 
-    def u(self, t: float) -> np.ndarray:
-        """Known inputs at time t."""
-        return self.u_table[self._row(t)].copy()
-
-    def d(self, t: float) -> np.ndarray:
-        """Unknown inputs at time t."""
-        return self.d_table[self._row(t)].copy()
+    def values(self, t: float) -> dict:
+        """Every vector of the table at time t."""
+        row = self._row(t)
+        return {k: v[row].copy() for k, v in self.tables.items()}

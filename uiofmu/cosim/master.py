@@ -129,8 +129,7 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
     with Fmu(plant_path, "plant") as plant, Fmu(observer_path, "observer") as obs:
         if not plant.has("x"):
             raise FmuError(f"{plant_path}: the plant FMU has no x[...] outputs; the error needs the true state")
-        if plant.has("y") and obs.has("y") and len(plant.refs("y")) != len(obs.refs("y")):
-            raise FmuError(f"plant has {len(plant.refs('y'))} outputs y but the observer expects {len(obs.refs('y'))}")
+        fed, sourced = routes(plant, obs, inputs.sizes)
         plant.initialize(0.0, {"x0": plant_x0} if plant_x0 is not None else None)
         obs.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
         n, p = len(plant.refs("x")), len(plant.refs("y"))
@@ -138,16 +137,20 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         T = np.zeros(K + 1)
         X, XH, Y = np.zeros((K + 1, n)), np.zeros((K + 1, n)), np.zeros((K + 1, p))
         U, D, R, DH = np.zeros((K + 1, m)), np.zeros((K + 1, q)), np.zeros((K + 1, p)), np.zeros((K + 1, nq))
+        plant_inputs = list(plant.ports("input"))
         t = 0.0
         with progress(total=K, desc="co-simulation", unit="step", enabled=show_progress) as bar:
             for k in range(K + 1):
+                values = inputs.values(t)
+                for name in plant_inputs:
+                    plant.set(name, values[name])
+                for name in fed:
+                    obs.set(name, plant.get(name))
+                for name in sourced:
+                    obs.set(name, values[name])
                 y = plant.get("y")
-                u, d = inputs.u(t), inputs.d(t)
-                plant.set("u", u)
-                plant.set("d", d)
-                obs.set("y", y)
-                obs.set("u", u)
-                T[k], X[k], Y[k], U[k], D[k] = t, plant.get("x"), y, u, d
+                T[k], X[k], Y[k] = t, plant.get("x"), y
+                U[k], D[k] = values.get("u", U[k]), values.get("d", D[k])
                 XH[k], R[k], DH[k] = obs.get("xhat"), obs.get("r"), obs.get("dhat")
                 if k == K:
                     break
@@ -174,6 +177,47 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
     return result
 
 
+def routes(plant, obs, source: dict) -> tuple[list, list]:
+    """Which observer inputs the plant feeds and which the input source does, by name.
+
+    Every observer input named like a plant output takes that output (``y``; ``mode``,
+    ``theta``, ``ydot`` where a plant has them); every other observer input, and every plant
+    input, takes the input source's vector of the same name (``u``, ``d``, ``mode``, ``theta``).
+
+    Parameters
+    ----------
+    plant, obs : Fmu
+    source : dict of str to int
+        The vectors the input source offers, with their sizes.
+
+    Returns
+    -------
+    (list of str, list of str)
+        The observer inputs fed by the plant, and those fed by the source.
+
+    Raises
+    ------
+    FmuError
+        For a vector whose sizes differ between the FMUs (or the source), and for an input
+        that nothing feeds, naming it.
+    """
+    outputs, plant_in, obs_in = plant.ports("output"), plant.ports("input"), obs.ports("input")
+    fed = [name for name in obs_in if name in outputs]
+    for name in fed:
+        if outputs[name] != obs_in[name]:
+            raise FmuError(f"the plant has {outputs[name]} outputs {name} but the observer expects {obs_in[name]}")
+    sourced = [name for name in obs_in if name not in outputs]
+    for who, ports in (("plant", plant_in), ("observer", {k: obs_in[k] for k in sourced})):
+        for name, size in ports.items():
+            if name not in source:
+                offered = ", ".join(f"{k}[{v}]" for k, v in source.items() if v) or "nothing"
+                raise FmuError(f"the {who} FMU takes the input {name}[1..{size}], which no plant output and no "
+                               f"input of the source gives (the source gives {offered})")
+            if source[name] != size:
+                raise FmuError(f"the {who} FMU takes {size} inputs {name}, the input source gives {source[name]}")
+    return fed, sourced
+
+
 def write_outputs(result: CosimResult, out_dir, title: str | None = None) -> dict:
     """Write ``results.csv``, ``metrics.json`` and ``report.png`` into ``out_dir``.
 
@@ -196,17 +240,31 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None) -> dic
     return {"results": out / "results.csv", "metrics": out / "metrics.json", "report": out / "report.png"}
 
 
-def load_inputs(csv_path, plant_path):
-    """Inputs from a CSV sized for the plant FMU (its ``u[i]`` and ``d[i]`` inputs)."""
+def load_inputs(csv_path, plant_path, observer_path=None):
+    """Inputs from a CSV with a column for every input the FMUs take that no plant output feeds
+    (the plant's ``u[i]``, ``d[i]``, ..., and the observer's others), and no other column."""
     from fmpy import read_model_description
 
-    try:
-        names = {v.name for v in read_model_description(str(plant_path)).modelVariables}
-    except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for broken archives
-        raise FmuError(f"{plant_path}: not a readable FMU ({exc})") from None
-    count = lambda vec: sum(1 for i in range(1, len(names) + 1) if f"{vec}[{i}]" in names)  # noqa: E731
-    return CsvInputs(csv_path, count("u"), count("d"))
+    def inputs_and_outputs(path):
+        try:
+            variables = read_model_description(str(path)).modelVariables
+        except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for broken archives
+            raise FmuError(f"{path}: not a readable FMU ({exc})") from None
+        out = {"input": {}, "output": {}}
+        for v in variables:
+            if v.causality in out and v.name.endswith("]") and "[" in v.name:
+                name = v.name[:v.name.index("[")]
+                out[v.causality][name] = out[v.causality].get(name, 0) + 1
+        return out["input"], out["output"]
+
+    sizes, outputs = inputs_and_outputs(plant_path)
+    owners = dict.fromkeys(sizes, "plant")
+    if observer_path is not None:
+        for name, size in inputs_and_outputs(observer_path)[0].items():
+            if name not in outputs and name not in sizes:
+                sizes[name], owners[name] = size, "observer"
+    return CsvInputs(csv_path, sizes, owners)
 
 
 __all__ = ["CosimResult", "cosimulate", "default_inputs", "default_steps", "default_t_end", "load_inputs",
-           "observer_card", "step_sequence", "write_outputs"]
+           "observer_card", "routes", "step_sequence", "write_outputs"]

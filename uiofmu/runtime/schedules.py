@@ -19,6 +19,12 @@ A schedule is the only thing that differs between families at run time; the step
     with ``a = alpha**k`` computed afresh at each step (no drift; it underflows to exactly 0).
     A step other than ``dt`` follows ``step_policy``: ``"error"`` rejects it, ``"count"``
     (explicit opt-in) takes it as one step k whatever its length.
+
+Every schedule answers ``step_matrices(k, h, h_prev, mode=None, theta=None)`` and
+``output_matrices(k, h_prev, mode=None, theta=None)``: the step counter, the step length, the
+step before, and the scheduling inputs of the step when the kernel has them (``mode``: the
+known mode of a switched plant over the step; ``theta``: the window of parameter values of an
+LPV plant, newest last). The kinds above schedule on ``(k, h, h_prev)`` and ignore the others.
 """
 
 from __future__ import annotations
@@ -70,14 +76,14 @@ class ConstantSchedule:
         self.notices: list[str] = []
         self.step_rtol = step_rtol
 
-    def step_matrices(self, k: int, h: float, h_prev: float) -> dict:
+    def step_matrices(self, k: int, h: float, h_prev: float, mode=None, theta=None) -> dict:
         """The matrices of step ``k`` of length ``h`` (raises :class:`StepRejected`)."""
         if abs(h - self.dt) > self.step_rtol * self.dt:
             raise StepRejected(f"this observer was designed for steps of dt = {self.dt!r} s and received "
                                f"h = {h!r} s (step_policy = {self.policy!r})")
         return self.matrices
 
-    def output_matrices(self, k: int, h_prev: float) -> dict:
+    def output_matrices(self, k: int, h_prev: float, mode=None, theta=None) -> dict:
         """The output matrices at communication point ``k``."""
         return self.matrices
 
@@ -130,11 +136,11 @@ class IntervalSchedule:
         raise StepRejected(f"step h = {h!r} s is not one of the design intervals {{{listed}}} s "
                            f"(tolerance {self.step_rtol:g} relative; step_policy = 'error')")
 
-    def step_matrices(self, k: int, h: float, h_prev: float) -> dict:
+    def step_matrices(self, k: int, h: float, h_prev: float, mode=None, theta=None) -> dict:
         """The matrices of the step (h_k, h_{k-1})."""
         return self._step[self.index(h)][self.index(h_prev)]
 
-    def output_matrices(self, k: int, h_prev: float) -> dict:
+    def output_matrices(self, k: int, h_prev: float, mode=None, theta=None) -> dict:
         """The output matrices after a step h_{k-1}."""
         return self._out[self.index(h_prev)]
 
@@ -180,14 +186,14 @@ class GeometricSchedule:
             self._k = k
         return self._buf
 
-    def step_matrices(self, k: int, h: float, h_prev: float) -> dict:
+    def step_matrices(self, k: int, h: float, h_prev: float, mode=None, theta=None) -> dict:
         """The matrices of step k (raises :class:`StepRejected` for a step other than dt)."""
         if self.policy == "error" and abs(h - self.dt) > self.step_rtol * self.dt:
             raise StepRejected(f"this observer was designed for steps of dt = {self.dt!r} s and received "
                                f"h = {h!r} s (step_policy = 'error')")
         return self._evaluate(k)
 
-    def output_matrices(self, k: int, h_prev: float) -> dict:
+    def output_matrices(self, k: int, h_prev: float, mode=None, theta=None) -> dict:
         """The output matrices at communication point k."""
         return self._evaluate(k)
 
