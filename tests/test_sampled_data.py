@@ -13,6 +13,7 @@ from uiofmu.cosim.fmi import Fmu, FmuCallError
 from uiofmu.runtime.observer import Runtime
 from uiofmu.runtime.schedules import StepRejected
 from uiofmu.cosim.validate import validate
+from uiofmu.problem import problem_from_data
 
 
 def test_certificate_is_rechecked(building_card):
@@ -195,3 +196,42 @@ def test_cosim_defaults_follow_the_design_intervals(building_fmus, cli, tmp_path
     m = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert m["step_min"] >= 600 and m["step_max"] <= 7200 and m["step_min"] < m["step_max"]
     assert m["bound_respected"] is True
+
+
+def test_with_p_equal_q_the_error_on_ker_c_does_not_depend_on_the_gains():
+    """The theory behind the switching condition: for any gains that decouple exactly (K_i
+    forced, P_ij^-1 Q_ij free), ker C is invariant under every L_ij and the error there evolves
+    by the fixed map F_i."""
+    from uiofmu.families.random_plants import random_problem
+    from uiofmu.families.sampled_data import fixed_error_maps
+
+    problem = problem_from_data(random_problem("sampled-data", 11000042))
+    plant = problem.plant
+    assert plant.p == plant.q
+    samples = [plant.sampled(h) for h in problem.options.intervals]
+    F = fixed_error_maps(samples, plant.C)
+    basis = np.linalg.svd(plant.C)[2][plant.p:].T
+    rng = np.random.default_rng(0)
+    for s, Fi in zip(samples, F):
+        K = s.E @ np.linalg.inv(plant.C @ s.E)
+        for _ in range(3):
+            L = (np.eye(plant.n) - K @ plant.C) @ s.A - rng.normal(size=(plant.n, plant.p)) * 10 @ plant.C
+            np.testing.assert_allclose(plant.C @ L @ basis, 0, atol=1e-9 * np.abs(L).max())
+            np.testing.assert_allclose(basis.T @ L @ basis, Fi, atol=1e-9 * np.abs(L).max())
+
+
+def test_a_repeated_interval_sequence_that_grows_the_fixed_error_means_no_observer(cli, tmp_path):
+    """A campaign plant (p = q = 1) whose three intervals each design alone: repeating them
+    multiplies the fixed error by 1.052 per sample, so check says no observer exists (exit 2)."""
+    from uiofmu.families.random_plants import random_problem
+    from uiofmu.problem import to_toml
+
+    data = random_problem("sampled-data", 11000042)
+    path = tmp_path / "p.toml"
+    path.write_text(to_toml(data))
+    res = cli("check", path)
+    assert res.code == 2
+    assert "multiplies the error that exact decoupling cannot move (p = q: it lives on ker C) by 1.05" in res.out
+    for h in data["observer"]["intervals"]:                       # each interval alone has an observer
+        alone = problem_from_data({**data, "observer": {**data["observer"], "intervals": [h]}})
+        assert uiofmu.check(alone).exists

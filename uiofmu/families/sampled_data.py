@@ -27,7 +27,11 @@ the bound holds from k = 0 because ``z_0 = xhat_0 - K(h_{-1}) y_0`` with a state
 
 No exactly-decoupling observer converges faster than the sampled invariant zeros: a mode at
 ``z(H_i)`` of ``(A_i, E_i, C)`` stays in every ``L_ij``, so ``delta > max |z(H_i)|``, i.e.
-``alpha < 1 - max |z|^2``. :func:`check` says so before any solve.
+``alpha < 1 - max |z|^2``. :func:`check` says so before any solve. With as many outputs as
+unknown inputs (``p = q``) there is more: ``K_i`` is forced, ``ker C`` is invariant under every
+``L_ij`` whatever its other gains, and the error there evolves by fixed maps ``F_i``
+(:func:`fixed_error_maps`); when a repeated sequence of intervals multiplies it by 1 or more per
+sample, no exactly-decoupling observer converges for every sequence, and :func:`check` says which.
 """
 
 from __future__ import annotations
@@ -172,6 +176,7 @@ def _analysis(problem):
     conds.append(_per_interval([identifiability_condition(plant.C, s.E, f" at h = {h:g} s")
                                 for h, s in zip(opts.intervals, samples)], "rank(C E(h)) = q", opts.intervals))
     zmax, zarg = 0.0, opts.intervals[0]
+    floor = 0.0
     if all(c.holds for c in ranks):
         zeros = [zeros_condition(s.A, s.E, plant.C, False, f" at h = {h:g} s")
                  for h, s in zip(opts.intervals, samples)]
@@ -184,6 +189,10 @@ def _analysis(problem):
         for h, (_, modes) in zip(opts.intervals, fixed):
             if modes.size and np.abs(modes).max() > zmax:
                 zmax, zarg = float(np.abs(modes).max()), h
+        if len(samples) > 1 and plant.p == plant.q and existence_of(conds, "rank(C E(h)) = q"):
+            switching = _switching_condition(samples, plant.C, opts)
+            conds.append(switching)
+            floor = max(floor, switching.values["switching_radius"])
         limit = 1.0 - zmax * zmax
         info = {"largest_zero_modulus": zmax, "at_interval": zarg, "alpha_limit": limit}
         if opts.alpha == "max":
@@ -202,13 +211,69 @@ def _analysis(problem):
                 (f"requested decay sqrt(1 - alpha) = {delta:.6g} (alpha = {opts.alpha:g}) <= largest sampled "
                  f"invariant zero {zmax:.6g} (h = {zarg:g} s): no exactly-decoupling observer converges faster; "
                  f"alpha must be < 1 - {zmax:.6g}^2 = {limit:.6g} (or \"max\")"), {**info, "decay": delta}))
-    return Existence(NAME, tuple(conds)), samples, zmax
+    return Existence(NAME, tuple(conds)), samples, max(zmax, floor)
+
+
+def existence_of(conds, name: str) -> bool:
+    """Whether the condition ``name`` is among ``conds`` and holds."""
+    return any(c.name == name and c.holds for c in conds)
+
+
+#: Most interval sequences whose products :func:`_switching_condition` tries (per length).
+MAX_PRODUCTS = 4096
+
+
+def fixed_error_maps(samples, C) -> list:
+    """With as many outputs as unknown inputs (``p = q``), exact decoupling leaves no freedom on
+    ``ker C``: ``K_i = E_i (C E_i)^-1``, ``C (I - K_i C) A_i = 0``, and the error there evolves
+    by ``F_i = N' (I - K_i C) A_i N`` (``N`` an orthonormal basis of ``ker C``) whatever the other
+    gains, over every sequence of intervals. Returns the ``F_i``."""
+    p, n = C.shape
+    basis = np.linalg.svd(C)[2][p:].T
+    return [basis.T @ ((np.eye(n) - s.E @ np.linalg.solve(C @ s.E, C)) @ s.A) @ basis for s in samples]
+
+
+def _switching_condition(samples, C, opts) -> Condition:
+    """No exactly-decoupling observer converges for every sequence of intervals when a repeated
+    sequence of them multiplies the fixed error (:func:`fixed_error_maps`) by 1 or more per
+    sample: the spectral radius of its product, to the power 1/length (sequences of up to three
+    intervals). Its largest value also bounds the decay from below, like the sampled zeros."""
+    F = fixed_error_maps(samples, C)
+    N = len(F)
+    best, seq = 0.0, (0,)
+    for length in (1, 2, 3):
+        if N ** length > MAX_PRODUCTS:
+            break
+        for idx in np.ndindex(*(N,) * length):
+            M = F[idx[0]]
+            for i in idx[1:]:
+                M = F[i] @ M
+            r = float(np.abs(np.linalg.eigvals(M)).max()) ** (1.0 / length) if M.size else 0.0
+            if r > best * (1 + 1e-12):
+                best, seq = r, idx
+    text = ", ".join(f"{opts.intervals[i]:g}" for i in seq) + " s"
+    values = {"switching_radius": best, "sequence": [opts.intervals[i] for i in seq]}
+    if not best < 1.0 - ZERO_MARGIN:
+        return Condition("fixed error under switching", False, True,
+                         f"repeating the intervals {text} multiplies the error that exact decoupling cannot move "
+                         f"(p = q: it lives on ker C) by {best:.6g} per sample: no exactly-decoupling observer "
+                         "converges for every sequence of these intervals; drop one of them from observer.intervals",
+                         values)
+    if opts.alpha != "max" and not np.sqrt(1 - opts.alpha) > best + ZERO_MARGIN:
+        return Condition("fixed error under switching", False, True,
+                         f"requested decay sqrt(1 - alpha) = {np.sqrt(1 - opts.alpha):.6g} (alpha = {opts.alpha:g}) "
+                         f"<= {best:.6g}, the decay per sample of the error that exact decoupling cannot move when "
+                         f"the intervals {text} repeat; alpha must be < 1 - {best:.6g}^2 = {1 - best * best:.6g}",
+                         values)
+    return Condition("fixed error under switching", True, False,
+                     f"the error that exact decoupling cannot move (ker C, p = q) decays by at most {best:.6g} per "
+                     f"sample over the worst repeated sequence of intervals ({text})", values)
 
 
 def analyse(problem) -> Analysis:
     """Rank conditions, sampled invariant zeros and the decay they allow, for every interval."""
-    existence, samples, zmax = _analysis(problem)
-    return Analysis(existence, {"samples": samples, "largest_zero": zmax})
+    existence, samples, floor = _analysis(problem)
+    return Analysis(existence, {"samples": samples, "decay_floor": floor})
 
 
 def _lmis(samples, C):
@@ -375,7 +440,7 @@ def _interval_diagnosis(samples, C, t, intervals, alpha: float) -> str:
 
 def design(problem, analysis: Analysis) -> DesignResult:
     """Design the sampled-data UIO (Corollary 2)."""
-    existence, samples, zmax = analysis.existence, analysis.data["samples"], analysis.data["largest_zero"]
+    existence, samples, zmax = analysis.existence, analysis.data["samples"], analysis.data["decay_floor"]
     plant, opts = problem.plant, problem.options
     C, n, N = plant.C, plant.n, len(opts.intervals)
     t = state_scaling(plant.A, opts.scaling)
@@ -413,6 +478,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "intervals": list(opts.intervals),
         "alpha_limit_from_zeros": limit,
         "largest_sampled_zero": zmax,
+        "decay_floor_note": "the largest sampled zero, or (p = q) the fixed error's decay under the worst repeated "
+                            "sequence of intervals when larger",
         "sampled_invariant_zeros": [{"h": z["h"], "zeros": z["zeros"]} for z in zeros],
         "lmi_size": {"lmis": N * N, "lmi_dim": 2 * n, "normalisation_lmis": 2 * N, "equalities": N,
                      "scalar_variables": 1 + N * n * (n + 1) // 2 + N * n * plant.p + N * N * n * plant.p},

@@ -7,7 +7,7 @@ A schedule is the only thing that differs between families at run time; the step
     One set of matrices, designed for the period ``dt``. A step of another length follows
     ``step_policy``: ``"error"`` rejects it (the FMU answers fmi2Discard with a log line).
 ``interval``
-    Matrices per pair (h_k, h_{k-1}) of design intervals (sampled-data designs): the step
+    Matrices per pair (h_k, h_{k-1}) of design intervals (designs for a set of intervals): the step
     matrices ``N, L`` are indexed ``[i][j]``, ``G, c, Yx, Yu, Yc`` by ``[i]`` (the step
     taken), the output matrices ``Xz, Xy, Dy`` by ``[j]`` (the step before). A step h
     matches the interval H when ``|h - H| <= STEP_RTOL * H``; another step follows
