@@ -245,3 +245,34 @@ def test_a_closed_pythonfmu_instance_leaves_a_clean_heap_at_exit(example1_card, 
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "finalizePythonInterpreter" not in proc.stderr, proc.stderr[-4000:]
     assert "free'd" not in proc.stderr, proc.stderr[-4000:]
+
+
+def test_every_fmu_runs_its_default_experiment_in_fmpy(fmus):
+    """``<DefaultExperiment>`` with a step the FMU accepts: fmpy's simulate_fmu runs it as it is
+    (the observer's dt; the discrete plant's dt), with the observer's stop time long enough for
+    its certified bound to fall to 1e-3."""
+    from fmpy import read_model_description, simulate_fmu
+
+    card = fmus["card"]
+    for key in ("obs", "plant"):
+        exp = read_model_description(str(fmus[key])).defaultExperiment
+        assert exp is not None and float(exp.startTime) == 0.0 and float(exp.stepSize) == card.dt, key
+        result = simulate_fmu(str(fmus[key]))
+        assert len(result) == round(float(exp.stopTime) / card.dt) + 1, key
+    stop = float(read_model_description(str(fmus["obs"])).defaultExperiment.stopTime)
+    assert card.data["overshoot_bound"] * card.data["decay_bound"] ** (stop / card.dt) <= 1.01e-3
+
+
+def test_outputs_declare_their_dependencies(fmus):
+    """The observer's outputs depend on y (it feeds y through), the plant's on no input; every
+    output is calculated and an initial unknown."""
+    from fmpy import read_model_description
+
+    for key, expected in (("obs", {"y"}), ("plant", set())):
+        md = read_model_description(str(fmus[key]))
+        assert md.outputs and {o.variable.name for o in md.outputs} == {
+            v.name for v in md.modelVariables if v.causality == "output"}
+        for out in md.outputs:
+            assert out.variable.initial == "calculated" and out.variable.start is None
+            assert {d.name.split("[")[0] for d in out.dependencies} == expected, (key, out.variable.name)
+        assert {u.variable.name for u in md.initialUnknowns} == {o.variable.name for o in md.outputs}

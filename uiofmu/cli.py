@@ -106,7 +106,7 @@ def _cmd_plant(args) -> int:
         return 0
     problem = load_problem(args.problem)
     out = check_output_file(args.output or f"{model_identifier(problem.name, 'plant')}.fmu", "FMU", ".fmu")
-    path = build_plant(problem.plant, problem.name, out)
+    path = build_plant(problem.plant, problem.name, out, step=problem.options.step)
     print(f"{problem.name}: {problem.plant.time} plant FMU written to {path}")
     return 0
 

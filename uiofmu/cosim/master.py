@@ -23,6 +23,7 @@ from .inputs import CsvInputs, SignalInputs
 from .metrics import error_metrics
 from ..progress import progress
 from ..runtime.observer import Runtime
+from ..runtime.observer import default_horizon as default_t_end
 from .steps import step_sequence
 
 
@@ -73,16 +74,6 @@ def default_steps(card: Card) -> str:
     steps = Runtime(card).schedule.admissible_steps()
     return f"fixed:{steps[0]!r}" if len(steps) == 1 else "choice:" + ",".join(repr(h) for h in steps)
 
-
-def default_t_end(card: Card, floor: int = 50, cap: int = 5000) -> float:
-    """Long enough for the certified bound to fall to 1e-3 of the initial error (50 to 5000 steps
-    of the mean admissible step)."""
-    decay, over = card.data.get("decay_bound"), card.data.get("overshoot_bound")
-    k = cap
-    if decay and over and 0 < decay < 1:
-        k = int(math.ceil(math.log(1e-3 / over) / math.log(decay)))
-    h = float(np.mean(Runtime(card).schedule.admissible_steps()))
-    return min(max(k, floor), cap) * h
 
 
 def default_inputs(card: Card):

@@ -5,7 +5,9 @@ A family module (named in :data:`uiofmu.runtime.registry.FAMILIES`) provides:
 ``NAME``
     Its name (the registry's key).
 ``parse_options(table, plant)``
-    Read the family's keys of ``[observer]`` into a frozen options object.
+    Read the family's keys of ``[observer]`` into a frozen options object, whose ``step`` is the
+    communication step a co-simulation of the observer takes by default (the plant FMU's
+    default experiment uses it).
 ``analyse(problem) -> Analysis``
     The existence analysis, and whatever of it the design reuses.
 ``design(problem, analysis) -> DesignResult``

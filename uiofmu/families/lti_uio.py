@@ -92,6 +92,11 @@ class Options:
     method: str = "auto"
     scaling: str = "balance"
 
+    @property
+    def step(self) -> float:
+        """The communication step a co-simulation takes by default: the design period."""
+        return self.dt
+
 
 #: Design methods: the LMI (least overshoot), the Riccati gain with a Lyapunov certificate, or the
 #: LMI with the Riccati design as fallback.

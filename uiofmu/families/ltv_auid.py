@@ -81,6 +81,11 @@ class Options:
     xhat0: np.ndarray | None
     step_policy: str
 
+    @property
+    def step(self) -> float:
+        """The communication step a co-simulation takes by default: the design period."""
+        return self.dt
+
 
 def parse_options(table, plant) -> Options:
     """Read ``alpha``, ``eta``, ``mu``, ``dt``, ``xhat0``, ``step_policy``."""

@@ -108,6 +108,11 @@ class Options:
     step_policy: str
     scaling: str = "balance"
 
+    @property
+    def step(self) -> float:
+        """The communication step a co-simulation takes by default: the first design interval."""
+        return self.intervals[0]
+
 
 def _intervals(table) -> tuple:
     key = table.key("intervals")

@@ -28,7 +28,7 @@ from ..runtime.card import Card
 from ..runtime.errors import CardError, FmuError
 from ..runtime.files import atomic_output, check_output_file
 from ..runtime.schedules import schedule_axes
-from ..runtime.ports import model_structure
+from ..runtime.ports import model_structure, observer_experiment, write_experiment
 from ..runtime.text import c_string
 from ..runtime.tolerances import STEP_RTOL
 
@@ -175,6 +175,7 @@ def model_description(card: Card, guid: str, identifier: str, sources: list[str]
     cats = SubElement(root, "LogCategories")
     for name in ("logStatusWarning", "logStatusDiscard", "logStatusError"):
         SubElement(cats, "Category", {"name": name})
+    write_experiment(root, observer_experiment(card))
     write_variables(root, model.ports)
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
 

@@ -20,6 +20,7 @@ from ..runtime.card import Card
 from ..runtime.errors import FmuError
 from ..runtime.files import atomic_output, check_output_file
 from ..plant import Plant
+from ..runtime.ports import observer_experiment, plant_experiment
 from ..runtime.text import fill_template, identifier, py_string
 
 #: What an FMU carries: the package :mod:`uiofmu.runtime`, copied whole (numpy only).
@@ -116,10 +117,11 @@ def build_observer(card: Card, output, backend: str | None = None) -> Path:
 
         return build_c_observer(card, output, ident)
     desc = f"{card.family} unknown-input observer of {card.name} (uiofmu {__version__})"
-    return _build_python({"kind": "observer", "card": card.data}, ident, desc, output)
+    return _build_python({"kind": "observer", "card": card.data, "experiment": observer_experiment(card)},
+                         ident, desc, output)
 
 
-def build_plant(plant: Plant, name: str, output) -> Path:
+def build_plant(plant: Plant, name: str, output, step: float | None = None) -> Path:
     """Pack a linear plant as an FMU (exact between communication points).
 
     Parameters
@@ -129,6 +131,9 @@ def build_plant(plant: Plant, name: str, output) -> Path:
         Model name (the FMU's model identifier is ``NAME_plant``).
     output : str or Path
         The ``.fmu`` file to write.
+    step : float, optional
+        The step of its ``<DefaultExperiment>`` (default: a discrete plant's ``dt``; a
+        continuous plant without it has none).
 
     Returns
     -------
@@ -136,4 +141,6 @@ def build_plant(plant: Plant, name: str, output) -> Path:
     """
     ident = model_identifier(name, "plant")
     desc = f"{plant.time} linear plant {name} (uiofmu {__version__})"
-    return _build_python({"kind": "plant", "plant": plant.to_data()}, ident, desc, output)
+    step = plant.dt if step is None else step
+    spec = {"kind": "plant", "plant": plant.to_data(), **({"experiment": plant_experiment(step)} if step else {})}
+    return _build_python(spec, ident, desc, output)

@@ -19,6 +19,8 @@ from there. ``dhat_k`` estimates the unknown input held over ``[t_{k-1}, t_k)``.
 from __future__ import annotations
 
 
+import math
+
 import numpy as np
 
 from .card import Card
@@ -196,3 +198,15 @@ class Runtime:
 
 
 __all__ = ["Runtime", "RuntimeInputError", "StepRejected"]
+
+
+def default_horizon(card: Card, floor: int = 50, cap: int = 5000) -> float:
+    """A run long enough for the certified bound to fall to 1e-3 of the initial error: 50 to 5000
+    steps of the mean admissible step (the default ``--t-end`` of ``uiofmu cosim`` and the stop
+    time of the FMU's ``<DefaultExperiment>``)."""
+    decay, over = card.data.get("decay_bound"), card.data.get("overshoot_bound")
+    k = cap
+    if decay and over and 0 < decay < 1:
+        k = int(math.ceil(math.log(1e-3 / over) / math.log(decay)))
+    h = float(np.mean(make_schedule(card.schedule, card.matrices).admissible_steps()))
+    return min(max(k, floor), cap) * h

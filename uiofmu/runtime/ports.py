@@ -14,6 +14,7 @@ declaration differs from the one its kernel implements.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from xml.etree.ElementTree import SubElement
 
@@ -59,6 +60,45 @@ def value_references(ports) -> dict:
         out[port.name] = vr
         vr += port.size
     return out
+
+
+#: Steps of a plant FMU's default experiment.
+PLANT_EXPERIMENT_STEPS = 200
+
+
+def experiment(step: float, stop: float) -> dict:
+    """A ``<DefaultExperiment>``: from 0 to ``stop`` s in steps of ``step`` s (checked numbers).
+
+    Raises
+    ------
+    ValueError
+        For a step or stop time that is not a positive finite number, or a stop before the step.
+    """
+    step, stop = float(step), float(stop)
+    if not (math.isfinite(step) and math.isfinite(stop) and 0 < step <= stop):
+        raise ValueError(f"default experiment: expected 0 < stepSize <= stopTime, found {step!r}, {stop!r}")
+    return {"startTime": 0.0, "stopTime": stop, "stepSize": step}
+
+
+def observer_experiment(card) -> dict:
+    """An observer's default experiment: its first admissible step (``dt``, or the first design
+    interval), until the certified bound has fallen to 1e-3 (:func:`default_horizon`)."""
+    from .observer import default_horizon
+    from .schedules import make_schedule
+
+    step = make_schedule(card.schedule, card.matrices).admissible_steps()[0]
+    return experiment(step, max(default_horizon(card), step))
+
+
+def plant_experiment(step: float) -> dict:
+    """A plant's default experiment: :data:`PLANT_EXPERIMENT_STEPS` steps of ``step``."""
+    return experiment(step, PLANT_EXPERIMENT_STEPS * float(step))
+
+
+def write_experiment(root, spec: dict) -> None:
+    """Append ``<DefaultExperiment>`` (:func:`experiment`'s numbers, written with ``repr``)."""
+    spec = experiment(spec["stepSize"], spec["stopTime"])
+    SubElement(root, "DefaultExperiment", {k: repr(v) for k, v in spec.items()})
 
 
 def model_structure(root, ports) -> None:
