@@ -15,7 +15,7 @@ declaration differs from the one its kernel implements.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from xml.etree.ElementTree import SubElement
 
 from .errors import CardError
@@ -50,7 +50,8 @@ class PortSpec:
 
     def to_data(self) -> dict:
         """The card's JSON form."""
-        return {**asdict(self), "depends": list(self.depends)}
+        return {"name": self.name, "size": self.size, "causality": self.causality, "description": self.description,
+                "type": self.type, "depends": list(self.depends)}
 
 
 def value_references(ports) -> dict:
