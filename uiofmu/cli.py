@@ -100,7 +100,9 @@ def _cmd_plant(args) -> int:
     if is_mujoco_plant(args.problem):
         spec = load_spec(args.problem)
         out = check_output_file(args.output or f"{model_identifier(spec.name, 'plant')}.fmu", "FMU", ".fmu")
-        path = build_mujoco_plant(spec, out)
+        linearised = Path(args.problem) / "problem.toml"          # its observer's step, for the default experiment
+        step = load_problem(linearised).options.step if linearised.is_file() else None
+        path = build_mujoco_plant(spec, out, step=step)
         print(f"{spec.name}: MuJoCo plant FMU ({spec.mujoco['integrator']}, substeps of {spec.mujoco['timestep']:g} s) "
               f"written to {path}")
         return 0

@@ -238,10 +238,20 @@ def problem_document(spec: MujocoSpec, lin: Linearization) -> dict:
     return doc
 
 
-def build_mujoco_plant(spec: MujocoSpec, output) -> Path:
-    """The MuJoCo plant FMU (pythonfmu; the MJCF packed as a resource)."""
+def build_mujoco_plant(spec: MujocoSpec, output, step: float | None = None) -> Path:
+    """The MuJoCo plant FMU (pythonfmu; the MJCF packed as a resource).
+
+    Parameters
+    ----------
+    spec : MujocoSpec
+    output : str or Path
+        The ``.fmu`` file to write.
+    step : float, optional
+        The step of its ``<DefaultExperiment>`` (none without it).
+    """
     from . import __version__
     from .fmu.export import _build_python, model_identifier
+    from .runtime.ports import plant_experiment
 
     ident = model_identifier(spec.name, "plant")
     desc = f"MuJoCo plant {spec.name}, {spec.mujoco['integrator']} substeps of {spec.mujoco['timestep']:g} s " \
@@ -249,4 +259,5 @@ def build_mujoco_plant(spec: MujocoSpec, output) -> Path:
     with tempfile.TemporaryDirectory() as tmp:
         mjcf = Path(tmp) / spec.mujoco["model"]
         shutil.copy2(spec.folder / spec.mujoco["model"], mjcf)
-        return _build_python({"kind": "mujoco", "mujoco": spec.mujoco}, ident, desc, output, extra_files=[mjcf])
+        model = {"kind": "mujoco", "mujoco": spec.mujoco, **({"experiment": plant_experiment(step)} if step else {})}
+        return _build_python(model, ident, desc, output, extra_files=[mjcf])
