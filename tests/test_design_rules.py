@@ -275,15 +275,35 @@ def test_a_badly_scaled_weak_mode_designs_in_balanced_coordinates():
     assert 0 < card.data["alpha"] and card.data["decay_bound"] < 1
 
 
-def test_a_failed_interval_set_names_the_pair_that_has_no_certificate():
-    """Two intervals that design alone but not together (a campaign plant, seed 11000116): the
-    message names the pair and says what to do; either interval alone designs."""
+def test_an_interval_pair_without_a_certificate_is_found_and_named():
+    """Two intervals that design alone but not together (a campaign plant, seed 11000116, p = q):
+    check proves it on ker C, where Corollary 2 is exact (exit 2 before any design); the pair
+    diagnosis of a failed design names the pair; either interval alone designs."""
     from uiofmu.families.random_plants import random_problem
+    from uiofmu.families.sampled_data import _interval_diagnosis
+    from uiofmu.runtime.errors import NoObserverError
+    from uiofmu.scaling import state_scaling
 
     data = random_problem("sampled-data", 11000116)
+    problem = problem_from_data(data)
     h1, h2 = data["observer"]["intervals"]
-    with pytest.raises(InfeasibleError, match=rf"the pair\(s\) {h1:g} and {h2:g} s have none.*drop one interval"):
-        uiofmu.design(problem_from_data(data))
+    with pytest.raises(NoObserverError, match="no observer of this family can be certified"):
+        uiofmu.design(problem)
+    samples = [problem.plant.sampled(h) for h in (h1, h2)]
+    note = _interval_diagnosis(samples, problem.plant.C, state_scaling(problem.plant.A), (h1, h2), 1e-5)
+    assert f"the pair(s) {h1:g} and {h2:g} s have none" in note and "drop one interval" in note
     for h in (h1, h2):
         alone = uiofmu.design(problem_from_data({**data, "observer": {**data["observer"], "intervals": [h]}}))
         assert alone.data["certificate"]["verified"] and all(c.holds for c in uiofmu.verify(alone))
+
+
+@pytest.mark.slow
+def test_with_p_equal_q_the_design_on_ker_c_certifies_where_the_full_lmis_fail():
+    """A campaign plant (seed 11000091, p = q = 1, intervals of 24 to 96 s) whose full LMIs fail
+    numerically: the same certificates on ker C design it, verified at the stored matrices."""
+    from uiofmu.families.random_plants import random_problem
+
+    card = uiofmu.design(problem_from_data(random_problem("sampled-data", 11000091)))
+    assert card.data["design_method"] == "lmi on ker C (p = q)"
+    assert card.data["certificate"]["verified"] and all(c.holds for c in uiofmu.verify(card))
+    assert 0 < card.data["alpha"] < card.data["alpha_limit_from_zeros"]

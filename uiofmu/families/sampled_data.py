@@ -198,6 +198,8 @@ def _analysis(problem):
             switching = _switching_condition(samples, plant.C, opts)
             conds.append(switching)
             floor = max(floor, switching.values["switching_radius"])
+            if switching.holds and floor < 1.0 and plant.n > plant.p:
+                conds.append(_certificate_condition(samples, plant.C, opts, 1.0 - floor * floor))
         limit = 1.0 - zmax * zmax
         info = {"largest_zero_modulus": zmax, "at_interval": zarg, "alpha_limit": limit}
         if opts.alpha == "max":
@@ -236,6 +238,75 @@ def fixed_error_maps(samples, C) -> list:
     p, n = C.shape
     basis = np.linalg.svd(C)[2][p:].T
     return [basis.T @ ((np.eye(n) - s.E @ np.linalg.solve(C @ s.E, C)) @ s.A) @ basis for s in samples]
+
+
+def _reduced_lmis(F) -> LmiSystem:
+    """Corollary 2 on ``ker C`` when ``p = q`` (:func:`fixed_error_maps`): Lyapunov matrices
+    ``P_i`` with ``F_i' P_i F_i < (1 - alpha) P_j`` for all ``i, j`` (Schur form), ``I <= P_i <= mu I``.
+
+    Exact for ``p = q``: every certificate of (15)-(16), restricted to ``ker C``, is one of these,
+    and each of these gives one of (15)-(16) (:func:`structural_variables`). Infeasible here
+    means that no observer of this family can be certified for the intervals.
+    """
+    N, m = len(F), F[0].shape[0]
+
+    def build(v, prm, ops):
+        out = []
+        for i in range(N):
+            P = v[f"P{i}"]
+            out.append(Lmi(f"P_{i + 1} >= I", P - ops.eye(m), strict=False))
+            out.append(Lmi(f"P_{i + 1} <= mu I", v["mu"] * ops.eye(m) - P, strict=False))
+            Y = P @ F[i]
+            for j in range(N):
+                out.append(Lmi(f"(15) on ker C i={i + 1} j={j + 1}", ops.bmat([[P, Y], [Y.T, prm["c"] * v[f"P{j}"]]])))
+        return out
+
+    variables = {"mu": ("scalar",), **{f"P{i}": ("symmetric", m) for i in range(N)}}
+    return LmiSystem(f"{NAME} (15) on ker C", variables, {"c": 0.99}, build, objective=lambda v: v["mu"],
+                     homogeneous=True)
+
+
+def structural_variables(v: dict, samples, C) -> dict:
+    """The variables of (15)-(16) from a point of :func:`_reduced_lmis` (``p = q``).
+
+    ``Pl_i = N P_i N' + R R'`` (``N``, ``R`` orthonormal bases of ``ker C`` and its complement),
+    ``S_i = Pl_i K_i`` with the forced ``K_i = E_i (C E_i)^-1``, and ``Q_ij = Pl_i Abar_i C^+``
+    with ``Abar_i = (I - K_i C) A_i``: then ``L_ij = Abar_i (I - C^+ C) = N F_i N'`` and
+    ``(1 - alpha) Pl_j - L_ij' Pl_i L_ij = N ((1 - alpha) P_j - F_i' P_i F_i) N' + (1 - alpha) R R'``.
+    """
+    p, n = C.shape
+    _, _, vt = np.linalg.svd(C)
+    basis, rest, Cp = vt[p:].T, vt[:p].T, np.linalg.pinv(C)
+    out = {"mu": v["mu"]}
+    for i, s in enumerate(samples):
+        K = s.E @ np.linalg.solve(C @ s.E, np.eye(p))
+        Pl = basis @ v[f"P{i}"] @ basis.T + rest @ rest.T
+        out[f"Pl{i}"] = 0.5 * (Pl + Pl.T)
+        out[f"S{i}"] = out[f"Pl{i}"] @ K
+        Q = out[f"Pl{i}"] @ ((np.eye(n) - K @ C) @ s.A) @ Cp
+        for j in range(len(samples)):
+            out[f"Q{i}_{j}"] = Q
+    return out
+
+
+def _certificate_condition(samples, C, opts, limit: float) -> Condition:
+    """Whether Corollary 2 can certify any observer for the intervals (``p = q``): its LMIs on
+    ``ker C`` (:func:`_reduced_lmis`, exact there) at the slowest decay the search would try.
+    Only CLARABEL's proof of infeasibility fails the condition; a numerical failure leaves it
+    to the design."""
+    from ..lmi import INFEASIBLE
+
+    alpha = 1e-3 * limit
+    sol = _reduced_lmis(fixed_error_maps(samples, C)).solve(c=1.0 - alpha)
+    values = {"alpha": alpha, "status": sol.status}
+    if sol.status in INFEASIBLE:
+        return Condition("certificate on ker C", False, True,
+                         f"with p = q the LMIs of Corollary 2 reduce exactly to ker C, and there CLARABEL proves them "
+                         f"infeasible even at alpha = {alpha:.3g}: no quadratic Lyapunov function per interval "
+                         "decreases over every succession of these intervals, so no observer of this family can be "
+                         "certified; drop intervals from observer.intervals", values)
+    return Condition("certificate on ker C", True, False,
+                     f"the LMIs of Corollary 2 on ker C (p = q) at alpha = {alpha:.3g}: CLARABEL {sol.status}", values)
 
 
 def _switching_condition(samples, C, opts) -> Condition:
@@ -447,6 +518,29 @@ def _interval_diagnosis(samples, C, t, intervals, alpha: float) -> str:
             "narrow the range")
 
 
+def _reduced_design(samples, C, opts, search: dict, failure: InfeasibleError):
+    """The design on ``ker C`` (:func:`_reduced_lmis`, ``p = q``) after (15)-(16) found no
+    certificate: the same certificates in ``(n - p)``-dimensional unknowns, better conditioned.
+
+    Returns
+    -------
+    (LmiSystem, Tuned)
+
+    Raises
+    ------
+    InfeasibleError
+        ``failure``, completed with why the reduced design failed too.
+    """
+    system = _reduced_lmis(fixed_error_maps(samples, C))
+    system.certify = lambda v, prm: all(
+        c.holds for c in checks(observer_matrices(structural_variables(v, samples, C), samples, C), np.sqrt(prm["c"])))
+    try:
+        return system, tune(system, "c", opts.alpha, **search)
+    except InfeasibleError as exc:
+        raise type(failure)(f"{failure}; on ker C (p = q, the same certificates with fewer unknowns): "
+                            f"{exc}") from None
+
+
 def design(problem, analysis: Analysis) -> DesignResult:
     """Design the sampled-data UIO (Corollary 2)."""
     existence, samples, zmax = analysis.existence, analysis.data["samples"], analysis.data["decay_floor"]
@@ -460,13 +554,22 @@ def design(problem, analysis: Analysis) -> DesignResult:
 
     system.certify = lambda v, prm: all(c.holds for c in checks(matrices_at(v), np.sqrt(prm["c"])))
     limit = 1.0 - zmax * zmax
+    search = dict(feasible_end=1e-3 * limit, infeasible_end=limit, safe_end=0.0, tol=SEARCH_TOL * limit,
+                  label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a, name="alpha")
+    method = "lmi"
     try:
-        tuned = tune(system, "c", opts.alpha, feasible_end=1e-3 * limit, infeasible_end=limit, safe_end=0.0,
-                     tol=SEARCH_TOL * limit, label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a,
-                     name="alpha")
+        tuned = tune(system, "c", opts.alpha, **search)
     except InfeasibleError as exc:
-        note = _interval_diagnosis(samples, C, t, opts.intervals, 1e-3 * limit)
-        raise type(exc)(f"{exc}; {note}" if note else str(exc)) from None
+        if plant.p != plant.q or plant.n == plant.p:
+            note = _interval_diagnosis(samples, C, t, opts.intervals, 1e-3 * limit)
+            raise type(exc)(f"{exc}; {note}" if note else str(exc)) from None
+        try:
+            system, tuned = _reduced_design(samples, C, opts, search, exc)
+        except InfeasibleError as both:
+            note = _interval_diagnosis(samples, C, t, opts.intervals, 1e-3 * limit)
+            raise type(both)(f"{both}; {note}" if note else str(both)) from None
+        matrices_at, method = (lambda v: observer_matrices(structural_variables(v, samples, C), samples, C),
+                               "lmi on ker C (p = q)")
     alpha, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
     matrices = matrices_at(sol.values)
@@ -493,7 +596,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "lmi_size": {"lmis": N * N, "lmi_dim": 2 * n, "normalisation_lmis": 2 * N, "equalities": N,
                      "scalar_variables": 1 + N * n * (n + 1) // 2 + N * n * plant.p + N * N * n * plant.p},
         "search": searched,
-        "scaling": scaling_data(t, opts.scaling),
+        "design_method": method,
+        "scaling": scaling_data(t if method == "lmi" else np.ones(n), opts.scaling),
         "spectral_radius_max": float(np.abs(np.linalg.eigvals(matrices["N"])).max()),
         "eigenvalues_L_constant": [complex_list(e) for e in np.linalg.eigvals(diagonal)],
     }
