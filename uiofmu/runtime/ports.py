@@ -66,6 +66,10 @@ def value_references(ports) -> dict:
 #: Steps of a plant FMU's default experiment.
 PLANT_EXPERIMENT_STEPS = 200
 
+#: Most steps of a default experiment: fmpy's simulate_fmu doubles the step while the run has
+#: more than 1000 of them, and an observer refuses the doubled step.
+MAX_EXPERIMENT_STEPS = 1000
+
 
 def experiment(step: float, stop: float) -> dict:
     """A ``<DefaultExperiment>``: from 0 to ``stop`` s in steps of ``step`` s (checked numbers).
@@ -83,12 +87,13 @@ def experiment(step: float, stop: float) -> dict:
 
 def observer_experiment(card) -> dict:
     """An observer's default experiment: its first admissible step (``dt``, or the first design
-    interval), until the certified bound has fallen to 1e-3 (:func:`default_horizon`)."""
+    interval), until the certified bound has fallen to 1e-3 (:func:`default_horizon`), and at
+    most :data:`MAX_EXPERIMENT_STEPS` steps."""
     from .observer import default_horizon
     from .schedules import make_schedule
 
     step = make_schedule(card.schedule, card.matrices).admissible_steps()[0]
-    return experiment(step, max(default_horizon(card), step))
+    return experiment(step, min(max(default_horizon(card), step), MAX_EXPERIMENT_STEPS * step))
 
 
 def plant_experiment(step: float) -> dict:

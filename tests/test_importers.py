@@ -1,0 +1,131 @@
+"""Third-party importers from the package registries run our FMUs (issue 15, item 5).
+
+ecospy (pip; its native library needs the Debian package libtbb12, which ``.ci/run`` installs)
+runs the plant + observer loop of every family, and the histories equal those of our own
+master, :func:`uiofmu.cosim.master.cosimulate`, with the same inputs (the problem's
+``[signals]``) at the observer's default step. fmpy.simulate_fmu with the FMU's default
+experiment runs every FMU we build to its stop time.
+
+The FMUs are made by the command line, as a user makes them: ``uiofmu design``, ``uiofmu build
+--backend c`` and ``--backend python``, ``uiofmu plant`` (whatever backend it picks).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import EXAMPLES, ROOT, run_cli
+from importers import FmpyStalled, default_step, run_ecospy, run_fmpy_default
+
+#: family -> problem; the observer's default step is dt or the first design interval.
+PROBLEMS = {
+    "lti-uio": EXAMPLES / "seed000_example1.toml",
+    "ltv-auid": EXAMPLES / "seed000_example1_ltv.toml",
+    "sampled-data": ROOT / "plants" / "two_room_building",
+}
+BACKENDS = ("c", "python")
+#: communication steps of the ecospy run
+STEPS = 50
+
+
+def _cli(*argv) -> None:
+    result = run_cli(*argv)
+    assert result.code == 0, f"uiofmu {' '.join(map(str, argv))} exited {result.code}:\n{result.err}"
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    """``{family: {"card": path, "plant": path, "c": path, "python": path}}``, made lazily."""
+    root = tmp_path_factory.mktemp("importers")
+    made: dict = {}
+
+    def get(family: str, kind: str):
+        entry = made.setdefault(family, {})
+        if kind not in entry:
+            folder = root / family
+            folder.mkdir(exist_ok=True)
+            if kind == "card":
+                _cli("design", PROBLEMS[family], "-o", folder / "design.json")
+                entry[kind] = folder / "design.json"
+            elif kind == "plant":
+                _cli("plant", PROBLEMS[family], "-o", folder / "plant.fmu")
+                entry[kind] = folder / "plant.fmu"
+            else:
+                card = get(family, "card")
+                _cli("build", card, "-o", folder / f"observer_{kind}.fmu", "--backend", kind)
+                entry[kind] = folder / f"observer_{kind}.fmu"
+        return entry[kind]
+
+    return get
+
+
+@pytest.fixture(scope="module")
+def ecospy():
+    """ecospy, with a precise message when its native library cannot load."""
+    try:
+        import ecospy
+    except OSError as exc:  # libecosc.so: libtbb.so.12: cannot open shared object file
+        pytest.fail(f"ecospy's native library does not load ({exc}); install libtbb12: apt-get install -y libtbb12")
+    return ecospy
+
+
+def generation_tool(fmu) -> str:
+    """The FMU's ``generationTool`` (PythonFMU ... for pythonfmu FMUs)."""
+    from fmpy import read_model_description
+
+    return read_model_description(str(fmu)).generationTool or "?"
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("family", PROBLEMS)
+def test_ecospy_loop_equals_our_master(ecospy, fmus, family, backend):
+    from uiofmu.cosim.master import cosimulate, default_inputs, observer_card
+
+    plant, observer = fmus(family, "plant"), fmus(family, backend)
+    h = default_step(observer)
+    inputs = default_inputs(observer_card(observer))  # the problem's [signals]: u and d are not zero
+    ours = cosimulate(plant, observer, np.full(STEPS, h), inputs, show_progress=False)
+    theirs = run_ecospy(plant, observer, h, STEPS * h, inputs)
+    what = f"{family}: plant by {generation_tool(plant)}, observer by {generation_tool(observer)}"
+    assert theirs.connections == [(f"plant::y[{i + 1}]", f"observer::y[{i + 1}]") for i in range(ours.y.shape[1])]
+    assert theirs.times.shape == ours.times.shape == (STEPS + 1,)
+    np.testing.assert_array_equal(theirs.times, ours.times, err_msg=what)
+    for name in ("x", "xhat"):
+        a, b = getattr(theirs, name), getattr(ours, name)
+        scale = max(float(np.max(np.abs(b))), 1e-300)
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * scale, err_msg=f"{what}: {name}")
+    # the loop did something: the estimate moved, and a refused step (which ecospy logs and
+    # steps over) would have made our master raise above
+    assert np.ptp(theirs.xhat) > 0 and np.all(np.isfinite(theirs.xhat))
+
+
+#: every FMU we build: the observers of every family with both backends, and the plants
+DEFAULT_RUNS = [pytest.param(family, kind, id=f"{family}-{kind}")
+                for family in PROBLEMS for kind in (*BACKENDS, "plant")]
+
+
+@pytest.mark.parametrize("family, kind", DEFAULT_RUNS)
+def test_fmpy_default_experiment_runs(fmus, family, kind):
+    from fmpy import read_model_description
+
+    fmu = fmus(family, kind)
+    experiment = read_model_description(str(fmu)).defaultExperiment
+    assert experiment is not None and experiment.stepSize and experiment.stopTime, "no <DefaultExperiment>"
+    step, stop = float(experiment.stepSize), float(experiment.stopTime)  # fmpy keeps the strings
+    interval = step  # fmpy's communication step: stepSize, doubled while stopTime / interval > 1000
+    while stop / interval > 1000:
+        interval *= 2
+    why = (f"{family} {kind} FMU ({generation_tool(fmu)}), stepSize = {step!r}, stopTime = {stop!r}: "
+           f"fmpy steps at {interval!r}")
+    try:
+        result = run_fmpy_default(fmu)  # fmpy raises FMICallException when a C FMU answers fmi2Error
+    except FmpyStalled as exc:
+        pytest.fail(f"{why}; {exc}")
+    # after a Discard answered with fmi2Terminated = true (a pythonfmu observer), fmpy stops
+    # quietly and returns what it has: the run must reach the stop time
+    assert len(result) >= 2 and result["time"][-1] == pytest.approx(stop, rel=1e-12), (
+        f"{why}; it stopped at t = {float(result['time'][-1])!r}")
+    for name in result.dtype.names:
+        assert np.all(np.isfinite(result[name])), name
+
