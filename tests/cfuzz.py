@@ -1,9 +1,9 @@
 """Call-sequence fuzzing of the C observer FMU under AddressSanitizer and UBSan.
 
 Builds the C FMU of each design (the three example problems, or cards given by path),
-extracts its ``sources/``, compiles ``tests/c/fmu_fuzz.c`` together with the FMU's own
-``observer.c`` and ``design_data.c`` (and the FMI headers of the same ``sources/``) into one
-executable with ``-fsanitize=address,undefined -fno-sanitize-recover=all``, runs its
+extracts its ``sources/``, compiles ``tests/c/fmu_fuzz.c`` together with the FMU's own C files
+(``fmi2_plumbing.c``, ``kernel_affine.c``, ``design_data.c``; and the headers of the same
+``sources/``) into one executable with ``-fsanitize=address,undefined -fno-sanitize-recover=all``, runs its
 deterministic scenarios, then random sequences until the time is up, and prints one table:
 family, sequences, calls, statuses returned, failed checks, sanitizer reports, crashes.
 
@@ -237,13 +237,35 @@ def _git_show(rev: str, path: str) -> str:
     return proc.stdout
 
 
-def _design_source_at(rev: str):
-    """``design_source`` as the revision ``rev`` of ``uiofmu/export_c.py`` writes it (its
-    runtime and header must match the struct it fills)."""
-    module = types.ModuleType(f"uiofmu._export_c_at_{re.sub(r'[^A-Za-z0-9_]', '_', rev)}")
-    module.__package__ = "uiofmu"
-    module.__file__ = str(ROOT / "uiofmu" / "export_c.py")
-    exec(compile(_git_show(rev, "uiofmu/export_c.py"), f"{rev}:uiofmu/export_c.py", "exec"), module.__dict__)
+def _git_files(rev: str, folder: str) -> list:
+    proc = subprocess.run(["git", "-C", str(ROOT), "ls-tree", "--name-only", f"{rev}:{folder}"], capture_output=True,
+                          text=True)
+    return proc.stdout.split() if proc.returncode == 0 else []
+
+
+#: Where the C runtime and its generator lived: (C folder, generator module, its package).
+_RUNTIME_PLACES = (("uiofmu/fmu/c", "uiofmu/fmu/c_backend.py", "uiofmu.fmu"),
+                   ("uiofmu/c", "uiofmu/export_c.py", "uiofmu"))
+
+
+def _runtime_at(rev: str):
+    """(C folder, runtime file names, generator module, its package) of the revision ``rev``: the
+    C files and headers of the FMU runtime (not the C host or the pythonfmu guard)."""
+    for folder, module, package in _RUNTIME_PLACES:
+        names = [n for n in _git_files(rev, folder) if n.endswith((".c", ".h"))
+                 and n not in ("fmu_host.c", "pythonfmu_guard.c")]
+        if names:
+            return folder, names, module, package
+    raise RuntimeError(f"no C runtime at {rev} (looked in {', '.join(p[0] for p in _RUNTIME_PLACES)})")
+
+
+def _design_source_at(rev: str, module_path: str, package: str):
+    """``design_source`` as the revision ``rev`` of its module writes it (its runtime and header
+    must match the struct it fills)."""
+    module = types.ModuleType(f"{package}._design_source_at_{re.sub(r'[^A-Za-z0-9_]', '_', rev)}")
+    module.__package__ = package
+    module.__file__ = str(ROOT / module_path)
+    exec(compile(_git_show(rev, module_path), f"{rev}:{module_path}", "exec"), module.__dict__)
     return module.design_source
 
 
@@ -257,8 +279,8 @@ def extract_sources(card, out_dir: Path, runtime_rev: str | None = None) -> Path
     out_dir : Path
         Where to build (the FMU is ``out_dir/observer.fmu``).
     runtime_rev : str, optional
-        A git revision: take ``observer.c``, ``uiofmu_design.h`` and ``design_source`` as they
-        were there (to measure an older runtime); default: build the FMU as it is now and
+        A git revision: take the C runtime (its ``.c`` and ``.h`` files) and ``design_source`` as
+        they were there (to measure an older runtime); default: build the FMU as it is now and
         extract its ``sources/``.
     """
     from uiofmu.fmu.export import build_observer
@@ -276,12 +298,13 @@ def extract_sources(card, out_dir: Path, runtime_rev: str | None = None) -> Path
                     z.extract(name, out_dir)
         return src
     src.mkdir(parents=True)
-    for name in ("observer.c", "uiofmu_design.h"):
-        (src / name).write_text(_git_show(runtime_rev, f"uiofmu/c/{name}"))
+    folder, names, module, package = _runtime_at(runtime_rev)
+    for name in names:
+        (src / name).write_text(_git_show(runtime_rev, f"{folder}/{name}"))
     for name in ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"):
         shutil.copy2(fmi_headers() / name, src / name)
     guid = str(uuid.uuid5(uuid.NAMESPACE_URL, "uiofmu:" + json.dumps(card.data, sort_keys=True)))
-    (src / "design_data.c").write_text(_design_source_at(runtime_rev)(card, guid, "fuzzed_observer"))
+    (src / "design_data.c").write_text(_design_source_at(runtime_rev, module, package)(card, guid, "fuzzed_observer"))
     return src
 
 
@@ -292,7 +315,8 @@ _OBJECT_DIR: list = []
 
 def _object(cc: str, source: Path, src: Path, headers: tuple) -> Path:
     """``source`` compiled with the sanitizers against the headers in ``src``, once per process
-    for the same text (the fuzzer and observer.c are the same for every design of a runtime)."""
+    for the same text (the fuzzer, the plumbing and the kernel are the same for every design of a
+    runtime)."""
     digest = hashlib.sha256(source.read_bytes())
     for name in headers:
         digest.update(name.encode() + b"\0" + (src / name).read_bytes())
@@ -303,7 +327,8 @@ def _object(cc: str, source: Path, src: Path, headers: tuple) -> Path:
                 _OBJECT_DIR.append(Path(tempfile.mkdtemp(prefix="uiofmu_cfuzz_obj_")))
                 atexit.register(shutil.rmtree, _OBJECT_DIR[0], True)
             obj = _OBJECT_DIR[0] / f"{source.stem}_{key[1][:16]}.o"
-            cmd = [cc, "-std=c99", *SANITIZER_FLAGS, "-Wall", "-Wextra", f"-I{src}", "-c", "-o", str(obj), str(source)]
+            cmd = [cc, "-std=c99", *SANITIZER_FLAGS, "-Wall", "-Wextra", *_legacy_flag(src), f"-I{src}", "-c", "-o",
+                   str(obj), str(source)]
             proc = subprocess.run(cmd, capture_output=True, text=True)
             if proc.returncode != 0:
                 raise RuntimeError(f"compiling {source.name} failed:\n{' '.join(cmd)}\n{proc.stderr[:4000]}")
@@ -311,10 +336,22 @@ def _object(cc: str, source: Path, src: Path, headers: tuple) -> Path:
         return _OBJECTS[key]
 
 
+def _legacy_flag(src: Path) -> list:
+    """``-DUIOFMU_LEGACY_RUNTIME`` for a runtime of one file (``observer.c``, before the plumbing
+    and the kernels were apart): the fuzzer then reads the GUID from its design struct."""
+    return ["-DUIOFMU_LEGACY_RUNTIME"] if (Path(src) / "observer.c").is_file() else []
+
+
+def runtime_sources(src: Path) -> list:
+    """The runtime's C files in ``src`` (every ``*.c`` but the generated ``design_data.c``)."""
+    return sorted(p for p in Path(src).glob("*.c") if p.name != "design_data.c")
+
+
 def compile_fuzzer(src: Path, exe: Path, cc: str = "gcc") -> str:
     """Compile the fuzzer with the runtime in ``src`` into ``exe``.
 
-    ``fmu_fuzz.c``, ``observer.c`` and ``design_data.c`` are compiled with
+    ``fmu_fuzz.c``, the runtime's C files (:func:`runtime_sources`) and ``design_data.c`` are
+    compiled with
     ``-std=c99 -fsanitize=address,undefined,float-cast-overflow -fno-sanitize-recover=all -g -O1
     -Wall -Wextra`` against the headers of ``src`` and linked with ``-lm`` (objects of equal
     text and headers are compiled once per process).
@@ -339,16 +376,16 @@ def compile_fuzzer(src: Path, exe: Path, cc: str = "gcc") -> str:
         When the compiler fails.
     """
     src = Path(src)
-    headers = ("uiofmu_design.h", "fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+    headers = tuple(sorted(p.name for p in src.glob("*.h")))
     warnings = []
     objects = []
-    for source in (FUZZER, src / "observer.c"):
+    for source in (FUZZER, *runtime_sources(src)):
         obj, said = _object(cc, source, src, headers)
         objects.append(obj)
         warnings.append(said)
     data = Path(exe).with_name("design_data.o")
-    cmd = [cc, "-std=c99", *SANITIZER_FLAGS, "-Wall", "-Wextra", f"-I{src}", "-c", "-o", str(data),
-           str(src / "design_data.c")]
+    cmd = [cc, "-std=c99", *SANITIZER_FLAGS, "-Wall", "-Wextra", *_legacy_flag(src), f"-I{src}", "-c", "-o",
+           str(data), str(src / "design_data.c")]
     for step in (cmd, [cc, *SANITIZER_FLAGS, "-o", str(exe), *map(str, objects), str(data), "-lm"]):
         proc = subprocess.run(step, capture_output=True, text=True)
         if proc.returncode != 0:
@@ -391,8 +428,8 @@ _NUMBER = re.compile(r"[-+]?(?:\d+(?:\.\d*)?(?:e[-+]?\d+)?|inf|nan)\b")
 
 def _sanitizer_key(stderr: str) -> str | None:
     """What a sanitizer report is about, without its values: the kind and the first frame in
-    the fuzzed code (``heap-buffer-overflow in pack observer.c:473``,
-    ``observer.c:484: runtime error: N is outside the range of representable values of type
+    the fuzzed code (``heap-buffer-overflow in pack kernel_affine.c:473``,
+    ``kernel_affine.c:484: runtime error: N is outside the range of representable values of type
     'long int'``); None when there is no report."""
     if not any(mark in stderr for mark in SANITIZER_MARKS):
         return None
@@ -704,8 +741,8 @@ def main(argv=None) -> int:
     ap.add_argument("--card", action="append", default=[], help="fuzz the design in this card file (repeatable)")
     ap.add_argument("--jobs", type=int, default=None, help="families fuzzed at a time (default: all)")
     ap.add_argument("--seed", type=int, default=1, help="first seed (default 1)")
-    ap.add_argument("--runtime-rev", default=None, help="fuzz observer.c, uiofmu_design.h and design_source as "
-                    "they are at this git revision")
+    ap.add_argument("--runtime-rev", default=None, help="fuzz the C runtime and design_source as they are at "
+                    "this git revision")
     ap.add_argument("--work", default=None, help="keep the builds in this directory")
     args = ap.parse_args(argv)
     families = args.family or ([] if args.card else list(FAMILIES))

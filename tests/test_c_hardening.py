@@ -79,6 +79,27 @@ def test_fuzzer_scenarios(targets, family):
         assert res.functions[fn].get("error", 0) > 0 and res.functions[fn].get("ok", 0) > 0, fn
 
 
+PLUMBING_SCENARIOS = ("state-masks", "status-after-discard", "log-categories")
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+@pytest.mark.parametrize("scenario", PLUMBING_SCENARIOS)
+def test_fuzzer_plumbing_scenarios(targets, family, scenario):
+    """The FMI plumbing (fmi2_plumbing.c) under the sanitizers: every fmi2 function in every state an
+    instance can be brought to answers as its state mask says (an illegal call: fmi2Error, a log line
+    naming the state, nothing changed); the status queries after a discarded step, and a twin-equal
+    continuation; log categories switched on and off."""
+    res = cfuzz.run(targets[family], "scenarios", "--scenario", scenario)
+    _no_sanitizer_report(res)
+    assert res.returncode == 0 and res.failures == [] and res.scenarios == {scenario: "ok"}, res.stderr[-3000:]
+    if scenario == "state-masks":
+        for fn in ("fmi2DoStep", "fmi2SetupExperiment", "fmi2Terminate", "fmi2GetStatus", "fmi2SetReal"):
+            assert res.functions[fn].get("error", 0) > 0 and res.functions[fn].get("ok", 0) + \
+                res.functions[fn].get("discard", 0) > 0, fn
+    if scenario == "status-after-discard":
+        assert res.functions["fmi2GetRealStatus"]["ok"] >= 3 and res.functions["fmi2GetStatus"]["discard"] >= 1
+
+
 @pytest.mark.parametrize("family", sorted(cfuzz.VARIANTS))
 def test_fuzzer_scenarios_with_the_other_step_policies(cards, tmp_path, family):
     """'nearest' (interval schedule: any h_prev resolves, a notice may be recorded) and 'count'
@@ -115,10 +136,10 @@ def test_fuzzer_catches_a_runtime_without_state_checks(targets, tmp_path):
     src.mkdir()
     for f in targets["sampled-data"].sources.iterdir():
         (src / f.name).write_bytes(f.read_bytes())
-    text = (src / "observer.c").read_text()
+    text = (src / "kernel_affine.c").read_text()
     head = "static int check_values(Instance *s, const char *ctx, const Byte *v) {\n"
     assert text.count(head) == 1
-    (src / "observer.c").write_text(text.replace(head, head + "    (void)s; (void)ctx; (void)v;\n    return 1;\n"))
+    (src / "kernel_affine.c").write_text(text.replace(head, head + "    (void)s; (void)ctx; (void)v;\n    return 1;\n"))
     target = cfuzz.Target("unchecked", tmp_path / "fuzz", src, cfuzz.compile_fuzzer(src, tmp_path / "fuzz"))
     res = cfuzz.run(target, "scenarios", "--scenario", "h_prev")
     assert res.returncode == 1 and res.scenarios == {"h_prev": "FAIL"}
@@ -394,16 +415,18 @@ def test_instantiate_refuses_inconsistent_design_data(fmus, tmp_path):
         z.extractall(unzip)
     src = unzip / "sources"
     flags = ["-std=c99", "-O2", "-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra", f"-I{src}"]  # compile_binary's
-    proc = subprocess.run(["gcc", *flags, "-c", "-o", str(tmp_path / "observer.o"), str(src / "observer.c")],
-                          capture_output=True, text=True)
-    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    objects = []
+    for name in ("fmi2_plumbing.c", "kernel_affine.c"):                # the FMU's sources but design_data.c
+        objects.append(str(tmp_path / name.replace(".c", ".o")))
+        proc = subprocess.run(["gcc", *flags, "-c", "-o", objects[-1], str(src / name)], capture_output=True, text=True)
+        assert proc.returncode == 0 and proc.stderr == "", proc.stderr
     original = (src / "design_data.c").read_text()
     for i, (old, *edit) in enumerate(DESIGN_EDITS):
         text = original if old is None else original.replace(old, edit[0])
         assert old is None or text != original, old
         (src / "design_data.c").write_text(text)
         lib = unzip / "binaries" / "linux64" / f"{ident}.so"
-        proc = subprocess.run(["gcc", *flags, "-shared", "-o", str(lib), str(tmp_path / "observer.o"),
+        proc = subprocess.run(["gcc", *flags, "-shared", "-o", str(lib), *objects,
                                str(src / "design_data.c"), "-lm"], capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
         broken = tmp_path / f"edit{i}.fmu"

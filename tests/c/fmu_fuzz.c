@@ -1,8 +1,9 @@
 /* fmu_fuzz: seeded random FMI 2.0 call sequences against one uiofmu C observer FMU.
  *
- * Built as one executable with the FMU's own sources/observer.c and sources/design_data.c
- * (and the FMI headers of the same sources/), under -fsanitize=address,undefined
- * -fno-sanitize-recover=all, by tests/cfuzz.py. It drives the FMI functions directly, keeps a
+ * Built as one executable with the FMU's own C files (sources/fmi2_plumbing.c,
+ * sources/kernel_affine.c, sources/design_data.c; and the headers of the same sources/), under
+ * -fsanitize=address,undefined -fno-sanitize-recover=all, by tests/cfuzz.py (with
+ * -DUIOFMU_LEGACY_RUNTIME for the one-file runtime of older revisions, sources/observer.c). It drives the FMI functions directly, keeps a
  * model of what each call must return (the phase of each instance, which steps are
  * admissible, which states are valid) and reports every disagreement:
  *
@@ -18,12 +19,15 @@
  *            short, long and random buffers, deserialised from honest and mutated bytes (bit
  *            flips; every double overwritten with NaN, Inf, -1, 123, 1e300, ...; GUID, layout
  *            and size fields changed), states moved between two instances, Integer, Boolean
- *            and String access, the status queries, reset, terminate, free.
+ *            and String access, the status queries, the log categories, reset, terminate, free.
  * scenarios  the known attacks one by one, each with the status it must get (a forged state
- *            that is accepted is a failure).
+ *            that is accepted is a failure); every fmi2 function in every state an instance can
+ *            be brought to (the state masks of fmi2_plumbing.c, written out again here from
+ *            FMI 2.0 and the documented differences); the status queries after a discarded
+ *            step and a master going on with a valid step; the log categories.
  *
- * Oracles: the status the model expects; a log line for every status other than fmi2OK; a
- * state that is refused leaves the instance exactly as it was (its serialised state is
+ * Oracles: the status the model expects; a log line for every status other than fmi2OK whose
+ * category is on, and none under a category that is off; a state that is refused leaves the instance exactly as it was (its serialised state is
  * byte-identical before and after); a state that is set gives back, bit for bit, the outputs
  * read when it was taken; replaying the same inputs from a state gives the same outputs bit
  * for bit (in the same instance, and in another one through serialised bytes). The sanitizers
@@ -35,7 +39,7 @@
  * The serialised layout is read in two versions: layout 2 (magic "uiof", layout, size, GUID
  * length, dims, count, GUID, doubles) and, to measure the runtime before it was hardened,
  * layout 1 (magic, count, doubles, GUID). The valid-state model below is written from the
- * rules documented in observer.c, independently of its code.
+ * rules documented in kernel_affine.c, independently of its code.
  */
 #define _POSIX_C_SOURCE 200809L
 #include <float.h>
@@ -49,7 +53,15 @@
 #include <time.h>
 
 #include "fmi2Functions.h"
+#ifdef UIOFMU_LEGACY_RUNTIME
 #include "uiofmu_design.h"
+#define FMU_GUID (UIOFMU_DESIGN.guid)
+#define FMU_MODEL (UIOFMU_DESIGN.model)
+#else
+#include "kernel_affine.h"
+#define FMU_GUID (UIOFMU_FMU.guid)
+#define FMU_MODEL (UIOFMU_FMU.model)
+#endif
 
 #if defined(__SANITIZE_ADDRESS__)
 #include <sanitizer/common_interface_defs.h>
@@ -161,7 +173,7 @@ static void report(int died) {
     long by[S_COUNT] = {0};
     for (int f = 0; f < F_COUNT; f++)
         for (int k = 0; k < S_COUNT; k++) by[k] += counts[f][k];
-    printf("fuzz model=%s mode=%s seed=%llu sequences=%ld calls=%ld log_lines=%ld seconds=%.2f%s\n", D->model,
+    printf("fuzz model=%s mode=%s seed=%llu sequences=%ld calls=%ld log_lines=%ld seconds=%.2f%s\n", FMU_MODEL,
            mode_name, seed0, sequences, total_calls, log_lines, now() - started, died ? " died=1" : "");
     printf("statuses");
     for (int k = 0; k < S_COUNT; k++) printf(" %s=%ld", SN[k], by[k]);
@@ -185,9 +197,21 @@ static void on_death(void) { report(1); }
 /* ---------------------------------------------------------------------------------------- */
 /* instances and the logger                                                                  */
 
+/* the log categories: the model of which are on, per instance (fmi2_plumbing.c: the status
+   categories on at fmi2Instantiate, logEvents as loggingOn says) */
+enum { CAT_EVENTS, CAT_WARNING, CAT_DISCARD, CAT_ERROR, CAT_COUNT };
+static const char *const CAT_NAME[CAT_COUNT] = {"logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError"};
+#define CAT_ALL ((1u << CAT_COUNT) - 1u)
+#define CAT_STATUSES ((1u << CAT_WARNING) | (1u << CAT_DISCARD) | (1u << CAT_ERROR))
+
+static unsigned cat_of_status(fmi2Status st) {
+    return 1u << (st == fmi2OK ? CAT_EVENTS : st == fmi2Warning ? CAT_WARNING : st == fmi2Discard ? CAT_DISCARD : CAT_ERROR);
+}
+
 typedef struct {
     int lines;
     char last[1024];
+    unsigned cats; /* the categories the model says are on */
 } Env;
 
 typedef struct {
@@ -212,6 +236,15 @@ static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status sta
     log_lines++;
     if (!name || !category || !message) fail("the logger was called with a null name, category or message");
     if (status < fmi2OK || status > fmi2Pending) fail("a log line with status %d", (int)status);
+#ifndef UIOFMU_LEGACY_RUNTIME
+    if (category) {
+        int k = 0;
+        while (k < CAT_COUNT && strcmp(category, CAT_NAME[k]) != 0) k++;
+        if (k == CAT_COUNT) fail("a log line under the undeclared category %s: %s", category, buf);
+        else if ((1u << k) != cat_of_status(status)) fail("a log line of status %d under %s: %s", (int)status, category, buf);
+        else if (e && !(e->cats & (1u << k))) fail("a log line under %s, which is off: %s", category, buf);
+    }
+#endif
     if (e) {
         e->lines++;
         snprintf(e->last, sizeof e->last, "%s", buf);
@@ -228,7 +261,7 @@ static fmi2Status track(Inst *I, int fn, fmi2Status st, int before) {
     counts[fn][k]++;
     total_calls++;
     if (k == S_OTHER) fail("%s returned %d, which is no fmi2Status", FN[fn], (int)st);
-    if (I && I->c && I->logger && st != fmi2OK && I->env.lines == before)
+    if (I && I->c && I->logger && st != fmi2OK && (I->env.cats & cat_of_status(st)) && I->env.lines == before)
         fail("%s returned fmi2%s without a log line", FN[fn], SN[k]);
     return st;
 }
@@ -265,6 +298,7 @@ static Inst *any_live(void) {
 
 static void instance_setup(Inst *I, int with_logger) {
     memset(&I->env, 0, sizeof I->env);
+    I->env.cats = CAT_STATUSES; /* what fmi2Instantiate logs under when it refuses */
     I->cb.logger = with_logger ? logger : NULL;
     I->cb.allocateMemory = cb_calloc;
     I->cb.freeMemory = cb_free;
@@ -275,8 +309,9 @@ static void instance_setup(Inst *I, int with_logger) {
 
 static int make_instance(Inst *I, int with_logger, int logging_on) {
     instance_setup(I, with_logger);
+    I->env.cats = CAT_STATUSES | (logging_on ? 1u << CAT_EVENTS : 0u);
     I->c = NULL;
-    fmi2Component c = fmi2Instantiate("fuzz", fmi2CoSimulation, D->guid, "file:///tmp", &I->cb, fmi2False,
+    fmi2Component c = fmi2Instantiate("fuzz", fmi2CoSimulation, FMU_GUID, "file:///tmp", &I->cb, fmi2False,
                                       logging_on ? fmi2True : fmi2False);
     track(NULL, F_Instantiate, c ? fmi2OK : fmi2Error, 0);
     if (!c) {
@@ -374,7 +409,7 @@ static double rdd(const unsigned char *b, size_t i) { double v; memcpy(&v, b + L
 static void wrd(unsigned char *b, size_t i, double v) { memcpy(b + L.data + 8 * i, &v, 8); }
 
 static void learn_layout(const unsigned char *b, size_t size) {
-    size_t g = strlen(D->guid);
+    size_t g = strlen(FMU_GUID);
     if (L.known) {
         if (size != L.size) fail("a serialised state of %zu bytes, earlier ones had %zu", size, L.size);
         return;
@@ -643,11 +678,11 @@ static void act_instantiate(void) {
     Inst tmp;
     instance_setup(&tmp, 1);
     char guid[300];
-    const char *g = D->guid, *name = "fuzz";
+    const char *g = FMU_GUID, *name = "fuzz";
     fmi2Type type = fmi2CoSimulation;
     const fmi2CallbackFunctions *cb = &tmp.cb;
     switch (variant) {
-    case 8: snprintf(guid, sizeof guid, "%s", D->guid); guid[1 + below((int)strlen(D->guid) - 2)] ^= 0x01; g = guid; break;
+    case 8: snprintf(guid, sizeof guid, "%s", FMU_GUID); guid[1 + below((int)strlen(FMU_GUID) - 2)] ^= 0x01; g = guid; break;
     case 9: g = chance(0.5) ? NULL : ""; break;
     case 10: type = fmi2ModelExchange; break;
     case 11: cb = NULL; break;
@@ -726,6 +761,7 @@ static void act_phase_call(void) {
 
 /* how fmi2SetReal must answer vr[0..n) in phase ph */
 static fmi2Status expected_set(const fmi2ValueReference *vr, int n, int ph) {
+    if (ph == PH_TERMINATED) return fmi2Error; /* the mask of fmi2SetXXX, whatever the references */
     for (int i = 0; i < n; i++) {
         if (vr[i] >= (fmi2ValueReference)NV) return fmi2Error;
         if ((int)vr[i] >= VR_OUT) return fmi2Error;
@@ -782,7 +818,7 @@ static void act_step(void) {
         fin = inputs_finite(I);
         if (fin < 0) return;
     }
-    if (I->phase != PH_RUNNING || !(isfinite(h) && h > 0) || !fin) want = fmi2Error;
+    if (I->phase != PH_RUNNING || !isfinite(t) || !(isfinite(h) && h > 0) || !fin) want = fmi2Error;
     else if (step_exact(h)) want = fmi2OK;
     else if (INTERVAL) want = D->policy == UIOFMU_POLICY_NEAREST ? fmi2OK : fmi2Discard;
     else want = D->policy == UIOFMU_POLICY_COUNT ? fmi2OK : fmi2Discard;
@@ -1183,37 +1219,102 @@ static void act_other_types(void) {
     fmi2Boolean bv[3] = {0, 1, 0};
     fmi2String sv[3] = {"a", "", NULL};
     size_t n = (size_t)below(4);
-    fmi2Status want = n ? fmi2Error : fmi2OK, st;
+    /* no Integer, Boolean or String variables: any reference is refused; fmi2SetXXX is illegal after
+       fmi2Terminate even with none */
+    fmi2Status want = n ? fmi2Error : fmi2OK, wset = n || I->phase == PH_TERMINATED ? fmi2Error : fmi2OK, st;
     switch (below(6)) {
     case 0: st = CALL(I, F_GetInteger, fmi2GetInteger(I->c, vr, n, iv)); expect(I, st, want, "fmi2GetInteger"); break;
-    case 1: st = CALL(I, F_SetInteger, fmi2SetInteger(I->c, vr, n, iv)); expect(I, st, want, "fmi2SetInteger"); break;
+    case 1: st = CALL(I, F_SetInteger, fmi2SetInteger(I->c, vr, n, iv)); expect(I, st, wset, "fmi2SetInteger"); break;
     case 2: st = CALL(I, F_GetBoolean, fmi2GetBoolean(I->c, vr, n, bv)); expect(I, st, want, "fmi2GetBoolean"); break;
-    case 3: st = CALL(I, F_SetBoolean, fmi2SetBoolean(I->c, vr, n, bv)); expect(I, st, want, "fmi2SetBoolean"); break;
+    case 3: st = CALL(I, F_SetBoolean, fmi2SetBoolean(I->c, vr, n, bv)); expect(I, st, wset, "fmi2SetBoolean"); break;
     case 4: st = CALL(I, F_GetString, fmi2GetString(I->c, vr, n, sv)); expect(I, st, want, "fmi2GetString"); break;
-    default: st = CALL(I, F_SetString, fmi2SetString(I->c, vr, n, sv)); expect(I, st, want, "fmi2SetString"); break;
+    default: st = CALL(I, F_SetString, fmi2SetString(I->c, vr, n, sv)); expect(I, st, wset, "fmi2SetString"); break;
     }
 }
 
-/* the status queries and the unsupported calls: counted, their behaviour is not judged here */
+/* How a status query must answer (fmi2_plumbing.c): legal after initialisation only; each kind to
+   its function (fmi2LastSuccessfulTime and fmi2Terminated answered, fmi2DoStepStatus and
+   fmi2PendingStatus discarded: no step is ever pending); another kind, or none, is an error. */
+static fmi2Status expected_query(const Inst *I, int fn, int kind, int null) {
+    if (I->phase != PH_RUNNING && I->phase != PH_TERMINATED) return fmi2Error;
+    if (null) return fmi2Error;
+    switch (fn) {
+    case F_GetStatus: return kind == fmi2DoStepStatus ? fmi2Discard : fmi2Error;
+    case F_GetRealStatus: return kind == fmi2LastSuccessfulTime ? fmi2OK : fmi2Error; /* or Discard: see below */
+    case F_GetBooleanStatus: return kind == fmi2Terminated ? fmi2OK : fmi2Error;
+    case F_GetStringStatus: return kind == fmi2PendingStatus ? fmi2Discard : fmi2Error;
+    default: return fmi2Error; /* FMI 2.0 has no Integer status */
+    }
+}
+
+static void query(Inst *I, int fn, int kind, int null) {
+    fmi2Status sv = fmi2OK, want = expected_query(I, fn, kind, null), st;
+    fmi2Real rv = -1.0;
+    fmi2Integer iv = 0;
+    fmi2Boolean bv = 7;
+    fmi2String strv = NULL;
+    fmi2StatusKind k = (fmi2StatusKind)kind;
+    switch (fn) {
+    case F_GetStatus: st = CALL(I, F_GetStatus, fmi2GetStatus(I->c, k, null ? NULL : &sv)); break;
+    case F_GetRealStatus: st = CALL(I, F_GetRealStatus, fmi2GetRealStatus(I->c, k, null ? NULL : &rv)); break;
+    case F_GetIntegerStatus: st = CALL(I, F_GetIntegerStatus, fmi2GetIntegerStatus(I->c, k, null ? NULL : &iv)); break;
+    case F_GetBooleanStatus: st = CALL(I, F_GetBooleanStatus, fmi2GetBooleanStatus(I->c, k, null ? NULL : &bv)); break;
+    default: st = CALL(I, F_GetStringStatus, fmi2GetStringStatus(I->c, k, null ? NULL : &strv)); break;
+    }
+    /* fmi2LastSuccessfulTime is not known after fmi2SetFMUstate (the state carries no time) until a step */
+    if (fn == F_GetRealStatus && want == fmi2OK && st == fmi2Discard) {
+        if (I->env.cats & (1u << CAT_DISCARD))
+            last_log_has(I, "not known", "fmi2GetRealStatus(fmi2LastSuccessfulTime) discarded");
+        return;
+    }
+    if (!expect(I, st, want, "%s(kind %d%s) in phase %d", FN[fn], kind, null ? ", NULL" : "", I->phase)) return;
+    if (st == fmi2OK && fn == F_GetRealStatus && !isfinite(rv)) fail("fmi2LastSuccessfulTime = %g", rv);
+    if (st == fmi2OK && fn == F_GetBooleanStatus && bv != fmi2False) fail("fmi2Terminated = %d, expected fmi2False", bv);
+    if (st == fmi2Discard && I->env.cats & (1u << CAT_DISCARD)) last_log_has(I, "no fmi2DoStep is pending", FN[fn]);
+}
+
+/* the log categories: fmi2SetDebugLogging with known, unknown and NULL ones (the model follows) */
+static void act_debug_logging(Inst *I) {
+    static const char *const names[6] = {"logStatusError", "logEvents", "logStatusDiscard", "logStatusWarning",
+                                         "nonsense", ""};
+    fmi2String cats[3];
+    size_t n = (size_t)below(4);
+    int null = n && chance(0.05), bad = 0, on = chance(0.8);
+    unsigned named = 0;
+    for (size_t i = 0; i < n; i++) {
+        int r = below(20);
+        cats[i] = r < 16 ? names[r % 4] : r < 18 ? names[4 + (r & 1)] : NULL;
+        if (!cats[i] || r >= 16) bad = 1;
+        else named |= 1u << (r % 4 == 0 ? CAT_ERROR : r % 4 == 1 ? CAT_EVENTS : r % 4 == 2 ? CAT_DISCARD : CAT_WARNING);
+    }
+    fmi2Status want = null || bad ? fmi2Error : fmi2OK;
+    fmi2Status st = CALL(I, F_SetDebugLogging, fmi2SetDebugLogging(I->c, on, n, null ? NULL : cats));
+    if (!expect(I, st, want, "fmi2SetDebugLogging(%d, %zu categories%s)", on, n, null ? ", NULL" : bad ? ", bad" : ""))
+        return;
+    if (st != fmi2OK) {
+        if (I->env.cats & (1u << CAT_ERROR)) last_log_has(I, "categor", "fmi2SetDebugLogging refused");
+        return;
+    }
+    if (!n) I->env.cats = on ? CAT_ALL : 0u;
+    else if (on) I->env.cats = named;
+    else I->env.cats &= ~named;
+}
+
+/* the status queries, the log categories and the unsupported calls */
 static void act_queries(void) {
     Inst *I = any_live();
     if (!I) return;
-    fmi2StatusKind kind = (fmi2StatusKind)below(4);
-    fmi2Status sv;
-    fmi2Real rv;
-    fmi2Integer iv;
-    fmi2Boolean bv;
-    fmi2String strv;
-    int null = chance(0.2);
+    int kind = chance(0.9) ? below(4) : (chance(0.5) ? -1 - below(3) : 4 + below(100));
+    int null = chance(0.1);
     fmi2ValueReference vr[2] = {0, 1};
     fmi2Integer order[2] = {1, 1};
     double val[2] = {0, 0};
     switch (below(10)) {
-    case 0: CALL(I, F_GetStatus, fmi2GetStatus(I->c, kind, null ? NULL : &sv)); break;
-    case 1: CALL(I, F_GetRealStatus, fmi2GetRealStatus(I->c, kind, null ? NULL : &rv)); break;
-    case 2: CALL(I, F_GetIntegerStatus, fmi2GetIntegerStatus(I->c, kind, null ? NULL : &iv)); break;
-    case 3: CALL(I, F_GetBooleanStatus, fmi2GetBooleanStatus(I->c, kind, null ? NULL : &bv)); break;
-    case 4: CALL(I, F_GetStringStatus, fmi2GetStringStatus(I->c, kind, null ? NULL : &strv)); break;
+    case 0: query(I, F_GetStatus, kind, null); break;
+    case 1: query(I, F_GetRealStatus, kind, null); break;
+    case 2: query(I, F_GetIntegerStatus, kind, null); break;
+    case 3: query(I, F_GetBooleanStatus, kind, null); break;
+    case 4: query(I, F_GetStringStatus, kind, null); break;
     case 5: expect(I, CALL(I, F_CancelStep, fmi2CancelStep(I->c)), fmi2Error, "fmi2CancelStep"); break;
     case 6:
         expect(I, CALL(I, F_GetDirectionalDerivative, fmi2GetDirectionalDerivative(I->c, vr, 1, vr, 1, val, val)),
@@ -1227,11 +1328,7 @@ static void act_queries(void) {
         expect(I, CALL(I, F_GetRealOutputDerivatives, fmi2GetRealOutputDerivatives(I->c, vr, 1, order, val)), fmi2Error,
                "fmi2GetRealOutputDerivatives");
         break;
-    default: {
-        fmi2String cats[2] = {"logStatusError", "nonsense"};
-        expect(I, CALL(I, F_SetDebugLogging, fmi2SetDebugLogging(I->c, below(2), (size_t)below(3), below(2) ? cats : NULL)),
-               fmi2OK, "fmi2SetDebugLogging");
-    }
+    default: act_debug_logging(I);
     }
 }
 
@@ -1749,13 +1846,13 @@ static void sc_instantiate(void) {
     Inst tmp;
     instance_setup(&tmp, 1);
     char guid[300];
-    snprintf(guid, sizeof guid, "%s", D->guid);
+    snprintf(guid, sizeof guid, "%s", FMU_GUID);
     guid[3] ^= 1;
     struct { const char *name; fmi2Type type; const char *guid; int cb; const char *what; } cases[] = {
         {"fuzz", fmi2CoSimulation, guid, 1, "another GUID"}, {"fuzz", fmi2CoSimulation, NULL, 1, "a NULL GUID"},
-        {"fuzz", fmi2CoSimulation, "", 1, "an empty GUID"}, {"fuzz", fmi2ModelExchange, D->guid, 1, "Model Exchange"},
-        {"fuzz", fmi2CoSimulation, D->guid, 0, "NULL callbacks"}, {NULL, fmi2CoSimulation, D->guid, 1, "a NULL name"},
-        {"", fmi2CoSimulation, D->guid, 1, "an empty name"}};
+        {"fuzz", fmi2CoSimulation, "", 1, "an empty GUID"}, {"fuzz", fmi2ModelExchange, FMU_GUID, 1, "Model Exchange"},
+        {"fuzz", fmi2CoSimulation, FMU_GUID, 0, "NULL callbacks"}, {NULL, fmi2CoSimulation, FMU_GUID, 1, "a NULL name"},
+        {"", fmi2CoSimulation, FMU_GUID, 1, "an empty name"}};
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         int lines = tmp.env.lines;
         fmi2Component c = fmi2Instantiate(cases[i].name, cases[i].type, cases[i].guid, "file:///tmp",
@@ -1776,6 +1873,344 @@ static void sc_instantiate(void) {
     }
 }
 
+/* ---- the state masks ---------------------------------------------------------------------- */
+
+/* The states an instance can be brought to (the error state needs a kernel state at odds with
+   its design, which the state checks keep out: tests/c/plumbing_test.c reaches it with a kernel
+   of its own). */
+enum { MS_INSTANTIATED, MS_INIT, MS_COMPLETE, MS_DISCARDED, MS_TERMINATED, MS_COUNT };
+static const char *const MS_NAME[MS_COUNT] = {"instantiated", "initialization mode", "step complete",
+                                              "step discarded", "terminated"};
+#define MS(x) (1u << (x))
+#define MS_ALL (MS(MS_COUNT) - 1u)
+#define MS_RUN (MS(MS_COMPLETE) | MS(MS_DISCARDED))
+
+/* Where each function is legal: FMI 2.0's table (4.2.4) with the differences fmi2_plumbing.c
+   documents (fmi2GetXXX also when instantiated; fmi2SetXXX and fmi2DoStep also after a discarded
+   step), written out here on its own. */
+static unsigned legal_in(int fn) {
+    switch (fn) {
+    case F_SetDebugLogging: case F_Reset: case F_GetReal: case F_GetInteger: case F_GetBoolean: case F_GetString:
+    case F_GetFMUstate: case F_SetFMUstate: case F_FreeFMUstate: case F_SerializedFMUstateSize:
+    case F_SerializeFMUstate: case F_DeSerializeFMUstate:
+        return MS_ALL;
+    case F_SetupExperiment: case F_EnterInitializationMode: return MS(MS_INSTANTIATED);
+    case F_ExitInitializationMode: return MS(MS_INIT);
+    case F_Terminate: case F_DoStep: return MS_RUN;
+    case F_SetReal: case F_SetInteger: case F_SetBoolean: case F_SetString: return MS_ALL & ~MS(MS_TERMINATED);
+    case F_GetDirectionalDerivative: return MS_ALL & ~MS(MS_INSTANTIATED);
+    case F_SetRealInputDerivatives: return MS(MS_INSTANTIATED) | MS(MS_INIT) | MS(MS_COMPLETE);
+    case F_GetRealOutputDerivatives: case F_GetStatus: case F_GetRealStatus: case F_GetIntegerStatus:
+    case F_GetBooleanStatus: case F_GetStringStatus:
+        return MS_RUN | MS(MS_TERMINATED);
+    default: return 0u; /* fmi2CancelStep: no step is ever pending */
+    }
+}
+
+/* A step this design refuses with fmi2Discard (0 when its policy takes every step). */
+static double refused_step(void) {
+    if ((INTERVAL && D->policy == UIOFMU_POLICY_NEAREST) || (!INTERVAL && D->policy == UIOFMU_POLICY_COUNT)) return 0.0;
+    double base = INTERVAL ? D->intervals[0] : D->dt;
+    for (double f = 0.61; f < 10; f += 0.37)
+        if (!step_exact(base * f)) return base * f;
+    return 0.0;
+}
+
+/* A fresh instance in state st (0 when this design cannot be brought there). */
+static int to_state(Inst *I, int st) {
+    free_instance(I);
+    if (!make_instance(I, 1, 1)) return 0;
+    if (st == MS_INSTANTIATED) return 1;
+    expect(I, CALL(I, F_SetupExperiment, fmi2SetupExperiment(I->c, 0, 0, 0, 0, 0)), fmi2OK, "fmi2SetupExperiment");
+    if (!expect(I, CALL(I, F_EnterInitializationMode, fmi2EnterInitializationMode(I->c)), fmi2OK, "enter")) return 0;
+    I->phase = PH_INIT;
+    if (st == MS_INIT) return 1;
+    if (!expect(I, CALL(I, F_ExitInitializationMode, fmi2ExitInitializationMode(I->c)), fmi2OK, "exit")) return 0;
+    I->phase = PH_RUNNING;
+    drive(I, 1);
+    if (st == MS_COMPLETE) return 1;
+    if (st == MS_DISCARDED) {
+        double h = refused_step();
+        if (h == 0.0) return 0;
+        return expect(I, CALL(I, F_DoStep, fmi2DoStep(I->c, 0.0, h, fmi2True)), fmi2Discard, "a refused step");
+    }
+    if (!expect(I, CALL(I, F_Terminate, fmi2Terminate(I->c)), fmi2OK, "fmi2Terminate")) return 0;
+    I->phase = PH_TERMINATED;
+    return 1;
+}
+
+/* Every fmi2 function (with arguments it takes) in every state: legal calls answer as they
+   should, illegal ones fmi2Error with a log line naming the state, and change nothing. */
+static void sc_state_masks(void) {
+    Inst *I = A, *S = B; /* S: a running instance whose states and bytes I is given */
+    fmi2FMUstate theirs = NULL;
+    size_t blen = 0;
+    unsigned char *bytes = serialise_now(S, &blen);
+    if (!bytes) return;
+    int fns[] = {F_SetDebugLogging, F_SetupExperiment, F_EnterInitializationMode, F_ExitInitializationMode,
+                 F_Terminate, F_Reset, F_GetReal, F_SetReal, F_GetInteger, F_SetInteger, F_GetBoolean, F_SetBoolean,
+                 F_GetString, F_SetString, F_DoStep, F_CancelStep, F_GetFMUstate, F_SetFMUstate, F_FreeFMUstate,
+                 F_SerializedFMUstateSize, F_SerializeFMUstate, F_DeSerializeFMUstate, F_GetDirectionalDerivative,
+                 F_SetRealInputDerivatives, F_GetRealOutputDerivatives, F_GetStatus, F_GetRealStatus,
+                 F_GetIntegerStatus, F_GetBooleanStatus, F_GetStringStatus};
+    for (int st = 0; st < MS_COUNT; st++)
+        for (size_t f = 0; f < sizeof fns / sizeof fns[0]; f++) {
+            int fn = fns[f], legal = (legal_in(fn) >> st) & 1u;
+            if (!to_state(I, st)) {
+                if (st == MS_DISCARDED) break; /* this step policy discards nothing */
+                continue;
+            }
+            char what[160];
+            snprintf(what, sizeof what, "%s when %s", FN[fn], MS_NAME[st]);
+            size_t slen = 0;
+            unsigned char *snap = legal ? NULL : serialise_now(I, &slen);
+            fmi2ValueReference vr_in = (fmi2ValueReference)VR_Y, vr_out = (fmi2ValueReference)VR_OUT;
+            double v = 1.0, dv[2] = {0, 0};
+            fmi2Integer order = 1;
+            fmi2Status sv, want = fmi2OK, got;
+            fmi2Real rv;
+            fmi2Boolean bv;
+            fmi2String strv;
+            fmi2FMUstate mine = NULL;
+            unsigned char buf[4096];
+            if (fn == F_FreeFMUstate || fn == F_SerializedFMUstateSize || fn == F_SerializeFMUstate)
+                expect(S, CALL(S, F_GetFMUstate, fmi2GetFMUstate(S->c, &theirs)), fmi2OK, "a state to give");
+            switch (fn) {
+            case F_SetDebugLogging: got = CALL(I, fn, fmi2SetDebugLogging(I->c, fmi2True, 0, NULL)); break;
+            case F_SetupExperiment: got = CALL(I, fn, fmi2SetupExperiment(I->c, 0, 0, 0, 0, 0)); break;
+            case F_EnterInitializationMode: got = CALL(I, fn, fmi2EnterInitializationMode(I->c)); break;
+            case F_ExitInitializationMode: got = CALL(I, fn, fmi2ExitInitializationMode(I->c)); break;
+            case F_Terminate: got = CALL(I, fn, fmi2Terminate(I->c)); break;
+            case F_Reset: got = CALL(I, fn, fmi2Reset(I->c)); break;
+            case F_GetReal: got = CALL(I, fn, fmi2GetReal(I->c, &vr_out, 1, &rv)); break;
+            case F_SetReal: got = CALL(I, fn, fmi2SetReal(I->c, &vr_in, 1, &v)); break;
+            case F_GetInteger: got = CALL(I, fn, fmi2GetInteger(I->c, &vr_in, 0, &order)); break;
+            case F_SetInteger: got = CALL(I, fn, fmi2SetInteger(I->c, &vr_in, 0, &order)); break;
+            case F_GetBoolean: got = CALL(I, fn, fmi2GetBoolean(I->c, &vr_in, 0, &bv)); break;
+            case F_SetBoolean: got = CALL(I, fn, fmi2SetBoolean(I->c, &vr_in, 0, &bv)); break;
+            case F_GetString: got = CALL(I, fn, fmi2GetString(I->c, &vr_in, 0, &strv)); break;
+            case F_SetString: got = CALL(I, fn, fmi2SetString(I->c, &vr_in, 0, &strv)); break;
+            case F_DoStep: got = CALL(I, fn, fmi2DoStep(I->c, 0.0, good_step(), fmi2True)); break;
+            case F_CancelStep: got = CALL(I, fn, fmi2CancelStep(I->c)); break;
+            case F_GetFMUstate: got = CALL(I, fn, fmi2GetFMUstate(I->c, &mine)); break;
+            case F_SetFMUstate: {
+                fmi2FMUstate given = NULL;
+                expect(S, CALL(S, F_GetFMUstate, fmi2GetFMUstate(S->c, &given)), fmi2OK, "a state to give");
+                got = CALL(I, fn, fmi2SetFMUstate(I->c, given));
+                expect(S, CALL(S, F_FreeFMUstate, fmi2FreeFMUstate(S->c, &given)), fmi2OK, "fmi2FreeFMUstate");
+                break;
+            }
+            case F_FreeFMUstate: got = CALL(I, fn, fmi2FreeFMUstate(I->c, &theirs)); break;
+            case F_SerializedFMUstateSize: got = CALL(I, fn, fmi2SerializedFMUstateSize(I->c, theirs, &slen)); break;
+            case F_SerializeFMUstate:
+                got = CALL(I, fn, fmi2SerializeFMUstate(I->c, theirs, (fmi2Byte *)buf, blen <= sizeof buf ? blen : 0));
+                if (blen > sizeof buf) want = fmi2Error;
+                break;
+            case F_DeSerializeFMUstate:
+                got = CALL(I, fn, fmi2DeSerializeFMUstate(I->c, (const fmi2Byte *)bytes, blen, &mine));
+                break;
+            case F_GetDirectionalDerivative:
+                got = CALL(I, fn, fmi2GetDirectionalDerivative(I->c, &vr_out, 1, &vr_in, 1, dv, dv + 1));
+                want = fmi2Error; /* not supported */
+                break;
+            case F_SetRealInputDerivatives:
+                got = CALL(I, fn, fmi2SetRealInputDerivatives(I->c, &vr_in, 1, &order, dv));
+                want = fmi2Error;
+                break;
+            case F_GetRealOutputDerivatives:
+                got = CALL(I, fn, fmi2GetRealOutputDerivatives(I->c, &vr_out, 1, &order, dv));
+                want = fmi2Error;
+                break;
+            case F_GetStatus: got = CALL(I, fn, fmi2GetStatus(I->c, fmi2DoStepStatus, &sv)); want = fmi2Discard; break;
+            case F_GetRealStatus: got = CALL(I, fn, fmi2GetRealStatus(I->c, fmi2LastSuccessfulTime, &rv)); break;
+            case F_GetIntegerStatus:
+                got = CALL(I, fn, fmi2GetIntegerStatus(I->c, fmi2LastSuccessfulTime, &order));
+                want = fmi2Error; /* FMI 2.0 has no Integer status */
+                break;
+            case F_GetBooleanStatus: got = CALL(I, fn, fmi2GetBooleanStatus(I->c, fmi2Terminated, &bv)); break;
+            default: got = CALL(I, fn, fmi2GetStringStatus(I->c, fmi2PendingStatus, &strv)); want = fmi2Discard; break;
+            }
+            if (!legal) want = fmi2Error;
+            expect(I, got, want, "%s", what);
+            if (!legal) {
+                last_log_has(I, "the instance is", what);
+                last_log_has(I, MS_NAME[st], what);
+                if (snap) same_snapshot(I, snap, slen, what);
+            } else if (want == fmi2Error) {
+                last_log_has(I, fn == F_GetIntegerStatus ? "no Integer status" : "not supported", what);
+            }
+            if (mine) expect(I, CALL(I, F_FreeFMUstate, fmi2FreeFMUstate(I->c, &mine)), fmi2OK, "fmi2FreeFMUstate");
+            if (theirs) expect(S, CALL(S, F_FreeFMUstate, fmi2FreeFMUstate(S->c, &theirs)), fmi2OK, "fmi2FreeFMUstate");
+            free(snap);
+            I->phase = phase_of(I);
+        }
+    free(bytes);
+}
+
+/* ---- a refused step: the status queries, then a master going on ---------------------------- */
+
+static void sc_status_after_discard(void) {
+    double h = refused_step();
+    if (h == 0.0) return; /* this step policy takes every step */
+    fmi2ValueReference vr[512];
+    double in[512], t = 7.25;
+    for (int i = 0; i < D->p + D->m; i++) { vr[i] = (fmi2ValueReference)(VR_Y + i); in[i] = 0.25 * i - 1.0; }
+    for (int s = 0; s < 3; s++) /* A and B: the same inputs and steps, at consistent times */
+        for (int k = 0; k < NINST; k++) {
+            Inst *I = &inst[k];
+            double hs = INTERVAL ? D->intervals[(s * 3 + 2) % D->nintervals] : D->dt;
+            expect(I, CALL(I, F_SetReal, fmi2SetReal(I->c, vr, (size_t)(D->p + D->m), in)), fmi2OK, "fmi2SetReal");
+            expect(I, CALL(I, F_DoStep, fmi2DoStep(I->c, t + 0 * s, hs, fmi2True)), fmi2OK, "a step");
+            if (k == NINST - 1) t += hs;
+        }
+    size_t alen = 0, blen = 0;
+    unsigned char *before = serialise_now(A, &alen);
+    fmi2Real last = -1;
+    fmi2Boolean terminated = 7;
+    fmi2Status dss = fmi2OK;
+    fmi2String pending = NULL;
+    expect(A, CALL(A, F_DoStep, fmi2DoStep(A->c, t, h, fmi2True)), fmi2Discard, "a step of h = %.17g", h);
+    last_log_has(A, "t = ", "the refused step");
+    expect(A, CALL(A, F_GetRealStatus, fmi2GetRealStatus(A->c, fmi2LastSuccessfulTime, &last)), fmi2OK,
+           "fmi2GetRealStatus(fmi2LastSuccessfulTime) after a discarded step");
+    if (last != t) fail("fmi2LastSuccessfulTime = %.17g after a step refused at t = %.17g", last, t);
+    expect(A, CALL(A, F_GetBooleanStatus, fmi2GetBooleanStatus(A->c, fmi2Terminated, &terminated)), fmi2OK,
+           "fmi2GetBooleanStatus(fmi2Terminated) after a discarded step");
+    if (terminated != fmi2False) fail("fmi2Terminated = %d after a discarded step, expected fmi2False", terminated);
+    expect(A, CALL(A, F_GetStatus, fmi2GetStatus(A->c, fmi2DoStepStatus, &dss)), fmi2Discard,
+           "fmi2GetStatus(fmi2DoStepStatus) with no step pending");
+    last_log_has(A, "no fmi2DoStep is pending", "fmi2GetStatus(fmi2DoStepStatus)");
+    expect(A, CALL(A, F_GetStringStatus, fmi2GetStringStatus(A->c, fmi2PendingStatus, &pending)), fmi2Discard,
+           "fmi2GetStringStatus(fmi2PendingStatus) with no step pending");
+    if (!pending) fail("fmi2GetStringStatus(fmi2PendingStatus) gave no string");
+    /* kinds of another type, or none: errors */
+    expect(A, CALL(A, F_GetRealStatus, fmi2GetRealStatus(A->c, fmi2Terminated, &last)), fmi2Error,
+           "fmi2GetRealStatus(fmi2Terminated)");
+    last_log_has(A, "fmi2Terminated is not a status of this type", "fmi2GetRealStatus(fmi2Terminated)");
+    expect(A, CALL(A, F_GetBooleanStatus, fmi2GetBooleanStatus(A->c, fmi2LastSuccessfulTime, &terminated)), fmi2Error,
+           "fmi2GetBooleanStatus(fmi2LastSuccessfulTime)");
+    expect(A, CALL(A, F_GetStatus, fmi2GetStatus(A->c, (fmi2StatusKind)17, &dss)), fmi2Error, "fmi2GetStatus(17)");
+    last_log_has(A, "status kind 17 is none of", "fmi2GetStatus(17)");
+    expect(A, CALL(A, F_GetIntegerStatus, fmi2GetIntegerStatus(A->c, fmi2DoStepStatus, &A->env.lines)), fmi2Error,
+           "fmi2GetIntegerStatus");
+    expect(A, CALL(A, F_GetRealStatus, fmi2GetRealStatus(A->c, fmi2LastSuccessfulTime, NULL)), fmi2Error,
+           "fmi2GetRealStatus(NULL)");
+    /* nothing changed: A is where B is, and both go on alike */
+    unsigned char *after = serialise_now(A, &alen), *twin = serialise_now(B, &blen);
+    if (!before || !after || !twin || memcmp(before, after, alen) != 0)
+        fail("the refused step or the status queries changed the instance");
+    else if (blen != alen || memcmp(after, twin, alen) != 0)
+        fail("after a refused step the instance differs from a twin that never took it");
+    double *oa = malloc((size_t)NOUT * sizeof(double)), *ob = malloc((size_t)NOUT * sizeof(double));
+    for (int s = 0; s < 4; s++) {
+        double hs = good_step();
+        for (int k = 0; k < NINST; k++) {
+            Inst *I = &inst[k];
+            in[0] = 1.5 + s;
+            expect(I, CALL(I, F_SetReal, fmi2SetReal(I->c, vr, (size_t)(D->p + D->m), in)), fmi2OK, "fmi2SetReal");
+            expect(I, CALL(I, F_DoStep, fmi2DoStep(I->c, t, hs, fmi2True)), fmi2OK, "a valid step after the refused one");
+            read_outputs(I, k ? ob : oa);
+        }
+        if (memcmp(oa, ob, (size_t)NOUT * sizeof(double)) != 0)
+            fail("step %d after the refused step: the outputs differ from the twin's", s + 1);
+        t += hs;
+    }
+    expect(A, CALL(A, F_GetRealStatus, fmi2GetRealStatus(A->c, fmi2LastSuccessfulTime, &last)), fmi2OK,
+           "fmi2LastSuccessfulTime after the valid steps");
+    if (last != t) fail("fmi2LastSuccessfulTime = %.17g after steps to t = %.17g", last, t);
+    /* a state set: the time is not known until the next step */
+    fmi2FMUstate st = NULL;
+    expect(A, CALL(A, F_GetFMUstate, fmi2GetFMUstate(A->c, &st)), fmi2OK, "fmi2GetFMUstate");
+    expect(A, CALL(A, F_SetFMUstate, fmi2SetFMUstate(A->c, st)), fmi2OK, "fmi2SetFMUstate");
+    expect(A, CALL(A, F_GetRealStatus, fmi2GetRealStatus(A->c, fmi2LastSuccessfulTime, &last)), fmi2Discard,
+           "fmi2LastSuccessfulTime after fmi2SetFMUstate");
+    last_log_has(A, "not known", "fmi2LastSuccessfulTime after fmi2SetFMUstate");
+    expect(A, CALL(A, F_DoStep, fmi2DoStep(A->c, t, h, fmi2True)), fmi2Discard, "a refused step after fmi2SetFMUstate");
+    expect(A, CALL(A, F_GetRealStatus, fmi2GetRealStatus(A->c, fmi2LastSuccessfulTime, &last)), fmi2OK,
+           "fmi2LastSuccessfulTime after a refused step");
+    if (last != t) fail("fmi2LastSuccessfulTime = %.17g after a step refused at t = %.17g", last, t);
+    expect(A, CALL(A, F_Terminate, fmi2Terminate(A->c)), fmi2OK, "fmi2Terminate after a discarded step");
+    A->phase = PH_TERMINATED;
+    expect(A, CALL(A, F_FreeFMUstate, fmi2FreeFMUstate(A->c, &st)), fmi2OK, "fmi2FreeFMUstate");
+    free(oa); free(ob); free(before); free(after); free(twin);
+}
+
+/* ---- log categories --------------------------------------------------------------------- */
+
+/* a call that fmi2Error refuses, and whether it wrote a line */
+static int error_line(Inst *I, const char *what) {
+    int before = I->env.lines;
+    fmi2ValueReference bad = (fmi2ValueReference)NV;
+    double v = 0;
+    expect(I, CALL(I, F_GetReal, fmi2GetReal(I->c, &bad, 1, &v)), fmi2Error, "%s", what);
+    return I->env.lines > before;
+}
+
+static int discard_line(Inst *I, const char *what) {
+    int before = I->env.lines;
+    fmi2Status dss;
+    expect(I, CALL(I, F_GetStatus, fmi2GetStatus(I->c, fmi2DoStepStatus, &dss)), fmi2Discard, "%s", what);
+    return I->env.lines > before;
+}
+
+static int event_line(Inst *I, const char *what) {
+    int before = I->env.lines;
+    expect(I, CALL(I, F_SetFMUstate, fmi2SetFMUstate(I->c, NULL)), fmi2Error, "%s (null)", what);
+    fmi2FMUstate st = NULL;
+    before = I->env.lines;
+    expect(I, CALL(I, F_GetFMUstate, fmi2GetFMUstate(I->c, &st)), fmi2OK, "%s", what);
+    expect(I, CALL(I, F_SetFMUstate, fmi2SetFMUstate(I->c, st)), fmi2OK, "%s", what);
+    expect(I, CALL(I, F_FreeFMUstate, fmi2FreeFMUstate(I->c, &st)), fmi2OK, "%s", what);
+    return I->env.lines > before;
+}
+
+static int set_logging(Inst *I, int on, size_t n, const char *const *cats, fmi2Status want, const char *what) {
+    fmi2Status st = CALL(I, F_SetDebugLogging, fmi2SetDebugLogging(I->c, on, n, (const fmi2String *)cats));
+    return expect(I, st, want, "fmi2SetDebugLogging(%s)", what);
+}
+
+static void sc_log_categories(void) {
+    static const char *const err[1] = {"logStatusError"}, *const events[2] = {"logEvents", "logStatusDiscard"};
+    static const char *const unknown[2] = {"logStatusDiscard", "logEverything"}, *const null[2] = {"logEvents", NULL};
+    Inst *I = A;
+    /* loggingOn = false at fmi2Instantiate: the status categories, not logEvents */
+    free_instance(I);
+    make_instance(I, 1, 0);
+    start_instance(I, 0); /* its mode changes write no logEvents line (the logger checks) */
+    if (!error_line(I, "an unknown reference")) fail("no logStatusError line with the status categories on");
+    if (event_line(I, "a state set")) fail("a logEvents line with loggingOn = false");
+    if (!discard_line(I, "no step pending")) fail("no logStatusDiscard line with the status categories on");
+    /* (fmi2True, [logStatusError]): only errors */
+    if (set_logging(I, 1, 1, err, fmi2OK, "true, [logStatusError]")) I->env.cats = 1u << CAT_ERROR;
+    if (discard_line(I, "only logStatusError on")) fail("a logStatusDiscard line with only logStatusError on");
+    if (!error_line(I, "only logStatusError on")) fail("no logStatusError line with it on");
+    /* (fmi2False, [logStatusError]): nothing */
+    if (set_logging(I, 0, 1, err, fmi2OK, "false, [logStatusError]")) I->env.cats = 0;
+    if (error_line(I, "every category off")) fail("a logStatusError line with it off");
+    /* an unknown or NULL category: refused, nothing changes (still silent) */
+    set_logging(I, 1, 2, unknown, fmi2Error, "true, [logStatusDiscard, logEverything]");
+    set_logging(I, 1, 2, null, fmi2Error, "true, [logEvents, NULL]");
+    set_logging(I, 1, 1, NULL, fmi2Error, "true, 1, NULL");
+    if (discard_line(I, "after refused settings")) fail("a refused fmi2SetDebugLogging switched a category on");
+    /* (fmi2True, 0): everything, and the refusal of an unknown category says so */
+    if (set_logging(I, 1, 0, NULL, fmi2OK, "true, 0")) I->env.cats = CAT_ALL;
+    if (!event_line(I, "every category on")) fail("no logEvents line with every category on");
+    if (!discard_line(I, "every category on")) fail("no logStatusDiscard line with every category on");
+    set_logging(I, 1, 2, unknown, fmi2Error, "true, [logStatusDiscard, logEverything]");
+    last_log_has(I, "categories[1] = \"logEverything\" is not a log category", "an unknown category");
+    /* (fmi2False, [logEvents, logStatusDiscard]): those off, the rest kept */
+    if (set_logging(I, 0, 2, events, fmi2OK, "false, [logEvents, logStatusDiscard]"))
+        I->env.cats = CAT_ALL & ~((1u << CAT_EVENTS) | (1u << CAT_DISCARD));
+    if (event_line(I, "logEvents off")) fail("a logEvents line with it off");
+    if (discard_line(I, "logStatusDiscard off")) fail("a logStatusDiscard line with it off");
+    if (!error_line(I, "logStatusError kept")) fail("no logStatusError line: fmi2False with categories switched it off");
+    /* (fmi2False, 0): nothing at all */
+    if (set_logging(I, 0, 0, NULL, fmi2OK, "false, 0")) I->env.cats = 0;
+    if (error_line(I, "logging off") || discard_line(I, "logging off") || event_line(I, "logging off"))
+        fail("a log line with logging off");
+    still_steps(I, "the log games");
+}
+
 static const struct { const char *name; void (*f)(void); int steps; } SCENARIOS[] = {
     {"foreign-guid", sc_foreign_guid, 3},
     {"h_prev", sc_h_prev, 3},
@@ -1790,6 +2225,9 @@ static const struct { const char *name; void (*f)(void); int steps; } SCENARIOS[
     {"round-trip", sc_round_trip, 4},
     {"null-arguments", sc_null_arguments, 1},
     {"instantiate", sc_instantiate, 0},
+    {"state-masks", sc_state_masks, 2},
+    {"status-after-discard", sc_status_after_discard, 2},
+    {"log-categories", sc_log_categories, 0},
 };
 
 static int run_scenarios(const char *only) {

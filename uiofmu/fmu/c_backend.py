@@ -1,11 +1,12 @@
 """The C backend: a standalone native observer FMU (no Python in the importer).
 
-The card's matrices become constant C data (``design_data.c``) next to one generic runtime
-with its own FMI 2.0 Co-Simulation interface (``c/observer.c``); the system C compiler
-builds ``binaries/linux64/<model>.so``. The sources and the FMI headers travel in
-``sources/`` with a ``<SourceFiles>`` list, so ``fmpy compile`` rebuilds the binary on
-another platform. The interface (names, value references, start values) is the one of the
-python backend, enumerated from the same ports.
+The card's matrices become constant C data (``design_data.c``, with the variable table of the
+card's ports) next to the card's kernel (``c/kernel_affine.c``: the observer maths) and the shared
+FMI 2.0 Co-Simulation plumbing (``c/fmi2_plumbing.c``: states and legal calls, logging, get/set,
+FMU states, status queries); the system C compiler builds ``binaries/linux64/<model>.so``. The
+sources and the FMI headers travel in ``sources/`` with a ``<SourceFiles>`` list, so ``fmpy
+compile`` rebuilds the binary on another platform. The interface (names, value references,
+start values) is the one of the python backend, enumerated from the same ports.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import subprocess
 import tempfile
 import uuid
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 from xml.etree.ElementTree import Element, SubElement, tostring
 
@@ -36,6 +38,95 @@ HERE = Path(__file__).parent / "c"
 MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc")
 KINDS = {"constant": "UIOFMU_CONSTANT", "interval": "UIOFMU_INTERVAL", "geometric": "UIOFMU_GEOMETRIC"}
 POLICIES = {"error": "UIOFMU_POLICY_ERROR", "nearest": "UIOFMU_POLICY_NEAREST", "count": "UIOFMU_POLICY_COUNT"}
+
+#: The shared FMI 2.0 plumbing (``c/fmi2_plumbing.c``: instance states and legal calls, logging, get/set
+#: through the variable table, FMU state image, status queries) and its header (the model interface).
+PLUMBING_SOURCES = ("fmi2_plumbing.c",)
+PLUMBING_HEADERS = ("fmi2_plumbing.h",)
+FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+CAUSALITIES = {"parameter": "UIOFMU_PARAMETER", "input": "UIOFMU_INPUT", "output": "UIOFMU_OUTPUT"}
+PORT_TYPES = {"Real": "UIOFMU_REAL", "Integer": "UIOFMU_INTEGER"}
+#: The log categories the plumbing writes under and fmi2SetDebugLogging takes (fmi2OK lines of the
+#: instance's state changes, then one per status); what ``<LogCategories>`` declares.
+LOG_CATEGORIES = ("logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError")
+
+
+@dataclass(frozen=True)
+class CKernel:
+    """One C kernel: its model code and the ports it implements.
+
+    Attributes
+    ----------
+    source, header : str
+        Its files in ``c/`` (``kernel_<name>.c`` and ``.h``).
+    symbol : str
+        Its ``UiofmuKernel`` (what ``UIOFMU_FMU.kernel`` points at).
+    ports : dict
+        ``{port name: (C enum name, causality, type)}``: every port the kernel implements.
+    """
+
+    source: str
+    header: str
+    symbol: str
+    ports: dict
+
+
+#: The C kernels, by the card's ``kernel``.
+C_KERNELS = {
+    "affine": CKernel("kernel_affine.c", "kernel_affine.h", "UIOFMU_KERNEL_AFFINE", {
+        "xhat0": ("UIOFMU_AFFINE_XHAT0", "parameter", "Real"),
+        "h_prev0": ("UIOFMU_AFFINE_H_PREV0", "parameter", "Real"),
+        "y": ("UIOFMU_AFFINE_Y", "input", "Real"),
+        "u": ("UIOFMU_AFFINE_U", "input", "Real"),
+        "xhat": ("UIOFMU_AFFINE_XHAT", "output", "Real"),
+        "r": ("UIOFMU_AFFINE_R", "output", "Real"),
+        "dhat": ("UIOFMU_AFFINE_DHAT", "output", "Real"),
+    }),
+}
+
+
+def c_kernel(card: Card) -> CKernel:
+    """The C kernel of a card; FmuError when there is none for its ``kernel``."""
+    kernel = C_KERNELS.get(card.kernel)
+    if kernel is None:
+        raise FmuError(f"the C backend has no kernel {str(card.kernel)[:40]!r} (it has {', '.join(C_KERNELS)}); "
+                       "use --backend python")
+    return kernel
+
+
+def c_sources(card: Card) -> list:
+    """The C files of a card's FMU in the order they are compiled (plumbing, kernel, generated data)."""
+    return [*PLUMBING_SOURCES, c_kernel(card).source, "design_data.c"]
+
+
+def variable_table(card: Card) -> list:
+    """The C initialisers of the variable table: one ``{port, index, causality, type}`` per value
+    reference, in the order of ``card.ports`` (value references from 0, element by element).
+
+    Raises
+    ------
+    FmuError
+        For a port the card's kernel does not implement in C, or one declared with another
+        causality or type than the kernel's (nothing of the card's text reaches the source: only
+        the kernel's own identifiers and numbers).
+    """
+    kernel = c_kernel(card)
+    rows = []
+    for port in card.ports:
+        known = kernel.ports.get(port.name)
+        if known is None:
+            raise FmuError(f"the C {card.kernel} kernel has no port {str(port.name)[:40]!r} "
+                           f"(it implements {', '.join(kernel.ports)})")
+        enum, causality, kind = known
+        if (port.causality, port.type) != (causality, kind):
+            article = {"parameter": "a", "input": "an", "output": "an"}
+            raise FmuError(f"port {port.name}: declared {article.get(port.causality, 'a')} {str(port.causality)[:20]} "
+                           f"{str(port.type)[:20]}, the C {card.kernel} kernel implements {article[causality]} "
+                           f"{causality} {kind}")
+        if not isinstance(port.size, int) or isinstance(port.size, bool) or not 0 <= port.size <= 1 << 24:
+            raise FmuError(f"port {port.name}: size {str(port.size)[:20]} is not a count")
+        rows += [f"    {{{enum}, {i}, {CAUSALITIES[causality]}, {PORT_TYPES[kind]}}}," for i in range(port.size)]
+    return rows
 
 
 def c_compiler() -> str | None:
@@ -64,16 +155,20 @@ def _doubles(values, key: str, size: int) -> str:
 
 
 def design_source(card: Card, guid: str, identifier: str) -> str:
-    """``design_data.c``: the card as one constant ``UiofmuDesign``.
+    """``design_data.c``: the card as one constant ``UiofmuDesign`` (the kernel's data), its
+    variable table and ``UIOFMU_FMU`` (GUID, model identifier, kernel, table; ``c/fmi2_plumbing.h``).
 
-    Only numbers, the GUID and the model identifier reach the source: every float is written
-    by :func:`repr` after a finiteness check, every array with its length checked against the
-    dims, the two strings as escaped C literals (:func:`uiofmu.runtime.text.c_string`). No text of the
-    card (its name, description or problem) is ever written into it.
+    Only numbers, the GUID, the model identifier and the kernel's own identifiers reach the
+    source: every float is written by :func:`repr` after a finiteness check, every array with its
+    length checked against the dims, the two strings as escaped C literals
+    (:func:`uiofmu.runtime.text.c_string`), the variable table from ``card.ports`` as the kernel's
+    port enum names (:func:`variable_table`: a port the kernel does not implement is refused). No
+    text of the card (its name, description or problem) is ever written into it.
 
-    The struct is written with designated initialisers, and every array with its length as the
+    The structs are written with designated initialisers, and every array with its length as the
     C compiler counts it (``UIOFMU_LENGTH``), so the runtime checks each matrix's
-    ``count x rows x cols`` against the data actually compiled in before it reads any of it.
+    ``count x rows x cols`` and the table against the data actually compiled in before it reads
+    any of it.
 
     Parameters
     ----------
@@ -92,7 +187,9 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
     d = card.dims
     sched = card.schedule
     kind = sched["kind"]
-    lines = ["/* Generated by uiofmu from a design card. */", '#include "uiofmu_design.h"', ""]
+    kernel = c_kernel(card)
+    table = variable_table(card)
+    lines = ["/* Generated by uiofmu from a design card. */", f'#include "{kernel.header}"', ""]
     fields = []
     axes = schedule_axes(sched)
     for name in MATRIX_ORDER:
@@ -112,8 +209,6 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
     lines.append(f"static const double xhat0[] = {_doubles(card.data['initial']['xhat0'], 'initial.xhat0', d['n'])};")
     dt = sched.get("dt") or 0.0
     lines += ["", "const UiofmuDesign UIOFMU_DESIGN = {",
-              f"    .guid = {c_string('{' + guid + '}')},",
-              f"    .model = {c_string(identifier)},",
               f"    .n = {int(d['n'])}, .m = {int(d['m'])}, .p = {int(d['p'])}, .q = {int(d['q'])}, "
               f".nz = {int(d['nz'])}, .has_dhat = {int(card.has_dhat)},",
               f"    .kind = {KINDS[kind]}, .policy = {POLICIES[sched.get('step_policy', 'error')]},",
@@ -123,7 +218,15 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
               f"    .nintervals = {len(intervals)}, .intervals = intervals, "
               ".intervals_length = UIOFMU_LENGTH(intervals),",
               "    .xhat0 = xhat0, .xhat0_length = UIOFMU_LENGTH(xhat0),",
-              "    .mat = {", *fields, "    },", "};", ""]
+              "    .mat = {", *fields, "    },", "};", "",
+              "/* value reference i: {port, element, causality, type} */",
+              "static const UiofmuVariable variables[] = {", *(table or ["    {0, 0, 0, 0},"]), "};", "",
+              "const UiofmuFmu UIOFMU_FMU = {",
+              f"    .guid = {c_string('{' + guid + '}')},",
+              f"    .model = {c_string(identifier)},",
+              f"    .kernel = &{kernel.symbol},",
+              f"    .nvariables = {len(table)}, .variables = variables, .variables_length = UIOFMU_LENGTH(variables),",
+              "};", ""]
     return "\n".join(lines)
 
 
@@ -173,22 +276,24 @@ def model_description(card: Card, guid: str, identifier: str, sources: list[str]
     for name in sources:
         SubElement(files, "File", {"name": name})
     cats = SubElement(root, "LogCategories")
-    for name in ("logStatusWarning", "logStatusDiscard", "logStatusError"):
+    for name in LOG_CATEGORIES:
         SubElement(cats, "Category", {"name": name})
     write_experiment(root, observer_experiment(card))
     write_variables(root, model.ports)
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
 
 
-def compile_binary(src: Path, identifier: str, out: Path, extra_flags=()) -> Path:
-    """Compile the sources in ``src`` into ``out/<identifier>.so`` with the system compiler."""
+def compile_binary(src: Path, identifier: str, out: Path, extra_flags=(), sources=None) -> Path:
+    """Compile the C files ``sources`` (names in ``src``; default: every ``*.c`` there) into
+    ``out/<identifier>.so`` with the system compiler."""
     cc = c_compiler()
     if cc is None:
         raise FmuError("--backend c needs a C compiler (cc or gcc) on PATH; use --backend python")
     out.mkdir(parents=True, exist_ok=True)
     lib = out / f"{identifier}.so"
+    files = [str(src / name) for name in sources] if sources is not None else sorted(map(str, src.glob("*.c")))
     cmd = [cc, "-std=c99", "-O2", "-shared", "-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra",
-           f"-I{src}", *extra_flags, "-o", str(lib), str(src / "observer.c"), str(src / "design_data.c"), "-lm"]
+           f"-I{src}", *extra_flags, "-o", str(lib), *files, "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise FmuError(f"the C compiler failed on the generated observer: {proc.stderr.strip()[:2000]}")
@@ -215,15 +320,16 @@ def build_c_observer(card: Card, output, identifier: str, call_floor: bool = Fal
     with tempfile.TemporaryDirectory(prefix="uiofmu_c_") as tmp:
         src = Path(tmp) / "sources"
         src.mkdir()
-        for name in ("observer.c", "uiofmu_design.h"):
+        kernel = c_kernel(card)
+        sources = c_sources(card)
+        for name in (*PLUMBING_SOURCES, *PLUMBING_HEADERS, kernel.source, kernel.header):
             shutil.copy2(HERE / name, src / name)
-        for name in ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"):
+        for name in FMI_HEADERS:
             shutil.copy2(fmi_headers() / name, src / name)
         (src / "design_data.c").write_text(design_source(card, guid, identifier))
         lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64",
-                             ["-DUIOFMU_CALL_FLOOR"] if call_floor else [])
+                             ["-DUIOFMU_CALL_FLOOR"] if call_floor else [], sources)
         with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
-            sources = ["observer.c", "design_data.c"]
             z.writestr("modelDescription.xml", model_description(card, guid, identifier, sources))
             z.write(lib, f"binaries/linux64/{identifier}.so")
             for f in sorted(src.iterdir()):

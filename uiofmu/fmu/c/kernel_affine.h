@@ -1,4 +1,4 @@
-/* uiofmu: the data of one observer design, as the C runtime reads it.
+/* uiofmu: the affine observer kernel's ports and design data (kernel_affine.c reads them).
  *
  * A design card becomes one constant UiofmuDesign (design_data.c, generated). Every matrix
  * is stored row-major with its schedule axis first: `count` blocks of rows x cols.
@@ -12,12 +12,20 @@
  * fmi2Instantiate can check count x rows x cols against the data actually there before it
  * reads any of it (an empty array is written as {0.0}: length 1).
  */
-#ifndef UIOFMU_DESIGN_H
-#define UIOFMU_DESIGN_H
+#ifndef UIOFMU_KERNEL_AFFINE_H
+#define UIOFMU_KERNEL_AFFINE_H
 
 #include <stddef.h>
 
-#define UIOFMU_LENGTH(array) (sizeof(array) / sizeof((array)[0]))
+#include "fmi2_plumbing.h"
+
+/* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.observer_ports):
+   xhat0[n] parameter, h_prev0[1] parameter (interval schedules), y[p] and u[m] inputs,
+   xhat[n], r[p] and dhat[q] (with Dy) outputs; all Real. */
+enum {
+    UIOFMU_AFFINE_XHAT0, UIOFMU_AFFINE_H_PREV0, UIOFMU_AFFINE_Y, UIOFMU_AFFINE_U,
+    UIOFMU_AFFINE_XHAT, UIOFMU_AFFINE_R, UIOFMU_AFFINE_DHAT, UIOFMU_AFFINE_PORTS
+};
 
 typedef struct {
     int count;
@@ -31,8 +39,6 @@ enum { UIOFMU_POLICY_ERROR = 0, UIOFMU_POLICY_NEAREST = 1, UIOFMU_POLICY_COUNT =
 enum { M_N, M_L, M_G, M_c, M_Xz, M_Xy, M_C, M_Dy, M_Yx, M_Yu, M_Yc, M_COUNT };
 
 typedef struct {
-    const char *guid;
-    const char *model;
     int n, m, p, q, nz, has_dhat;
     int kind, policy;
     double dt, alpha, h_prev0, step_rtol;
@@ -44,6 +50,9 @@ typedef struct {
     size_t xhat0_length;     /* number of doubles in xhat0 */
 } UiofmuDesign;
 
-extern const UiofmuDesign UIOFMU_DESIGN;
+UIOFMU_INTERNAL extern const UiofmuDesign UIOFMU_DESIGN;
+
+/* The kernel, for UIOFMU_FMU.kernel. */
+UIOFMU_INTERNAL extern const UiofmuKernel UIOFMU_KERNEL_AFFINE;
 
 #endif
