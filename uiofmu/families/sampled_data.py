@@ -297,7 +297,11 @@ def _certificate_condition(samples, C, opts, limit: float) -> Condition:
     from ..lmi import INFEASIBLE
 
     alpha = 1e-3 * limit
-    sol = _reduced_lmis(fixed_error_maps(samples, C)).solve(c=1.0 - alpha)
+    F = fixed_error_maps(samples, C)
+    if F[0].shape[0] == 1:                    # scalar: equal P_i certify exactly when every |F_i| < sqrt(1 - alpha)
+        return Condition("certificate on ker C", True, False,
+                         "the error on ker C is scalar (n = p + 1): the zeros decide, as above", {"alpha": alpha})
+    sol = _reduced_lmis(F).solve(c=1.0 - alpha)
     values = {"alpha": alpha, "status": sol.status}
     if sol.status in INFEASIBLE:
         return Condition("certificate on ker C", False, True,
@@ -518,27 +522,20 @@ def _interval_diagnosis(samples, C, t, intervals, alpha: float) -> str:
             "narrow the range")
 
 
-def _reduced_design(samples, C, opts, search: dict, failure: InfeasibleError):
-    """The design on ``ker C`` (:func:`_reduced_lmis`, ``p = q``) after (15)-(16) found no
-    certificate: the same certificates in ``(n - p)``-dimensional unknowns, better conditioned.
-
-    Returns
-    -------
-    (LmiSystem, Tuned)
-
-    Raises
-    ------
-    InfeasibleError
-        ``failure``, completed with why the reduced design failed too.
-    """
-    system = _reduced_lmis(fixed_error_maps(samples, C))
-    system.certify = lambda v, prm: all(
-        c.holds for c in checks(observer_matrices(structural_variables(v, samples, C), samples, C), np.sqrt(prm["c"])))
-    try:
-        return system, tune(system, "c", opts.alpha, **search)
-    except InfeasibleError as exc:
-        raise type(failure)(f"{failure}; on ker C (p = q, the same certificates with fewer unknowns): "
-                            f"{exc}") from None
+def _attempts(samples, C, t, plant) -> list:
+    """The LMI systems a design tries, in order, each with the map from its point to the stored
+    matrices: (15)-(16) in the balanced coordinates of :mod:`uiofmu.scaling`, then, for
+    ``p = q``, Corollary 2 on ``ker C`` (exact there, in ``n - p`` unknowns; :func:`_reduced_lmis`),
+    which CLARABEL solves where the full LMIs are too ill-conditioned."""
+    out = [("lmi", _lmis([scaled_step(s, t) for s in samples], scaled_output(C, t)),
+            lambda v: observer_matrices(in_plant_coordinates(v, t), samples, C))]
+    if plant.p == plant.q and plant.n > plant.p:
+        out.append(("lmi on ker C (p = q)", _reduced_lmis(fixed_error_maps(samples, C)),
+                    lambda v: observer_matrices(structural_variables(v, samples, C), samples, C)))
+    for _, system, matrices_at in out:
+        system.certify = (lambda at: lambda v, prm: all(c.holds for c in checks(at(v), np.sqrt(prm["c"]))))(
+            matrices_at)
+    return out
 
 
 def design(problem, analysis: Analysis) -> DesignResult:
@@ -547,29 +544,20 @@ def design(problem, analysis: Analysis) -> DesignResult:
     plant, opts = problem.plant, problem.options
     C, n, N = plant.C, plant.n, len(opts.intervals)
     t = state_scaling(plant.A, opts.scaling)
-    system = _lmis([scaled_step(s, t) for s in samples], scaled_output(C, t))
-
-    def matrices_at(v):
-        return observer_matrices(in_plant_coordinates(v, t), samples, C)
-
-    system.certify = lambda v, prm: all(c.holds for c in checks(matrices_at(v), np.sqrt(prm["c"])))
     limit = 1.0 - zmax * zmax
     search = dict(feasible_end=1e-3 * limit, infeasible_end=limit, safe_end=0.0, tol=SEARCH_TOL * limit,
                   label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a, name="alpha")
-    method = "lmi"
-    try:
-        tuned = tune(system, "c", opts.alpha, **search)
-    except InfeasibleError as exc:
-        if plant.p != plant.q or plant.n == plant.p:
-            note = _interval_diagnosis(samples, C, t, opts.intervals, 1e-3 * limit)
-            raise type(exc)(f"{exc}; {note}" if note else str(exc)) from None
+    failures = []
+    for method, system, matrices_at in _attempts(samples, C, t, plant):
         try:
-            system, tuned = _reduced_design(samples, C, opts, search, exc)
-        except InfeasibleError as both:
-            note = _interval_diagnosis(samples, C, t, opts.intervals, 1e-3 * limit)
-            raise type(both)(f"{both}; {note}" if note else str(both)) from None
-        matrices_at, method = (lambda v: observer_matrices(structural_variables(v, samples, C), samples, C),
-                               "lmi on ker C (p = q)")
+            tuned = tune(system, "c", opts.alpha, **search)
+            break
+        except InfeasibleError as exc:
+            failures.append(exc)
+    else:
+        note = _interval_diagnosis(samples, C, t, opts.intervals, 1e-3 * limit)
+        text = "; on ker C (p = q, the same certificates in fewer unknowns): ".join(str(f) for f in failures)
+        raise type(failures[-1])(f"{text}; {note}" if note else text) from None
     alpha, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
     matrices = matrices_at(sol.values)
@@ -593,8 +581,10 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "decay_floor_note": "the largest sampled zero, or (p = q) the fixed error's decay under the worst repeated "
                             "sequence of intervals when larger",
         "sampled_invariant_zeros": [{"h": z["h"], "zeros": z["zeros"]} for z in zeros],
-        "lmi_size": {"lmis": N * N, "lmi_dim": 2 * n, "normalisation_lmis": 2 * N, "equalities": N,
-                     "scalar_variables": 1 + N * n * (n + 1) // 2 + N * n * plant.p + N * N * n * plant.p},
+        "lmi_size": ({"lmis": N * N, "lmi_dim": 2 * (n - plant.p), "normalisation_lmis": 2 * N, "equalities": 0,
+                      "scalar_variables": 1 + N * (n - plant.p) * (n - plant.p + 1) // 2} if method != "lmi" else
+                     {"lmis": N * N, "lmi_dim": 2 * n, "normalisation_lmis": 2 * N, "equalities": N,
+                      "scalar_variables": 1 + N * n * (n + 1) // 2 + N * n * plant.p + N * N * n * plant.p}),
         "search": searched,
         "design_method": method,
         "scaling": scaling_data(t if method == "lmi" else np.ones(n), opts.scaling),
