@@ -24,10 +24,10 @@ def fmus(request, example1_card, example1_path, tmp_path_factory):
     d = tmp_path_factory.mktemp("fmus")
     obs = build_observer(card, d / "obs.fmu", backend=request.param)
     problem = uiofmu.load_problem(example1_path)
-    plant = build_plant(problem.plant, problem.name, d / "plant.fmu")
+    plant = build_plant(problem.plant, problem.name, d / "plant.fmu", backend="python")
     cont = uiofmu.Plant.create([[0.0, 1.0], [-4.0, -0.4]], [[1.0, 0.0]], [[0.0], [1.0]], [[0.0], [0.5]],
                                time="continuous", x0=[1.0, 0.0])
-    cplant = build_plant(cont, "oscillator", d / "cplant.fmu")
+    cplant = build_plant(cont, "oscillator", d / "cplant.fmu", backend="python")
     return {"card": card, "obs": obs, "plant": plant, "cplant": cplant, "cont": cont, "dir": d,
             "backend": request.param}
 

@@ -7,7 +7,8 @@ master, :func:`uiofmu.cosim.master.cosimulate`, with the same inputs (the proble
 experiment runs every FMU we build to its stop time.
 
 The FMUs are made by the command line, as a user makes them: ``uiofmu design``, ``uiofmu build
---backend c`` and ``--backend python``, ``uiofmu plant`` (whatever backend it picks).
+--backend c`` and ``--backend python``, ``uiofmu plant`` (whatever backend it picks) and ``uiofmu
+plant --backend c`` for the loop of two C FMUs (no Python in either FMU).
 """
 
 from __future__ import annotations
@@ -51,6 +52,9 @@ def fmus(tmp_path_factory):
             elif kind == "plant":
                 _cli("plant", PROBLEMS[family], "-o", folder / "plant.fmu")
                 entry[kind] = folder / "plant.fmu"
+            elif kind.startswith("plant-"):
+                _cli("plant", PROBLEMS[family], "-o", folder / f"{kind}.fmu", "--backend", kind[len("plant-"):])
+                entry[kind] = folder / f"{kind}.fmu"
             else:
                 card = get(family, "card")
                 _cli("build", card, "-o", folder / f"observer_{kind}.fmu", "--backend", kind)
@@ -100,9 +104,42 @@ def test_ecospy_loop_equals_our_master(ecospy, fmus, family, backend):
     assert np.ptp(theirs.xhat) > 0 and np.all(np.isfinite(theirs.xhat))
 
 
+def is_standalone(fmu) -> bool:
+    """A C FMU of uiofmu: no execution tool, its sources inside, no pythonfmu resources."""
+    import zipfile
+
+    from fmpy import read_model_description
+
+    md = read_model_description(str(fmu))
+    with zipfile.ZipFile(fmu) as z:
+        names = z.namelist()
+    return (md.coSimulation.needsExecutionTool is False and (md.generationTool or "").startswith("uiofmu")
+            and "sources/fmi2_plumbing.c" in names and not any(n.endswith(".py") for n in names))
+
+
+@pytest.mark.parametrize("family", PROBLEMS)
+def test_ecospy_runs_a_loop_of_two_c_fmus_equal_to_our_master(ecospy, fmus, family):
+    """Issue 15: a closed loop of two C FMUs (plant + observer) in a native engine, no Python in the FMUs."""
+    from uiofmu.cosim.master import cosimulate, default_inputs, observer_card
+
+    plant, observer = fmus(family, "plant-c"), fmus(family, "c")
+    assert is_standalone(plant) and is_standalone(observer)
+    h = default_step(observer)
+    inputs = default_inputs(observer_card(observer))
+    ours = cosimulate(plant, observer, np.full(STEPS, h), inputs, show_progress=False)
+    theirs = run_ecospy(plant, observer, h, STEPS * h, inputs)
+    assert theirs.connections == [(f"plant::y[{i + 1}]", f"observer::y[{i + 1}]") for i in range(ours.y.shape[1])]
+    np.testing.assert_array_equal(theirs.times, ours.times)
+    for name in ("x", "xhat"):
+        a, b = getattr(theirs, name), getattr(ours, name)
+        scale = max(float(np.max(np.abs(b))), 1e-300)
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * scale, err_msg=f"{family}: {name}")
+    assert np.ptp(theirs.xhat) > 0 and np.all(np.isfinite(theirs.xhat))
+
+
 #: every FMU we build: the observers of every family with both backends, and the plants
 DEFAULT_RUNS = [pytest.param(family, kind, id=f"{family}-{kind}")
-                for family in PROBLEMS for kind in (*BACKENDS, "plant")]
+                for family in PROBLEMS for kind in (*BACKENDS, "plant", "plant-python")]
 
 
 @pytest.mark.parametrize("family, kind", DEFAULT_RUNS)

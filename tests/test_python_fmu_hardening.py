@@ -315,7 +315,7 @@ def fmus(building_card, building_path, tmp_path_factory):
     problem = uiofmu.load_problem(building_path)
     return {"obs": str(build_observer(card, d / "obs.fmu", backend="python")),
             "obs_nearest": str(build_observer(card_from_data(data), d / "obs_nearest.fmu", backend="python")),
-            "plant": str(build_plant(problem.plant, problem.name, d / "plant.fmu")),
+            "plant": str(build_plant(problem.plant, problem.name, d / "plant.fmu", backend="python")),
             "mj": str(build_mujoco_plant(load_spec(QUARTER_CAR), d / "mj.fmu"))}
 
 

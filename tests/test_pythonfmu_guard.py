@@ -230,7 +230,7 @@ def fmus(building_card, building_path, tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:           # pythonfmu's FMU even where export.py guards it
         mp.setattr(pg, "available", lambda: False)
         raw = {"obs": build_observer(building_card[0], d / "obs_raw.fmu", backend="python"),
-               "plant": build_plant(problem.plant, problem.name, d / "plant_raw.fmu")}
+               "plant": build_plant(problem.plant, problem.name, d / "plant_raw.fmu", backend="python")}
     out = {"dir": d, "card": building_card[0]}
     for key, path in raw.items():
         guarded = shutil.copyfile(path, d / f"{key}_guarded.fmu")

@@ -93,11 +93,15 @@ def _cmd_build(args) -> int:
 
 
 def _cmd_plant(args) -> int:
-    from .fmu.export import build_plant, model_identifier
+    from .fmu.export import build_plant, default_backend, model_identifier
     from .mujoco_plant import build_mujoco_plant, is_mujoco_plant, load_spec
     from .problem import load_problem
+    from .runtime.errors import FmuError
 
     if is_mujoco_plant(args.problem):
+        if args.backend == "c":
+            raise FmuError("--backend c: MuJoCo plants are pythonfmu FMUs only (the simulator runs in Python); "
+                           "leave --backend out or use --backend python")
         spec = load_spec(args.problem)
         out = check_output_file(args.output or f"{model_identifier(spec.name, 'plant')}.fmu", "FMU", ".fmu")
         linearised = Path(args.problem) / "problem.toml"          # its observer's step, for the default experiment
@@ -108,8 +112,9 @@ def _cmd_plant(args) -> int:
         return 0
     problem = load_problem(args.problem)
     out = check_output_file(args.output or f"{model_identifier(problem.name, 'plant')}.fmu", "FMU", ".fmu")
-    path = build_plant(problem.plant, problem.name, out, step=problem.options.step)
-    print(f"{problem.name}: {problem.plant.time} plant FMU written to {path}")
+    backend = args.backend or default_backend()
+    path = build_plant(problem.plant, problem.name, out, step=problem.options.step, backend=backend)
+    print(f"{problem.name}: {problem.plant.time} plant FMU ({backend} backend) written to {path}")
     return 0
 
 
@@ -287,6 +292,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "one so every step ends exactly on time; physical parameters settable).")
     p.add_argument("problem", help="problem file (TOML) or a plants/NAME folder")
     p.add_argument("-o", "--output", metavar="PLANT.fmu", help="FMU path (default: NAME_plant.fmu)")
+    p.add_argument("--backend", choices=["c", "python"],
+                   help="linear plants: c, a standalone native binary with its sources (no Python needed by the "
+                        "importer; the default when a C compiler is found); python: pythonfmu (the importer needs "
+                        "Python and numpy). MuJoCo plants are pythonfmu FMUs always")
     p.set_defaults(func=_cmd_plant)
 
     p = sub.add_parser("linearize", help="linearise a MuJoCo plant folder into a problem file",

@@ -30,7 +30,7 @@ from ..runtime.card import Card
 from ..runtime.errors import CardError, FmuError
 from ..runtime.files import atomic_output, check_output_file
 from ..runtime.schedules import schedule_axes
-from ..runtime.ports import model_structure, observer_experiment, write_experiment
+from ..runtime.ports import model_structure, observer_experiment, plant_ports, write_experiment
 from ..runtime.text import c_string
 from ..runtime.tolerances import STEP_RTOL
 
@@ -85,6 +85,18 @@ C_KERNELS = {
 }
 
 
+#: The C kernels of plants, by plant kind (linear today; the switched and LPV plants plug in here).
+PLANT_KERNELS = {
+    "linear": CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", {
+        "x0": ("UIOFMU_PLANT_X0", "parameter", "Real"),
+        "u": ("UIOFMU_PLANT_U", "input", "Real"),
+        "d": ("UIOFMU_PLANT_D", "input", "Real"),
+        "y": ("UIOFMU_PLANT_Y", "output", "Real"),
+        "x": ("UIOFMU_PLANT_X", "output", "Real"),
+    }),
+}
+TIMES = {"discrete": "UIOFMU_DISCRETE", "continuous": "UIOFMU_CONTINUOUS"}
+
 def c_kernel(card: Card) -> CKernel:
     """The C kernel of a card; FmuError when there is none for its ``kernel``."""
     kernel = C_KERNELS.get(card.kernel)
@@ -96,7 +108,12 @@ def c_kernel(card: Card) -> CKernel:
 
 def c_sources(card: Card) -> list:
     """The C files of a card's FMU in the order they are compiled (plumbing, kernel, generated data)."""
-    return [*PLUMBING_SOURCES, c_kernel(card).source, "design_data.c"]
+    return kernel_sources(c_kernel(card))
+
+
+def kernel_sources(kernel: CKernel) -> list:
+    """The C files of an FMU of ``kernel`` in the order they are compiled."""
+    return [*PLUMBING_SOURCES, kernel.source, "design_data.c"]
 
 
 def variable_table(card: Card) -> list:
@@ -110,18 +127,23 @@ def variable_table(card: Card) -> list:
         causality or type than the kernel's (nothing of the card's text reaches the source: only
         the kernel's own identifiers and numbers).
     """
-    kernel = c_kernel(card)
+    return table_rows(c_kernel(card), str(card.kernel), card.ports)
+
+
+def table_rows(kernel: CKernel, label: str, ports) -> list:
+    """The variable table of a declaration ``ports`` (PortSpecs) for ``kernel`` (``label`` names it
+    in messages): see :func:`variable_table`."""
     rows = []
-    for port in card.ports:
+    for port in ports:
         known = kernel.ports.get(port.name)
         if known is None:
-            raise FmuError(f"the C {card.kernel} kernel has no port {str(port.name)[:40]!r} "
+            raise FmuError(f"the C {label} kernel has no port {str(port.name)[:40]!r} "
                            f"(it implements {', '.join(kernel.ports)})")
         enum, causality, kind = known
         if (port.causality, port.type) != (causality, kind):
             article = {"parameter": "a", "input": "an", "output": "an"}
             raise FmuError(f"port {port.name}: declared {article.get(port.causality, 'a')} {str(port.causality)[:20]} "
-                           f"{str(port.type)[:20]}, the C {card.kernel} kernel implements {article[causality]} "
+                           f"{str(port.type)[:20]}, the C {label} kernel implements {article[causality]} "
                            f"{causality} {kind}")
         if not isinstance(port.size, int) or isinstance(port.size, bool) or not 0 <= port.size <= 1 << 24:
             raise FmuError(f"port {port.name}: size {str(port.size)[:20]} is not a count")
@@ -219,14 +241,54 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
               ".intervals_length = UIOFMU_LENGTH(intervals),",
               "    .xhat0 = xhat0, .xhat0_length = UIOFMU_LENGTH(xhat0),",
               "    .mat = {", *fields, "    },", "};", "",
-              "/* value reference i: {port, element, causality, type} */",
-              "static const UiofmuVariable variables[] = {", *(table or ["    {0, 0, 0, 0},"]), "};", "",
-              "const UiofmuFmu UIOFMU_FMU = {",
-              f"    .guid = {c_string('{' + guid + '}')},",
-              f"    .model = {c_string(identifier)},",
-              f"    .kernel = &{kernel.symbol},",
-              f"    .nvariables = {len(table)}, .variables = variables, .variables_length = UIOFMU_LENGTH(variables),",
-              "};", ""]
+              *fmu_table(guid, identifier, kernel, table)]
+    return "\n".join(lines)
+
+
+def fmu_table(guid: str, identifier: str, kernel: CKernel, table: list) -> list:
+    """The lines of ``design_data.c`` after the kernel's data: the variable table and ``UIOFMU_FMU``
+    (the GUID and model identifier as escaped C literals, the kernel's symbol)."""
+    return ["/* value reference i: {port, element, causality, type} */",
+            "static const UiofmuVariable variables[] = {", *(table or ["    {0, 0, 0, 0},"]), "};", "",
+            "const UiofmuFmu UIOFMU_FMU = {",
+            f"    .guid = {c_string('{' + guid + '}')},",
+            f"    .model = {c_string(identifier)},",
+            f"    .kernel = &{kernel.symbol},",
+            f"    .nvariables = {len(table)}, .variables = variables, .variables_length = UIOFMU_LENGTH(variables),",
+            "};", ""]
+
+
+def plant_source(data: dict, guid: str, identifier: str) -> str:
+    """``design_data.c`` of a linear plant (``Plant.to_data()``): one constant ``UiofmuPlant``
+    (``c/kernel_plant.h``), its variable table (from :func:`uiofmu.runtime.ports.plant_ports`) and
+    ``UIOFMU_FMU``. Numbers only (every float by :func:`repr` after a finiteness check, every
+    array with its length checked against the dims and compiled with ``UIOFMU_LENGTH``), and the
+    GUID and model identifier as escaped C literals: no text of the problem reaches the source."""
+    kernel = PLANT_KERNELS["linear"]
+    time = data.get("time")
+    if time not in TIMES:
+        raise FmuError(f"plant time: expected discrete or continuous, found {str(time)[:40]!r}")
+    A = np.asarray(data["A"], dtype=float)
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or not A.shape[0]:
+        raise FmuError(f"plant A: expected a square matrix, found shape {A.shape}")
+    n = A.shape[0]
+    C = np.asarray(data["C"], dtype=float).reshape(-1, n)
+    B = np.asarray(data.get("B") if data.get("B") is not None else np.zeros((n, 0)), dtype=float).reshape(n, -1)
+    E = np.asarray(data["E"], dtype=float).reshape(n, -1)
+    w = np.asarray(data.get("w") or np.zeros(n), dtype=float)
+    x0 = np.asarray(data.get("x0") or np.zeros(n), dtype=float)
+    m, q, p = B.shape[1], E.shape[1], C.shape[0]
+    dt = float(data.get("dt") or 0.0) if time == "discrete" else 0.0
+    table = table_rows(kernel, "linear plant", plant_ports(n, m, p, q))
+    lines = ["/* Generated by uiofmu from a linear plant. */", f'#include "{kernel.header}"', ""]
+    for key, arr, size in (("A", A, n * n), ("B", B, n * m), ("E", E, n * q), ("C", C, p * n), ("w", w, n),
+                           ("x0", x0, n)):
+        lines.append(f"static const double m_{key}[] = {_doubles(arr, f'plant.{key}', size)};")
+    arrays = ", ".join(f".{k} = m_{k}, .{k}_length = UIOFMU_LENGTH(m_{k})" for k in ("A", "B", "E", "C", "w", "x0"))
+    lines += ["", "const UiofmuPlant UIOFMU_PLANT = {",
+              f"    .n = {n}, .m = {m}, .p = {p}, .q = {q}, .time = {TIMES[time]},",
+              f"    .dt = {_double(dt, 'plant.dt')}, .step_rtol = {_double(STEP_RTOL, 'step_rtol')},",
+              f"    {arrays},", "};", "", *fmu_table(guid, identifier, kernel, table)]
     return "\n".join(lines)
 
 
@@ -262,9 +324,29 @@ def model_description(card: Card, guid: str, identifier: str, sources: list[str]
 
     model = ObserverModel({"card": card.data})
     model.refresh()
+    return description_xml(identifier, guid, f"{card.family} unknown-input observer of {card.name} "
+                           f"(uiofmu {__version__}, C backend)", sources, observer_experiment(card), model.ports)
+
+
+def plant_model_description(data: dict, description: str, guid: str, identifier: str, sources: list[str],
+                            experiment: dict | None) -> bytes:
+    """``modelDescription.xml`` of a C plant FMU: the ports of the python backend's plant."""
+    from ..runtime.fmu_model import PlantModel
+    from ..runtime.plant_runtime import PlantRuntime
+
+    model = PlantModel(PlantRuntime(data))
+    model.refresh()
+    return description_xml(identifier, guid, description, sources, experiment, model.ports)
+
+
+def description_xml(identifier: str, guid: str, description: str, sources: list[str], experiment: dict | None,
+                    ports) -> bytes:
+    """The ``modelDescription.xml`` of every C FMU: Co-Simulation without an execution tool, its
+    ``<SourceFiles>``, the plumbing's ``<LogCategories>``, ``<DefaultExperiment>`` (when given) and
+    the variables and structure of ``ports`` (:func:`write_variables`)."""
     root = Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": identifier, "guid": f"{{{guid}}}",
-        "description": f"{card.family} unknown-input observer of {card.name} (uiofmu {__version__}, C backend)",
+        "description": description,
         "generationTool": f"uiofmu {__version__}", "variableNamingConvention": "structured",
         "numberOfEventIndicators": "0"})
     cs = SubElement(root, "CoSimulation", {
@@ -278,8 +360,9 @@ def model_description(card: Card, guid: str, identifier: str, sources: list[str]
     cats = SubElement(root, "LogCategories")
     for name in LOG_CATEGORIES:
         SubElement(cats, "Category", {"name": name})
-    write_experiment(root, observer_experiment(card))
-    write_variables(root, model.ports)
+    if experiment:
+        write_experiment(root, experiment)
+    write_variables(root, ports)
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
 
 
@@ -296,7 +379,7 @@ def compile_binary(src: Path, identifier: str, out: Path, extra_flags=(), source
            f"-I{src}", *extra_flags, "-o", str(lib), *files, "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
-        raise FmuError(f"the C compiler failed on the generated observer: {proc.stderr.strip()[:2000]}")
+        raise FmuError(f"the C compiler failed on the generated FMU: {proc.stderr.strip()[:2000]}")
     return lib
 
 
@@ -307,6 +390,41 @@ def fmi_headers() -> Path:
     return Path(fmpy.__file__).parent / "c-code"
 
 
+def _check_platform() -> None:
+    if platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
+        raise FmuError("--backend c builds linux64 binaries only; the FMU's sources/ rebuild elsewhere")
+
+
+def guid_of(data) -> str:
+    """The GUID of a model's data (a name-based UUID of its JSON: equal data, equal GUID)."""
+    return str(uuid.uuid5(uuid.NAMESPACE_URL, "uiofmu:" + json.dumps(data, sort_keys=True)))
+
+
+def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, description, spec: dict,
+               extra_flags=()) -> Path:
+    """Compile and zip one C FMU: the plumbing, ``kernel`` and the generated ``design`` (the text
+    of ``design_data.c``) into ``binaries/linux64/<identifier>.so``, those sources and the FMI
+    headers into ``sources/``, ``description(sources)`` (the bytes of ``modelDescription.xml``)
+    and ``spec`` as ``resources/model.json``; written atomically to ``output``."""
+    with tempfile.TemporaryDirectory(prefix="uiofmu_c_") as tmp:
+        src = Path(tmp) / "sources"
+        src.mkdir()
+        sources = kernel_sources(kernel)
+        for name in (*PLUMBING_SOURCES, *PLUMBING_HEADERS, kernel.source, kernel.header):
+            shutil.copy2(HERE / name, src / name)
+        for name in FMI_HEADERS:
+            shutil.copy2(fmi_headers() / name, src / name)
+        (src / "design_data.c").write_text(design)
+        lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64", list(extra_flags), sources)
+        with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr("modelDescription.xml", description(sources))
+            z.write(lib, f"binaries/linux64/{identifier}.so")
+            for f in sorted(src.iterdir()):
+                z.write(f, f"sources/{f.name}")
+            z.writestr("resources/model.json", json.dumps(spec))
+    return output
+
+
 def build_c_observer(card: Card, output, identifier: str, call_floor: bool = False) -> Path:
     """Write the C observer FMU of ``card`` to ``output``.
 
@@ -314,28 +432,46 @@ def build_c_observer(card: Card, output, identifier: str, call_floor: bool = Fal
     FMI call itself); never use it for anything else.
     """
     output = check_output_file(output, "FMU", ".fmu")
-    if platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
-        raise FmuError("--backend c builds linux64 binaries only; the FMU's sources/ rebuild elsewhere")
-    guid = str(uuid.uuid5(uuid.NAMESPACE_URL, "uiofmu:" + json.dumps(card.data, sort_keys=True)))
-    with tempfile.TemporaryDirectory(prefix="uiofmu_c_") as tmp:
-        src = Path(tmp) / "sources"
-        src.mkdir()
-        kernel = c_kernel(card)
-        sources = c_sources(card)
-        for name in (*PLUMBING_SOURCES, *PLUMBING_HEADERS, kernel.source, kernel.header):
-            shutil.copy2(HERE / name, src / name)
-        for name in FMI_HEADERS:
-            shutil.copy2(fmi_headers() / name, src / name)
-        (src / "design_data.c").write_text(design_source(card, guid, identifier))
-        lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64",
-                             ["-DUIOFMU_CALL_FLOOR"] if call_floor else [], sources)
-        with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
-            z.writestr("modelDescription.xml", model_description(card, guid, identifier, sources))
-            z.write(lib, f"binaries/linux64/{identifier}.so")
-            for f in sorted(src.iterdir()):
-                z.write(f, f"sources/{f.name}")
-            z.writestr("resources/model.json", json.dumps({"kind": "observer", "card": card.data}))
-    return output
+    _check_platform()
+    guid = guid_of(card.data)
+    return pack_c_fmu(output, identifier, c_kernel(card), design_source(card, guid, identifier),
+                      lambda sources: model_description(card, guid, identifier, sources),
+                      {"kind": "observer", "card": card.data}, ["-DUIOFMU_CALL_FLOOR"] if call_floor else [])
+
+
+def build_c_plant(plant, output, identifier: str, experiment: dict | None = None,
+                  description: str | None = None, call_floor: bool = False) -> Path:
+    """Write the C FMU of a linear plant to ``output`` (``c/kernel_plant.c``: exact zero-order
+    hold for any step of a continuous plant, dt only for a discrete one).
+
+    Parameters
+    ----------
+    plant : uiofmu.plant.Plant
+        A checked linear plant.
+    output : str or Path
+        The ``.fmu`` file to write.
+    identifier : str
+        The model identifier (an ASCII identifier).
+    experiment : dict, optional
+        Its ``<DefaultExperiment>`` (:func:`uiofmu.runtime.ports.plant_experiment`).
+    description : str, optional
+        The ``description`` attribute of the model description.
+    call_floor : bool, optional
+        A benchmark variant whose fmi2DoStep returns at once (as :func:`build_c_observer`).
+
+    Returns
+    -------
+    Path
+    """
+    output = check_output_file(output, "FMU", ".fmu")
+    _check_platform()
+    data = plant.to_data()
+    spec = {"kind": "plant", "plant": data, **({"experiment": experiment} if experiment else {})}
+    guid = guid_of({"backend": "c", **spec})
+    text = description or f"{plant.time} linear plant (uiofmu {__version__}, C backend)"
+    return pack_c_fmu(output, identifier, PLANT_KERNELS["linear"], plant_source(data, guid, identifier),
+                      lambda sources: plant_model_description(data, text, guid, identifier, sources, experiment),
+                      spec, ["-DUIOFMU_CALL_FLOOR"] if call_floor else [])
 
 
 def build_host(out_dir) -> Path:

@@ -121,7 +121,7 @@ def build_observer(card: Card, output, backend: str | None = None) -> Path:
                          ident, desc, output)
 
 
-def build_plant(plant: Plant, name: str, output, step: float | None = None) -> Path:
+def build_plant(plant: Plant, name: str, output, step: float | None = None, backend: str | None = None) -> Path:
     """Pack a linear plant as an FMU (exact between communication points).
 
     Parameters
@@ -134,13 +134,25 @@ def build_plant(plant: Plant, name: str, output, step: float | None = None) -> P
     step : float, optional
         The step of its ``<DefaultExperiment>`` (default: a discrete plant's ``dt``; a
         continuous plant without it has none).
+    backend : {"c", "python"}, optional
+        ``c``: a standalone native binary plus its sources (``c/kernel_plant.c``; the default
+        where a C compiler is found); ``python``: pythonfmu (the host needs Python with numpy).
 
     Returns
     -------
     Path
     """
+    backend = backend or default_backend()
+    if backend not in BACKENDS:
+        raise FmuError(f"--backend: expected one of {', '.join(BACKENDS)}, found {backend!r}")
     ident = model_identifier(name, "plant")
-    desc = f"{plant.time} linear plant {name} (uiofmu {__version__})"
     step = plant.dt if step is None else step
-    spec = {"kind": "plant", "plant": plant.to_data(), **({"experiment": plant_experiment(step)} if step else {})}
+    experiment = plant_experiment(step) if step else None
+    if backend == "c":
+        from .c_backend import build_c_plant
+
+        return build_c_plant(plant, output, ident, experiment,
+                             f"{plant.time} linear plant {name} (uiofmu {__version__}, C backend)")
+    desc = f"{plant.time} linear plant {name} (uiofmu {__version__})"
+    spec = {"kind": "plant", "plant": plant.to_data(), **({"experiment": experiment} if experiment else {})}
     return _build_python(spec, ident, desc, output)

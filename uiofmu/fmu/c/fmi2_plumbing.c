@@ -187,7 +187,7 @@ void uiofmu_log(FmuInstance *s, fmi2Status status, const char *fmt, ...) {
 
 const char *uiofmu_num(double v, char *buf) {
     int digits = 1;
-    for (; digits < 17; digits++) {
+    for (; digits <= 17; digits++) {
         snprintf(buf, 32, "%.*g", digits, v);
         if (strtod(buf, NULL) == v) break;
     }

@@ -1,0 +1,42 @@
+/* uiofmu: the linear plant kernel's ports and design data (kernel_plant.c reads them).
+ *
+ * A linear plant (uiofmu.plant.Plant.to_data()) becomes one constant UiofmuPlant
+ * (design_data.c, generated; numbers only). Matrices are row-major:
+ *   A n x n, B n x m, E n x q, C p x n, w n, x0 n
+ * An empty matrix (m = 0 or q = 0) is written as {0.0}: length 1. Every array travels with
+ * its length as the C compiler counts it (UIOFMU_LENGTH), so fmi2Instantiate checks the data
+ * actually compiled in against the dims before it reads any of it.
+ */
+#ifndef UIOFMU_KERNEL_PLANT_H
+#define UIOFMU_KERNEL_PLANT_H
+
+#include <stddef.h>
+
+#include "fmi2_plumbing.h"
+
+/* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.plant_ports):
+   x0[n] parameter, u[m] and d[q] inputs (held over the step), y[p] = C x and x[n] outputs; all Real. */
+enum { UIOFMU_PLANT_X0, UIOFMU_PLANT_U, UIOFMU_PLANT_D, UIOFMU_PLANT_Y, UIOFMU_PLANT_X, UIOFMU_PLANT_PORTS };
+
+enum { UIOFMU_DISCRETE = 0, UIOFMU_CONTINUOUS = 1 };
+
+typedef struct {
+    int n, m, p, q;
+    int time;          /* UIOFMU_DISCRETE or UIOFMU_CONTINUOUS */
+    double dt;         /* discrete plants: the period (0 for continuous ones) */
+    double step_rtol;  /* discrete plants: a step within step_rtol * dt of dt is dt */
+    const double *A, *B, *E, *C, *w, *x0;
+    size_t A_length, B_length, E_length, C_length, w_length, x0_length;
+} UiofmuPlant;
+
+UIOFMU_INTERNAL extern const UiofmuPlant UIOFMU_PLANT;
+
+/* The kernel, for UIOFMU_FMU.kernel. */
+UIOFMU_INTERNAL extern const UiofmuKernel UIOFMU_KERNEL_PLANT;
+
+/* exp(M) of a k x k row-major matrix into out (k x k) by scaling and squaring with a Padé
+   approximant (Higham 2005, degrees 3, 5, 7, 9, 13); work holds 7 k x k doubles and piv k ints.
+   0 when M has a non-finite entry or the result is not finite. */
+UIOFMU_INTERNAL int uiofmu_expm(const double *M, int k, double *out, double *work, int *piv);
+
+#endif
