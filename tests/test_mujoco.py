@@ -115,3 +115,16 @@ def test_observers_converge_against_mujoco(plant_fmu, tmp_path, cli, family, ste
     assert m["final_error_norm"] < 1e-8 * m["initial_error_norm"] * 1e3      # measured about 1e-11 m
     assert m["dhat_rms_error_second_half"][0] < 0.1                          # N, against a 400 N road force
     assert m["step_min"] < m["step_max"] or family == "ltv-auid"
+
+
+def test_the_mujoco_plant_runs_its_default_experiment_in_fmpy(tmp_path, cli):
+    """`uiofmu plant plants/quarter_car` gives the FMU the step of its linearised problem's
+    observer (the first design interval, 0.005 s) over 200 steps, which fmpy runs as it is."""
+    from fmpy import read_model_description, simulate_fmu
+
+    res = cli("plant", FOLDER, "-o", tmp_path / "qc.fmu")
+    assert res.code == 0, res.err
+    exp = read_model_description(str(tmp_path / "qc.fmu")).defaultExperiment
+    assert float(exp.stepSize) == 0.005 and float(exp.stopTime) == 200 * 0.005
+    result = simulate_fmu(str(tmp_path / "qc.fmu"))
+    assert len(result) == 201 and abs(result["time"][-1] - 1.0) < 1e-9
