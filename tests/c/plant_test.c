@@ -26,19 +26,9 @@
 #include "fmi2_plumbing.h"
 #include "kernel_plant.h"
 
-static int failures, lines;
-static char last[1024];
+#include "check.h"
 
-static void fail(int line, const char *fmt, ...) {
-    va_list ap;
-    failures++;
-    fprintf(stderr, "FAIL plant_test.c:%d: ", line);
-    va_start(ap, fmt);
-    vfprintf(stderr, fmt, ap);
-    va_end(ap);
-    fprintf(stderr, " (last log line: %s)\n", last[0] ? last : "none");
-}
-#define CHECK(cond, ...) do { if (!(cond)) fail(__LINE__, __VA_ARGS__); } while (0)
+static int lines;
 
 static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
                    fmi2String message, ...) {
@@ -120,9 +110,9 @@ static int trajectory(int argc, char **argv) {
 
 /* the status `want`, and for a status other than fmi2OK a new log line holding `word` */
 static void expect(int line, fmi2Status got, fmi2Status want, int before, const char *word, const char *what) {
-    if (got != want) fail(line, "%s: status %d, expected %d", what, (int)got, (int)want);
+    if (got != want) fail(__FILE__, line, "%s: status %d, expected %d", what, (int)got, (int)want);
     else if (want != fmi2OK && (lines == before || (word && !strstr(last, word))))
-        fail(line, "%s: no log line saying '%s'", what, word ? word : "");
+        fail(__FILE__, line, "%s: no log line saying '%s'", what, word ? word : "");
 }
 #define EXPECT(got, want, word, what) do { int b_ = lines; fmi2Status g_ = (got); expect(__LINE__, g_, want, b_, word, what); } while (0)
 
@@ -233,10 +223,10 @@ static void state_masks(const unsigned char *bytes, size_t blen) {
             }
             int legal = (FN[f].legal >> st) & 1u;
             int refused = got == fmi2Error && lines > before && strstr(last, "(the instance is ") != NULL;
-            if (legal && refused) fail(__LINE__, "%s when %s: refused as illegal", FN[f].name, S_NAME[st]);
-            if (!legal && !refused) fail(__LINE__, "%s when %s: status %d, expected a refusal as illegal", FN[f].name, S_NAME[st], (int)got);
+            if (legal && refused) fail(__FILE__, __LINE__, "%s when %s: refused as illegal", FN[f].name, S_NAME[st]);
+            if (!legal && !refused) fail(__FILE__, __LINE__, "%s when %s: status %d, expected a refusal as illegal", FN[f].name, S_NAME[st], (int)got);
             if (legal && (f == F_GetRealStatus || f == F_GetBooleanStatus) && got != fmi2OK)
-                fail(__LINE__, "%s when %s: status %d, expected fmi2OK", FN[f].name, S_NAME[st], (int)got);
+                fail(__FILE__, __LINE__, "%s when %s: status %d, expected fmi2OK", FN[f].name, S_NAME[st], (int)got);
             if (mine) fmi2FreeFMUstate(c, &mine);
             fmi2FreeInstance(c);
         }

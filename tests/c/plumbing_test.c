@@ -20,21 +20,12 @@
 #include "fmi2Functions.h"
 #include "fmi2_plumbing.h"
 
-static int failures, lines;
-static char last[1024], last_category[64];
+#include "check.h"
+
+static int lines;
+static char last_category[64];
 static unsigned on = 14u; /* the categories the model says are on: bit 0 logEvents, 1 warning, 2 discard, 3 error */
 static const char *const CATS[4] = {"logEvents", "logStatusWarning", "logStatusDiscard", "logStatusError"};
-
-static void fail(int line, const char *fmt, ...) {
-    va_list ap;
-    failures++;
-    fprintf(stderr, "FAIL plumbing_test.c:%d: ", line);
-    va_start(ap, fmt);
-    vfprintf(stderr, fmt, ap);
-    va_end(ap);
-    fprintf(stderr, " (last log line: %s)\n", last[0] ? last : "none");
-}
-#define CHECK(cond, ...) do { if (!(cond)) fail(__LINE__, __VA_ARGS__); } while (0)
 
 static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
                    fmi2String message, ...) {
@@ -48,19 +39,19 @@ static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status sta
     lines++;
     int k = 0;
     while (k < 4 && strcmp(category, CATS[k]) != 0) k++;
-    if (k == 4) fail(__LINE__, "a line under the undeclared category %s", category);
-    else if (!(on & (1u << k))) fail(__LINE__, "a line under %s, which is off", category);
+    if (k == 4) fail(__FILE__, __LINE__, "a line under the undeclared category %s", category);
+    else if (!(on & (1u << k))) fail(__FILE__, __LINE__, "a line under %s, which is off", category);
     else if (k != (status == fmi2OK ? 0 : status == fmi2Warning ? 1 : status == fmi2Discard ? 2 : 3))
-        fail(__LINE__, "a line of status %d under %s", (int)status, category);
+        fail(__FILE__, __LINE__, "a line of status %d under %s", (int)status, category);
 }
 
 static fmi2CallbackFunctions callbacks = {logger, calloc, free, NULL, NULL};
 
 /* got must be want, and a status other than fmi2OK comes with a line saying `word` */
 static void status_is(int line, fmi2Status got, fmi2Status want, int lines_before, const char *word, const char *what) {
-    if (got != want) fail(line, "%s: status %d, expected %d", what, (int)got, (int)want);
-    if (want != fmi2OK && word && lines == lines_before) fail(line, "%s: no log line", what);
-    if (want != fmi2OK && word && !strstr(last, word)) fail(line, "%s: the log line does not say \"%s\"", what, word);
+    if (got != want) fail(__FILE__, line, "%s: status %d, expected %d", what, (int)got, (int)want);
+    if (want != fmi2OK && word && lines == lines_before) fail(__FILE__, line, "%s: no log line", what);
+    if (want != fmi2OK && word && !strstr(last, word)) fail(__FILE__, line, "%s: the log line does not say \"%s\"", what, word);
 }
 #define STATUS(call, want, word) do { int before_ = lines; status_is(__LINE__, (call), (want), before_, (word), #call); } while (0)
 
