@@ -123,6 +123,17 @@ def _first_line(exc: BaseException) -> str:
     return text[0][:300] if text else type(exc).__name__
 
 
+def vector_sizes(variables, causality: str) -> dict:
+    """The vectors ``name[1..k]`` among fmpy model variables of one causality (``"input"``,
+    ``"output"``, ``"parameter"``), as ``{name: k}`` in the order of the model description."""
+    out: dict = {}
+    for v in variables:
+        if v.causality == causality and v.name.endswith("]") and "[" in v.name:
+            name = v.name[:v.name.index("[")]
+            out[name] = out.get(name, 0) + 1
+    return out
+
+
 class Fmu:
     """One instance of a Co-Simulation FMU, driven by fmpy.
 
@@ -210,14 +221,8 @@ class Fmu:
         return self._vectors[name]
 
     def ports(self, causality: str) -> dict:
-        """The vectors ``name[1..k]`` of one causality (``"input"``, ``"output"``, ``"parameter"``),
-        as ``{name: k}`` in the order of the model description."""
-        out: dict = {}
-        for v in self.description.modelVariables:
-            if v.causality == causality and v.name.endswith("]") and "[" in v.name:
-                name = v.name[:v.name.index("[")]
-                out[name] = out.get(name, 0) + 1
-        return out
+        """The vectors ``name[1..k]`` of one causality, as ``{name: k}`` (:func:`vector_sizes`)."""
+        return vector_sizes(self.description.modelVariables, causality)
 
     @property
     def resources(self) -> str:

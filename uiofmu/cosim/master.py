@@ -18,7 +18,7 @@ from ..runtime.card import Card, card_from_data
 from ..runtime.errors import FmuError
 from ..runtime.files import atomic_output, check_output_dir, write_atomic
 from ..families import certified_bound
-from .fmi import Fmu, FmuCallError, read_model_json
+from .fmi import Fmu, FmuCallError, read_model_json, vector_sizes
 from .inputs import CsvInputs, SignalInputs
 from .metrics import error_metrics
 from ..progress import progress
@@ -241,12 +241,7 @@ def load_inputs(csv_path, plant_path, observer_path=None):
             variables = read_model_description(str(path)).modelVariables
         except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for broken archives
             raise FmuError(f"{path}: not a readable FMU ({exc})") from None
-        out = {"input": {}, "output": {}}
-        for v in variables:
-            if v.causality in out and v.name.endswith("]") and "[" in v.name:
-                name = v.name[:v.name.index("[")]
-                out[v.causality][name] = out[v.causality].get(name, 0) + 1
-        return out["input"], out["output"]
+        return vector_sizes(variables, "input"), vector_sizes(variables, "output")
 
     sizes, outputs = inputs_and_outputs(plant_path)
     owners = dict.fromkeys(sizes, "plant")
