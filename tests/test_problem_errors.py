@@ -58,8 +58,8 @@ CASES = [
     ("unknown-top-key", "solver = 'scs'\n" + GOOD, "solver: unknown key"),
     ("unknown-family", edit('"lti-uio"', '"kalman"'), "observer.family: unknown family 'kalman'"),
     ("missing-family", edit('family = "lti-uio"\n', ""), "observer.family: required key is missing"),
-    ("family-not-available", edit('family = "lti-uio"\ndecay = "max"', 'family = "switched"'),
-     "observer.family: 'switched' is not available in this version of uiofmu"),
+    ("family-not-available", edit('family = "lti-uio"\ndecay = "max"', 'family = "deadbeat-functional"'),
+     "observer.family: 'deadbeat-functional' is not available in this version of uiofmu"),
     ("unknown-observer-key", edit('decay = "max"', 'decay = "max"\ngain = 3'), "observer.gain: unknown key"),
     ("decay-range", edit('decay = "max"', "decay = 1.5"), "observer.decay: expected a value in (0, 1), found 1.5"),
     ("decay-word", edit('decay = "max"', 'decay = "fast"'), 'observer.decay: expected a number or "max"'),
@@ -67,8 +67,20 @@ CASES = [
      "observer.dt: a discrete plant fixes the period"),
     ("continuous-needs-dt", edit('time = "discrete"\ndt = 0.1', 'time = "continuous"'),
      "observer.dt: required for a continuous plant"),
-    ("switched-plant", edit("C = [[1.0, 0.0]]", "C = [[1.0, 0.0]]\n[[plant.modes]]\nA = [[1.0]]"),
-     "plant.modes: switched and LPV plants are not supported"),
+    ("switched-mode-shape", edit("C = [[1.0, 0.0]]", "C = [[1.0, 0.0]]\n[[plant.modes]]\nA = [[1.0]]"),
+     "plant.modes[0].A: expected shape 2x2, found 1x1"),
+    ("switched-needs-its-family", edit("C = [[1.0, 0.0]]", "C = [[1.0, 0.0]]\n[[plant.modes]]\n[[plant.modes]]\n"
+                                       "A = [[0.0, 1.0], [-0.4, 0.9]]"), "plant.modes: a switched plant needs"),
+    ("switched-mode-C", edit("C = [[1.0, 0.0]]", "C = [[1.0, 0.0]]\n[[plant.modes]]\nC = [[0.0, 1.0]]"),
+     "plant.modes[0].C: a switched plant has one output matrix"),
+    ("switched-continuous", edit('C = [[1.0, 0.0]]', 'C = [[1.0, 0.0]]\n[[plant.modes]]').replace(
+        'time = "discrete"\ndt = 0.1', 'time = "continuous"'), "plant.time: a switched plant is discrete"),
+    ("switched-threshold-state", edit("C = [[1.0, 0.0]]", "C = [[1.0, 0.0]]\n[[plant.modes]]\n[[plant.modes]]\n"
+                                      "[plant.switching]\nrule = \"threshold\"\nstate = 3\nthreshold = 1.0"),
+     "plant.switching.state: expected the 1-based index of a state, 1 to 2, found 3"),
+    ("switched-probabilities", edit("C = [[1.0, 0.0]]", "C = [[1.0, 0.0]]\n[[plant.modes]]\n[[plant.modes]]\n"
+                                    "[plant.switching]\nrule = \"random\"\nprobabilities = [0.5, 0.6]"),
+     "plant.switching.probabilities: expected 2 non-negative numbers summing to 1"),
     ("signals-channels", GOOD + '[signals]\nu = [[{kind="constant", value=1.0}], []]\n',
      "signals.u: expected 1 channel(s), found 2"),
     ("signal-kind", GOOD + '[signals]\nd = [[{kind="chirp"}]]\n', "signals.d[0][0].kind: expected one of"),

@@ -15,6 +15,7 @@ from .runtime.errors import ProblemError
 from .runtime.files import parse_toml, read_text
 from .runtime.matrices import as_scalar, as_vector
 from .plant import Plant
+from .switched_plant import SwitchedPlant, parse_switched
 from .runtime.registry import AVAILABLE, KNOWN
 from .signals import Signal, parse_signals
 from .runtime.text import MAX_NAME, check_name
@@ -144,12 +145,17 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     name = check_name(top.get("name", _model_name(default_name)[:MAX_NAME]), "name", ProblemError)
     pt = Table(top.get("plant"), "plant")
     time = pt.choice("time", ("continuous", "discrete"))
-    for unsupported in ("modes", "scheduling"):
-        if pt.has(unsupported):
-            raise ProblemError(f"plant.{unsupported}: switched and LPV plants are not supported by this version "
-                               "of uiofmu (families available: " + ", ".join(_available()) + ")")
-    plant = Plant.create(pt.get("A"), pt.get("C"), pt.get("E"), pt.get("B", None), time=time,
-                         dt=pt.get("dt", None), w=pt.get("w", None), x0=pt.get("x0", None))
+    if pt.has("scheduling"):
+        raise ProblemError("plant.scheduling: LPV plants are not supported by this version of uiofmu "
+                           "(families available: " + ", ".join(_available()) + ")")
+    if pt.has("modes"):
+        plant = parse_switched(pt)
+    else:
+        time = pt.choice("time", ("continuous", "discrete"))
+        if pt.has("switching"):
+            raise ProblemError("plant.switching: a switching rule needs the plant's [[plant.modes]]")
+        plant = Plant.create(pt.get("A"), pt.get("C"), pt.get("E"), pt.get("B", None), time=time,
+                             dt=pt.get("dt", None), w=pt.get("w", None), x0=pt.get("x0", None))
     pt.done()
     ot = Table(top.get("observer"), "observer")
     family = ot.get("family")
@@ -157,6 +163,9 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
         raise ProblemError(f"observer.family: expected a family name, found {type(family).__name__} "
                            f"(families: {', '.join(KNOWN)})")
     module = available_family(family)
+    if isinstance(plant, SwitchedPlant) and not getattr(module, "SWITCHED", False):
+        raise ProblemError(f"plant.modes: a switched plant needs a family that designs for switched plants "
+                           f"(observer.family = \"switched\"), found {family!r}")
     options = module.parse_options(ot, plant)
     ot.done()
     st = Table(top.get("signals", {}), "signals")

@@ -168,6 +168,7 @@ class Fmu:
             raise FmuError(f"{self.path}: not a Co-Simulation FMU")
         self.messages: list[str] = []
         self._refs = {v.name: v.valueReference for v in self.description.modelVariables}
+        self._types = {v.name: v.type for v in self.description.modelVariables}
         self._vectors: dict = {}
         self._unzipdir = tempfile.mkdtemp(prefix="uiofmu_fmu_")
         try:
@@ -241,16 +242,24 @@ class Fmu:
             self.set(name, values)
         self._call("exitInitializationMode")
 
+    def integer(self, name: str) -> bool:
+        """Whether the vector ``name`` is of type Integer (a mode)."""
+        return self._types.get(f"{name}[1]") == "Integer"
+
     def set(self, name: str, values) -> None:
-        """Set the vector ``name``."""
+        """Set the vector ``name`` (Real, or Integer: values are rounded to the nearest integer)."""
         refs = self.refs(name)
-        if refs:
+        if refs and self.integer(name):
+            self._call("setInteger", refs, [int(round(float(v))) for v in np.ravel(values)])
+        elif refs:
             self._call("setReal", refs, [float(v) for v in np.ravel(values)])
 
     def get(self, name: str) -> np.ndarray:
-        """Read the vector ``name``."""
+        """Read the vector ``name`` (as floats, whatever its type)."""
         refs = self.refs(name)
-        return np.array(self._call("getReal", refs), dtype=float) if refs else np.zeros(0)
+        if not refs:
+            return np.zeros(0)
+        return np.array(self._call("getInteger" if self.integer(name) else "getReal", refs), dtype=float)
 
     def step(self, t: float, h: float) -> None:
         """fmi2DoStep(t, h); raises :class:`FmuCallError` on discard, error or fatal."""

@@ -8,5 +8,5 @@ from may be gone by the time a later module would be needed.
 """
 
 from . import (card, errors, files, fmu_model, matrices, mujoco_runtime, observer, plant_runtime,  # noqa: F401
-               registry, schedules, state, stepping, text, tolerances)
+               registry, schedules, state, stepping, switching, text, tolerances)
 from .observer import Runtime, RuntimeInputError  # noqa: F401

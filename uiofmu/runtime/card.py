@@ -150,9 +150,13 @@ MAX_DIM = 1000
 #: Most design intervals an interval schedule may list.
 MAX_INTERVALS = 256
 #: Keys a schedule may hold, per kind (``step_policy`` and ``step_rtol`` for all).
-SCHEDULE_KEYS = {"constant": {"dt"}, "interval": {"intervals", "h_prev0"}, "geometric": {"alpha", "dt"}}
+SCHEDULE_KEYS = {"constant": {"dt"}, "interval": {"intervals", "h_prev0"}, "geometric": {"alpha", "dt"},
+                 "mode": {"dt", "modes", "mode_prev0"}}
+#: Most modes a mode schedule may have (its card holds N^2 step matrices).
+MAX_MODES = 16
 #: The step policies each schedule kind accepts (see :mod:`uiofmu.runtime.schedules`).
-KIND_POLICIES = {"constant": ("error",), "interval": ("error", "nearest"), "geometric": ("error", "count")}
+KIND_POLICIES = {"constant": ("error",), "interval": ("error", "nearest"), "geometric": ("error", "count"),
+                 "mode": ("error",)}
 #: Longest free text (``bound``, ``generator``, solver names) a card may hold.
 MAX_TEXT = 1000
 
@@ -206,7 +210,7 @@ def _check_schedule(spec, dt) -> dict:
                         f"(known: {', '.join(sorted(SCHEDULE_KEYS[kind] | {'kind', 'step_policy', 'step_rtol'}))})")
     _choice(spec.get("step_policy", "error"), "schedule.step_policy", KIND_POLICIES[kind])
     rtol = _number(spec.get("step_rtol", STEP_RTOL), "schedule.step_rtol", low=0.0, high=0.01)
-    if kind in ("constant", "geometric"):
+    if kind in ("constant", "geometric", "mode"):
         if "dt" not in spec:
             raise CardError(f"design card schedule.dt: required for a {kind} schedule")
         step = _number(spec["dt"], "schedule.dt", low=0.0, open_low=True)
@@ -216,6 +220,9 @@ def _check_schedule(spec, dt) -> dict:
         if "alpha" not in spec:
             raise CardError("design card schedule.alpha: required for a geometric schedule")
         _number(spec["alpha"], "schedule.alpha", low=0.0, high=1.0, open_low=True, open_high=True)
+    if kind == "mode":
+        modes = _integer(spec.get("modes"), "schedule.modes", 1, MAX_MODES)
+        _integer(spec.get("mode_prev0", 1), "schedule.mode_prev0", 1, modes)
     if kind == "interval":
         if "intervals" not in spec:
             raise CardError("design card schedule.intervals: required for an interval schedule")
@@ -239,13 +246,13 @@ def _check_matrices(mats, dims: dict, kind: str, schedule: dict) -> dict:
     """Runtime matrices with their exact shapes; every other matrix a finite numeric array."""
     mats = _table(mats, "matrices")
     axes = AXES[kind]
-    count = len(schedule["intervals"]) if kind == "interval" else None
+    count = {"interval": len(schedule.get("intervals", ())), "mode": schedule.get("modes")}.get(kind)
     out = {}
     for name, value in mats.items():
         key = f"design card matrices.{name}"
         _text(name, "matrices key", 64)
         if name in RUNTIME_SHAPES:
-            lead = (count,) * axes.get(name, 0) if kind == "interval" else (None,) * axes.get(name, 0)
+            lead = (count,) * axes.get(name, 0)
             shape = lead + tuple(dims[d] for d in RUNTIME_SHAPES[name])
             arr = as_array(value, key, shape, CardError)
             if kind == "geometric" and name in axes and arr.shape[0] == 0:

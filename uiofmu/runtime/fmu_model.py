@@ -58,10 +58,12 @@ class PortsModel:
     references) and by causality (``parameters``, ``inputs``, ``outputs``)."""
 
     def _declare(self, specs: list, arrays: dict) -> None:
-        """Each declared port over its array in ``arrays`` (a new zero vector where none)."""
+        """Each declared port over its array in ``arrays`` (a new zero vector where none). Values
+        are floats for every type: an Integer port holds integral values (every C int is exact)."""
         self.ports = [Port(s, np.zeros(s.size) if arrays.get(s.name) is None else arrays[s.name]) for s in specs]
         self.parameters, self.inputs, self.outputs = ([p for p in self.ports if p.causality == c]
                                                       for c in ("parameter", "input", "output"))
+        self.named = {p.name: p for p in self.ports}
 
 
 class StatefulModel(PortsModel):
@@ -109,18 +111,28 @@ class ObserverModel(StatefulModel):
         self.card = card_from_data(spec["card"])
         self.rt = Runtime(self.card)
         arrays = {"xhat0": self.rt.xhat0.copy(), "h_prev0": np.array([self.rt.h_prev0]), "y": self.rt.y,
-                  "u": self.rt.u}
+                  "u": self.rt.u, "mode_prev0": np.array([float(self.rt.mode_prev0)]),
+                  "mode": np.array([float(self.rt.mode)])}
         self._declare(self.card.ports, arrays)
         self.dirty = True
 
     def initialize(self) -> None:
         """Take the parameters (called when leaving initialisation mode); raises StepRejected
-        for an h_prev0 that is not a design interval, and then nothing has changed."""
-        if len(self.parameters) > 1:                   # checked before anything changes
-            h_prev0 = float(self.parameters[1].values[0])
+        for an h_prev0 that is not a design interval or a mode_prev0 that is not a mode, and
+        then nothing has changed."""
+        named = self.named
+        if "h_prev0" in named:                         # checked before anything changes
+            h_prev0 = float(named["h_prev0"].values[0])
             self.rt.schedule.output_matrices(0, h_prev0)
             self.rt.h_prev0 = h_prev0
-        self.rt.xhat0 = self.parameters[0].values.copy()
+        if "mode_prev0" in named:
+            mode_prev0 = int(named["mode_prev0"].values[0])
+            try:
+                self.rt.schedule.index(mode_prev0, "mode_prev0")
+            except ValueError as exc:
+                raise StepRejected(str(exc)) from None
+            self.rt.mode_prev0 = mode_prev0
+        self.rt.xhat0 = named["xhat0"].values.copy()
         self.rt.reset()
         self.dirty = True
 
@@ -140,9 +152,10 @@ class ObserverModel(StatefulModel):
 
     def step(self, t: float, h: float) -> None:
         """One communication step; raises StepRejected or RuntimeInputError."""
+        if "mode" in self.named:
+            self.rt.set_mode(int(self.named["mode"].values[0]))
         self.rt.step(h)
         self.dirty = True
-
 
 
 class PlantModel(StatefulModel):
@@ -160,27 +173,43 @@ class PlantModel(StatefulModel):
         physical = [(name, param_targets[name]) for name in rt.param_names]
         arrays = {"x0": rt.x0.copy(), "u": rt.u, "d": rt.d,
                   **{name: rt.params[i:i + 1].copy() for i, name in enumerate(rt.param_names)}}
-        specs = plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical)
+        rule = getattr(rt, "rule", None)
+        if rule is not None:
+            arrays.update(seed=np.array([float(rt.seed)]), mode=np.array([float(rt.mode_in)]))
+        specs = plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, rule)
         self._declare(specs, arrays)
         self.dirty = True
 
     def initialize(self) -> None:
-        """Take the parameters (initial state and physical parameters) and reset."""
-        self.rt.x0 = self.parameters[0].values.copy()
-        for i, port in enumerate(self.parameters[1:]):
-            self.rt.params[i] = port.values[0]
+        """Take the parameters (initial state, seed, physical parameters) and reset."""
+        named = self.named
+        self.rt.x0 = named["x0"].values.copy()
+        for i, name in enumerate(self.rt.param_names):
+            self.rt.params[i] = named[name].values[0]
         self.rt.apply_parameters()
+        if "seed" in named:
+            self.rt.seed = int(named["seed"].values[0])
         self.rt.reset()
         self.dirty = True
 
+    def _sync_mode(self) -> None:
+        port = self.named.get("mode")
+        if port is not None and port.causality == "input":
+            self.rt.mode_in = int(port.values[0])
+
     def refresh(self) -> None:
         """Recompute the outputs."""
-        self.outputs[0].values[:] = self.rt.y()
-        self.outputs[1].values[:] = self.rt.x
+        self._sync_mode()
+        self.named["y"].values[:] = self.rt.y()
+        self.named["x"].values[:] = self.rt.x
+        port = self.named.get("mode")
+        if port is not None and port.causality == "output":
+            port.values[0] = self.rt.mode()
         self.dirty = False
 
     def step(self, t: float, h: float) -> None:
         """One communication step; raises RuntimeInputError."""
+        self._sync_mode()
         self.rt.step(h)
         self.dirty = True
 
@@ -196,6 +225,10 @@ def make_model(spec: dict, resources: str = "."):
 
         return PlantModel(MujocoRuntime(spec["mujoco"], resources), spec["mujoco"].get("parameters", {}))
     if spec["kind"] == "plant":
+        if "modes" in spec["plant"]:
+            from .switching import SwitchedPlantRuntime
+
+            return PlantModel(SwitchedPlantRuntime(spec["plant"]))
         return PlantModel(PlantRuntime(spec["plant"]))
     return ObserverModel(spec)
 

@@ -137,7 +137,8 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
     dims : dict
         The card's ``dims`` (``n``, ``m``, ``p``, ``q``).
     schedule_kind : str
-        ``interval`` adds the parameter ``h_prev0``.
+        ``interval`` adds the parameter ``h_prev0``; ``mode`` the Integer parameter ``mode_prev0``
+        and the Integer input ``mode``.
     has_dhat : bool
         Adds the output ``dhat``.
     feeds_y : bool
@@ -152,24 +153,43 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
     ports = [PortSpec("xhat0", n, "parameter", "initial state estimate at the start time")]
     if schedule_kind == "interval":
         ports.append(PortSpec("h_prev0", 1, "parameter", "sampling interval assumed before the first step, h_{-1} [s]"))
+    if schedule_kind == "mode":
+        ports.append(PortSpec("mode_prev0", 1, "parameter", "mode assumed before the first step, alpha_{-1}",
+                              type="Integer"))
     ports += [PortSpec("y", p, "input", "measured outputs at the current communication point"),
-              PortSpec("u", m, "input", "known inputs at the current communication point"),
-              PortSpec("xhat", n, "output", "state estimate at the current communication point", depends=through),
+              PortSpec("u", m, "input", "known inputs at the current communication point")]
+    if schedule_kind == "mode":
+        ports.append(PortSpec("mode", 1, "input", "mode of the plant over the step from the current communication "
+                              "point (1..N)", type="Integer"))
+    ports += [PortSpec("xhat", n, "output", "state estimate at the current communication point", depends=through),
               PortSpec("r", p, "output", "output residual y - C xhat", depends=("y",))]
     if has_dhat:
         ports.append(PortSpec("dhat", q, "output", "unknown-input estimate over the last step", depends=("y",)))
     return ports
 
 
-def plant_ports(n: int, m: int, p: int, q: int, parameters=()) -> list:
+def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | None = None) -> list:
     """The declaration of a plant: parameters ``x0`` and the physical ``(name, what)`` pairs,
-    inputs ``u``, ``d`` (held over the step), outputs ``y = C x`` and ``x`` (no feedthrough)."""
+    inputs ``u``, ``d`` (held over the step), outputs ``y = C x`` and ``x`` (no feedthrough).
+
+    A switched plant (``switching``: its rule, :mod:`uiofmu.runtime.switching`) adds the Integer
+    ``mode`` of the step from the current point: an output that depends on no input (rules
+    ``threshold``, ``random``; ``random`` also has the Integer parameter ``seed``), or an input
+    (rule ``input``)."""
     ports = [PortSpec("x0", n, "parameter", "initial state")]
+    if switching == "random":
+        ports.append(PortSpec("seed", 1, "parameter", "seed of the random switching", type="Integer"))
     ports += [PortSpec(name, 1, "parameter", f"physical parameter {what}") for name, what in parameters]
-    return ports + [PortSpec("u", m, "input", "known inputs (held over the step)"),
-                    PortSpec("d", q, "input", "unknown inputs (held over the step)"),
-                    PortSpec("y", p, "output", "measured outputs C x"),
-                    PortSpec("x", n, "output", "true state (for validation)")]
+    ports += [PortSpec("u", m, "input", "known inputs (held over the step)"),
+              PortSpec("d", q, "input", "unknown inputs (held over the step)")]
+    if switching == "input":
+        ports.append(PortSpec("mode", 1, "input", "mode of the step from the current point (1..N)", type="Integer"))
+    ports += [PortSpec("y", p, "output", "measured outputs C x"),
+              PortSpec("x", n, "output", "true state (for validation)")]
+    if switching in ("threshold", "random"):
+        ports.append(PortSpec("mode", 1, "output", "mode of the step from the current point (1..N)",
+                              type="Integer"))
+    return ports
 
 
 def check_declared(declared, expected: list) -> None:

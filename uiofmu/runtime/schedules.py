@@ -13,6 +13,11 @@ A schedule is the only thing that differs between families at run time; the step
     matches the interval H when ``|h - H| <= STEP_RTOL * H``; another step follows
     ``step_policy``: ``"error"`` rejects it, ``"nearest"`` uses the nearest interval (and
     leaves one notice, logged once by the FMU).
+``mode``
+    Matrices per pair (alpha_k, alpha_{k-1}) of modes of a switched plant (1..N), designed for
+    the period ``dt``: indexed as for ``interval``, with ``i = alpha_k - 1`` (the mode of the step
+    taken) and ``j = alpha_{k-1} - 1`` (the mode of the step before; ``mode_prev0`` at k = 0).
+    A mode outside 1..N is refused (:class:`ModeRejected`), a step other than ``dt`` too.
 ``geometric``
     Matrices polynomial in ``a = alpha^k`` (the asymptotic-decoupling family): every matrix
     has a leading axis of coefficients, ``M(a) = M[0] + a M[1] + a^2 M[2] + ...``, evaluated
@@ -20,11 +25,11 @@ A schedule is the only thing that differs between families at run time; the step
     A step other than ``dt`` follows ``step_policy``: ``"error"`` rejects it, ``"count"``
     (explicit opt-in) takes it as one step k whatever its length.
 
-Every schedule answers ``step_matrices(k, h, h_prev, mode=None, theta=None)`` and
-``output_matrices(k, h_prev, mode=None, theta=None)``: the step counter, the step length, the
-step before, and the scheduling inputs of the step when the kernel has them (``mode``: the
-known mode of a switched plant over the step; ``theta``: the window of parameter values of an
-LPV plant, newest last). The kinds above schedule on ``(k, h, h_prev)`` and ignore the others.
+Every schedule answers ``step_matrices(k, h, h_prev, mode=None, mode_prev=None, theta=None)`` and
+``output_matrices(k, h_prev, mode_prev=None, theta=None)``: the step counter, the step length, the
+step before, and the scheduling inputs when the kernel has them (``mode``: the known mode of a
+switched plant over the step, ``mode_prev`` the one of the step before; ``theta``: the window of
+parameter values of an LPV plant, newest last). Only ``mode`` schedules read the modes.
 """
 
 from __future__ import annotations
@@ -41,12 +46,17 @@ STEP_POLICIES = ("error", "nearest", "count")
 AXES = {
     "constant": {},
     "interval": {"N": 2, "L": 2, "G": 1, "c": 1, "Yx": 1, "Yu": 1, "Yc": 1, "Xz": 1, "Xy": 1, "Dy": 1},
+    "mode": {"N": 2, "L": 2, "G": 1, "c": 1, "Yx": 1, "Yu": 1, "Yc": 1, "Xz": 1, "Xy": 1, "Dy": 1},
     "geometric": {k: 1 for k in ("N", "L", "G", "c", "Yx", "Yu", "Yc", "Xz", "Xy", "Dy")},
 }
 
 
 class StepRejected(Exception):
     """A communication step the schedule cannot take (message says what was expected)."""
+
+
+class ModeRejected(ValueError):
+    """A mode that is not one of the design's (an input error: the message names the mode and the range)."""
 
 
 def schedule_axes(spec: dict) -> dict:
@@ -76,14 +86,12 @@ class ConstantSchedule:
         self.notices: list[str] = []
         self.step_rtol = step_rtol
 
-    def step_matrices(self, k: int, h: float, h_prev: float, mode=None, theta=None) -> dict:
+    def step_matrices(self, k: int, h: float, h_prev: float, mode=None, mode_prev=None, theta=None) -> dict:
         """The matrices of step ``k`` of length ``h`` (raises :class:`StepRejected`)."""
-        if abs(h - self.dt) > self.step_rtol * self.dt:
-            raise StepRejected(f"this observer was designed for steps of dt = {self.dt!r} s and received "
-                               f"h = {h!r} s (step_policy = {self.policy!r})")
+        _period(self, h)
         return self.matrices
 
-    def output_matrices(self, k: int, h_prev: float, mode=None, theta=None) -> dict:
+    def output_matrices(self, k: int, h_prev: float, mode_prev=None, theta=None) -> dict:
         """The output matrices at communication point ``k``."""
         return self.matrices
 
@@ -96,6 +104,29 @@ class ConstantSchedule:
         return [self.dt]
 
 
+def pair_tables(matrices: dict, N: int, what: str) -> tuple[list, list]:
+    """The step matrices ``[i][j]`` and the output matrices ``[j]`` of a schedule on pairs of
+    indices (interval and mode schedules: :data:`AXES`), checked for ``N`` entries per axis."""
+    axes = AXES["interval"]
+    for name, value in matrices.items():
+        if name in axes and value.shape[0] != N or (axes.get(name) == 2 and value.shape[1] != N):
+            raise CardError(f"design card matrices.{name}: expected {N} entries per schedule axis "
+                            f"for {N} {what}, found shape {value.shape}")
+    fixed = {k: v for k, v in matrices.items() if k not in axes}
+    out = [{**fixed, **{k: matrices[k][j] for k in ("Xz", "Xy", "Dy") if k in matrices}} for j in range(N)]
+    step = [[{**fixed, **{k: matrices[k][i][j] for k in ("N", "L")},
+              **{k: matrices[k][i] for k in ("G", "c", "Yx", "Yu", "Yc") if k in matrices}}
+             for j in range(N)] for i in range(N)]
+    return step, out
+
+
+def _period(schedule, h: float) -> None:
+    """Refuse a step other than the schedule's period ``dt`` (:class:`StepRejected`)."""
+    if abs(h - schedule.dt) > schedule.step_rtol * schedule.dt:
+        raise StepRejected(f"this observer was designed for steps of dt = {schedule.dt!r} s and received "
+                           f"h = {h!r} s (step_policy = {schedule.policy!r})")
+
+
 class IntervalSchedule:
     """Matrices per pair of design intervals (h_k, h_{k-1})."""
 
@@ -106,19 +137,7 @@ class IntervalSchedule:
         self.step_rtol = step_rtol
         self.notices: list[str] = []
         self._noticed = False
-        N = len(self.intervals)
-        axes = AXES["interval"]
-        for name, value in matrices.items():
-            if name in axes and value.shape[0] != N or (axes.get(name) == 2 and value.shape[1] != N):
-                raise CardError(f"design card matrices.{name}: expected {N} entries per schedule axis "
-                                f"for {N} intervals, found shape {value.shape}")
-        fixed = {k: v for k, v in matrices.items() if k not in axes}
-        self._out = [{**fixed, **{k: matrices[k][j] for k in ("Xz", "Xy", "Dy") if k in matrices}}
-                     for j in range(N)]
-        self._step = [[{**fixed,
-                        **{k: matrices[k][i][j] for k in ("N", "L")},
-                        **{k: matrices[k][i] for k in ("G", "c", "Yx", "Yu", "Yc") if k in matrices}}
-                       for j in range(N)] for i in range(N)]
+        self._step, self._out = pair_tables(matrices, len(self.intervals), "intervals")
 
     def index(self, h: float) -> int:
         """Index of the design interval of the step ``h`` (raises :class:`StepRejected`)."""
@@ -136,11 +155,11 @@ class IntervalSchedule:
         raise StepRejected(f"step h = {h!r} s is not one of the design intervals {{{listed}}} s "
                            f"(tolerance {self.step_rtol:g} relative; step_policy = 'error')")
 
-    def step_matrices(self, k: int, h: float, h_prev: float, mode=None, theta=None) -> dict:
+    def step_matrices(self, k: int, h: float, h_prev: float, mode=None, mode_prev=None, theta=None) -> dict:
         """The matrices of the step (h_k, h_{k-1})."""
         return self._step[self.index(h)][self.index(h_prev)]
 
-    def output_matrices(self, k: int, h_prev: float, mode=None, theta=None) -> dict:
+    def output_matrices(self, k: int, h_prev: float, mode_prev=None, theta=None) -> dict:
         """The output matrices after a step h_{k-1}."""
         return self._out[self.index(h_prev)]
 
@@ -186,14 +205,13 @@ class GeometricSchedule:
             self._k = k
         return self._buf
 
-    def step_matrices(self, k: int, h: float, h_prev: float, mode=None, theta=None) -> dict:
+    def step_matrices(self, k: int, h: float, h_prev: float, mode=None, mode_prev=None, theta=None) -> dict:
         """The matrices of step k (raises :class:`StepRejected` for a step other than dt)."""
-        if self.policy == "error" and abs(h - self.dt) > self.step_rtol * self.dt:
-            raise StepRejected(f"this observer was designed for steps of dt = {self.dt!r} s and received "
-                               f"h = {h!r} s (step_policy = 'error')")
+        if self.policy == "error":
+            _period(self, h)
         return self._evaluate(k)
 
-    def output_matrices(self, k: int, h_prev: float, mode=None, theta=None) -> dict:
+    def output_matrices(self, k: int, h_prev: float, mode_prev=None, theta=None) -> dict:
         """The output matrices at communication point k."""
         return self._evaluate(k)
 
@@ -206,7 +224,48 @@ class GeometricSchedule:
         return [self.dt]
 
 
-SCHEDULES = {"constant": ConstantSchedule, "interval": IntervalSchedule, "geometric": GeometricSchedule}
+class ModeSchedule:
+    """Matrices per pair of modes (alpha_k, alpha_{k-1}) of a switched plant, period ``dt``."""
+
+    def __init__(self, spec: dict, matrices: dict, step_rtol: float = STEP_RTOL):
+        self.dt = float(spec["dt"])
+        self.modes = int(spec["modes"])
+        self.mode_prev0 = int(spec.get("mode_prev0", 1))
+        self.policy = _policy(spec)
+        if self.policy != "error":
+            raise CardError("design card schedule.step_policy: a mode schedule accepts only 'error'")
+        self.step_rtol = step_rtol
+        self.notices: list[str] = []
+        self._step, self._out = pair_tables(matrices, self.modes, "modes")
+
+    def index(self, mode, what: str = "mode") -> int:
+        """``mode - 1`` for a mode 1..N (raises :class:`ModeRejected` naming the mode and the range)."""
+        if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 1 <= mode <= self.modes:
+            raise ModeRejected(f"{what} = {mode!r} is not a mode of this observer's plant "
+                               f"(expected an integer from 1 to {self.modes})")
+        return int(mode) - 1
+
+    def step_matrices(self, k: int, h: float, h_prev: float, mode=None, mode_prev=None, theta=None) -> dict:
+        """The matrices of the step in mode ``mode`` after one in ``mode_prev``."""
+        i, j = self.index(mode), self.index(mode_prev, "mode_prev")
+        _period(self, h)
+        return self._step[i][j]
+
+    def output_matrices(self, k: int, h_prev: float, mode_prev=None, theta=None) -> dict:
+        """The output matrices after a step in mode ``mode_prev``."""
+        return self._out[self.index(mode_prev, "mode_prev")]
+
+    def initial_h_prev(self) -> float:
+        """The step assumed before the first one."""
+        return self.dt
+
+    def admissible_steps(self) -> list:
+        """The design period."""
+        return [self.dt]
+
+
+SCHEDULES = {"constant": ConstantSchedule, "interval": IntervalSchedule, "geometric": GeometricSchedule,
+             "mode": ModeSchedule}
 
 
 def make_schedule(spec: dict, matrices: dict):

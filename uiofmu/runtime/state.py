@@ -118,6 +118,25 @@ class StateReader:
             raise StateRejected(f"{self._field(key)} = {_short(v)}: expected an integer 0 <= {key} <= 2**53")
         return v
 
+    def integer(self, key: str, low: int, high: int) -> int:
+        """An integer from ``low`` to ``high`` (a mode, a seed, a generator's state).
+
+        Parameters
+        ----------
+        key : str
+            The field.
+        low, high : int
+            Its range, both included.
+
+        Returns
+        -------
+        int
+        """
+        v = self.state[key]
+        if type(v) is not int or not low <= v <= high:
+            raise StateRejected(f"{self._field(key)} = {_short(v)}: expected an integer from {low} to {high}")
+        return v
+
 
 def _short(value, limit: int = 60) -> str:
     text = repr(value)

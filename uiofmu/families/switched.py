@@ -1,0 +1,359 @@
+"""Unknown-input observer for switched linear discrete systems (Millerioux, Daafouz; seed 002).
+
+A switched plant (:mod:`uiofmu.switched_plant`) ``x+ = A_i x + B_i u + E_i d + w_i``, ``y = C x``,
+in the mode ``i = alpha_k`` known in real time. The paper's B_i (unknown input) is our ``E_i``,
+its affine E_i our ``w_i``. With ``Q_i`` solving ``Q_i C E_i = E_i`` (13) and ``P_i = I - Q_i C``,
+the observer (10), split at the communication point::
+
+    xhat_k  = z_k + Q_{alpha(k-1)} y_k
+    z_{k+1} = (P_i A_i - K_i C) xhat_k + K_i y_k + P_i (w_i + B_i u_k),     i = alpha_k
+
+gives ``e_{k+1} = Phi_i e_k`` (14) with ``Phi_i = P_i A_i - K_i C`` whatever ``d`` (``P_i E_i = 0``).
+The runtime keeps the previous mode: ``xhat`` at k uses the ``Q`` of the step before.
+
+Parametrisation (15): ``Q_i = E_i (C E_i)^+ + Y_i U_i'``, with ``U_i`` an orthonormal basis of the
+range of ``I - C E_i (C E_i)^+`` (the part of ``Y_i`` that acts: the paper's ``Y_i`` is one
+choice among many giving the same ``Q_i``). Then ``Phi_i = At_i - Kt_i Ct_i`` with
+``At_i = A_i - E_i (C E_i)^+ C A_i``, ``Ct_i = [C; U_i' C A_i]`` and ``Kt_i = [K_i, Y_i]``: the rows
+of the paper's ``C At_i`` that are not zero by construction (with as many outputs as unknown
+inputs ``Ct_i = C``, the paper's (17)-(18)).
+
+Design, LMI (16) with a decay ``lambda`` (transposed poly-quadratic form, all pairs (i, j))::
+
+    [[G_i + G_i' - S_i,          (At_i' G_i - Ct_i' F_i)'],
+     [At_i' G_i - Ct_i' F_i,     lambda^2 S_j            ]]  > 0,    I <= S_i <= t I
+
+minimising ``t``; ``Kt_i = (G_i^-1)' F_i'``. It implies ``Phi_i' S_i Phi_i < lambda^2 S_j`` for all
+(i, j), which the certificate re-checks at the stored matrices: with ``V_k = e_k' S_{alpha(k-1)} e_k``,
+``||e_k|| <= sqrt(kappa) lambda^k ||e_0||`` under arbitrary switching, ``kappa`` the ratio of the
+extreme eigenvalues of all ``S_i``. ``decay = "max"`` bisects lambda between the largest fixed
+eigenvalue of the pairs ``(At_i, Ct_i)`` (which no gain moves) and 1.
+
+Dead-beat: when every ``Ct_i`` has rank n, ``Kt_i = At_i Ct_i^+`` gives ``Phi_i = 0``; it is unique
+when ``Ct_i`` is square (seed 002's setup 2). The certificate is then ``||e_{k+1}|| <= ||Phi_i|| ||e_k||``
+at the stored matrices: decay bound ``max_i ||Phi_i||`` (round-off), overshoot 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..certificate import Check, certificate, decay_check, identity_check, lyapunov_check, positive_check
+from ..decoupling import weak_modes_condition
+from ..existence import Condition, Existence, complex_list, format_complex
+from ..lmi import Lmi, LmiSolution, LmiSystem, tune
+from ..runtime.errors import ProblemError
+from ..runtime.tolerances import RANK_RTOL, SEARCH_TOL, ZERO_MARGIN
+from ..structure import rank, unobservable_modes
+from ..switched_plant import as_switched
+from . import Analysis, DesignResult
+
+NAME = "switched"
+#: The family designs for switched plants (``[[plant.modes]]``).
+SWITCHED = True
+#: Design methods: dead-beat where every mode allows it, else the LMI; or one of them.
+METHODS = ("auto", "lmi", "deadbeat")
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of the switched UIO.
+
+    Attributes
+    ----------
+    decay : float or "max"
+        Contraction factor per step lambda in (0, 1), or ``"max"`` for the fastest certifiable.
+    dt : float
+        The plant's period.
+    xhat0 : numpy.ndarray or None
+        Initial estimate.
+    mode_prev0 : int
+        The mode assumed before the first step, alpha_{-1} (its ``Q`` gives ``z_0``).
+    method : {"auto", "lmi", "deadbeat"}
+        See :data:`METHODS`.
+    """
+
+    decay: object
+    dt: float
+    xhat0: np.ndarray | None
+    mode_prev0: int = 1
+    method: str = "auto"
+
+    @property
+    def step(self) -> float:
+        """The communication step: the plant's period."""
+        return self.dt
+
+
+def parse_options(table, plant) -> Options:
+    """Read ``[observer]``: ``decay`` (default ``"max"``), ``xhat0``, ``mode_prev0``, ``method``."""
+    plant = as_switched(plant)
+    decay = table.tunable("decay", "max", low=0.0, high=1.0, open_low=True, open_high=True)
+    xhat0 = table.vector("xhat0", plant.n, None)
+    mode_prev0 = table.get("mode_prev0", 1)
+    if isinstance(mode_prev0, bool) or not isinstance(mode_prev0, int) or not 1 <= mode_prev0 <= plant.N:
+        raise ProblemError(f"observer.mode_prev0: expected a mode from 1 to {plant.N}, found {repr(mode_prev0)[:40]}")
+    if table.has("dt"):
+        raise ProblemError(f"observer.dt: a discrete plant fixes the period (plant.dt = {plant.dt:g}); remove observer.dt")
+    return Options(decay, plant.dt, xhat0, mode_prev0, table.choice("method", METHODS, "auto"))
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One mode's decoupled data: ``At``, ``Ct`` of (15), the forced part of ``Q`` and the basis ``U``."""
+
+    A: np.ndarray
+    B: np.ndarray
+    E: np.ndarray
+    w: np.ndarray
+    At: np.ndarray
+    Ct: np.ndarray
+    Q0: np.ndarray
+    U: np.ndarray
+    fixed: np.ndarray
+
+
+def decoupled_mode(plant, C) -> Mode:
+    """(13) and (15) for one mode: ``Q0 = E (CE)^+``, ``At = A - Q0 C A``, ``U`` spanning the range of
+    ``I - CE (CE)^+``, ``Ct = [C; U' C A]``, and the fixed eigenvalues of ``(At, Ct)``."""
+    CE = C @ plant.E
+    Q0 = plant.E @ np.linalg.pinv(CE)
+    At = plant.A - Q0 @ C @ plant.A
+    u, s, _ = np.linalg.svd(CE, full_matrices=True)
+    r = int(np.sum(s > RANK_RTOL * max(1.0, float(s[0]) if s.size else 0.0)))
+    U = u[:, r:]
+    Ct = np.vstack([C, U.T @ C @ plant.A])
+    return Mode(plant.A, plant.B, plant.E, plant.w, At, Ct, Q0, U, unobservable_modes(At, Ct))
+
+
+def _analysis(problem):
+    plant, opts = as_switched(problem.plant), problem.options
+    C = plant.C
+    conds, modes = [], []
+    for i, mp in enumerate(plant.modes):
+        tag = f" in mode {i + 1}"
+        rce, re, q = rank(C @ mp.E), rank(mp.E), mp.E.shape[1]
+        ok = rce == re
+        conds.append(Condition(f"rank(CE_{i + 1}) = rank(E_{i + 1})", ok, True,
+                               f"rank(CE) = {rce} = rank(E){tag}" if ok else
+                               f"rank(CE) = {rce} < rank(E) = {re}{tag}: the unknown input cannot be decoupled",
+                               {"mode": i + 1, "rank_CE": rce, "rank_E": re}))
+        conds.append(Condition(f"rank(CE_{i + 1}) = q", rce == q, False,
+                               f"rank(CE) = q = {q}{tag}: dhat is estimated by inversion" if rce == q else
+                               f"rank(CE) = {rce} < q = {q}{tag}: the unknown input is not identifiable, no dhat",
+                               {"mode": i + 1, "rank_CE": rce, "q": q}))
+        if not ok:
+            continue
+        md = decoupled_mode(mp, C)
+        modes.append(md)
+        moduli = np.abs(md.fixed)
+        largest = float(moduli.max()) if moduli.size else 0.0
+        det = bool(np.all(moduli < 1 - ZERO_MARGIN))
+        what = " (the invariant zeros of (A_i, E_i, C))" if C.shape[0] == q else ""
+        shown = ", ".join(f"{format_complex([z])} (|z| = {abs(z):.6g})" for z in md.fixed if z.imag >= 0)
+        if not md.fixed.size:
+            msg = f"(At_{i + 1}, Ct_{i + 1}) is observable{tag}: every eigenvalue can be placed"
+        elif det:
+            msg = f"fixed eigenvalues of (At_{i + 1}, Ct_{i + 1}){what}: {shown}; all inside the unit circle"
+        else:
+            msg = (f"(At_{i + 1}, Ct_{i + 1}) is not detectable: fixed eigenvalues{what} {shown}; no gain moves "
+                   f"the one(s) on or outside the unit circle, so no observer of this form converges")
+        conds.append(Condition(f"detectable (At_{i + 1}, Ct_{i + 1})", det, True, msg,
+                               {"mode": i + 1, "fixed_eigenvalues": complex_list(md.fixed),
+                                "moduli": moduli.tolist(), "largest_fixed_modulus": largest,
+                                "rank_Ct": rank(md.Ct)}))
+        weak = weak_modes_condition(mp.A, mp.E, C, tag)
+        conds.append(Condition(f"well observable modes of mode {i + 1}", weak.holds, False, weak.message,
+                               weak.values))
+    largest = max((float(np.abs(md.fixed).max()) for md in modes if md.fixed.size), default=0.0)
+    deadbeat = len(modes) == plant.N and all(rank(md.Ct) == plant.n for md in modes)
+    if len(modes) == plant.N:
+        conds.append(Condition("dead-beat possible", deadbeat, False,
+                               "rank Ct_i = n in every mode: Phi_i = 0 is reachable (one-step dead-beat)" if deadbeat
+                               else "some Ct_i has rank < n: no one-step dead-beat observer; the LMI design decides",
+                               {"ranks_Ct": [rank(md.Ct) for md in modes], "n": plant.n}))
+    if opts.decay != "max" and modes and all(c.holds for c in conds if c.required):
+        ok = opts.decay > largest + ZERO_MARGIN
+        conds.append(Condition(
+            "decay above fixed eigenvalues", ok, True,
+            f"requested decay {opts.decay:g} > largest fixed eigenvalue modulus {largest:.6g}" if ok else
+            f"requested decay {opts.decay:g} <= largest fixed eigenvalue modulus {largest:.6g}: no gain moves "
+            "that eigenvalue; ask for a slower decay or decay = \"max\"",
+            {"decay": opts.decay, "largest_fixed_modulus": largest}))
+    return Existence(NAME, tuple(conds)), modes, largest, deadbeat
+
+
+def analyse(problem) -> Analysis:
+    """Per mode: rank(CE_i) = rank(E_i), rank(CE_i) = q, the fixed eigenvalues of (At_i, Ct_i) and
+    their moduli, the weakly observable modes; whether dead-beat is possible; the requested decay."""
+    existence, modes, largest, deadbeat = _analysis(problem)
+    return Analysis(existence, {"modes": modes, "largest": largest, "deadbeat": deadbeat})
+
+
+def _lmis(modes):
+    N, n = len(modes), modes[0].A.shape[0]
+
+    def build(v, prm, ops):
+        out = []
+        scaled = [prm["lam2"] * v[f"S{j}"] for j in range(N)]
+        for i, md in enumerate(modes):
+            G, S = v[f"G{i}"], v[f"S{i}"]
+            out.append(Lmi(f"S_{i + 1} >= I", S - ops.eye(n), strict=False))
+            out.append(Lmi(f"S_{i + 1} <= t I", v["t"] * ops.eye(n) - S, strict=False))
+            M = md.At.T @ G - md.Ct.T @ v[f"F{i}"]
+            corner = G + G.T - S
+            for j in range(N):
+                out.append(Lmi(f"(16) i={i + 1} j={j + 1}", ops.bmat([[corner, M.T], [M, scaled[j]]])))
+        return out
+
+    variables = {"t": ("scalar",)}
+    for i, md in enumerate(modes):
+        variables[f"G{i}"] = ("matrix", (n, n))
+        variables[f"F{i}"] = ("matrix", (md.Ct.shape[0], n))
+        variables[f"S{i}"] = ("symmetric", n)
+    return LmiSystem(f"{NAME} (16)", variables, {"lam2": 0.98}, build, objective=lambda v: v["t"],
+                     homogeneous=True)
+
+
+def _gains(modes, values) -> list:
+    """``Kt_i = (G_i^-1)' F_i'`` of an LMI point."""
+    return [np.linalg.solve(values[f"G{i}"].T, values[f"F{i}"].T) for i in range(len(modes))]
+
+
+def _deadbeat(modes) -> list:
+    """``Kt_i = At_i Ct_i^+`` (``Phi_i = 0`` when ``Ct_i`` has rank n)."""
+    return [md.At @ np.linalg.pinv(md.Ct) for md in modes]
+
+
+def _runtime(modes, Kt, C, has_dhat: bool) -> dict:
+    """The card's matrices from the gains: runtime (``N[i][j] = Phi_i``, ``L[i][j] = K_i + Phi_i Q_j``,
+    ``G[i] = P_i B_i``, ``c[i] = P_i w_i``, ``Xz[j] = I``, ``Xy[j] = Q_j``, dhat's ``Dy[j]``, ``Yx[i]``,
+    ``Yu[i]``, ``Yc[i]``) and the family's (``K``, ``Y``, ``Q``, ``P``, ``Phi`` and the modes)."""
+    N, n, p = len(modes), C.shape[1], C.shape[0]
+    K = np.array([kt[:, :p] for kt in Kt])
+    Y = [kt[:, p:] for kt in Kt]
+    Q = np.array([md.Q0 + y @ md.U.T for md, y in zip(modes, Y)])
+    P = np.eye(n)[None] - Q @ C
+    A = np.array([md.A for md in modes])
+    Phi = P @ A - K @ C
+    mats = {"N": np.repeat(Phi[:, None], N, axis=1), "L": K[:, None] + Phi[:, None] @ Q[None, :],
+            "G": P @ np.array([md.B for md in modes]), "c": np.einsum("kij,kj->ki", P, [md.w for md in modes]),
+            "Xz": np.repeat(np.eye(n)[None], N, axis=0), "Xy": Q, "C": C,
+            "K": K, "Q": Q, "P": P, "Phi": Phi, "A_modes": A, "B_modes": np.array([md.B for md in modes]),
+            "E_modes": np.array([md.E for md in modes]), "w_modes": np.array([md.w for md in modes])}
+    if has_dhat:
+        mats.update({"Dy": np.array([np.linalg.pinv(C @ md.E) for md in modes]), "Yx": C @ A,
+                     "Yu": C @ mats["B_modes"], "Yc": mats["w_modes"] @ C.T})
+    return mats
+
+
+def checks(matrices: dict, decay: float) -> list:
+    """The certificate's checks at the stored matrices, worst case over the modes and pairs.
+
+    Decoupling ``P_i E_i = 0``, ``P_i = I - Q_i C``, the runtime's ``N[i][j] = Phi_i = P_i A_i - K_i C``,
+    ``L[i][j] = K_i + Phi_i Q_j``, ``G[i] = P_i B_i``, ``c[i] = P_i w_i``, ``Xz = I``, ``Xy = Q``; with a
+    Lyapunov matrix ``S`` (LMI design) ``S_i > 0`` and ``decay^2 S_j - Phi_i' S_i Phi_i > 0`` for all
+    (i, j), without one (dead-beat) ``||Phi_i|| <= decay``; and ``decay < 1``.
+    """
+    g = {k: np.asarray(v, dtype=float) for k, v in matrices.items()}
+    C, K, Q, P, Phi = g["C"], g["K"], g["Q"], g["P"], g["Phi"]
+    A, B, E, w = g["A_modes"], g["B_modes"], g["E_modes"], g["w_modes"]
+    n = C.shape[1]
+
+    def two(x):
+        return np.linalg.norm(x, 2, axis=(-2, -1)) if x.size else np.zeros(x.shape[:-2])
+
+    def worst(residuals, scales):
+        """The (residual, scale) pair of the mode nearest to failing."""
+        i = int(np.argmax(residuals / np.maximum(1.0, scales)))
+        return residuals[i], scales[i]
+
+    res = {
+        "decoupling ||P_i E_i||": worst(two(P @ E), two(E)),
+        "||P_i - (I - Q_i C)||": worst(two(P - np.eye(n) + Q @ C), np.ones(len(P))),
+        "||Phi_i - (P_i A_i - K_i C)||": worst(two(Phi - P @ A + K @ C), two(A)),
+        "||N_ij - Phi_i||": worst(two(g["N"] - Phi[:, None]).max(axis=1), two(Phi)),
+        "||L_ij - (K_i + Phi_i Q_j)||": worst(two(g["L"] - K[:, None] - Phi[:, None] @ Q[None, :]).max(axis=1),
+                                              two(K) + two(Phi) * two(Q).max()),
+        "||G_i - P_i B_i||": worst(two(g["G"] - P @ B), two(B)),
+        "||c_i - P_i w_i||": worst(np.linalg.norm(g["c"] - np.einsum("kij,kj->ki", P, w), axis=1),
+                                   np.linalg.norm(w, axis=1)),
+        "||Xz_j - I||": worst(two(g["Xz"] - np.eye(n)[None]), np.ones(len(P))),
+        "||Xy_j - Q_j||": worst(two(g["Xy"] - Q), two(Q)),
+    }
+    out = [identity_check(name, np.array([r]), s) for name, (r, s) in res.items()]
+    if "S" in g:
+        S = g["S"]
+        out.append(min((positive_check(f"eig_min(S_{i + 1})", S[i]) for i in range(len(S))), key=lambda c: c.value))
+        out.append(min((lyapunov_check(f"eig_min(decay^2 S_{j + 1} - Phi_{i + 1}' S_{i + 1} Phi_{i + 1})", Phi[i],
+                                       S[i], decay, S[j]) for i in range(len(S)) for j in range(len(S))),
+                       key=lambda c: c.value))
+    else:
+        norm = float(two(Phi).max())
+        out.append(Check("dead-beat max ||Phi_i|| <= decay", norm, decay))
+    out.append(decay_check(decay))
+    return out
+
+
+def verify(card) -> list:
+    """Re-check a card's certificate from its matrices alone (no solver)."""
+    return checks(card.data["matrices"], card.data["decay_bound"])
+
+
+def _closed_form(lam: float, status: str) -> LmiSolution:
+    """The record of a design without a solve (its certificate is the re-check at the stored matrices)."""
+    return LmiSolution({}, {"lam2": lam * lam}, status, {}, True, 0.0, 0.0)
+
+
+def design(problem, analysis: Analysis) -> DesignResult:
+    """Design the switched UIO: dead-beat where possible (``method = "auto"``), else LMI (16)."""
+    plant, opts = as_switched(problem.plant), problem.options
+    modes, largest, deadbeat = analysis.data["modes"], analysis.data["largest"], analysis.data["deadbeat"]
+    existence = analysis.existence
+    C = plant.C
+    has_dhat = all(existence.holds(f"rank(CE_{i + 1}) = q") for i in range(plant.N))
+    system = _lmis(modes)
+    if opts.method == "deadbeat" and not deadbeat:
+        ranks = [rank(md.Ct) for md in modes]
+        raise ProblemError(f'observer.method = "deadbeat": needs rank Ct_i = n = {plant.n} in every mode, '
+                           f"found ranks {ranks}")
+    searched = None
+    if deadbeat and opts.method != "lmi":
+        mats = _runtime(modes, _deadbeat(modes), C, has_dhat)
+        norm = float(np.linalg.norm(mats["Phi"], 2, axis=(-2, -1)).max())
+        lam = norm if opts.decay == "max" else max(float(opts.decay), norm)
+        sol = _closed_form(lam, "closed form (dead-beat: Kt_i = At_i Ct_i^+)")
+        method, solver, overshoot = "deadbeat", "none", 1.0
+    else:
+        tuned = tune(system, "lam2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
+                     safe_end=1.0, tol=SEARCH_TOL, label=f"{problem.name}: fastest decay",
+                     transform=lambda r: r * r, name="decay")
+        lam, sol = tuned.value, tuned.solution
+        searched = tuned.search.to_data() if tuned.search else None
+        mats = _runtime(modes, _gains(modes, sol.values), C, has_dhat)
+        S = np.array([0.5 * (sol.values[f"S{i}"] + sol.values[f"S{i}"].T) for i in range(len(modes))])
+        mats["S"] = S
+        eig = np.linalg.eigvalsh(S)
+        overshoot = float(np.sqrt(eig.max() / eig.min()))
+        method, solver = "lmi", "CLARABEL"
+    cert = certificate(sol, checks(mats, lam), f"{NAME} design of {problem.name}", solver=solver)
+    results = {
+        "decay": lam,
+        "decay_bound": lam,
+        "overshoot_bound": overshoot,
+        "bound": "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0|| under arbitrary switching",
+        "modes": plant.N,
+        "fixed_eigenvalues": [complex_list(md.fixed) for md in modes],
+        "largest_fixed_modulus": largest,
+        "spectral_radius_Phi": [float(np.abs(np.linalg.eigvals(F)).max()) for F in mats["Phi"]],
+        "search": searched,
+        "design_method": method,
+    }
+    schedule = {"kind": "mode", "dt": plant.dt, "modes": plant.N, "mode_prev0": opts.mode_prev0,
+                "step_policy": "error"}
+    return DesignResult(plant.n, plant.dt, schedule, mats, cert, results, system, opts.xhat0)
+
+
+__all__ = ["NAME", "Options", "analyse", "checks", "design", "parse_options", "verify"]
