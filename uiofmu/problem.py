@@ -107,6 +107,9 @@ class Problem:
         The family's frozen options (see the family module).
     u, d : tuple of Signal
         Default co-simulation inputs per channel.
+    mode : tuple of Signal
+        The mode of a switched plant whose rule is ``input`` (one signal, rounded to the nearest
+        integer at each communication point), or empty.
     data : dict
         The problem as data (what the design card records).
     """
@@ -118,6 +121,7 @@ class Problem:
     u: tuple[Signal, ...]
     d: tuple[Signal, ...]
     data: dict
+    mode: tuple[Signal, ...] = ()
 
 
 def _model_name(name: str) -> str:
@@ -171,9 +175,15 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     st = Table(top.get("signals", {}), "signals")
     u = parse_signals(st.get("u", None), "signals.u", plant.m)
     d = parse_signals(st.get("d", None), "signals.d", plant.q)
+    mode = ()
+    if st.has("mode"):
+        if getattr(plant, "switching", {}).get("rule") != "input":
+            raise ProblemError('signals.mode: only a switched plant whose [plant.switching] rule = "input" takes its '
+                               "mode from the signals")
+        mode = parse_signals(st.get("mode"), "signals.mode", 1)
     st.done()
     top.done()
-    return Problem(_model_name(name), plant, family, options, u, d, copy.deepcopy(data))
+    return Problem(_model_name(name), plant, family, options, u, d, copy.deepcopy(data), mode)
 
 
 def _available() -> list[str]:

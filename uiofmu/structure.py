@@ -250,3 +250,53 @@ def is_stable(values: np.ndarray, continuous: bool, margin: float = 0.0) -> bool
     if continuous:
         return bool(np.all(values.real < -margin))
     return bool(np.all(np.abs(values) < 1.0 - margin))
+
+
+def product_radius(maps, max_length: int = 3, max_products: int = 4096) -> tuple[float, tuple]:
+    """A lower bound on the joint spectral radius of ``maps``: the largest
+    ``rho(F_{i_L} ... F_{i_1}) ** (1 / L)`` over every product of length ``L <= max_length``.
+
+    Under arbitrary switching among the maps no quadratic (or other) certificate contracts
+    faster than the joint spectral radius, so this bounds every certified decay from below,
+    and a value of 1 or more proves that some switching sequence does not converge.
+
+    Parameters
+    ----------
+    maps : sequence of (m, m) arrays
+    max_length : int
+        Longest product tried.
+    max_products : int
+        A length with more products than this (``N ** L``) is not tried.
+
+    Returns
+    -------
+    radius : float
+        The bound (0.0 for maps of size 0).
+    sequence : tuple of int
+        The indices ``(i_1, ..., i_L)`` of the product that attains it, in the order applied.
+    """
+    F = np.asarray(maps, dtype=float)
+    N, m = F.shape[0], F.shape[1]
+    best, seq = 0.0, (0,)
+    if m == 0:
+        return 0.0, ()
+    products = F
+    for length in range(1, max_length + 1):          # every product F_{i_L} ... F_{i_1}, all at once
+        if length > 1:
+            if N ** length > max_products:
+                break
+            products = (F[:, None] @ products[None]).reshape(-1, m, m)
+        radius = np.abs(np.linalg.eigvals(products)).max(axis=-1) ** (1.0 / length)
+        k = int(np.argmax(radius))
+        if radius[k] > best * (1 + 1e-12):
+            best, seq = float(radius[k]), tuple(reversed(np.unravel_index(k, (N,) * length)))
+    return best, tuple(int(i) for i in seq)
+
+
+def kernel_maps(matrices, C: np.ndarray) -> list:
+    """The maps ``V' M_i V`` on ``ker C`` (``V`` an orthonormal basis) of matrices that leave
+    ``ker C`` invariant: with as many outputs as unknown inputs, the error of an exactly decoupling
+    observer there evolves by these whatever its gains."""
+    p = C.shape[0]
+    basis = np.linalg.svd(C)[2][p:].T
+    return [basis.T @ M @ basis for M in matrices]

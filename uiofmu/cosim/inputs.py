@@ -24,15 +24,16 @@ from ..signals import Signal
 
 
 class SignalInputs:
-    """Inputs from signal definitions (sums of terms per channel): the vectors ``u`` and ``d``."""
+    """Inputs from signal definitions (sums of terms per channel): the vectors ``u`` and ``d``, and
+    ``mode`` when given (a switched plant driven by its input; rounded to an integer by the master)."""
 
-    def __init__(self, u: tuple[Signal, ...], d: tuple[Signal, ...]):
-        self.u_signals, self.d_signals = u, d
-        self.sizes = {"u": len(u), "d": len(d)}
+    def __init__(self, u: tuple[Signal, ...], d: tuple[Signal, ...], mode: tuple[Signal, ...] = ()):
+        self.signals = {"u": u, "d": d, **({"mode": mode} if mode else {})}
+        self.sizes = {name: len(s) for name, s in self.signals.items()}
 
     def values(self, t: float) -> dict:
-        """``{"u": u(t), "d": d(t)}``."""
-        return {"u": np.array([s(t) for s in self.u_signals]), "d": np.array([s(t) for s in self.d_signals])}
+        """``{"u": u(t), "d": d(t)}`` (and ``"mode"``)."""
+        return {name: np.array([s(t) for s in signals]) for name, signals in self.signals.items()}
 
 
 class CsvInputs:

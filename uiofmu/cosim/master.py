@@ -43,6 +43,7 @@ class CosimResult:
     metrics: dict = field(default_factory=dict)
     card: Card | None = None
     bound: np.ndarray | None = None
+    mode: np.ndarray | None = None
 
     def columns(self) -> dict:
         """Named columns for ``results.csv``."""
@@ -51,6 +52,8 @@ class CosimResult:
             arr = getattr(self, name)
             for i in range(arr.shape[1]):
                 cols[f"{name}[{i + 1}]"] = arr[:, i]
+        if self.mode is not None:
+            cols["mode"] = self.mode
         cols["error_norm"] = np.linalg.norm(self.x - self.xhat, axis=1)
         return cols
 
@@ -81,7 +84,7 @@ def default_inputs(card: Card):
     from ..problem import problem_from_data
 
     problem = problem_from_data(card.data["problem"], default_name=card.name)
-    return SignalInputs(problem.u, problem.d)
+    return SignalInputs(problem.u, problem.d, problem.mode)
 
 
 def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, plant_x0=None, xhat0=None,
@@ -129,6 +132,7 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         X, XH, Y = np.zeros((K + 1, n)), np.zeros((K + 1, n)), np.zeros((K + 1, p))
         U, D, R, DH = np.zeros((K + 1, m)), np.zeros((K + 1, q)), np.zeros((K + 1, p)), np.zeros((K + 1, nq))
         plant_inputs = list(plant.ports("input"))
+        MODE = np.zeros(K + 1) if obs.has("mode") else None
         t = 0.0
         with progress(total=K, desc="co-simulation", unit="step", enabled=show_progress) as bar:
             for k in range(K + 1):
@@ -141,6 +145,8 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
                     obs.set(name, values[name])
                 y = plant.get("y")
                 T[k], X[k], Y[k] = t, plant.get("x"), y
+                if MODE is not None:
+                    MODE[k] = (plant.get("mode") if "mode" in fed else np.round(values["mode"]))[0]
                 U[k], D[k] = values.get("u", U[k]), values.get("d", D[k])
                 XH[k], R[k], DH[k] = obs.get("xhat"), obs.get("r"), obs.get("dhat")
                 if k == K:
@@ -154,7 +160,7 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
                                        + (exc.messages[-1] if exc.messages else str(exc))) from None
                 t = float(np.sum(steps[:k + 1])) if k % 1024 == 1023 else t + h
                 bar.update()
-    result = CosimResult(T, steps, X, XH, Y, U, D, R, DH, card=card)
+    result = CosimResult(T, steps, X, XH, Y, U, D, R, DH, card=card, mode=MODE)
     bound = certified_bound(card, X[0] - XH[0], D)
     result.bound = bound
     result.metrics = error_metrics(T, steps, X, XH, bound, card.data.get("decay_bound"),
@@ -165,6 +171,10 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
             text = (text.replace("overshoot_bound", f"{card.data['overshoot_bound']:.4g}")
                     .replace("decay_bound**k", f"{card.data['decay_bound']:.6g}^k"))
         result.metrics["bound_formula"] = text
+    if MODE is not None:
+        result.metrics["modes"] = {"switches": int(np.count_nonzero(np.diff(MODE[:-1]))),
+                                   "steps_in_mode": {str(int(i)): int(np.count_nonzero(MODE[:-1] == i))
+                                                     for i in np.unique(MODE[:-1])}}
     return result
 
 

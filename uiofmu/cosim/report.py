@@ -60,10 +60,19 @@ def plot_report(result, path, title: str | None = None) -> Path:
     ax.grid(alpha=0.3, which="both")
 
     ax = axes[1, 0]
-    ax.step(t[:-1], result.h, where="post", lw=1.2)
-    ax.set_title(f"communication steps ({len(result.h)} steps, h in [{result.h.min():.4g}, {result.h.max():.4g}] s)")
+    if result.mode is not None:
+        modes = result.mode[:-1]
+        ax.step(t[:-1], modes, where="post", lw=1.2)
+        ax.set_yticks(np.unique(modes))
+        ax.set_title(f"mode of each step ({m['modes']['switches']} switches; {len(result.h)} steps of "
+                     f"{result.h.min():.4g} s)")
+        ax.set_ylabel("alpha_k")
+    else:
+        ax.step(t[:-1], result.h, where="post", lw=1.2)
+        ax.set_title(f"communication steps ({len(result.h)} steps, h in [{result.h.min():.4g}, "
+                     f"{result.h.max():.4g}] s)")
+        ax.set_ylabel("h_k [s]")
     ax.set_xlabel(f"time [{unit}]")
-    ax.set_ylabel("h_k [s]")
     ax.grid(alpha=0.3)
 
     ax = axes[1, 1]

@@ -90,6 +90,10 @@ def _observer(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None
         fmu.set("u", u)
         rt.set_y(y)
         rt.set_u(u)
+        if rt.modes:                                   # a switched plant's mode, at random
+            mode = int(rng.integers(1, rt.modes + 1))
+            fmu.set("mode", [mode])
+            rt.set_mode(mode)
         got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")])
         ref = np.concatenate([rt.xhat(), rt.residual(), rt.dhat() if rt.has_dhat else []])
         _compare(report, got, ref)
@@ -101,8 +105,36 @@ def _observer(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None
     report.steps = steps
 
 
+def _switched_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng) -> None:
+    """A switched plant FMU against :class:`~uiofmu.runtime.switching.SwitchedPlantRuntime`: states,
+    outputs and modes (rule ``input``: random modes set on both)."""
+    from ..runtime.switching import SwitchedPlantRuntime
+
+    ref = SwitchedPlantRuntime(data)
+    ref.x0 = rng.normal(size=ref.n)
+    ref.reset()
+    fmu.initialize(0.0, {"x0": ref.x0})
+    t = 0.0
+    for _ in range(steps):
+        ref.u[:], ref.d[:] = 0.1 * rng.normal(size=ref.m), 0.1 * rng.normal(size=ref.q)
+        fmu.set("u", ref.u)
+        fmu.set("d", ref.d)
+        if ref.rule == "input":
+            ref.mode_in = int(rng.integers(1, ref.N + 1))
+            fmu.set("mode", [ref.mode_in])
+        _compare(report, np.concatenate([fmu.get("x"), fmu.get("y"), fmu.get("mode")]),
+                 np.concatenate([ref.x, ref.y(), [ref.mode()]]))
+        fmu.step(t, ref.dt)
+        ref.step(ref.dt)
+        t += ref.dt
+    _compare(report, fmu.get("x"), ref.x)
+    report.steps = steps
+
+
 def _plant(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
     data = spec["plant"]
+    if "modes" in data:
+        return _switched_plant(fmu, data, report, steps, rng)
     plant = Plant.create(data["A"], data["C"], data["E"], data["B"] or None, time=data["time"],
                          dt=data.get("dt"), w=data.get("w"), x0=data["x0"])
     report.tolerance = PLANT_RTOL

@@ -46,7 +46,7 @@ from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSolution, LmiSystem, tune
 from ..runtime.errors import ProblemError
 from ..runtime.tolerances import RANK_RTOL, SEARCH_TOL, ZERO_MARGIN
-from ..structure import rank, unobservable_modes
+from ..structure import kernel_maps, product_radius, rank, unobservable_modes
 from ..switched_plant import as_switched
 from . import Analysis, DesignResult
 
@@ -96,7 +96,8 @@ def parse_options(table, plant) -> Options:
     if isinstance(mode_prev0, bool) or not isinstance(mode_prev0, int) or not 1 <= mode_prev0 <= plant.N:
         raise ProblemError(f"observer.mode_prev0: expected a mode from 1 to {plant.N}, found {repr(mode_prev0)[:40]}")
     if table.has("dt"):
-        raise ProblemError(f"observer.dt: a discrete plant fixes the period (plant.dt = {plant.dt:g}); remove observer.dt")
+        raise ProblemError(f"observer.dt: a switched plant fixes the period (plant.dt = {plant.dt:g}); "
+                           "remove observer.dt")
     return Options(decay, plant.dt, xhat0, mode_prev0, table.choice("method", METHODS, "auto"))
 
 
@@ -168,6 +169,10 @@ def _analysis(problem):
         conds.append(Condition(f"well observable modes of mode {i + 1}", weak.holds, False, weak.message,
                                weak.values))
     largest = max((float(np.abs(md.fixed).max()) for md in modes if md.fixed.size), default=0.0)
+    if len(modes) == plant.N and C.shape[0] == plant.q and all(c.holds for c in conds if c.required):
+        cond = _switching_condition(modes, C)
+        conds.append(cond)
+        largest = max(largest, cond.values["switching_radius"])
     deadbeat = len(modes) == plant.N and all(rank(md.Ct) == plant.n for md in modes)
     if len(modes) == plant.N:
         conds.append(Condition("dead-beat possible", deadbeat, False,
@@ -183,6 +188,26 @@ def _analysis(problem):
             "that eigenvalue; ask for a slower decay or decay = \"max\"",
             {"decay": opts.decay, "largest_fixed_modulus": largest}))
     return Existence(NAME, tuple(conds)), modes, largest, deadbeat
+
+
+def _switching_condition(modes, C) -> Condition:
+    """With as many outputs as unknown inputs ``C At_i = 0``, so ``ker C`` is invariant under every
+    ``Phi_i`` and the error there evolves by ``At_i`` restricted to it, whatever the gains
+    (:func:`uiofmu.structure.kernel_maps`). The joint spectral radius of those maps bounds every
+    decay from below; a product of them with spectral radius 1 or more per step (sequences of up
+    to three modes, :func:`uiofmu.structure.product_radius`) proves that some switching sequence
+    does not converge."""
+    radius, seq = product_radius(kernel_maps([md.At for md in modes], C))
+    text = " ".join(str(i + 1) for i in seq)
+    values = {"switching_radius": radius, "sequence": [i + 1 for i in seq]}
+    if radius >= 1 - ZERO_MARGIN:
+        return Condition("fixed error under switching", False, True,
+                         f"repeating the modes {text} multiplies the error that no gain moves (on ker C) by "
+                         f"{radius:.6g} per step (spectral radius of the product, per step): no observer of this "
+                         "form converges under arbitrary switching", values)
+    return Condition("fixed error under switching", True, False,
+                     f"the error no gain moves (on ker C) contracts under switching at best by {radius:.6g} "
+                     f"per step (lower bound of its joint spectral radius, from the modes {text})", values)
 
 
 def analyse(problem) -> Analysis:
