@@ -58,6 +58,22 @@ def ports(fmu, causality: str) -> dict:
     return {k: [g[i] for i in sorted(g)] for k, g in groups.items()}
 
 
+def integer_variables(fmu) -> set:
+    """The names of the FMU's Integer variables (``mode[1]``, ``seed[1]``, ...).
+
+    Parameters
+    ----------
+    fmu : str or Path
+
+    Returns
+    -------
+    set of str
+    """
+    from fmpy import read_model_description
+
+    return {v.name for v in read_model_description(str(fmu)).modelVariables if v.type == "Integer"}
+
+
 def default_step(fmu) -> float:
     """The ``stepSize`` of the FMU's ``<DefaultExperiment>``.
 
@@ -136,7 +152,8 @@ def run_ecospy(plant_fmu, observer_fmu, step: float, t_end: float, inputs=None) 
     """Co-simulate a plant FMU and an observer FMU in ecospy at a fixed communication step.
 
     Every observer input named like a plant output (``y``; ``mode``, ``theta``, ``ydot`` where the
-    plant has them) is connected element by element (``plant::y[i]`` to ``observer::y[i]``).
+    plant has them) is connected element by element (``plant::y[i]`` to ``observer::y[i]``), by an
+    Integer connection where the variables are Integer (``mode``).
 
     Parameters
     ----------
@@ -171,6 +188,7 @@ def run_ecospy(plant_fmu, observer_fmu, step: float, t_end: float, inputs=None) 
     obs_out, obs_in = ports(observer_fmu, "output"), ports(observer_fmu, "input")
     if "x" not in plant_out or "xhat" not in obs_out:
         raise ValueError("the plant needs outputs x[i] and the observer outputs xhat[i]")
+    integers = {"plant": integer_variables(plant_fmu), "observer": integer_variables(observer_fmu)}
     fed = [name for name in obs_in if name in plant_out]
     sinks = [("plant", name, plant_in[name]) for name in plant_in]
     sinks += [("observer", name, obs_in[name]) for name in obs_in if name not in fed]
@@ -184,7 +202,10 @@ def run_ecospy(plant_fmu, observer_fmu, step: float, t_end: float, inputs=None) 
         ss.add_model("plant", Path(plant_fmu).resolve())
         ss.add_model("observer", Path(observer_fmu).resolve())
         for source, sink in connections:
-            ss.make_real_connection(source, sink)
+            if source.split("::", 1)[1] in integers["plant"]:
+                ss.make_int_connection(source, sink)
+            else:
+                ss.make_real_connection(source, sink)
         with EcosSimulation(structure=ss, step_size=float(step)) as sim:
             seconds["build"] = time.perf_counter() - t0
             T, X, XH = np.zeros(K + 1), np.zeros((K + 1, len(x_ids))), np.zeros((K + 1, len(xhat_ids)))
@@ -196,7 +217,10 @@ def run_ecospy(plant_fmu, observer_fmu, step: float, t_end: float, inputs=None) 
                 values = inputs.values(t)
                 for who, name, names in sinks:
                     for v, value in zip(names, np.ravel(values[name])):
-                        sim.set_real(f"{who}::{v}", float(value))
+                        if v in integers[who]:
+                            sim.set_integer(f"{who}::{v}", int(round(float(value))))
+                        else:
+                            sim.set_real(f"{who}::{v}", float(value))
 
             def record(k: int) -> None:
                 T[k] = sim.get_time()

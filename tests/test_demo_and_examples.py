@@ -32,6 +32,8 @@ def test_demo(cli, tmp_path):
     ("seed000_ltv_vs_classical.py", ["fig1_x2_estimates.png", "fig2_eigenvalues.png", "fig6_alpha.png",
                                      "ltv/metrics.json", "example1_comparison.json"]),
     ("card_from_someone_else.py", ["observer.fmu", "hostile.fmu"]),
+    ("seed002_switched.py", ["fig2_threshold.png", "fig2_random.png", "three_modes.png", "summary.json",
+                             "setup2_threshold/metrics.json", "three_modes/report.png"]),
 ])
 def test_example_scripts(script, outputs, tmp_path):
     """Each script runs in a temporary folder and writes there (UIOFMU_EXAMPLES_OUT), not into examples/out."""
@@ -44,6 +46,12 @@ def test_example_scripts(script, outputs, tmp_path):
         assert "unchanged after the refused builds: True" in proc.stdout
         assert "PWNED exists: False" in proc.stdout and proc.stdout.count("exit 2") == 2
         assert not (tmp_path / "PWNED").exists()
+    if script == "seed002_switched.py":
+        summary = json.loads((tmp_path / "out" / "seed002_switched" / "summary.json").read_text())
+        assert not summary["setup1"]["exists"]
+        assert max(summary["setup2"]["largest_gap_to_paper"].values()) < 1e-3
+        assert summary["setup2_threshold"]["largest_relative_error_after_one_step"] < 1e-9
+        assert summary["three_modes"]["bound_respected"]
     folder = tmp_path / "out" / {"seed000_ltv_vs_classical.py": "seed000_ltv"}.get(script, script.removesuffix(".py"))
     for name in outputs:
         assert (folder / name).stat().st_size > 0

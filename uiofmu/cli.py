@@ -139,6 +139,19 @@ def print_summary(metrics: dict, paths: dict | None = None, file=None) -> None:
     """The co-simulation summary a person reads first."""
     file = file or sys.stdout
     p = lambda *a: print(*a, file=file)  # noqa: E731
+    if "steps_to_exact" in metrics:
+        p(f"  steps                {metrics['steps']} (h = {metrics['step_min']:g} s)")
+        p(f"  formula              {metrics.get('formula', '')}")
+        p(f"  window               {metrics['window']} outputs, gx is G x of {metrics['delay']} step(s) back, "
+          f"valid from step {metrics['valid_from']}")
+        exact = metrics["steps_to_exact"]
+        p(f"  exact from step      {exact if exact is not None else 'never'}"
+          + (" (the first full window)" if metrics["exact_from_first_full_window"] else ""))
+        if metrics["max_relative_error_when_valid"] is not None:
+            p(f"  largest error        {metrics['max_relative_error_when_valid']:.3g} relative, once valid")
+        for key, path in (paths or {}).items():
+            p(f"  {key:20s} {path}")
+        return
     p(f"  steps                {metrics['steps']} (h from {metrics['step_min']:g} to {metrics['step_max']:g} s, "
       f"t_end = {metrics['t_end']:g} s)")
     p(f"  initial error        {metrics['initial_error_norm']:.6g}")

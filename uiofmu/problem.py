@@ -14,6 +14,7 @@ from pathlib import Path
 from .runtime.errors import ProblemError
 from .runtime.files import parse_toml, read_text
 from .runtime.matrices import as_scalar, as_vector
+from .lpv_plant import LpvPlant, parse_lpv
 from .plant import Plant
 from .switched_plant import SwitchedPlant, parse_switched
 from .runtime.registry import AVAILABLE, KNOWN
@@ -110,6 +111,9 @@ class Problem:
     mode : tuple of Signal
         The mode of a switched plant whose rule is ``input`` (one signal, rounded to the nearest
         integer at each communication point), or empty.
+    theta : tuple of Signal
+        The scheduling parameter of an LPV plant whose theta is an input (one signal per
+        component), or empty.
     data : dict
         The problem as data (what the design card records).
     """
@@ -122,6 +126,7 @@ class Problem:
     d: tuple[Signal, ...]
     data: dict
     mode: tuple[Signal, ...] = ()
+    theta: tuple[Signal, ...] = ()
 
 
 def _model_name(name: str) -> str:
@@ -149,10 +154,12 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     name = check_name(top.get("name", _model_name(default_name)[:MAX_NAME]), "name", ProblemError)
     pt = Table(top.get("plant"), "plant")
     time = pt.choice("time", ("continuous", "discrete"))
+    if pt.has("scheduling") and pt.has("modes"):
+        raise ProblemError("plant.scheduling: a plant is either switched ([[plant.modes]]) or LPV "
+                           "([[plant.scheduling]]), not both")
     if pt.has("scheduling"):
-        raise ProblemError("plant.scheduling: LPV plants are not supported by this version of uiofmu "
-                           "(families available: " + ", ".join(_available()) + ")")
-    if pt.has("modes"):
+        plant = parse_lpv(pt)
+    elif pt.has("modes"):
         plant = parse_switched(pt)
     else:
         time = pt.choice("time", ("continuous", "discrete"))
@@ -170,6 +177,9 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     if isinstance(plant, SwitchedPlant) and not getattr(module, "SWITCHED", False):
         raise ProblemError(f"plant.modes: a switched plant needs a family that designs for switched plants "
                            f"(observer.family = \"switched\"), found {family!r}")
+    if isinstance(plant, LpvPlant) and not getattr(module, "LPV", False):
+        raise ProblemError(f"plant.scheduling: an LPV plant needs a family that designs for LPV plants "
+                           f"(observer.family = \"deadbeat-functional\"), found {family!r}")
     options = module.parse_options(ot, plant)
     ot.done()
     st = Table(top.get("signals", {}), "signals")
@@ -181,9 +191,15 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
             raise ProblemError('signals.mode: only a switched plant whose [plant.switching] rule = "input" takes its '
                                "mode from the signals")
         mode = parse_signals(st.get("mode"), "signals.mode", 1)
+    theta = ()
+    if st.has("theta"):
+        if getattr(plant, "theta", {}).get("kind") != "input":
+            raise ProblemError('signals.theta: only an LPV plant whose [plant.theta] kind = "input" takes theta from '
+                               "the signals")
+        theta = parse_signals(st.get("theta"), "signals.theta", plant.s)
     st.done()
     top.done()
-    return Problem(_model_name(name), plant, family, options, u, d, copy.deepcopy(data), mode)
+    return Problem(_model_name(name), plant, family, options, u, d, copy.deepcopy(data), mode, theta)
 
 
 def _available() -> list[str]:

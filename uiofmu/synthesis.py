@@ -161,9 +161,10 @@ def assemble_card(problem: Problem, result: DesignResult, existence: Existence, 
         "matrices": to_lists(result.matrices),
         "certificate": to_lists(result.certificate),
         "problem": problem.data,
-        "kernel": "affine",
-        "timing": {"total_s": time.perf_counter() - started, "lmi_assembly_s": lmi.assembly_time,
-                   "solver_s": lmi.solver_time, "solves": lmi.solves, "backend": lmi.backend},
+        "kernel": result.kernel,
+        "timing": {"total_s": time.perf_counter() - started, "lmi_assembly_s": lmi.assembly_time if lmi else 0.0,
+                   "solver_s": lmi.solver_time if lmi else 0.0, "solves": lmi.solves if lmi else 0,
+                   "backend": lmi.backend if lmi else "none"},
     }
     data["ports"] = [port.to_data() for port in declared_ports(data, result.matrices)]
     return card_from_data(data)

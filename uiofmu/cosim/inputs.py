@@ -25,10 +25,12 @@ from ..signals import Signal
 
 class SignalInputs:
     """Inputs from signal definitions (sums of terms per channel): the vectors ``u`` and ``d``, and
-    ``mode`` when given (a switched plant driven by its input; rounded to an integer by the master)."""
+    ``mode`` (a switched plant driven by its input; rounded to an integer by the master) and ``theta``
+    (an LPV plant's scheduling input) when given."""
 
-    def __init__(self, u: tuple[Signal, ...], d: tuple[Signal, ...], mode: tuple[Signal, ...] = ()):
-        self.signals = {"u": u, "d": d, **({"mode": mode} if mode else {})}
+    def __init__(self, u: tuple[Signal, ...], d: tuple[Signal, ...], mode: tuple[Signal, ...] = (),
+                 theta: tuple[Signal, ...] = ()):
+        self.signals = {"u": u, "d": d, **({"mode": mode} if mode else {}), **({"theta": theta} if theta else {})}
         self.sizes = {name: len(s) for name, s in self.signals.items()}
 
     def values(self, t: float) -> dict:

@@ -20,7 +20,7 @@ from ..runtime.files import atomic_output, check_output_dir, write_atomic
 from ..families import certified_bound
 from .fmi import Fmu, FmuCallError, read_model_json, vector_sizes
 from .inputs import CsvInputs, SignalInputs
-from .metrics import error_metrics
+from .metrics import error_metrics, functional_metrics
 from ..progress import progress
 from ..runtime.observer import Runtime
 from ..runtime.observer import default_horizon as default_t_end
@@ -44,6 +44,7 @@ class CosimResult:
     card: Card | None = None
     bound: np.ndarray | None = None
     mode: np.ndarray | None = None
+    functional: dict | None = None
 
     def columns(self) -> dict:
         """Named columns for ``results.csv``."""
@@ -54,6 +55,13 @@ class CosimResult:
                 cols[f"{name}[{i + 1}]"] = arr[:, i]
         if self.mode is not None:
             cols["mode"] = self.mode
+        if self.functional is not None:
+            f = self.functional
+            for i in range(f["gx"].shape[1]):
+                cols[f"gx[{i + 1}]"], cols[f"gx_true[{i + 1}]"] = f["gx"][:, i], f["true"][:, i]
+            cols["gx_valid"] = f["valid"]
+            cols["error_norm"] = np.linalg.norm(f["gx"] - f["true"], axis=1)
+            return cols
         cols["error_norm"] = np.linalg.norm(self.x - self.xhat, axis=1)
         return cols
 
@@ -84,11 +92,11 @@ def default_inputs(card: Card):
     from ..problem import problem_from_data
 
     problem = problem_from_data(card.data["problem"], default_name=card.name)
-    return SignalInputs(problem.u, problem.d, problem.mode)
+    return SignalInputs(problem.u, problem.d, problem.mode, problem.theta)
 
 
 def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, plant_x0=None, xhat0=None,
-               show_progress: bool | None = None) -> CosimResult:
+               plant_parameters: dict | None = None, show_progress: bool | None = None) -> CosimResult:
     """Run the plant and observer FMUs together on the given communication steps.
 
     Parameters
@@ -103,6 +111,9 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         Has ``u(t)`` and ``d(t)``; by default the signals of the observer's problem.
     plant_x0, xhat0 : array_like, optional
         Override the plant's initial state and the observer's initial estimate.
+    plant_parameters : dict, optional
+        Other plant parameters to set before initialisation, by port name (e.g. ``{"seed": [7]}``
+        for a plant switching at random).
     show_progress : bool, optional
         Progress bar (default: when stderr is a terminal).
 
@@ -124,13 +135,14 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         if not plant.has("x"):
             raise FmuError(f"{plant_path}: the plant FMU has no x[...] outputs; the error needs the true state")
         fed, sourced = routes(plant, obs, inputs.sizes)
-        plant.initialize(0.0, {"x0": plant_x0} if plant_x0 is not None else None)
+        plant.initialize(0.0, {**(plant_parameters or {}), **({"x0": plant_x0} if plant_x0 is not None else {})})
         obs.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
         n, p = len(plant.refs("x")), len(plant.refs("y"))
-        m, q, nq = len(plant.refs("u")), len(plant.refs("d")), len(obs.refs("dhat"))
+        m, q = len(plant.refs("u")), len(plant.refs("d"))
         T = np.zeros(K + 1)
-        X, XH, Y = np.zeros((K + 1, n)), np.zeros((K + 1, n)), np.zeros((K + 1, p))
-        U, D, R, DH = np.zeros((K + 1, m)), np.zeros((K + 1, q)), np.zeros((K + 1, p)), np.zeros((K + 1, nq))
+        X, Y = np.zeros((K + 1, n)), np.zeros((K + 1, p))
+        U, D = np.zeros((K + 1, m)), np.zeros((K + 1, q))
+        H = {name: np.zeros((K + 1, size)) for name, size in obs.ports("output").items()}
         plant_inputs = list(plant.ports("input"))
         MODE = np.zeros(K + 1) if obs.has("mode") else None
         t = 0.0
@@ -148,7 +160,8 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
                 if MODE is not None:
                     MODE[k] = (plant.get("mode") if "mode" in fed else np.round(values["mode"]))[0]
                 U[k], D[k] = values.get("u", U[k]), values.get("d", D[k])
-                XH[k], R[k], DH[k] = obs.get("xhat"), obs.get("r"), obs.get("dhat")
+                for name, history in H.items():
+                    history[k] = obs.get(name)
                 if k == K:
                     break
                 h = steps[k]
@@ -160,6 +173,11 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
                                        + (exc.messages[-1] if exc.messages else str(exc))) from None
                 t = float(np.sum(steps[:k + 1])) if k % 1024 == 1023 else t + h
                 bar.update()
+    if card.kernel == "window":
+        return _functional_result(card, T, steps, X, Y, U, D, H, MODE)
+    XH, R = H["xhat"], H["r"]
+    DH = H.get("dhat", np.zeros((K + 1, 0)))
+    nq = DH.shape[1]
     result = CosimResult(T, steps, X, XH, Y, U, D, R, DH, card=card, mode=MODE)
     bound = certified_bound(card, X[0] - XH[0], D)
     result.bound = bound
@@ -175,6 +193,22 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         result.metrics["modes"] = {"switches": int(np.count_nonzero(np.diff(MODE[:-1]))),
                                    "steps_in_mode": {str(int(i)): int(np.count_nonzero(MODE[:-1] == i))
                                                      for i in np.unique(MODE[:-1])}}
+    return result
+
+
+def _functional_result(card, T, steps, X, Y, U, D, H, MODE) -> CosimResult:
+    """The run of a functional observer (window kernel): ``gx`` against ``G x`` of the point
+    ``delay`` steps back (NaN before there is one), and :func:`functional_metrics`."""
+    G = np.asarray(card.data["matrices"]["G"], dtype=float)
+    delay, K1 = int(card.schedule["delay"]), len(T)
+    true = np.full((K1, G.shape[0]), np.nan)
+    true[delay:] = X[:K1 - delay] @ G.T
+    empty = np.zeros((K1, 0))
+    result = CosimResult(T, steps, X, empty, Y, U, D, empty, empty, card=card, mode=MODE,
+                         functional={"gx": H["gx"], "true": true, "valid": H["gx_valid"][:, 0]})
+    result.metrics = functional_metrics(T, steps, H["gx"], true, H["gx_valid"][:, 0], delay,
+                                        int(card.schedule["length"]))
+    result.metrics["formula"] = card.data.get("formula", "")
     return result
 
 

@@ -87,3 +87,51 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
         half = len(err) // 2
         out["dhat_rms_error_second_half"] = np.sqrt(np.mean(err[half:] ** 2, axis=0)).tolist()
     return out
+
+
+def functional_metrics(times: np.ndarray, steps: np.ndarray, gx: np.ndarray, true: np.ndarray, valid: np.ndarray,
+                       delay: int, window: int, rtol: float = 1e-9) -> dict:
+    """The metrics of a functional observer (window kernel): when its output becomes exact.
+
+    Parameters
+    ----------
+    times, steps : arrays
+        Communication points and step lengths.
+    gx : (K+1, d) array
+        The observer's ``gx`` at each point.
+    true : (K+1, d) array
+        ``G x`` of the point ``delay`` steps back (NaN where there is none).
+    valid : (K+1,) array
+        The observer's ``gx_valid``.
+    delay, window : int
+        From the card.
+    rtol : float
+        ``gx`` is exact at a point when ``|gx - G x| <= rtol * max(1, |G x|)`` (round-off).
+
+    Returns
+    -------
+    dict
+        ``steps``, ``t_end``, ``window``, ``delay``, ``valid_from`` (first point with ``gx_valid``),
+        ``steps_to_exact`` (first point from which ``gx`` stays exact; None if never),
+        ``exact_from_first_full_window``, ``max_error_norm`` and ``final_error_norm`` (where valid),
+        ``max_relative_error_when_valid``.
+    """
+    err = np.linalg.norm(gx - true, axis=1)
+    scale = np.maximum(1.0, np.linalg.norm(np.nan_to_num(true), axis=1))
+    ok = (valid > 0.5) & (err <= rtol * scale)
+    bad = np.flatnonzero(~ok)
+    exact = (int(bad[-1]) + 1 if bad.size else 0)
+    exact = exact if exact < len(ok) else None
+    on = np.flatnonzero(valid > 0.5)
+    valid_from = int(on[0]) if on.size else None
+    rel = err[on] / scale[on] if on.size else np.zeros(0)
+    return {
+        "steps": int(len(steps)), "t_end": float(times[-1]), "window": int(window), "delay": int(delay),
+        "valid_from": valid_from, "steps_to_exact": exact,
+        "exact_from_first_full_window": exact is not None and exact == valid_from,
+        "max_error_norm": float(np.nanmax(err)) if np.isfinite(err).any() else None,
+        "final_error_norm": float(err[-1]),
+        "max_relative_error_when_valid": float(rel.max()) if rel.size else None,
+        "step_min": float(steps.min()) if steps.size else None,
+        "step_max": float(steps.max()) if steps.size else None,
+    }

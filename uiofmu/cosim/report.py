@@ -27,6 +27,8 @@ def plot_report(result, path, title: str | None = None) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if result.functional is not None:
+        return plot_functional(result, path, title)
     m = result.metrics
     scale, unit = (3600.0, "h") if result.times[-1] > 4 * 3600 else (1.0, "s")
     t = result.times / scale
@@ -89,6 +91,67 @@ def plot_report(result, path, title: str | None = None) -> Path:
     ax.set_xlabel(f"time [{unit}]")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    path = Path(path)
+    with atomic_output(path, "report") as part:
+        fig.savefig(part, dpi=110, format="png")
+    plt.close(fig)
+    return path
+
+
+def plot_functional(result, path, title: str | None = None) -> Path:
+    """``report.png`` of a functional observer: the functional and its estimate (the window-filling
+    steps shaded), the error on a log scale with the first exact step, and the inputs.
+
+    Parameters
+    ----------
+    result : CosimResult
+        With ``functional`` (``gx``, ``true``, ``valid``).
+    path : str or Path
+    title : str, optional
+
+    Returns
+    -------
+    Path
+    """
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    m, f = result.metrics, result.functional
+    k = np.arange(len(result.times))
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8.5), sharex=True, constrained_layout=True)
+    filling = m["valid_from"] if m["valid_from"] is not None else len(k)
+    for ax in axes:
+        ax.axvspan(-0.5, filling - 0.5, color="0.9", lw=0)
+        ax.grid(alpha=0.3)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    ax = axes[0]
+    for i in range(f["gx"].shape[1]):
+        c = colors[i % len(colors)]
+        ax.plot(k, f["true"][:, i], color=c, lw=1.6, label=f"(G x)[{i + 1}] at k - {m['delay']}")
+        ax.plot(k, np.where(f["valid"] > 0.5, f["gx"][:, i], np.nan), "o", color=c, ms=3, mfc="none",
+                label=f"gx[{i + 1}]")
+    ax.set_title(f"the functional and its estimate (window of {m['window']} outputs, delay {m['delay']}; "
+                 f"shaded: window filling)")
+    ax.legend(fontsize=8, ncol=2)
+    ax = axes[1]
+    err = np.linalg.norm(f["gx"] - f["true"], axis=1)
+    ax.semilogy(k, np.maximum(err, 1e-18), ".-", lw=1)
+    exact = m["steps_to_exact"]
+    if exact is not None:
+        ax.axvline(exact, color="k", ls="--", lw=1, label=f"exact (round-off) from step {exact}")
+        ax.legend(fontsize=8)
+    ax.set_title("error |gx - G x| (0 drawn at 1e-18)")
+    ax = axes[2]
+    for i in range(result.d.shape[1]):
+        ax.step(k, result.d[:, i], where="post", lw=1.2, label=f"d[{i + 1}] (unknown)")
+    for i in range(result.y.shape[1]):
+        ax.plot(k, result.y[:, i], lw=1, label=f"y[{i + 1}]")
+    ax.set_title("inputs and outputs")
+    ax.set_xlabel("step k")
+    ax.legend(fontsize=8, ncol=3)
     if title:
         fig.suptitle(title)
     path = Path(path)

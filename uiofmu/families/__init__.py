@@ -66,10 +66,13 @@ class DesignResult:
         From :func:`uiofmu.certificate.certificate`.
     results : dict
         Family results at the card's top level (``decay_bound``, ``overshoot_bound``, ...).
-    lmi : LmiSystem
-        The design's LMI system (its assembly time, solves and solver time go to ``timing``).
+    lmi : LmiSystem or None
+        The design's LMI system (its assembly time, solves and solver time go to ``timing``); None
+        for a design without one.
     xhat0 : array_like or None
         Initial estimate (None: zeros).
+    kernel : str
+        The runtime kernel (:data:`uiofmu.runtime.card.KERNELS`).
     """
 
     nz: int
@@ -80,6 +83,7 @@ class DesignResult:
     results: dict
     lmi: object
     xhat0: object = None
+    kernel: str = "affine"
 
 
 def available_family(name: str, key: str = "observer.family"):

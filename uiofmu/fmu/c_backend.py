@@ -36,7 +36,8 @@ from ..runtime.tolerances import STEP_RTOL
 
 HERE = Path(__file__).parent / "c"
 MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc")
-KINDS = {"constant": "UIOFMU_CONSTANT", "interval": "UIOFMU_INTERVAL", "geometric": "UIOFMU_GEOMETRIC"}
+KINDS = {"constant": "UIOFMU_CONSTANT", "interval": "UIOFMU_INTERVAL", "geometric": "UIOFMU_GEOMETRIC",
+         "mode": "UIOFMU_MODE"}
 POLICIES = {"error": "UIOFMU_POLICY_ERROR", "nearest": "UIOFMU_POLICY_NEAREST", "count": "UIOFMU_POLICY_COUNT"}
 
 #: The shared FMI 2.0 plumbing (``c/fmi2_plumbing.c``: instance states and legal calls, logging, get/set
@@ -81,21 +82,31 @@ C_KERNELS = {
         "xhat": ("UIOFMU_AFFINE_XHAT", "output", "Real"),
         "r": ("UIOFMU_AFFINE_R", "output", "Real"),
         "dhat": ("UIOFMU_AFFINE_DHAT", "output", "Real"),
+        "mode_prev0": ("UIOFMU_AFFINE_MODE_PREV0", "parameter", "Integer"),
+        "mode": ("UIOFMU_AFFINE_MODE", "input", "Integer"),
     }),
 }
 
 
-#: The C kernels of plants, by plant kind (linear today; the switched and LPV plants plug in here).
+_PLANT_PORTS = {
+    "x0": ("UIOFMU_PLANT_X0", "parameter", "Real"),
+    "u": ("UIOFMU_PLANT_U", "input", "Real"),
+    "d": ("UIOFMU_PLANT_D", "input", "Real"),
+    "y": ("UIOFMU_PLANT_Y", "output", "Real"),
+    "x": ("UIOFMU_PLANT_X", "output", "Real"),
+}
+
+#: The C kernels of plants, by plant kind: linear, and switched by rule (one kernel,
+#: ``c/kernel_plant.c``, whose Integer port ``mode`` is an input for rule ``input``, else an output).
 PLANT_KERNELS = {
-    "linear": CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", {
-        "x0": ("UIOFMU_PLANT_X0", "parameter", "Real"),
-        "u": ("UIOFMU_PLANT_U", "input", "Real"),
-        "d": ("UIOFMU_PLANT_D", "input", "Real"),
-        "y": ("UIOFMU_PLANT_Y", "output", "Real"),
-        "x": ("UIOFMU_PLANT_X", "output", "Real"),
-    }),
+    "linear": CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", _PLANT_PORTS),
+    **{f"switched-{rule}": CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", {
+        **_PLANT_PORTS, "seed": ("UIOFMU_PLANT_SEED", "parameter", "Integer"),
+        "mode": ("UIOFMU_PLANT_MODE", "input" if rule == "input" else "output", "Integer")})
+       for rule in ("threshold", "input", "random")},
 }
 TIMES = {"discrete": "UIOFMU_DISCRETE", "continuous": "UIOFMU_CONTINUOUS"}
+RULES = {"threshold": "UIOFMU_RULE_THRESHOLD", "input": "UIOFMU_RULE_INPUT", "random": "UIOFMU_RULE_RANDOM"}
 
 def c_kernel(card: Card) -> CKernel:
     """The C kernel of a card; FmuError when there is none for its ``kernel``."""
@@ -176,6 +187,13 @@ def _doubles(values, key: str, size: int) -> str:
     return "{" + ", ".join(_double(v, key) for v in flat) + "}" if flat.size else "{0.0}"
 
 
+def _count(value, key: str) -> int:
+    """A small non-negative integer as C source (no bool, no float)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= int(value) <= 1 << 24:
+        raise CardError(f"design card {key}: expected an integer from 0 to {1 << 24}, found {str(value)[:40]!r}")
+    return int(value)
+
+
 def design_source(card: Card, guid: str, identifier: str) -> str:
     """``design_data.c``: the card as one constant ``UiofmuDesign`` (the kernel's data), its
     variable table and ``UIOFMU_FMU`` (GUID, model identifier, kernel, table; ``c/fmi2_plumbing.h``).
@@ -230,6 +248,8 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
     lines.append(f"static const double intervals[] = {_doubles(intervals, 'schedule.intervals', len(intervals))};")
     lines.append(f"static const double xhat0[] = {_doubles(card.data['initial']['xhat0'], 'initial.xhat0', d['n'])};")
     dt = sched.get("dt") or 0.0
+    modes = _count(sched.get("modes", 0), "schedule.modes") if kind == "mode" else 0
+    mode_prev0 = _count(sched.get("mode_prev0", 1), "schedule.mode_prev0") if kind == "mode" else 0
     lines += ["", "const UiofmuDesign UIOFMU_DESIGN = {",
               f"    .n = {int(d['n'])}, .m = {int(d['m'])}, .p = {int(d['p'])}, .q = {int(d['q'])}, "
               f".nz = {int(d['nz'])}, .has_dhat = {int(card.has_dhat)},",
@@ -239,6 +259,7 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
               f".step_rtol = {_double(sched.get('step_rtol', STEP_RTOL), 'schedule.step_rtol')},",
               f"    .nintervals = {len(intervals)}, .intervals = intervals, "
               ".intervals_length = UIOFMU_LENGTH(intervals),",
+              f"    .modes = {modes}, .mode_prev0 = {mode_prev0},",
               "    .xhat0 = xhat0, .xhat0_length = UIOFMU_LENGTH(xhat0),",
               "    .mat = {", *fields, "    },", "};", "",
               *fmu_table(guid, identifier, kernel, table)]
@@ -258,12 +279,76 @@ def fmu_table(guid: str, identifier: str, kernel: CKernel, table: list) -> list:
             "};", ""]
 
 
+def plant_kernel(data: dict) -> CKernel:
+    """The C kernel of a plant's data: ``linear``, or ``switched-<rule>`` for data with ``modes``."""
+    if "modes" not in data:
+        return PLANT_KERNELS["linear"]
+    rule = data.get("switching", {}).get("rule") if isinstance(data.get("switching"), dict) else None
+    if rule not in RULES:
+        raise FmuError(f"plant switching.rule: expected one of {', '.join(RULES)}, found {str(rule)[:40]!r}")
+    return PLANT_KERNELS[f"switched-{rule}"]
+
+
+def _switched_source(data: dict, guid: str, identifier: str) -> str:
+    """``design_data.c`` of a switched plant (:meth:`uiofmu.switched_plant.SwitchedPlant.to_data`): see
+    :func:`plant_source`. Every mode's ``A, B, E, w`` as one block of each array, mode i the block
+    i - 1; the rule as its numbers (the cumulative probabilities summed here, as the reference
+    runtime sums them, so both draw the same modes)."""
+    kernel = plant_kernel(data)
+    sw = data["switching"]
+    rule = sw["rule"]
+    modes = data["modes"]
+    if not isinstance(modes, list) or not 1 <= len(modes) <= 4096:
+        raise FmuError("plant modes: expected a list of 1 to 4096 modes")
+    if data.get("time") != "discrete":
+        raise FmuError(f"plant time: a switched plant is discrete, found {str(data.get('time'))[:40]!r}")
+    C = np.asarray(data["C"], dtype=float)
+    if C.ndim != 2 or not C.shape[1]:
+        raise FmuError(f"plant C: expected a matrix, found shape {C.shape}")
+    p, n = C.shape
+    A = [np.asarray(md["A"], dtype=float) for md in modes]
+    B = [np.asarray(md.get("B") if md.get("B") is not None else np.zeros((n, 0)), dtype=float).reshape(n, -1)
+         for md in modes]
+    E = [np.asarray(md["E"], dtype=float).reshape(n, -1) for md in modes]
+    w = [np.asarray(md.get("w") or np.zeros(n), dtype=float) for md in modes]
+    m, q, N = B[0].shape[1], E[0].shape[1], len(modes)
+    if any(b.shape[1] != m for b in B) or any(e.shape[1] != q for e in E):
+        raise FmuError("plant modes: every mode needs the same numbers of known and unknown inputs")
+    x0 = np.asarray(data.get("x0") or np.zeros(n), dtype=float)
+    thresholds = list(sw.get("thresholds", [])) if rule == "threshold" else []
+    cumulative = np.cumsum(sw.get("probabilities", [1.0])).tolist() if rule == "random" else []
+    state = _count(sw.get("state", 1), "plant switching.state") - 1 if rule == "threshold" else 0
+    mode0 = _count(sw.get("mode0", 1), "plant switching.mode0") if rule == "input" else 1
+    seed = sw.get("seed", 0) if rule == "random" else 0
+    if isinstance(seed, bool) or not isinstance(seed, int) or not -2 ** 31 <= seed < 2 ** 31:
+        raise FmuError(f"plant switching.seed: expected an fmi2Integer, found {str(seed)[:40]!r}")
+    table = table_rows(kernel, "switched plant", plant_ports(n, m, p, q, (), rule))
+    lines = ["/* Generated by uiofmu from a switched plant. */", f'#include "{kernel.header}"', ""]
+    for key, arr, size in (("A", A, N * n * n), ("B", B, N * n * m), ("E", E, N * n * q), ("C", C, p * n),
+                           ("w", w, N * n), ("x0", x0, n), ("thresholds", thresholds, len(thresholds)),
+                           ("cumulative", cumulative, len(cumulative))):
+        lines.append(f"static const double m_{key}[] = {_doubles(arr, f'plant.{key}', size)};")
+    arrays = ", ".join(f".{k} = m_{k}, .{k}_length = UIOFMU_LENGTH(m_{k})"
+                       for k in ("A", "B", "E", "C", "w", "x0", "thresholds", "cumulative"))
+    lines += ["", "const UiofmuPlant UIOFMU_PLANT = {",
+              f"    .n = {n}, .m = {m}, .p = {p}, .q = {q}, .time = UIOFMU_DISCRETE,",
+              f"    .dt = {_double(data.get('dt') or 0.0, 'plant.dt')}, "
+              f".step_rtol = {_double(STEP_RTOL, 'step_rtol')},",
+              f"    .modes = {N}, .rule = {RULES[rule]}, .state = {state}, .nthresholds = {len(thresholds)}, "
+              f".mode0 = {mode0}, .seed = {int(seed)},",
+              f"    {arrays},", "};", "", *fmu_table(guid, identifier, kernel, table)]
+    return "\n".join(lines)
+
+
 def plant_source(data: dict, guid: str, identifier: str) -> str:
-    """``design_data.c`` of a linear plant (``Plant.to_data()``): one constant ``UiofmuPlant``
-    (``c/kernel_plant.h``), its variable table (from :func:`uiofmu.runtime.ports.plant_ports`) and
-    ``UIOFMU_FMU``. Numbers only (every float by :func:`repr` after a finiteness check, every
-    array with its length checked against the dims and compiled with ``UIOFMU_LENGTH``), and the
-    GUID and model identifier as escaped C literals: no text of the problem reaches the source."""
+    """``design_data.c`` of a plant (``Plant.to_data()``, or a switched plant's data with ``modes``
+    and ``switching``): one constant ``UiofmuPlant`` (``c/kernel_plant.h``), its variable table
+    (from :func:`uiofmu.runtime.ports.plant_ports`) and ``UIOFMU_FMU``. Numbers only (every float
+    by :func:`repr` after a finiteness check, every array with its length checked against the dims
+    and compiled with ``UIOFMU_LENGTH``), and the GUID and model identifier as escaped C literals:
+    no text of the problem reaches the source."""
+    if "modes" in data:
+        return _switched_source(data, guid, identifier)
     kernel = PLANT_KERNELS["linear"]
     time = data.get("time")
     if time not in TIMES:
@@ -282,12 +367,14 @@ def plant_source(data: dict, guid: str, identifier: str) -> str:
     table = table_rows(kernel, "linear plant", plant_ports(n, m, p, q))
     lines = ["/* Generated by uiofmu from a linear plant. */", f'#include "{kernel.header}"', ""]
     for key, arr, size in (("A", A, n * n), ("B", B, n * m), ("E", E, n * q), ("C", C, p * n), ("w", w, n),
-                           ("x0", x0, n)):
+                           ("x0", x0, n), ("thresholds", [], 0), ("cumulative", [], 0)):
         lines.append(f"static const double m_{key}[] = {_doubles(arr, f'plant.{key}', size)};")
-    arrays = ", ".join(f".{k} = m_{k}, .{k}_length = UIOFMU_LENGTH(m_{k})" for k in ("A", "B", "E", "C", "w", "x0"))
+    arrays = ", ".join(f".{k} = m_{k}, .{k}_length = UIOFMU_LENGTH(m_{k})"
+                       for k in ("A", "B", "E", "C", "w", "x0", "thresholds", "cumulative"))
     lines += ["", "const UiofmuPlant UIOFMU_PLANT = {",
               f"    .n = {n}, .m = {m}, .p = {p}, .q = {q}, .time = {TIMES[time]},",
               f"    .dt = {_double(dt, 'plant.dt')}, .step_rtol = {_double(STEP_RTOL, 'step_rtol')},",
+              "    .modes = 0, .rule = UIOFMU_RULE_NONE, .mode0 = 1,",
               f"    {arrays},", "};", "", *fmu_table(guid, identifier, kernel, table)]
     return "\n".join(lines)
 
@@ -296,8 +383,10 @@ def write_variables(root, ports) -> None:
     """``<ModelVariables>`` and ``<ModelStructure>`` of a declaration (value references in its order).
 
     Parameters are ``fixed`` and ``exact`` with their start values; inputs ``continuous`` with
-    theirs; outputs ``calculated`` (their first values follow from the parameters and, for those
-    that declare it, the inputs; :func:`uiofmu.runtime.ports.model_structure`).
+    theirs (an Integer input ``discrete``: FMI 2.0 has no continuous Integer); outputs
+    ``calculated`` (their first values follow from the parameters and, for those that declare
+    it, the inputs; :func:`uiofmu.runtime.ports.model_structure`). Integer ports (modes) are
+    written as ``<Integer>`` with integral start values.
     """
     variables = SubElement(root, "ModelVariables")
     index = 0
@@ -305,15 +394,17 @@ def write_variables(root, ports) -> None:
         for i in range(port.size):
             attrs = {"name": f"{port.name}[{i + 1}]", "valueReference": str(index), "causality": port.causality,
                      "description": port.description}
-            start = {"start": repr(float(port.values[i]))}
+            integer = getattr(port, "spec", port).type == "Integer"
+            start = {"start": str(int(port.values[i])) if integer else repr(float(port.values[i]))}
+            variability = "discrete" if integer else "continuous"
             if port.causality == "parameter":
                 attrs.update(variability="fixed", initial="exact")
             elif port.causality == "output":
-                attrs.update(variability="continuous", initial="calculated")
+                attrs.update(variability=variability, initial="calculated")
                 start = {}
             else:
-                attrs["variability"] = "continuous"
-            SubElement(SubElement(variables, "ScalarVariable", attrs), "Real", start)
+                attrs["variability"] = variability
+            SubElement(SubElement(variables, "ScalarVariable", attrs), "Integer" if integer else "Real", start)
             index += 1
     model_structure(root, ports)
 
@@ -331,10 +422,9 @@ def model_description(card: Card, guid: str, identifier: str, sources: list[str]
 def plant_model_description(data: dict, description: str, guid: str, identifier: str, sources: list[str],
                             experiment: dict | None) -> bytes:
     """``modelDescription.xml`` of a C plant FMU: the ports of the python backend's plant."""
-    from ..runtime.fmu_model import PlantModel
-    from ..runtime.plant_runtime import PlantRuntime
+    from ..runtime.fmu_model import make_model
 
-    model = PlantModel(PlantRuntime(data))
+    model = make_model({"kind": "plant", "plant": data})
     model.refresh()
     return description_xml(identifier, guid, description, sources, experiment, model.ports)
 
@@ -441,13 +531,14 @@ def build_c_observer(card: Card, output, identifier: str, call_floor: bool = Fal
 
 def build_c_plant(plant, output, identifier: str, experiment: dict | None = None,
                   description: str | None = None, call_floor: bool = False) -> Path:
-    """Write the C FMU of a linear plant to ``output`` (``c/kernel_plant.c``: exact zero-order
-    hold for any step of a continuous plant, dt only for a discrete one).
+    """Write the C FMU of a plant to ``output`` (``c/kernel_plant.c``: exact zero-order hold for
+    any step of a continuous plant, dt only for a discrete one; a switched plant in its current
+    mode, picked by its rule).
 
     Parameters
     ----------
-    plant : uiofmu.plant.Plant
-        A checked linear plant.
+    plant : uiofmu.plant.Plant or uiofmu.switched_plant.SwitchedPlant
+        A checked linear or switched plant.
     output : str or Path
         The ``.fmu`` file to write.
     identifier : str
@@ -468,8 +559,9 @@ def build_c_plant(plant, output, identifier: str, experiment: dict | None = None
     data = plant.to_data()
     spec = {"kind": "plant", "plant": data, **({"experiment": experiment} if experiment else {})}
     guid = guid_of({"backend": "c", **spec})
-    text = description or f"{plant.time} linear plant (uiofmu {__version__}, C backend)"
-    return pack_c_fmu(output, identifier, PLANT_KERNELS["linear"], plant_source(data, guid, identifier),
+    what = "switched plant" if "modes" in data else "linear plant"
+    text = description or f"{plant.time} {what} (uiofmu {__version__}, C backend)"
+    return pack_c_fmu(output, identifier, plant_kernel(data), plant_source(data, guid, identifier),
                       lambda sources: plant_model_description(data, text, guid, identifier, sources, experiment),
                       spec, ["-DUIOFMU_CALL_FLOOR"] if call_floor else [])
 

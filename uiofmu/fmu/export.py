@@ -121,12 +121,24 @@ def build_observer(card: Card, output, backend: str | None = None) -> Path:
                          ident, desc, output)
 
 
+def plant_kind(plant) -> str:
+    """What a plant is, for FMU descriptions: ``linear plant``, ``switched linear plant (2 modes, rule
+    threshold)`` or ``LPV plant (1 scheduling component, theta from the state)``."""
+    if getattr(plant, "modes", None):
+        return f"switched linear plant ({len(plant.modes)} modes, rule {plant.switching['rule']})"
+    if getattr(plant, "parts", None):
+        return f"LPV plant ({len(plant.parts)} scheduling component(s), theta from the {plant.theta['kind']})"
+    return "linear plant"
+
+
 def build_plant(plant: Plant, name: str, output, step: float | None = None, backend: str | None = None) -> Path:
     """Pack a linear plant as an FMU (exact between communication points).
 
     Parameters
     ----------
-    plant : Plant
+    plant : Plant or SwitchedPlant
+        A switched plant (:class:`uiofmu.switched_plant.SwitchedPlant`) adds the Integer ``mode``
+        of its switching rule (:mod:`uiofmu.runtime.switching`).
     name : str
         Model name (the FMU's model identifier is ``NAME_plant``).
     output : str or Path
@@ -148,11 +160,11 @@ def build_plant(plant: Plant, name: str, output, step: float | None = None, back
     ident = model_identifier(name, "plant")
     step = plant.dt if step is None else step
     experiment = plant_experiment(step) if step else None
+    desc = f"{plant.time} {plant_kind(plant)} {name} (uiofmu {__version__}"
     if backend == "c":
         from .c_backend import build_c_plant
 
-        return build_c_plant(plant, output, ident, experiment,
-                             f"{plant.time} linear plant {name} (uiofmu {__version__}, C backend)")
-    desc = f"{plant.time} linear plant {name} (uiofmu {__version__})"
+        return build_c_plant(plant, output, ident, experiment, desc + ", C backend)")
+    desc += ")"
     spec = {"kind": "plant", "plant": plant.to_data(), **({"experiment": experiment} if experiment else {})}
     return _build_python(spec, ident, desc, output)

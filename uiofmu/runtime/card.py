@@ -17,7 +17,7 @@ import numpy as np
 from .errors import CardError
 from .files import parse_json, read_text, write_atomic
 from .matrices import as_array, as_scalar, as_vector
-from .ports import check_declared, observer_ports
+from .ports import check_declared, observer_ports, window_ports
 from .registry import KNOWN
 from .schedules import AXES
 from .text import check_name, check_text
@@ -144,19 +144,24 @@ class Card:
 
 #: Runtime kernels: how an observer steps. ``affine``: ``z+ = N z + L y + G u + c``,
 #: ``xhat = Xz z + Xy y`` with the matrices its schedule picks (:mod:`uiofmu.runtime.observer`).
-KERNELS = ("affine",)
+#: ``window``: ``gx = sum_t w_t(theta) F_t [y window]`` on the last outputs (:mod:`uiofmu.runtime.window`).
+KERNELS = ("affine", "window")
+#: The schedule kind of each kernel that has its own (the affine kernel takes every other kind).
+KERNEL_SCHEDULE = {"window": "window"}
+#: Longest output window of a window kernel, and its largest power of a theta value.
+MAX_WINDOW, MAX_POWER = 1024, 64
 #: Largest dimension a card may declare (states, inputs, outputs, observer states).
 MAX_DIM = 1000
 #: Most design intervals an interval schedule may list.
 MAX_INTERVALS = 256
 #: Keys a schedule may hold, per kind (``step_policy`` and ``step_rtol`` for all).
 SCHEDULE_KEYS = {"constant": {"dt"}, "interval": {"intervals", "h_prev0"}, "geometric": {"alpha", "dt"},
-                 "mode": {"dt", "modes", "mode_prev0"}}
+                 "mode": {"dt", "modes", "mode_prev0"}, "window": {"dt", "length", "delay", "theta", "uses_theta"}}
 #: Most modes a mode schedule may have (its card holds N^2 step matrices).
 MAX_MODES = 16
 #: The step policies each schedule kind accepts (see :mod:`uiofmu.runtime.schedules`).
 KIND_POLICIES = {"constant": ("error",), "interval": ("error", "nearest"), "geometric": ("error", "count"),
-                 "mode": ("error",)}
+                 "mode": ("error",), "window": ("error",)}
 #: Longest free text (``bound``, ``generator``, solver names) a card may hold.
 MAX_TEXT = 1000
 
@@ -210,7 +215,7 @@ def _check_schedule(spec, dt) -> dict:
                         f"(known: {', '.join(sorted(SCHEDULE_KEYS[kind] | {'kind', 'step_policy', 'step_rtol'}))})")
     _choice(spec.get("step_policy", "error"), "schedule.step_policy", KIND_POLICIES[kind])
     rtol = _number(spec.get("step_rtol", STEP_RTOL), "schedule.step_rtol", low=0.0, high=0.01)
-    if kind in ("constant", "geometric", "mode"):
+    if kind in ("constant", "geometric", "mode", "window"):
         if "dt" not in spec:
             raise CardError(f"design card schedule.dt: required for a {kind} schedule")
         step = _number(spec["dt"], "schedule.dt", low=0.0, open_low=True)
@@ -220,6 +225,13 @@ def _check_schedule(spec, dt) -> dict:
         if "alpha" not in spec:
             raise CardError("design card schedule.alpha: required for a geometric schedule")
         _number(spec["alpha"], "schedule.alpha", low=0.0, high=1.0, open_low=True, open_high=True)
+    if kind == "window":
+        length = _integer(spec.get("length"), "schedule.length", 1, MAX_WINDOW)
+        _integer(spec.get("delay"), "schedule.delay", 0, length - 1)
+        _integer(spec.get("theta"), "schedule.theta", 0, MAX_DIM)
+        if not isinstance(spec.get("uses_theta"), bool):
+            raise CardError("design card schedule.uses_theta: expected true or false, found "
+                            f"{_kind(spec.get('uses_theta'))}")
     if kind == "mode":
         modes = _integer(spec.get("modes"), "schedule.modes", 1, MAX_MODES)
         _integer(spec.get("mode_prev0", 1), "schedule.mode_prev0", 1, modes)
@@ -242,9 +254,40 @@ def _check_schedule(spec, dt) -> dict:
     return spec
 
 
+def _any_array(value, key: str) -> None:
+    """A finite numeric array of any shape (nested lists of up to 5 levels)."""
+    depth, probe = 0, value
+    while isinstance(probe, list) and depth < 5:
+        probe, depth = (probe[0] if probe else None), depth + 1
+    as_array(value, key, (None,) * depth, CardError)
+
+
+def _check_window(mats: dict, dims: dict, schedule: dict) -> dict:
+    """The window kernel's ``F`` (terms, d, p L) and ``Fexp`` (terms, L, s; integer powers 0..MAX_POWER)."""
+    L, s = schedule["length"], schedule["theta"]
+    for name in ("F", "Fexp"):
+        if name not in mats:
+            raise CardError(f"design card matrices.{name}: required by the window kernel")
+    F = as_array(mats["F"], "design card matrices.F", (None, None, dims["p"] * L), CardError)
+    if F.shape[0] == 0 or F.shape[1] == 0:
+        raise CardError(f"design card matrices.F: expected at least one term and one row, found shape {F.shape}")
+    exps = as_array(mats["Fexp"], "design card matrices.Fexp", (F.shape[0], L, s), CardError)
+    if np.any(exps < 0) or np.any(exps > MAX_POWER) or np.any(exps != np.round(exps)):
+        raise CardError(f"design card matrices.Fexp: expected integer powers from 0 to {MAX_POWER}")
+    if not schedule["uses_theta"] and np.any(exps):
+        raise CardError("design card matrices.Fexp: the formula uses theta but schedule.uses_theta is false")
+    return {"F": F, "Fexp": exps}
+
+
 def _check_matrices(mats, dims: dict, kind: str, schedule: dict) -> dict:
     """Runtime matrices with their exact shapes; every other matrix a finite numeric array."""
     mats = _table(mats, "matrices")
+    if kind == "window":
+        for name, value in mats.items():
+            _text(name, "matrices key", 64)
+            if name not in ("F", "Fexp"):
+                _any_array(value, f"design card matrices.{name}")
+        return _check_window(mats, dims, schedule)
     axes = AXES[kind]
     count = {"interval": len(schedule.get("intervals", ())), "mode": schedule.get("modes")}.get(kind)
     out = {}
@@ -259,10 +302,7 @@ def _check_matrices(mats, dims: dict, kind: str, schedule: dict) -> dict:
                 raise CardError(f"{key}: a geometric schedule needs at least one coefficient")
             out[name] = arr
         else:
-            depth, probe = 0, value
-            while isinstance(probe, list) and depth < 5:
-                probe, depth = (probe[0] if probe else None), depth + 1
-            as_array(value, key, (None,) * depth, CardError)
+            _any_array(value, key)
     absent = [k for k in CORE if k not in out]
     if absent:
         raise CardError(f"design card matrices: missing {', '.join(absent)}")
@@ -345,7 +385,10 @@ def check_card(data, require_verified: bool = True) -> dict:
     for key in ("bound", "generator"):
         if key in data:
             _text(data[key], key)
-    _choice(data.get("kernel", "affine"), "kernel", KERNELS)
+    kernel = _choice(data.get("kernel", "affine"), "kernel", KERNELS)
+    if KERNEL_SCHEDULE.get(kernel) not in (None, schedule["kind"]) or (
+            schedule["kind"] in KERNEL_SCHEDULE.values() and KERNEL_SCHEDULE.get(kernel) != schedule["kind"]):
+        raise CardError(f"design card kernel {kernel!r} does not step a {schedule['kind']!r} schedule")
     matrices = _check_matrices(data["matrices"], dims, schedule["kind"], schedule)
     if "ports" in data:
         check_declared(data["ports"], declared_ports(data, matrices))
@@ -355,6 +398,9 @@ def check_card(data, require_verified: bool = True) -> dict:
 
 def declared_ports(data: dict, matrices: dict) -> list:
     """The ports the card's kernel implements for its dims, schedule and matrices."""
+    if data.get("kernel", "affine") == "window":
+        spec = data["schedule"]
+        return window_ports(data["dims"]["p"], matrices["F"].shape[1], spec["theta"] if spec["uses_theta"] else 0)
     feeds_y = bool(np.any(np.asarray(matrices["Xy"]) != 0))
     return observer_ports(data["dims"], data["schedule"]["kind"], "Dy" in matrices, feeds_y)
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from .card import card_from_data
 from .plant_runtime import PlantRuntime
-from .ports import PortSpec, plant_ports
+from .ports import PortSpec, lpv_plant_ports, plant_ports
 from .observer import Runtime, RuntimeInputError
 from .schedules import StepRejected
 from .state import StateReader, StateRejected
@@ -30,7 +30,12 @@ def _port_values(r: StateReader, key: str, ports: list) -> list:
     if not isinstance(values, (list, tuple)) or len(values) != len(ports):
         found = f"{len(values)} entries" if isinstance(values, (list, tuple)) else type(values).__name__
         raise StateRejected(f"{r.what} state field {key!r}: expected {len(ports)} lists (one per port), found {found}")
-    return [r.vector(f"{key}.{port.name}", port.size, finite=False, value=vals) for port, vals in zip(ports, values)]
+    out = [r.vector(f"{key}.{port.name}", port.size, finite=False, value=vals) for port, vals in zip(ports, values)]
+    for port, vals in zip(ports, out):
+        if port.spec.type == "Integer" and not np.all((vals == np.round(vals)) & (np.abs(vals) <= 2 ** 31)):
+            raise StateRejected(f"{r.what} state field '{key}.{port.name}': expected integers (an fmi2Integer), "
+                                f"found {vals.tolist()}")
+    return out
 
 
 class Port:
@@ -80,7 +85,14 @@ class StatefulModel(PortsModel):
             ``runtime`` (the runtime's ``get_state``) and ``parameters`` (the parameter ports'
             values, one list per port: the master may have set them after the last initialisation).
         """
+        self._ports_to_runtime()
         return {"runtime": self.rt.get_state(), "parameters": [p.values.tolist() for p in self.parameters]}
+
+    def _ports_to_runtime(self) -> None:
+        """Hand the inputs the runtime keeps outside the ports' arrays (a mode) to the runtime."""
+
+    def _runtime_to_ports(self) -> None:
+        """The reverse, after a state restore: those inputs' ports take the restored values."""
 
     def set_state(self, state: dict) -> None:
         """Restore :meth:`get_state`; nothing changes unless every field is valid.
@@ -99,6 +111,7 @@ class StatefulModel(PortsModel):
         self.rt.set_state(state["runtime"])               # checks everything before it changes
         for port, values in zip(self.parameters, params):
             port.values[:] = values
+        self._runtime_to_ports()
         self.dirty = True
 
 
@@ -150,10 +163,51 @@ class ObserverModel(StatefulModel):
             self.outputs[2].values[:] = self.rt.dhat()
         self.dirty = False
 
-    def step(self, t: float, h: float) -> None:
-        """One communication step; raises StepRejected or RuntimeInputError."""
+    def _ports_to_runtime(self) -> None:
         if "mode" in self.named:
             self.rt.set_mode(int(self.named["mode"].values[0]))
+
+    def _runtime_to_ports(self) -> None:
+        if "mode" in self.named:
+            self.named["mode"].values[0] = self.rt.mode
+
+    def step(self, t: float, h: float) -> None:
+        """One communication step; raises StepRejected or RuntimeInputError."""
+        self._ports_to_runtime()
+        self.rt.step(h)
+        self.dirty = True
+
+
+class FunctionalModel(StatefulModel):
+    """A window-kernel observer (:mod:`uiofmu.runtime.window`) as FMU ports: ``y, theta -> gx, gx_valid``."""
+
+    kind = "observer"
+
+    def __init__(self, spec: dict):
+        from .window import WindowRuntime
+
+        self.card = card_from_data(spec["card"])
+        self.rt = WindowRuntime(self.card)
+        self._declare(self.card.ports, {"y": self.rt.y, "theta": self.rt.theta})
+        self.dirty = True
+
+    def initialize(self) -> None:
+        """No parameters: back to an empty window."""
+        self.rt.reset()
+        self.dirty = True
+
+    def notices(self) -> list:
+        """Messages for the log (none)."""
+        return []
+
+    def refresh(self) -> None:
+        """Recompute ``gx`` and ``gx_valid`` from the window and the current inputs."""
+        self.named["gx"].values[:] = self.rt.gx()
+        self.named["gx_valid"].values[0] = 1.0 if self.rt.valid else 0.0
+        self.dirty = False
+
+    def step(self, t: float, h: float) -> None:
+        """One communication step; raises StepRejected or RuntimeInputError."""
         self.rt.step(h)
         self.dirty = True
 
@@ -176,7 +230,11 @@ class PlantModel(StatefulModel):
         rule = getattr(rt, "rule", None)
         if rule is not None:
             arrays.update(seed=np.array([float(rt.seed)]), mode=np.array([float(rt.mode_in)]))
-        specs = plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, rule)
+        if hasattr(rt, "theta_in"):
+            arrays["theta"] = rt.theta_in if rt.kind == "input" else None
+            specs = lpv_plant_ports(rt.n, rt.p, rt.q, rt.s, rt.kind, bool(np.any(rt.parts["D"])))
+        else:
+            specs = plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, rule)
         self._declare(specs, arrays)
         self.dirty = True
 
@@ -192,24 +250,32 @@ class PlantModel(StatefulModel):
         self.rt.reset()
         self.dirty = True
 
-    def _sync_mode(self) -> None:
+    def _ports_to_runtime(self) -> None:
         port = self.named.get("mode")
         if port is not None and port.causality == "input":
             self.rt.mode_in = int(port.values[0])
 
+    def _runtime_to_ports(self) -> None:
+        port = self.named.get("mode")
+        if port is not None and port.causality == "input":
+            port.values[0] = self.rt.mode_in
+
     def refresh(self) -> None:
         """Recompute the outputs."""
-        self._sync_mode()
+        self._ports_to_runtime()
         self.named["y"].values[:] = self.rt.y()
         self.named["x"].values[:] = self.rt.x
         port = self.named.get("mode")
         if port is not None and port.causality == "output":
             port.values[0] = self.rt.mode()
+        port = self.named.get("theta")
+        if port is not None and port.causality == "output":
+            port.values[:] = self.rt.theta()
         self.dirty = False
 
     def step(self, t: float, h: float) -> None:
         """One communication step; raises RuntimeInputError."""
-        self._sync_mode()
+        self._ports_to_runtime()
         self.rt.step(h)
         self.dirty = True
 
@@ -225,12 +291,19 @@ def make_model(spec: dict, resources: str = "."):
 
         return PlantModel(MujocoRuntime(spec["mujoco"], resources), spec["mujoco"].get("parameters", {}))
     if spec["kind"] == "plant":
+        if "scheduling" in spec["plant"]:
+            from .lpv import LpvPlantRuntime
+
+            return PlantModel(LpvPlantRuntime(spec["plant"]))
         if "modes" in spec["plant"]:
             from .switching import SwitchedPlantRuntime
 
             return PlantModel(SwitchedPlantRuntime(spec["plant"]))
         return PlantModel(PlantRuntime(spec["plant"]))
+    if spec["card"].get("kernel") == "window":
+        return FunctionalModel(spec)
     return ObserverModel(spec)
 
 
-__all__ = ["ObserverModel", "PlantModel", "Port", "RuntimeInputError", "StateRejected", "StepRejected", "make_model"]
+__all__ = ["FunctionalModel", "ObserverModel", "PlantModel", "Port", "RuntimeInputError", "StateRejected",
+           "StepRejected", "make_model"]

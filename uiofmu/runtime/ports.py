@@ -168,6 +168,20 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
     return ports
 
 
+def window_ports(p: int, d: int, s: int) -> list:
+    """The declaration of the window kernel (dead-beat functional observers): inputs ``y`` and, when
+    the formula uses it, ``theta``; outputs ``gx`` (the functional, depending on both) and the
+    Integer ``gx_valid`` (1 once the window is full, 0 before: it depends on no input)."""
+    through = ("y", "theta") if s else ("y",)
+    ports = [PortSpec("y", p, "input", "measured outputs at the current communication point")]
+    if s:
+        ports.append(PortSpec("theta", s, "input", "scheduling parameter at the current communication point"))
+    return ports + [PortSpec("gx", d, "output", "the functional G x at the point delay steps back (0 until valid)",
+                             depends=through),
+                    PortSpec("gx_valid", 1, "output", "1 once the output window is full (gx exact), else 0",
+                             type="Integer")]
+
+
 def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | None = None) -> list:
     """The declaration of a plant: parameters ``x0`` and the physical ``(name, what)`` pairs,
     inputs ``u``, ``d`` (held over the step), outputs ``y = C x`` and ``x`` (no feedthrough).
@@ -189,6 +203,23 @@ def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | 
     if switching in ("threshold", "random"):
         ports.append(PortSpec("mode", 1, "output", "mode of the step from the current point (1..N)",
                               type="Integer"))
+    return ports
+
+
+def lpv_plant_ports(n: int, p: int, q: int, s: int, kind: str, feeds_d: bool) -> list:
+    """The declaration of an LPV plant (:mod:`uiofmu.runtime.lpv`): parameter ``x0``, inputs ``d`` and,
+    for ``kind = "input"``, ``theta``; outputs ``y`` (depending on ``d`` when ``D(theta)`` is not zero, and
+    on an input ``theta``), ``x`` and, for ``kind = "state"``, ``theta = T x``."""
+    depends = (("d",) if feeds_d else ()) + (("theta",) if kind == "input" else ())
+    ports = [PortSpec("x0", n, "parameter", "initial state"),
+             PortSpec("u", 0, "input", "known inputs (none: every input of an LPV plant is unknown)"),
+             PortSpec("d", q, "input", "unknown inputs (held over the step)")]
+    if kind == "input":
+        ports.append(PortSpec("theta", s, "input", "scheduling parameter over the step from the current point"))
+    ports += [PortSpec("y", p, "output", "measured outputs C(theta) x + D(theta) d", depends=depends),
+              PortSpec("x", n, "output", "true state (for validation)")]
+    if kind == "state":
+        ports.append(PortSpec("theta", s, "output", "scheduling parameter T x at the current point"))
     return ports
 
 

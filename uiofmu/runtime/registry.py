@@ -37,7 +37,7 @@ FAMILIES = {e.name: e for e in (
     Entry("ltv-auid", "Ichalal, Mammar, CDC 2019 (seed 000)", "ltv_auid"),
     Entry("switched", "Millerioux, Daafouz (seed 002)", "switched"),
     Entry("sampled-data", "Etienne, Langueh, Hetel, ECC 2023 (seed 004)", "sampled_data"),
-    Entry("deadbeat-functional", "Fiacchini, Millerioux (seed 003)", None),
+    Entry("deadbeat-functional", "Fiacchini, Millerioux (seed 003)", "deadbeat_functional"),
     Entry("delayed-uio", "Fouka et al. (seed 001)", None),
 )}
 

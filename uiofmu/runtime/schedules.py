@@ -18,6 +18,9 @@ A schedule is the only thing that differs between families at run time; the step
     the period ``dt``: indexed as for ``interval``, with ``i = alpha_k - 1`` (the mode of the step
     taken) and ``j = alpha_{k-1} - 1`` (the mode of the step before; ``mode_prev0`` at k = 0).
     A mode outside 1..N is refused (:class:`ModeRejected`), a step other than ``dt`` too.
+``window``
+    The window kernel's formula (:mod:`uiofmu.runtime.window`), designed for the period ``dt``: as
+    ``constant`` for the steps it admits.
 ``geometric``
     Matrices polynomial in ``a = alpha^k`` (the asymptotic-decoupling family): every matrix
     has a leading axis of coefficients, ``M(a) = M[0] + a M[1] + a^2 M[2] + ...``, evaluated
@@ -47,6 +50,7 @@ AXES = {
     "constant": {},
     "interval": {"N": 2, "L": 2, "G": 1, "c": 1, "Yx": 1, "Yu": 1, "Yc": 1, "Xz": 1, "Xy": 1, "Dy": 1},
     "mode": {"N": 2, "L": 2, "G": 1, "c": 1, "Yx": 1, "Yu": 1, "Yc": 1, "Xz": 1, "Xy": 1, "Dy": 1},
+    "window": {},
     "geometric": {k: 1 for k in ("N", "L", "G", "c", "Yx", "Yu", "Yc", "Xz", "Xy", "Dy")},
 }
 
@@ -265,7 +269,7 @@ class ModeSchedule:
 
 
 SCHEDULES = {"constant": ConstantSchedule, "interval": IntervalSchedule, "geometric": GeometricSchedule,
-             "mode": ModeSchedule}
+             "mode": ModeSchedule, "window": ConstantSchedule}
 
 
 def make_schedule(spec: dict, matrices: dict):

@@ -15,7 +15,11 @@
  *                    z_k+1  = N z_k + L y_k + G u_k + c
  *
  * with the matrices the schedule picks for (k, h_k, h_{k-1}) (constant, interval or geometric;
- * uiofmu/runtime/schedules.py). NaN or infinite inputs refuse the step with fmi2Error and a log
+ * uiofmu/runtime/schedules.py), or for a mode schedule (a switched plant) for the modes
+ * (alpha_k, alpha_{k-1}): the Integer input `mode` is alpha_k, the mode of the step about to be
+ * taken, and the instance keeps the mode of the step before (mode_prev; the Integer parameter
+ * mode_prev0 before the first step), looked up exactly as the interval of the step before.
+ * NaN or infinite inputs, and a mode outside 1..N, refuse the step with fmi2Error and a log
  * line; a step the design does not allow follows the design's step policy (fmi2Discard, or the
  * nearest interval noted once); either way nothing changes.
  *
@@ -45,6 +49,7 @@
 #define MAX_DIM 16384
 #define MAX_INTERVALS 4096
 #define MAX_BLOCKS 16777216
+#define MAX_MODES 4096
 
 typedef struct {
     FmuInstance *fmu; /* the plumbing's instance: log lines go through it */
@@ -54,6 +59,7 @@ typedef struct {
     double h_prev, h_prev0;
     int noticed;
     int j_prev; /* index of h_prev among the design intervals, -1 until looked up */
+    int mode, mode_prev, mode_prev0; /* mode schedules: the input, the mode of the step before, the parameter */
     double *z, *pred, *xhat0, *y, *u;
     /* outputs and work space */
     int dirty;
@@ -160,7 +166,7 @@ static const double *pick(const Instance *s, int which, int i, int j) {
     if (M->count < 1 || !M->data) return NULL;
     if (which == M_C || d->kind == UIOFMU_CONSTANT) return M->data;
     if (d->kind == UIOFMU_GEOMETRIC) return M->count == 1 ? M->data : s->work[which];
-    int N = d->nintervals;
+    int N = d->kind == UIOFMU_MODE ? d->modes : d->nintervals;
     if (which == M_N || which == M_L) {
         if (i < 0 || i >= N || j < 0 || j >= N) return NULL;
         block = (size_t)i * (size_t)N + (size_t)j;
@@ -186,8 +192,10 @@ static const double *need(Instance *s, const char *fn, int which, int i, int j) 
     return M;
 }
 
-/* Index of h_prev among the design intervals (0 for the other schedules); -1 when it is none. */
+/* Index of h_prev among the design intervals (mode schedules: of mode_prev among the modes; 0 for
+   the other schedules); -1 when it is none. */
 static int prev_index(Instance *s) {
+    if (s->d->kind == UIOFMU_MODE) return s->mode_prev >= 1 && s->mode_prev <= s->d->modes ? s->mode_prev - 1 : -1;
     if (s->d->kind != UIOFMU_INTERVAL) return 0;
     if (s->j_prev < 0 || s->j_prev >= s->d->nintervals) s->j_prev = interval_index(s, s->h_prev, NULL, 0);
     return s->j_prev;
@@ -195,6 +203,11 @@ static int prev_index(Instance *s) {
 
 static void bad_prev(Instance *s, const char *fn) {
     char b1[32];
+    if (s->d->kind == UIOFMU_MODE) {
+        uiofmu_log(s->fmu, fmi2Error, "%s: mode_prev = %d at step k = %ld is not a mode (1 to %d): the instance's state "
+                   "does not fit its design", fn, s->mode_prev, s->k, s->d->modes);
+        return;
+    }
     uiofmu_log(s->fmu, fmi2Error, "%s: h_prev = %s s at step k = %ld is not a design interval: the instance's state does not fit its design",
           fn, uiofmu_num(s->h_prev, b1), s->k);
 }
@@ -243,6 +256,7 @@ static int refresh(Instance *s, const char *fn) {
 static void reset_state(Instance *s) {
     s->k = 0;
     s->h_prev = s->h_prev0;
+    s->mode_prev = s->mode_prev0;
     s->j_prev = -1;
     s->noticed = 0;
     memset(s->z, 0, s->d->nz * sizeof(double));
@@ -281,7 +295,7 @@ static void expected_shape(const UiofmuDesign *d, int w, int *rows, int *cols, c
 }
 
 static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
-    static const char *const KIND[] = {"constant", "interval", "geometric"};
+    static const char *const KIND[] = {"constant", "interval", "geometric", "mode"};
     const int dims[5] = {d->n, d->m, d->p, d->q, d->nz};
     const char *const dim_name[5] = {"n", "m", "p", "q", "nz"};
     for (int i = 0; i < 5; i++)
@@ -292,10 +306,10 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
         return design_error(msg, len, "dims.nz = %d differs from dims.n = %d (the first step sets z from xhat0)",
                             d->nz, d->n);
     if (d->has_dhat != 0 && d->has_dhat != 1) return design_error(msg, len, "has_dhat = %d is neither 0 nor 1", d->has_dhat);
-    if (d->kind < UIOFMU_CONSTANT || d->kind > UIOFMU_GEOMETRIC)
+    if (d->kind < UIOFMU_CONSTANT || d->kind > UIOFMU_MODE)
         return design_error(msg, len, "schedule kind %d is unknown", d->kind);
     if (d->policy < UIOFMU_POLICY_ERROR || d->policy > UIOFMU_POLICY_COUNT ||
-        (d->kind == UIOFMU_CONSTANT && d->policy != UIOFMU_POLICY_ERROR) ||
+        ((d->kind == UIOFMU_CONSTANT || d->kind == UIOFMU_MODE) && d->policy != UIOFMU_POLICY_ERROR) ||
         (d->kind == UIOFMU_GEOMETRIC && d->policy == UIOFMU_POLICY_NEAREST))
         return design_error(msg, len, "step policy %d does not go with a %s schedule", d->policy, KIND[d->kind]);
     if (!isfinite(d->dt) || !isfinite(d->alpha) || !isfinite(d->h_prev0) || !isfinite(d->step_rtol) ||
@@ -318,6 +332,10 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
             return design_error(msg, len, "interval %d = %g is not a positive finite step", i + 1, d->intervals[i]);
     if (d->kind == UIOFMU_INTERVAL && !resolves(d, d->h_prev0))
         return design_error(msg, len, "h_prev0 = %g is not one of the design intervals", d->h_prev0);
+    if (d->kind == UIOFMU_MODE && !(d->modes >= 1 && d->modes <= MAX_MODES))
+        return design_error(msg, len, "modes = %d is out of range [1, %d] for a mode schedule", d->modes, MAX_MODES);
+    if (d->kind == UIOFMU_MODE && !(d->mode_prev0 >= 1 && d->mode_prev0 <= d->modes))
+        return design_error(msg, len, "mode_prev0 = %d is not a mode (1 to %d)", d->mode_prev0, d->modes);
     for (int w = 0; w < M_COUNT; w++) {
         const UiofmuMatrix *M = &d->mat[w];
         int rows, cols, required = w <= M_C || d->has_dhat;
@@ -327,6 +345,7 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
         if (M->count == 0 && !required) continue;
         if (w == M_C || d->kind == UIOFMU_CONSTANT) want = 1;
         else if (d->kind == UIOFMU_INTERVAL) want = (size_t)d->nintervals * (w == M_N || w == M_L ? (size_t)d->nintervals : 1);
+        else if (d->kind == UIOFMU_MODE) want = (size_t)d->modes * (w == M_N || w == M_L ? (size_t)d->modes : 1);
         else want = 0; /* geometric: any number of coefficients */
         if (M->count < 1 || (want && (size_t)M->count != want) || M->count > MAX_BLOCKS)
             return design_error(msg, len, "matrix %s has %d blocks, expected %s%zu", MATRIX_NAME[w], M->count,
@@ -347,7 +366,11 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
 static int affine_check_design(char *msg, size_t len) { return check_design_data(&UIOFMU_DESIGN, msg, len); }
 
 static int affine_port(int id, UiofmuPort *out) {
-    static const char *const NAME[UIOFMU_AFFINE_PORTS] = {"xhat0", "h_prev0", "y", "u", "xhat", "r", "dhat"};
+    static const char *const NAME[UIOFMU_AFFINE_PORTS] = {"xhat0", "h_prev0", "y", "u", "xhat", "r", "dhat",
+                                                           "mode_prev0", "mode"};
+    static const int CAUSALITY[UIOFMU_AFFINE_PORTS] = {UIOFMU_PARAMETER, UIOFMU_PARAMETER, UIOFMU_INPUT, UIOFMU_INPUT,
+                                                       UIOFMU_OUTPUT, UIOFMU_OUTPUT, UIOFMU_OUTPUT, UIOFMU_PARAMETER,
+                                                       UIOFMU_INPUT};
     const UiofmuDesign *d = &UIOFMU_DESIGN;
     int size;
     switch (id) {
@@ -357,12 +380,13 @@ static int affine_port(int id, UiofmuPort *out) {
     case UIOFMU_AFFINE_U: size = d->m; break;
     case UIOFMU_AFFINE_XHAT: size = d->n; break;
     case UIOFMU_AFFINE_DHAT: size = d->has_dhat ? d->q : 0; break;
+    case UIOFMU_AFFINE_MODE_PREV0: case UIOFMU_AFFINE_MODE: size = d->kind == UIOFMU_MODE ? 1 : 0; break;
     default: return 0;
     }
     out->name = NAME[id];
     out->size = size;
-    out->causality = id <= UIOFMU_AFFINE_H_PREV0 ? UIOFMU_PARAMETER : id <= UIOFMU_AFFINE_U ? UIOFMU_INPUT : UIOFMU_OUTPUT;
-    out->type = UIOFMU_REAL;
+    out->causality = CAUSALITY[id];
+    out->type = id >= UIOFMU_AFFINE_MODE_PREV0 ? UIOFMU_INTEGER : UIOFMU_REAL;
     return 1;
 }
 
@@ -409,6 +433,7 @@ static void *affine_instantiate(FmuInstance *fmu) {
         if (d->kind == UIOFMU_GEOMETRIC && w != M_C && d->mat[w].count) { s->work[w] = b; b += msize(&d->mat[w]); }
     memcpy(s->xhat0, d->xhat0, d->n * sizeof(double));
     s->h_prev0 = d->h_prev0;
+    s->mode_prev0 = s->mode = d->mode_prev0;
     reset_state(s);
     return s;
 }
@@ -424,6 +449,7 @@ static void affine_reset(void *self) {
     Instance *s = (Instance *)self;
     memcpy(s->xhat0, s->d->xhat0, s->d->n * sizeof(double));
     s->h_prev0 = s->d->h_prev0;
+    s->mode_prev0 = s->mode = s->d->mode_prev0;
     memset(s->y, 0, s->d->p * sizeof(double));
     memset(s->u, 0, s->d->m * sizeof(double));
     reset_state(s);
@@ -447,6 +473,11 @@ static UiofmuResult affine_exit_initialization(void *self) {
             uiofmu_log(s->fmu, fmi2Error, "parameter h_prev0: %s", msg);
             return UIOFMU_REFUSED;
         }
+    }
+    if (s->d->kind == UIOFMU_MODE && !(s->mode_prev0 >= 1 && s->mode_prev0 <= s->d->modes)) {
+        uiofmu_log(s->fmu, fmi2Error, "parameter mode_prev0 = %d is not a mode of this observer's plant (expected an "
+                   "integer from 1 to %d)", s->mode_prev0, s->d->modes);
+        return UIOFMU_REFUSED;
     }
     reset_state(s);
     return UIOFMU_DONE;
@@ -483,6 +514,22 @@ static void affine_set_real(void *self, int port, int index, double value) {
     s->dirty = 1;
 }
 
+/* The Integer ports (mode schedules): mode_prev0 (parameter) and mode (input). */
+static int affine_get_integer(void *self, int port, int index) {
+    const Instance *s = (const Instance *)self;
+    (void)index;
+    return port == UIOFMU_AFFINE_MODE_PREV0 ? s->mode_prev0 : port == UIOFMU_AFFINE_MODE ? s->mode : 0;
+}
+
+static void affine_set_integer(void *self, int port, int index, int value) {
+    Instance *s = (Instance *)self;
+    (void)index;
+    if (port == UIOFMU_AFFINE_MODE_PREV0) s->mode_prev0 = value;
+    else if (port == UIOFMU_AFFINE_MODE) s->mode = value;
+    else return;
+    s->dirty = 1;
+}
+
 static UiofmuResult affine_step(void *self, double t, double h) {
     static const char fn[] = "fmi2DoStep";
     Instance *s = (Instance *)self;
@@ -501,6 +548,20 @@ static UiofmuResult affine_step(void *self, double t, double h) {
             return UIOFMU_REFUSED;
         }
     int i = 0, j = 0;
+    if (d->kind == UIOFMU_MODE) {
+        /* the mode first, as the reference runtime: a bad one is an input error, not a step rejected */
+        if (!(s->mode >= 1 && s->mode <= d->modes)) {
+            uiofmu_log(s->fmu, fmi2Error, "t = %s: input mode = %d is not a mode of this observer's plant (expected an "
+                       "integer from 1 to %d) at step k = %ld", uiofmu_num(t, bt), s->mode, d->modes, s->k);
+            return UIOFMU_REFUSED;
+        }
+        i = s->mode - 1;
+        j = prev_index(s);
+        if (j < 0) {
+            bad_prev(s, fn);
+            return UIOFMU_BROKEN;
+        }
+    }
     if (d->kind == UIOFMU_INTERVAL) {
         i = interval_index(s, h, msg, sizeof msg);
         if (i < 0) {
@@ -545,6 +606,7 @@ static UiofmuResult affine_step(void *self, double t, double h) {
     for (int e = 0; e < d->nz; e++) s->z[e] = s->tmp[e] + cc[e];
     s->h_prev = h;
     s->j_prev = i;
+    if (d->kind == UIOFMU_MODE) s->mode_prev = s->mode;
     s->k += 1;
     s->dirty = 1;
     return UIOFMU_DONE;
@@ -559,6 +621,10 @@ static UiofmuResult affine_step(void *self, double t, double h) {
  * order:
  *
  *   k, h_prev, h_prev0, noticed, phase, z[nz], pred[p], xhat0[n], y[p], u[m]
+ *
+ * and for a mode schedule three more (D = 8 + nz + p + n + p + m), integers held exactly:
+ *
+ *   mode, mode_prev, mode_prev0
  *
  * fmi2SetFMUstate and fmi2DeSerializeFMUstate refuse a state (fmi2Error and a log line with
  * the numbers) unless every value is one this FMU can be in (check_values), all checked
@@ -587,6 +653,11 @@ static UiofmuResult affine_step(void *self, double t, double h) {
  *            arithmetic, never an index. An instance holds such an input legitimately (a
  *            master set it, the step was refused), and refusing its state would break the
  *            get/set round trip.
+ *   mode     an integer in the range of fmi2Integer (an input: fmi2DoStep refuses one outside 1..N)
+ *   mode_prev a mode, 1..N (every step and output indexes the matrices with it), equal to
+ *            mode_prev0 at k = 0 in phase 2 and 3
+ *   mode_prev0 a mode in phase 2 and 3 (fmi2ExitInitializationMode checked it); in phase 0 and
+ *            1 any fmi2Integer, a parameter value not yet taken
  */
 
 #define MAX_SAFE_INTEGER 9007199254740992.0 /* 2^53 */
@@ -608,9 +679,16 @@ static int state_refused(Instance *s, const char *ctx, const char *fmt, ...) {
     return 0;
 }
 
+enum { SV_MODE, SV_MODE_PREV, SV_MODE_PREV0, SV_MODES }; /* after u[m], mode schedules only */
+
+/* Index of the first mode double (mode schedules). */
+static size_t mode_at(const UiofmuDesign *d) {
+    return SV_SCALARS + (size_t)d->nz + (size_t)d->p + (size_t)d->n + (size_t)d->p + (size_t)d->m;
+}
+
 static size_t affine_state_count(void) {
     const UiofmuDesign *d = &UIOFMU_DESIGN;
-    return SV_SCALARS + (size_t)d->nz + (size_t)d->p + (size_t)d->n + (size_t)d->p + (size_t)d->m;
+    return mode_at(d) + (d->kind == UIOFMU_MODE ? SV_MODES : 0);
 }
 
 static void affine_state_shape(uint32_t shape[UIOFMU_SHAPE], const char *names[UIOFMU_SHAPE]) {
@@ -632,7 +710,11 @@ static void affine_save_state(void *self, int phase, Byte *o) {
     memcpy(o, s->pred, d->p * sizeof(double)); o += d->p * sizeof(double);
     memcpy(o, s->xhat0, d->n * sizeof(double)); o += d->n * sizeof(double);
     memcpy(o, s->y, d->p * sizeof(double)); o += d->p * sizeof(double);
-    memcpy(o, s->u, d->m * sizeof(double));
+    memcpy(o, s->u, d->m * sizeof(double)); o += d->m * sizeof(double);
+    if (d->kind == UIOFMU_MODE) {
+        double modes[SV_MODES] = {(double)s->mode, (double)s->mode_prev, (double)s->mode_prev0};
+        memcpy(o, modes, sizeof modes);
+    }
 }
 
 /* " (nearest interval 600 s, tolerance 1e-06 relative; step_policy 'error')" */
@@ -695,6 +777,23 @@ static int check_values(Instance *s, const char *ctx, const Byte *v) {
         at += (size_t)length[w];
     }
     /* y[p], u[m]: taken as they are (see above) */
+    if (d->kind == UIOFMU_MODE) {
+        size_t m0 = mode_at(d);
+        double mode = getd(v, m0 + SV_MODE), mp = getd(v, m0 + SV_MODE_PREV), mp0 = getd(v, m0 + SV_MODE_PREV0);
+        if (!(mode == floor(mode) && mode >= INT_MIN && mode <= INT_MAX))
+            return state_refused(s, ctx, "mode = %s is not an fmi2Integer", uiofmu_num(mode, b1));
+        if (!(mp == floor(mp) && mp >= 1 && mp <= d->modes))
+            return state_refused(s, ctx, "mode_prev = %s is not a mode (an integer from 1 to %d)", uiofmu_num(mp, b1),
+                                 d->modes);
+        if (!(mp0 == floor(mp0) && mp0 >= INT_MIN && mp0 <= INT_MAX))
+            return state_refused(s, ctx, "mode_prev0 = %s is not an fmi2Integer", uiofmu_num(mp0, b1));
+        if (running && !(mp0 >= 1 && mp0 <= d->modes))
+            return state_refused(s, ctx, "mode_prev0 = %s is not a mode (an integer from 1 to %d), but initialisation "
+                                 "ended", uiofmu_num(mp0, b1), d->modes);
+        if (running && k == 0 && mp != mp0)
+            return state_refused(s, ctx, "mode_prev = %s at k = 0 differs from mode_prev0 = %s", uiofmu_num(mp, b1),
+                                 uiofmu_num(mp0, b2));
+    }
     return 1;
 }
 
@@ -710,6 +809,12 @@ static void apply_state(Instance *s, const Byte *v) {
     memcpy(s->xhat0, o, d->n * sizeof(double)); o += d->n * sizeof(double);
     memcpy(s->y, o, d->p * sizeof(double)); o += d->p * sizeof(double);
     memcpy(s->u, o, d->m * sizeof(double));
+    if (d->kind == UIOFMU_MODE) {
+        size_t m0 = mode_at(d);
+        s->mode = (int)getd(v, m0 + SV_MODE);
+        s->mode_prev = (int)getd(v, m0 + SV_MODE_PREV);
+        s->mode_prev0 = (int)getd(v, m0 + SV_MODE_PREV0);
+    }
     s->work_k = -1;
     s->j_prev = -1;
     s->dirty = 1;
@@ -734,8 +839,8 @@ const UiofmuKernel UIOFMU_KERNEL_AFFINE = {
     .calculate = affine_calculate,
     .get_real = affine_get_real,
     .set_real = affine_set_real,
-    .get_integer = NULL, /* no Integer ports */
-    .set_integer = NULL,
+    .get_integer = affine_get_integer, /* mode schedules: mode_prev0 and mode */
+    .set_integer = affine_set_integer,
     .step = affine_step,
     .state_count = affine_state_count,
     .state_shape = affine_state_shape,

@@ -5,6 +5,8 @@
  *   constant : count = 1
  *   interval : N, L: count = N*N, block [i*N + j]; G, c, Yx, Yu, Yc: block [i]; Xz, Xy, Dy: block [j]
  *              (i: index of h_k, j: index of h_{k-1})
+ *   mode     : as interval, with i = alpha_k - 1 (the input mode, the mode of the step taken) and
+ *              j = alpha_{k-1} - 1 (the mode of the step before; mode_prev0 before the first step)
  *   geometric: count = number of polynomial coefficients in a = alpha^k
  * C is never scheduled. count = 0 marks an absent matrix (no dhat).
  *
@@ -21,10 +23,13 @@
 
 /* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.observer_ports):
    xhat0[n] parameter, h_prev0[1] parameter (interval schedules), y[p] and u[m] inputs,
-   xhat[n], r[p] and dhat[q] (with Dy) outputs; all Real. */
+   xhat[n], r[p] and dhat[q] (with Dy) outputs, all Real; mode schedules add the Integer
+   parameter mode_prev0[1] and the Integer input mode[1]. The ids are the kernel's own: the
+   variable table lists them in the order of the card's ports. */
 enum {
     UIOFMU_AFFINE_XHAT0, UIOFMU_AFFINE_H_PREV0, UIOFMU_AFFINE_Y, UIOFMU_AFFINE_U,
-    UIOFMU_AFFINE_XHAT, UIOFMU_AFFINE_R, UIOFMU_AFFINE_DHAT, UIOFMU_AFFINE_PORTS
+    UIOFMU_AFFINE_XHAT, UIOFMU_AFFINE_R, UIOFMU_AFFINE_DHAT, UIOFMU_AFFINE_MODE_PREV0, UIOFMU_AFFINE_MODE,
+    UIOFMU_AFFINE_PORTS
 };
 
 typedef struct {
@@ -34,7 +39,7 @@ typedef struct {
     size_t length; /* number of doubles in data */
 } UiofmuMatrix;
 
-enum { UIOFMU_CONSTANT = 0, UIOFMU_INTERVAL = 1, UIOFMU_GEOMETRIC = 2 };
+enum { UIOFMU_CONSTANT = 0, UIOFMU_INTERVAL = 1, UIOFMU_GEOMETRIC = 2, UIOFMU_MODE = 3 };
 enum { UIOFMU_POLICY_ERROR = 0, UIOFMU_POLICY_NEAREST = 1, UIOFMU_POLICY_COUNT = 2 };
 enum { M_N, M_L, M_G, M_c, M_Xz, M_Xy, M_C, M_Dy, M_Yx, M_Yu, M_Yc, M_COUNT };
 
@@ -44,6 +49,7 @@ typedef struct {
     double dt, alpha, h_prev0, step_rtol;
     int nintervals;
     const double *intervals;
+    int modes, mode_prev0; /* mode schedules: N >= 1 and the mode assumed before the first step (1..N) */
     const double *xhat0;
     UiofmuMatrix mat[M_COUNT];
     size_t intervals_length; /* number of doubles in intervals (1 when there are none) */

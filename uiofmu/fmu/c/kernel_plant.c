@@ -19,6 +19,17 @@
  * step_rtol, as uiofmu/runtime/tolerances.py STEP_RTOL) is refused with fmi2Discard and a log
  * line naming h and dt; nothing changes.
  *
+ * Switched plants (discrete, modes N >= 1; uiofmu/runtime/switching.py, bit for bit): the step
+ * from t_k is x <- A_i x + B_i u + E_i d + w_i in the mode i = alpha_k of that step, which the
+ * Integer output mode shows at t_k (rules threshold and random) or the Integer input mode sets
+ * (rule input; one outside 1..N refuses the step with fmi2Error and a log line naming it and
+ * the range, before the step length is looked at, as the reference runtime). Rule threshold:
+ * alpha_k = 1 + #{thresholds <= x_k[state]}. Rule random: alpha_k is drawn from the k-th output
+ * of a SplitMix64 generator (Steele, Lea, Flood 2014) started at the 64 bits of the seed (two's
+ * complement): U = (output >> 11) 2^-53, alpha_k the first i with U < cumulative[i - 1], N when
+ * none; mode 0 is drawn when the generator restarts (instantiation, fmi2Reset, and
+ * fmi2ExitInitializationMode with the parameter seed), the next after each step taken.
+ *
  * Non-finite inputs are refused with fmi2Error and a log line naming the input (h <= 0 or not
  * finite is refused by the plumbing); a step whose exponential or new state is not finite is
  * refused the same way. Either way nothing changes.
@@ -34,8 +45,16 @@
  * state holding one is refused whatever its phase); before initialisation ended (phase 0 and
  * 1) x is the design's x0, bit for bit (only initialisation moves it there); u and d any value,
  * NaN and Inf included (inputs that fmi2SetReal takes and fmi2DoStep refuses). The cache is not
- * part of the state: it is a function of h alone.
+ * part of the state: it is a function of h alone. A switched plant adds 5 doubles, integers held
+ * exactly:
+ *
+ *   mode_in, seed, rng_hi, rng_lo, drawn
+ *
+ * mode_in and seed any fmi2Integer (an input the step checks; a parameter taken as it is), the
+ * generator's state as its two 32-bit halves (integers 0 <= v < 2^32: every state is one the
+ * generator can be in), drawn a mode 1..N (1 for the rules other than random).
  */
+#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdint.h>
@@ -49,6 +68,7 @@
 /* Bounds of what a plant may ask for: the augmented matrix is K x K, K = n + m + q + 1. */
 #define MAX_DIM 2048
 #define CACHE_SIZE 16
+#define MAX_MODES 4096
 
 typedef struct {
     double h;
@@ -66,6 +86,9 @@ typedef struct {
     int *piv;
     CacheEntry cache[CACHE_SIZE];
     int next, last;
+    /* switched plants: the input mode, the seed, the generator and the mode it drew */
+    int mode_in, seed, drawn;
+    uint64_t rng;
     double *block; /* every double above, one allocation */
 } Plant;
 
@@ -219,6 +242,30 @@ static int design_error(char *msg, size_t len, const char *fmt, ...) {
     return 0;
 }
 
+/* The switching rule's numbers (thresholds, cumulative probabilities, state index, mode0). */
+static int switching_ok(const UiofmuPlant *d, char *msg, size_t len) {
+    int want_th = d->rule == UIOFMU_RULE_THRESHOLD ? d->modes - 1 : 0;
+    if (d->nthresholds != want_th || !d->thresholds || d->thresholds_length != (size_t)(want_th ? want_th : 1))
+        return design_error(msg, len, "plant thresholds: %d in an array of %zu, expected %d", d->nthresholds,
+                            d->thresholds ? d->thresholds_length : 0, want_th);
+    for (int i = 0; i < want_th; i++)
+        if (!isfinite(d->thresholds[i]) || (i && !(d->thresholds[i] > d->thresholds[i - 1])))
+            return design_error(msg, len, "plant thresholds: entry %d = %g is not finite and above the one before", i + 1,
+                                d->thresholds[i]);
+    if (d->rule == UIOFMU_RULE_THRESHOLD && !(d->state >= 0 && d->state < d->n))
+        return design_error(msg, len, "plant switching state = %d is not a state index (0 to %d)", d->state, d->n - 1);
+    size_t want_c = d->rule == UIOFMU_RULE_RANDOM ? (size_t)d->modes : 1;
+    if (!d->cumulative || d->cumulative_length != want_c)
+        return design_error(msg, len, "plant cumulative probabilities: %zu numbers, expected %zu",
+                            d->cumulative ? d->cumulative_length : 0, want_c);
+    for (size_t i = 0; i < want_c; i++)
+        if (!isfinite(d->cumulative[i]))
+            return design_error(msg, len, "plant cumulative probabilities: entry %zu is not finite", i + 1);
+    if (d->rule == UIOFMU_RULE_INPUT && !(d->mode0 >= 1 && d->mode0 <= d->modes))
+        return design_error(msg, len, "plant mode0 = %d is not a mode (1 to %d)", d->mode0, d->modes);
+    return 1;
+}
+
 static int plant_check_design(char *msg, size_t len) {
     const UiofmuPlant *d = &UIOFMU_PLANT;
     const int dims[4] = {d->n, d->m, d->p, d->q};
@@ -234,10 +281,18 @@ static int plant_check_design(char *msg, size_t len) {
         return design_error(msg, len, "plant dt = %g: a discrete plant needs a period > 0", d->dt);
     if (!(isfinite(d->step_rtol) && d->step_rtol >= 0 && d->step_rtol < 1))
         return design_error(msg, len, "plant step_rtol = %g is out of range [0, 1)", d->step_rtol);
+    if (!(d->modes >= 0 && d->modes <= MAX_MODES))
+        return design_error(msg, len, "plant modes = %d is out of range [0, %d]", d->modes, MAX_MODES);
+    if ((d->modes == 0) != (d->rule == UIOFMU_RULE_NONE) || d->rule < UIOFMU_RULE_NONE || d->rule > UIOFMU_RULE_RANDOM)
+        return design_error(msg, len, "plant rule = %d does not go with %d modes", d->rule, d->modes);
+    if (d->modes && d->time != UIOFMU_DISCRETE)
+        return design_error(msg, len, "a switched plant is discrete, found time = %d", d->time);
+    if (!switching_ok(d, msg, len)) return 0;
+    size_t blocks = d->modes ? (size_t)d->modes : 1;
     struct { const char *name; const double *data; size_t length, want; } M[6] = {
-        {"A", d->A, d->A_length, (size_t)d->n * d->n}, {"B", d->B, d->B_length, (size_t)d->n * d->m},
-        {"E", d->E, d->E_length, (size_t)d->n * d->q}, {"C", d->C, d->C_length, (size_t)d->p * d->n},
-        {"w", d->w, d->w_length, (size_t)d->n}, {"x0", d->x0, d->x0_length, (size_t)d->n}};
+        {"A", d->A, d->A_length, blocks * d->n * d->n}, {"B", d->B, d->B_length, blocks * d->n * d->m},
+        {"E", d->E, d->E_length, blocks * d->n * d->q}, {"C", d->C, d->C_length, (size_t)d->p * d->n},
+        {"w", d->w, d->w_length, blocks * d->n}, {"x0", d->x0, d->x0_length, (size_t)d->n}};
     for (int i = 0; i < 6; i++) {
         size_t want = M[i].want ? M[i].want : 1; /* an empty array is written as {0.0} */
         if (!M[i].data || M[i].length != want)
@@ -250,7 +305,9 @@ static int plant_check_design(char *msg, size_t len) {
 }
 
 static int plant_port(int id, UiofmuPort *out) {
-    static const char *const NAME[UIOFMU_PLANT_PORTS] = {"x0", "u", "d", "y", "x"};
+    static const char *const NAME[UIOFMU_PLANT_PORTS] = {"x0", "u", "d", "y", "x", "seed", "mode"};
+    static const int CAUSALITY[UIOFMU_PLANT_PORTS] = {UIOFMU_PARAMETER, UIOFMU_INPUT, UIOFMU_INPUT, UIOFMU_OUTPUT,
+                                                      UIOFMU_OUTPUT, UIOFMU_PARAMETER, UIOFMU_OUTPUT};
     const UiofmuPlant *d = &UIOFMU_PLANT;
     int size;
     switch (id) {
@@ -258,17 +315,63 @@ static int plant_port(int id, UiofmuPort *out) {
     case UIOFMU_PLANT_U: size = d->m; break;
     case UIOFMU_PLANT_D: size = d->q; break;
     case UIOFMU_PLANT_Y: size = d->p; break;
+    case UIOFMU_PLANT_SEED: size = d->rule == UIOFMU_RULE_RANDOM ? 1 : 0; break;
+    case UIOFMU_PLANT_MODE: size = d->modes ? 1 : 0; break;
     default: return 0;
     }
     out->name = NAME[id];
     out->size = size;
-    out->causality = id == UIOFMU_PLANT_X0 ? UIOFMU_PARAMETER : id <= UIOFMU_PLANT_D ? UIOFMU_INPUT : UIOFMU_OUTPUT;
-    out->type = UIOFMU_REAL;
+    out->causality = id == UIOFMU_PLANT_MODE && d->rule == UIOFMU_RULE_INPUT ? UIOFMU_INPUT : CAUSALITY[id];
+    out->type = id >= UIOFMU_PLANT_SEED ? UIOFMU_INTEGER : UIOFMU_REAL;
     return 1;
 }
 
 /* ---------------------------------------------------------------------------------------- */
 /* Instances                                                                                 */
+
+/* ---------------------------------------------------------------------------------------- */
+/* Switching                                                                                 */
+
+/* One step of SplitMix64: the new state in *state, the 64-bit output returned. */
+static uint64_t splitmix64(uint64_t *state) {
+    uint64_t z = (*state += UINT64_C(0x9E3779B97F4A7C15));
+    z = (z ^ (z >> 30)) * UINT64_C(0xBF58476D1CE4E5B9);
+    z = (z ^ (z >> 27)) * UINT64_C(0x94D049BB133111EB);
+    return z ^ (z >> 31);
+}
+
+/* Rule random: the mode of the next step from the generator (nothing for the other rules). */
+static void draw(Plant *s) {
+    const UiofmuPlant *d = s->d;
+    if (d->rule != UIOFMU_RULE_RANDOM) return;
+    double u = (double)(splitmix64(&s->rng) >> 11) * (1.0 / 9007199254740992.0);
+    int mode = d->modes;
+    for (int i = 0; i < d->modes - 1; i++)
+        if (u < d->cumulative[i]) { mode = i + 1; break; }
+    s->drawn = mode;
+}
+
+/* The generator at the seed (its 64 bits, two's complement), and the mode of step 0. */
+static void restart(Plant *s) {
+    s->rng = (uint64_t)(int64_t)s->seed;
+    s->drawn = 1;
+    draw(s);
+}
+
+/* alpha_k, the mode of the step from the current point (1 for a linear plant; for rule input
+   the input as it is, which the step checks). */
+static int current_mode(const Plant *s) {
+    const UiofmuPlant *d = s->d;
+    if (d->rule == UIOFMU_RULE_THRESHOLD) {
+        int mode = 1;
+        for (int i = 0; i < d->nthresholds; i++)
+            if (d->thresholds[i] <= s->x[d->state]) mode++;
+        return mode;
+    }
+    if (d->rule == UIOFMU_RULE_RANDOM) return s->drawn;
+    if (d->rule == UIOFMU_RULE_INPUT) return s->mode_in;
+    return 1;
+}
 
 static void plant_reset(void *self) {
     Plant *s = (Plant *)self;
@@ -277,6 +380,9 @@ static void plant_reset(void *self) {
     memcpy(s->x, d->x0, (size_t)d->n * sizeof(double));
     memset(s->u, 0, (size_t)d->m * sizeof(double));
     memset(s->dv, 0, (size_t)d->q * sizeof(double));
+    s->mode_in = d->mode0;
+    s->seed = d->seed;
+    restart(s);
     s->dirty = 1;
 }
 
@@ -338,6 +444,7 @@ static UiofmuResult plant_exit_initialization(void *self) {
             return UIOFMU_REFUSED;
         }
     memcpy(s->x, s->x0, (size_t)s->d->n * sizeof(double));
+    restart(s);
     s->dirty = 1;
     return UIOFMU_DONE;
 }
@@ -375,6 +482,20 @@ static double plant_get_real(void *self, int port, int index) {
 static void plant_set_real(void *self, int port, int index, double value) {
     double *v = port <= UIOFMU_PLANT_D ? element((Plant *)self, port, index) : NULL; /* parameters and inputs */
     if (v) *v = value;
+}
+
+/* The Integer ports of a switched plant: seed (parameter) and mode (input or output). */
+static int plant_get_integer(void *self, int port, int index) {
+    const Plant *s = (const Plant *)self;
+    (void)index;
+    return port == UIOFMU_PLANT_SEED ? s->seed : port == UIOFMU_PLANT_MODE ? current_mode(s) : 0;
+}
+
+static void plant_set_integer(void *self, int port, int index, int value) {
+    Plant *s = (Plant *)self;
+    (void)index;
+    if (port == UIOFMU_PLANT_SEED) s->seed = value; /* taken at fmi2ExitInitializationMode */
+    else if (port == UIOFMU_PLANT_MODE && s->d->rule == UIOFMU_RULE_INPUT) s->mode_in = value;
 }
 
 /* [Ad Bd Ed wd] (n x K) of a continuous plant for step h: from the cache, or computed into it.
@@ -429,6 +550,12 @@ static UiofmuResult plant_step(void *self, double t, double h) {
     int n = d->n, m = d->m, q = d->q;
     char bt[32], bh[32], bd[32];
     if (!inputs_finite(s, t, s->u, m, "u") || !inputs_finite(s, t, s->dv, q, "d")) return UIOFMU_REFUSED;
+    int mode = current_mode(s);
+    if (!(mode >= 1 && mode <= (d->modes ? d->modes : 1))) { /* only an input can be out of range */
+        uiofmu_log(s->fmu, fmi2Error, "t = %s: input mode = %d is not a mode of this plant (expected an integer from 1 "
+                   "to %d)", uiofmu_num(t, bt), mode, d->modes);
+        return UIOFMU_REFUSED;
+    }
     double *xn = s->tmp;
     if (d->time == UIOFMU_DISCRETE) {
         if (fabs(h - d->dt) > d->step_rtol * d->dt) {
@@ -436,12 +563,14 @@ static UiofmuResult plant_step(void *self, double t, double h) {
                        uiofmu_num(t, bt), uiofmu_num(d->dt, bd), uiofmu_num(h, bh));
             return UIOFMU_DISCARDED;
         }
+        size_t b = (size_t)(mode - 1); /* the mode's block of A, B, E, w */
+        const double *A = d->A + b * n * n, *B = d->B + b * n * m, *E = d->E + b * n * q, *w = d->w + b * n;
         for (int i = 0; i < n; i++) {
             double ax = 0.0, bu = 0.0, ed = 0.0;
-            for (int j = 0; j < n; j++) ax += d->A[(size_t)i * n + j] * s->x[j];
-            for (int j = 0; j < m; j++) bu += d->B[(size_t)i * m + j] * s->u[j];
-            for (int j = 0; j < q; j++) ed += d->E[(size_t)i * q + j] * s->dv[j];
-            xn[i] = ax + bu + ed + d->w[i];
+            for (int j = 0; j < n; j++) ax += A[(size_t)i * n + j] * s->x[j];
+            for (int j = 0; j < m; j++) bu += B[(size_t)i * m + j] * s->u[j];
+            for (int j = 0; j < q; j++) ed += E[(size_t)i * q + j] * s->dv[j];
+            xn[i] = ax + bu + ed + w[i];
         }
     } else {
         const double *phi = discretisation(s, t, h);
@@ -463,6 +592,7 @@ static UiofmuResult plant_step(void *self, double t, double h) {
             return UIOFMU_REFUSED;
         }
     memcpy(s->x, xn, (size_t)n * sizeof(double));
+    draw(s); /* rule random: the mode of the next step */
     s->dirty = 1;
     return UIOFMU_DONE;
 }
@@ -474,9 +604,13 @@ typedef unsigned char Byte;
 
 static double getd(const Byte *b, size_t index) { double v; memcpy(&v, b + index * sizeof v, sizeof v); return v; }
 
+enum { SV_MODE_IN, SV_SEED, SV_RNG_HI, SV_RNG_LO, SV_DRAWN, SV_SWITCHED }; /* after d[q], switched plants only */
+
+static size_t switched_at(const UiofmuPlant *d) { return 1 + 2 * (size_t)d->n + (size_t)d->m + (size_t)d->q; }
+
 static size_t plant_state_count(void) {
     const UiofmuPlant *d = &UIOFMU_PLANT;
-    return 1 + 2 * (size_t)d->n + (size_t)d->m + (size_t)d->q;
+    return switched_at(d) + (d->modes ? SV_SWITCHED : 0);
 }
 
 static void plant_state_shape(uint32_t shape[UIOFMU_SHAPE], const char *names[UIOFMU_SHAPE]) {
@@ -497,13 +631,18 @@ static void plant_save_state(void *self, int phase, Byte *o) {
     memcpy(o, s->x0, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
     memcpy(o, s->x, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
     memcpy(o, s->u, (size_t)d->m * sizeof(double)); o += (size_t)d->m * sizeof(double);
-    memcpy(o, s->dv, (size_t)d->q * sizeof(double));
+    memcpy(o, s->dv, (size_t)d->q * sizeof(double)); o += (size_t)d->q * sizeof(double);
+    if (d->modes) {
+        double sw[SV_SWITCHED] = {(double)s->mode_in, (double)s->seed, (double)(uint32_t)(s->rng >> 32),
+                                  (double)(uint32_t)(s->rng & UINT64_C(0xFFFFFFFF)), (double)s->drawn};
+        memcpy(o, sw, sizeof sw);
+    }
 }
 
 static int plant_check_state(void *self, const char *ctx, const Byte *v, int *phase) {
     Plant *s = (Plant *)self;
     const UiofmuPlant *d = s->d;
-    char b1[32], b2[32];
+    char b1[32], b2[32], b3[32];
     double ph = getd(v, 0);
     if (!(ph == UIOFMU_PHASE_INSTANTIATED || ph == UIOFMU_PHASE_INITIALIZATION || ph == UIOFMU_PHASE_RUNNING ||
           ph == UIOFMU_PHASE_TERMINATED)) {
@@ -525,6 +664,24 @@ static int plant_check_state(void *self, const char *ctx, const Byte *v, int *ph
             }
         }
     /* u[m], d[q]: taken as they are (see the header comment) */
+    if (d->modes) {
+        static const char *const NAME[SV_SWITCHED] = {"mode_in", "seed", "rng_hi", "rng_lo", "drawn"};
+        const double low[SV_SWITCHED] = {INT_MIN, INT_MIN, 0, 0, 1};
+        const double high[SV_SWITCHED] = {INT_MAX, INT_MAX, 4294967295.0, 4294967295.0, d->modes};
+        for (int i = 0; i < SV_SWITCHED; i++) {
+            double x = getd(v, switched_at(d) + (size_t)i);
+            if (!(x == floor(x) && x >= low[i] && x <= high[i])) {
+                uiofmu_log(s->fmu, fmi2Error, "%s: %s = %s is not an integer from %s to %s", ctx, NAME[i],
+                           uiofmu_num(x, b1), uiofmu_num(low[i], b2), uiofmu_num(high[i], b3));
+                return 0;
+            }
+        }
+        if (d->rule != UIOFMU_RULE_RANDOM && getd(v, switched_at(d) + SV_DRAWN) != 1) {
+            uiofmu_log(s->fmu, fmi2Error, "%s: drawn = %s, but only rule random draws modes (expected 1)", ctx,
+                       uiofmu_num(getd(v, switched_at(d) + SV_DRAWN), b1));
+            return 0;
+        }
+    }
     *phase = (int)ph;
     return 1;
 }
@@ -537,6 +694,13 @@ static void plant_load_state(void *self, const Byte *v) {
     memcpy(s->x, o, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
     memcpy(s->u, o, (size_t)d->m * sizeof(double)); o += (size_t)d->m * sizeof(double);
     memcpy(s->dv, o, (size_t)d->q * sizeof(double));
+    if (d->modes) {
+        size_t at = switched_at(d);
+        s->mode_in = (int)getd(v, at + SV_MODE_IN);
+        s->seed = (int)getd(v, at + SV_SEED);
+        s->rng = ((uint64_t)getd(v, at + SV_RNG_HI) << 32) | (uint64_t)getd(v, at + SV_RNG_LO);
+        s->drawn = (int)getd(v, at + SV_DRAWN);
+    }
     s->dirty = 1;
 }
 
@@ -552,8 +716,8 @@ const UiofmuKernel UIOFMU_KERNEL_PLANT = {
     .calculate = plant_calculate,
     .get_real = plant_get_real,
     .set_real = plant_set_real,
-    .get_integer = NULL, /* no Integer ports */
-    .set_integer = NULL,
+    .get_integer = plant_get_integer, /* switched plants: seed and mode */
+    .set_integer = plant_set_integer,
     .step = plant_step,
     .state_count = plant_state_count,
     .state_shape = plant_state_shape,

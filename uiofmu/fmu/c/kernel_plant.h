@@ -3,6 +3,13 @@
  * A linear plant (uiofmu.plant.Plant.to_data()) becomes one constant UiofmuPlant
  * (design_data.c, generated; numbers only). Matrices are row-major:
  *   A n x n, B n x m, E n x q, C p x n, w n, x0 n
+ * A switched plant (uiofmu.switched_plant.SwitchedPlant.to_data(), modes = N >= 1; discrete) has
+ * N blocks of each of A, B, E and w, mode i (1..N) the block i - 1, and its switching rule:
+ *   threshold: mode 1 + #{thresholds[t] <= x[state]} (N - 1 increasing thresholds)
+ *   input:     the Integer input mode (mode0 before a master sets it)
+ *   random:    i.i.d. draws from SplitMix64 seeded with the Integer parameter seed, by the
+ *              cumulative probabilities (N running sums)
+ * (uiofmu/runtime/switching.py). A linear plant has modes = 0 and rule UIOFMU_RULE_NONE.
  * An empty matrix (m = 0 or q = 0) is written as {0.0}: length 1. Every array travels with
  * its length as the C compiler counts it (UIOFMU_LENGTH), so fmi2Instantiate checks the data
  * actually compiled in against the dims before it reads any of it.
@@ -15,10 +22,16 @@
 #include "fmi2_plumbing.h"
 
 /* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.plant_ports):
-   x0[n] parameter, u[m] and d[q] inputs (held over the step), y[p] = C x and x[n] outputs; all Real. */
-enum { UIOFMU_PLANT_X0, UIOFMU_PLANT_U, UIOFMU_PLANT_D, UIOFMU_PLANT_Y, UIOFMU_PLANT_X, UIOFMU_PLANT_PORTS };
+   x0[n] parameter, u[m] and d[q] inputs (held over the step), y[p] = C x and x[n] outputs; all Real.
+   A switched plant adds the Integer mode[1]: an input (rule input) or an output (rules threshold
+   and random), and rule random the Integer parameter seed[1]. */
+enum {
+    UIOFMU_PLANT_X0, UIOFMU_PLANT_U, UIOFMU_PLANT_D, UIOFMU_PLANT_Y, UIOFMU_PLANT_X, UIOFMU_PLANT_SEED,
+    UIOFMU_PLANT_MODE, UIOFMU_PLANT_PORTS
+};
 
 enum { UIOFMU_DISCRETE = 0, UIOFMU_CONTINUOUS = 1 };
+enum { UIOFMU_RULE_NONE = 0, UIOFMU_RULE_THRESHOLD = 1, UIOFMU_RULE_INPUT = 2, UIOFMU_RULE_RANDOM = 3 };
 
 typedef struct {
     int n, m, p, q;
@@ -27,6 +40,13 @@ typedef struct {
     double step_rtol;  /* discrete plants: a step within step_rtol * dt of dt is dt */
     const double *A, *B, *E, *C, *w, *x0;
     size_t A_length, B_length, E_length, C_length, w_length, x0_length;
+    /* switched plants (modes = 0 for a linear one) */
+    int modes, rule;
+    int state;          /* rule threshold: the 0-based index of the state compared */
+    int nthresholds;    /* rule threshold: N - 1 */
+    int mode0, seed;    /* rule input: the input's start value; rule random: the seed's */
+    const double *thresholds, *cumulative; /* N - 1 increasing values; N running sums of the probabilities */
+    size_t thresholds_length, cumulative_length;
 } UiofmuPlant;
 
 UIOFMU_INTERNAL extern const UiofmuPlant UIOFMU_PLANT;

@@ -1,0 +1,424 @@
+"""Dead-beat functional observer for discrete LPV systems with unknown inputs (Fiacchini, Millerioux,
+TAC 2013; seed 003).
+
+For an LPV plant (:mod:`uiofmu.lpv_plant`) ``x+ = A(theta) x + E(theta) d``, ``y = C(theta) x + D(theta) d``
+(the paper's B is our ``E``), a functional ``G x`` is read off a finite window of outputs, exactly,
+whatever the unknown input. The steps, each reported by :func:`analyse` with its numbers:
+
+1. The inherent delay ``r``: the smallest r >= 0 with rank condition (2),
+   ``rank M(theta_{k:k+r}) - rank M(theta_{k+1:k+r}) = rank [E; D]``, where ``O(theta_{k:k+i})`` stacks
+   ``C(theta_k), C(theta_{k+1}) A(theta_k), ...`` and ``M(theta_{k:k+i}) = [[D(theta_k), 0],
+   [O(theta_{k+1:k+i}) E(theta_k), M(theta_{k+1:k+i})]]`` (the lower-left block as corrected in the
+   seed notes). The matrices are polynomial in the window's theta values
+   (:class:`uiofmu.polynomials.PolyMatrix`, exact coefficients); this version designs when ``M`` does
+   not depend on theta (the unknown input reaches the outputs the same way at every step), so that
+   the inverse system (4) is polynomial, and refuses otherwise, saying so.
+2. The inverse system (4): ``Q = E(theta_k) Ibar M^+``, ``Ibar = [I_q 0]``, ``P = A(theta_k) - Q O(theta_{k:k+r})``,
+   and ``x_{k+1} = P x_k + Q y_{k:k+r}`` for the true state. ``P`` is polynomial in the window; its
+   monomials are the paper's ``rho`` and their coefficients the ``P_i`` of (8).
+3. Algorithm 1 (iteration (16)): the maximal robust invariant subspace of ``{P_i}`` in ``ker G``, then
+   ``Phat_i`` of (13) on a complement, and whether they generate a nilpotent semigroup, of class
+   ``t``: then ``K = t - 1`` (Corollary 1); ``G P_i = 0`` for all i gives ``K = 0`` (Proposition 6).
+4. The formula (Proposition 4, with the sum over j = 0..K-1 as in its proof): unrolling
+   ``x_{j+1} = P_j x_j + Q_j y_{j:j+r}`` over ``K + 1`` steps, ``G`` times the product of the ``P``
+   vanishes, and ``G x_k = sum_{j=k-K-1}^{k-1} G P_{k-1} ... P_{j+1} Q_j y_{j:j+r}``: coefficients on
+   the outputs ``y_{k-K-1..k+r-1}``, polynomial in the same window of theta values.
+
+The runtime (:mod:`uiofmu.runtime.window`) evaluates that finite window at every step, never the
+recursion (3) (``P`` may be unstable: ``P_1`` of the paper's example has the eigenvalue -1). The
+certificate is the identity itself, re-checked on simulations of the plant's own matrices with
+random states, unknown inputs and theta sequences (:func:`checks`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..certificate import Check
+from ..existence import Condition, Existence, complex_list, format_complex
+from ..lpv_plant import LpvPlant
+from ..polynomials import PolyMatrix, hstack, shifted, stack
+from ..runtime.errors import InfeasibleError, ProblemError
+from ..runtime.matrices import as_matrix
+from ..runtime.tolerances import IDENTITY_RTOL, RANK_RTOL
+from ..structure import rank
+from . import Analysis, DesignResult
+
+NAME = "deadbeat-functional"
+#: The family designs for LPV plants (``[[plant.scheduling]]``).
+LPV = True
+#: Plants of this family may have no known input.
+MAX_EXPONENT = 64
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of the dead-beat functional observer.
+
+    Attributes
+    ----------
+    G : numpy.ndarray
+        The functional to reconstruct, ``(d, n)``.
+    dt : float
+        The plant's period.
+    max_delay : int
+        Largest inherent delay r tried.
+    """
+
+    G: np.ndarray
+    dt: float
+    max_delay: int
+
+    @property
+    def step(self) -> float:
+        """The communication step: the plant's period."""
+        return self.dt
+
+
+def parse_options(table, plant) -> Options:
+    """Read ``[observer]``: ``G`` (a matrix, or ``"identity"`` for the whole state) and ``max_delay``."""
+    if not isinstance(plant, LpvPlant):
+        raise ProblemError('observer.family = "deadbeat-functional": the plant needs its [[plant.scheduling]] '
+                           "tables (an LPV plant; a single table of zeros makes a linear plant one)")
+    G = table.get("G")
+    G = np.eye(plant.n) if G == "identity" else as_matrix(G, table.key("G"), cols=plant.n)
+    if G.shape[0] == 0:
+        raise ProblemError(f"{table.key('G')}: expected at least one row")
+    max_delay = table.get("max_delay", plant.n)
+    if isinstance(max_delay, bool) or not isinstance(max_delay, int) or not 0 <= max_delay <= 4 * plant.n:
+        raise ProblemError(f"{table.key('max_delay')}: expected an integer from 0 to {4 * plant.n}, "
+                           f"found {repr(max_delay)[:40]}")
+    return Options(G, plant.dt, max_delay)
+
+
+# -- polynomial matrices of the plant over a window -------------------------------------------
+def window_matrix(plant: LpvPlant, name: str, lag: int) -> PolyMatrix:
+    """``name(theta_{k+lag})`` as a polynomial in the variables ``(lag, i)``."""
+    return PolyMatrix.affine(getattr(plant, name), {(lag, i): part[name] for i, part in enumerate(plant.parts)})
+
+
+def observability(plant: LpvPlant, first: int, last: int) -> PolyMatrix:
+    """``O(theta_{first:last})``: ``C(theta_first)``, ``C(theta_{first+1}) A(theta_first)``, ..."""
+    blocks, prod = [], PolyMatrix.constant(np.eye(plant.n))
+    for lag in range(first, last + 1):
+        blocks.append(window_matrix(plant, "C", lag) @ prod)
+        prod = window_matrix(plant, "A", lag) @ prod
+    return stack(blocks)
+
+
+def toeplitz(plant: LpvPlant, first: int, last: int) -> PolyMatrix:
+    """``M(theta_{first:last})`` (the recursion of the paper, lower-left block corrected)."""
+    D = window_matrix(plant, "D", first)
+    if last == first:
+        return D
+    rest = toeplitz(plant, first + 1, last)
+    top = hstack([D, PolyMatrix.constant(np.zeros((plant.p, rest.shape[1])))])
+    bottom = hstack([observability(plant, first + 1, last) @ window_matrix(plant, "E", first), rest])
+    return stack([top, bottom])
+
+
+def _constant(P: PolyMatrix, what: str) -> np.ndarray:
+    if not P.is_constant(1e-12):
+        shown = sorted({v for v in P.pruned(1e-12).variables})[:4]
+        raise ProblemError(f"{what} depends on theta (through {', '.join(f'theta_k+{l}[{i + 1}]' for l, i in shown)}): "
+                           "the inverse system (4) is then rational in theta, which this version does not design")
+    return P.coeffs.get((), np.zeros(P.shape))
+
+
+@dataclass(frozen=True)
+class Inverse:
+    """The inverse system of delay ``r``: ``x_{k+1} = P x_k + Q y_{k:k+r}`` (polynomials in ``(lag, i)``)."""
+
+    r: int
+    P: PolyMatrix
+    Q: PolyMatrix
+    ranks: list
+
+
+def inverse_system(plant: LpvPlant, max_delay: int) -> tuple[Inverse | None, list]:
+    """The smallest delay r with rank condition (2) and the matrices (4); the ranks tried."""
+    target = rank(np.vstack([plant.E, plant.D]))
+    tried = []
+    for r in range(max_delay + 1):
+        M = _constant(toeplitz(plant, 0, r), f"M(theta_k:k+{r})")
+        M1 = _constant(toeplitz(plant, 1, r), f"M(theta_k+1:k+{r})") if r else np.zeros((0, 0))
+        got = rank(M) - (rank(M1) if r else 0)
+        tried.append({"r": r, "rank_M": rank(M), "rank_M_next": rank(M1) if r else 0, "rank_ED": target})
+        if got == target:
+            Ibar = np.hstack([np.eye(plant.q), np.zeros((plant.q, plant.q * r))])
+            Q = window_matrix(plant, "E", 0) @ (Ibar @ np.linalg.pinv(M, rcond=RANK_RTOL))
+            P = (window_matrix(plant, "A", 0) - Q @ observability(plant, 0, r)).pruned(1e-15)
+            return Inverse(r, P, Q.pruned(1e-15), tried), tried
+    return None, tried
+
+
+# -- subspaces --------------------------------------------------------------------------------
+def null_space(M: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of ``ker M`` (columns), rank by :data:`RANK_RTOL`."""
+    if M.shape[0] == 0:
+        return np.eye(M.shape[1])
+    u, s, vt = np.linalg.svd(M)
+    k = int(np.sum(s > RANK_RTOL * max(1.0, float(s[0]) if s.size else 0.0)))
+    return vt[k:].T
+
+
+def invariant_subspace(mats: list, V: np.ndarray) -> tuple[np.ndarray, list]:
+    """Algorithm 1, iteration (16): the maximal subspace of ``span V`` invariant under every matrix;
+    its orthonormal basis and the dimensions of the iterates."""
+    J, dims = V, [V.shape[1]]
+    for _ in range(V.shape[0] + 1):
+        if J.shape[1] == 0:
+            break
+        # x = J a with A_i J a in span J for every i: the kernel of the stacked (I - J J') A_i J
+        proj = np.eye(J.shape[0]) - J @ J.T
+        a = null_space(np.vstack([proj @ Ai @ J for Ai in mats]))
+        J_next = np.linalg.qr(J @ a)[0] if a.shape[1] else np.zeros((J.shape[0], 0))
+        dims.append(J_next.shape[1])
+        if J_next.shape[1] == J.shape[1]:
+            break
+        J = J_next
+    return J, dims
+
+
+def complement(T: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of the orthogonal complement of ``span T`` (orthonormal columns), from the
+    canonical vectors in order (Gram-Schmidt, skipping the ones it already spans): when ``span T`` is
+    spanned by canonical vectors, the complement is the other canonical vectors, as in the paper."""
+    n = T.shape[0]
+    basis = [T[:, i] for i in range(T.shape[1])]
+    out = []
+    for j in range(n):
+        v = np.eye(n)[j]
+        for b in basis + out:
+            v = v - (b @ v) * b
+        if np.linalg.norm(v) > 1e-8:
+            out.append(v / np.linalg.norm(v))
+        if len(out) == n - T.shape[1]:
+            break
+    return np.array(out).T if out else np.zeros((n, 0))
+
+
+def nilpotency_class(mats: list) -> int | None:
+    """The class t of the semigroup the matrices generate (every product of t of them is 0), or None
+    when it is not nilpotent: ``V_0 = R^h``, ``V_{j+1} = sum_i P_i V_j``, t the first j with ``V_j = 0``."""
+    h = mats[0].shape[0] if mats else 0
+    V = np.eye(h)
+    for t in range(0, h + 1):
+        if V.shape[1] == 0:
+            return t
+        images = np.hstack([Pi @ V for Pi in mats])
+        u, s, _ = np.linalg.svd(images, full_matrices=False) if images.size else (np.zeros((h, 0)), [], None)
+        scale = max(1.0, max(float(np.abs(Pi).max()) for Pi in mats))
+        k = int(np.sum(np.asarray(s) > RANK_RTOL * scale * max(1.0, float(np.abs(V).max()))))
+        V = u[:, :k]
+    return None if V.shape[1] else h + 1
+
+
+def _monomial_text(m: tuple) -> str:
+    return "1" if not m else "·".join(f"θ_k+{lag}[{i + 1}]" + (f"^{p}" if p > 1 else "") for (lag, i), p in m)
+
+
+def _analysis(problem):
+    plant, opts = problem.plant, problem.options
+    conds = []
+    inv, tried = inverse_system(plant, opts.max_delay)
+    ranks = "; ".join(f"r = {t['r']}: {t['rank_M']} - {t['rank_M_next']}" for t in tried)
+    if inv is None:
+        conds.append(Condition("inherent delay", False, True,
+                               f"rank condition (2) fails for every r up to {opts.max_delay} "
+                               f"(rank M - rank M' = {ranks}; needs rank [E; D] = {tried[0]['rank_ED']}): the "
+                               "unknown input cannot be reconstructed, so no inverse system exists", {"tried": tried}))
+        return Existence(NAME, tuple(conds)), None
+    conds.append(Condition("inherent delay", True, True,
+                           f"rank condition (2) holds with r = {inv.r} (rank M - rank M' = {ranks}; "
+                           f"rank [E; D] = {tried[0]['rank_ED']})", {"r": inv.r, "tried": tried}))
+    monomials = sorted(inv.P.coeffs, key=lambda m: (len(m), m))
+    Pi = [inv.P.coeffs[m] for m in monomials]
+    conds.append(Condition("P decomposition (8)", True, False,
+                           "P(theta) = " + " + ".join(f"{_monomial_text(m)}·P_{i + 1}" for i, m in enumerate(monomials))
+                           + "; eigenvalues of " + "; ".join(f"P_{i + 1}: {format_complex(np.linalg.eigvals(P))}"
+                                                            for i, P in enumerate(Pi)),
+                           {"monomials": [[[lag, i, p] for (lag, i), p in m] for m in monomials],
+                            "P": [P.tolist() for P in Pi]}))
+    G = opts.G
+    kernel_short = all(np.abs(G @ P).max() <= IDENTITY_RTOL * max(1.0, np.abs(P).max()) for P in Pi)
+    Tbar, dims = invariant_subspace(Pi, null_space(G))
+    That = complement(Tbar)
+    Phat = [That.T @ P @ That for P in Pi]
+    t = nilpotency_class(Phat)
+    conds.append(Condition("robust invariant subspace in ker G", True, False,
+                           f"Algorithm 1 in ker G (dimension {dims[0]}): iterate dimensions {dims}, the maximal "
+                           f"robust invariant subspace has dimension {Tbar.shape[1]}"
+                           + (f", basis {np.round(Tbar.T, 6).tolist()}" if Tbar.shape[1] else ""),
+                           {"dimensions": dims, "basis": Tbar.T.tolist(), "Phat": [P.tolist() for P in Phat]}))
+    if kernel_short:
+        conds.append(Condition("Proposition 6", True, False, "G P_i = 0 for every i: K = 0", {"K": 0}))
+    if t is None:
+        eig = [format_complex(np.linalg.eigvals(P)) for P in Phat]
+        conds.append(Condition("nilpotent semigroup", False, True,
+                               "the matrices Phat_i (13) do not generate a nilpotent semigroup "
+                               + "(eigenvalues " + "; ".join(f"Phat_{i + 1}: {e}" for i, e in enumerate(eig))
+                               + "): no finite window gives G x whatever the unknown input",
+                               {"Phat_eigenvalues": [complex_list(np.linalg.eigvals(P)) for P in Phat]}))
+        return Existence(NAME, tuple(conds)), None
+    K = 0 if kernel_short else max(t - 1, 0)
+    conds.append(Condition("nilpotent semigroup", True, True,
+                           f"Phat_i generate a nilpotent semigroup of class t = {t}: K = {K}, G x_k from "
+                           f"y_k-{K + 1}..y_k+{inv.r - 1}", {"t": t, "K": K}))
+    return Existence(NAME, tuple(conds)), {"inverse": inv, "K": K, "t": t, "P": Pi, "monomials": monomials}
+
+
+def analyse(problem) -> Analysis:
+    """Inherent delay r (2), inverse system (4), decomposition (8), Algorithm 1, nilpotency (Corollary 1)."""
+    existence, data = _analysis(problem)
+    return Analysis(existence, data or {})
+
+
+# -- the formula ------------------------------------------------------------------------------
+def formula(G: np.ndarray, inv: Inverse, K: int, p: int) -> tuple[PolyMatrix, int, int]:
+    """``G x_k`` as coefficients on the output window, polynomial in the window's theta values.
+
+    Returns
+    -------
+    F : PolyMatrix
+        ``(d, p L)``: ``G x_{newest - delay} = F(theta) [y_oldest; ...; y_newest]``, the variables
+        ``(l, i)`` with ``l`` the position in the window (0 the oldest).
+    L : int
+        Window length ``K + max(r, 1) + 1``.
+    delay : int
+        ``max(r - 1, 0)``: ``G x`` of the point that many steps before the newest output.
+    """
+    r = inv.r
+    L, delay = K + max(r, 1) + 1, max(r - 1, 0)
+    newest = delay                       # lags relative to k (G x_k): the newest output is y_{k+delay}
+    oldest = newest - L + 1
+    d = G.shape[0]
+    out = PolyMatrix((d, p * L), {})
+    for j in range(-K - 1, 0):           # x_{j+1} = P_j x_j + Q_j y_{j:j+r}, lags relative to k
+        term = PolyMatrix.constant(G)
+        for i in range(-1, j, -1):       # G P_{k-1} ... P_{j+1}
+            term = term @ shifted(inv.P, i)
+        term = term @ shifted(inv.Q, j)  # (d, p (r + 1)), on y_{j..j+r}
+        pos = j - oldest
+        out = out + hstack([PolyMatrix.constant(np.zeros((d, p * pos))), term,
+                            PolyMatrix.constant(np.zeros((d, p * (L - pos - r - 1))))])
+    coeffs = {}
+    for m, c in out.pruned(1e-14).coeffs.items():
+        coeffs[tuple(sorted(((lag - oldest, i), pw) for (lag, i), pw in m))] = c
+    return PolyMatrix((d, p * L), coeffs or {(): np.zeros((d, p * L))}), L, delay
+
+
+def to_arrays(F: PolyMatrix, L: int, s: int) -> tuple[np.ndarray, np.ndarray]:
+    """The card's ``F`` (terms, d, p L) and ``Fexp`` (terms, L, s) of a window formula."""
+    terms = sorted(F.coeffs, key=lambda m: (len(m), m))
+    exps = np.zeros((len(terms), L, s))
+    for t, m in enumerate(terms):
+        for (pos, i), pw in m:
+            exps[t, pos, i] = pw
+    return np.array([F.coeffs[m] for m in terms]), exps
+
+
+def evaluate(F: np.ndarray, exps: np.ndarray, ys: np.ndarray, thetas: np.ndarray) -> np.ndarray:
+    """The formula on one window (``ys`` (L, p), ``thetas`` (L, s), oldest first)."""
+    weights = np.prod(thetas[None] ** exps, axis=(1, 2))
+    return np.tensordot(weights, F, axes=1) @ ys.ravel()
+
+
+def simulate(mats: dict, x0, d, thetas):
+    """The LPV plant of a card's matrices (``A_parts`` etc., part 0 the constant one) on given
+    unknown inputs and theta sequence: states (K+1, n) and outputs (K, p)."""
+    def at(name, th):
+        parts = np.asarray(mats[name])
+        return parts[0] + np.tensordot(th, parts[1:], axes=1)
+    xs, ys = [np.asarray(x0, dtype=float)], []
+    for dk, th in zip(d, thetas):
+        x = xs[-1]
+        ys.append(at("C_parts", th) @ x + at("D_parts", th) @ dk)
+        xs.append(at("A_parts", th) @ x + at("E_parts", th) @ dk)
+    return np.array(xs), np.array(ys)
+
+
+#: Simulations and steps of the certificate's re-check.
+CHECK_RUNS, CHECK_STEPS = 12, 12
+
+
+def checks(matrices: dict, schedule: dict, seed: int = 0) -> list:
+    """The certificate: ``gx = G x_{k - delay}`` on simulations of the plant's own matrices, with
+    random initial states, unknown inputs and theta sequences (normal, scale 1), every window of
+    every run; the largest residual relative to ``max(1, |G x|, |F| |y|)`` must be at most
+    :data:`IDENTITY_RTOL` (round-off of the products)."""
+    F, exps, G = (np.asarray(matrices[k], dtype=float) for k in ("F", "Fexp", "G"))
+    L, delay = int(schedule["length"]), int(schedule["delay"])
+    n, s = G.shape[1], exps.shape[2]
+    q = np.asarray(matrices["E_parts"]).shape[2]
+    rng = np.random.default_rng(seed)
+    worst = 0.0
+    for _ in range(CHECK_RUNS):
+        steps = L + CHECK_STEPS
+        thetas = rng.normal(size=(steps, s))
+        xs, ys = simulate(matrices, rng.normal(size=n), rng.normal(size=(steps, q)), thetas)
+        for k in range(L - 1, steps):
+            got = evaluate(F, exps, ys[k - L + 1:k + 1], thetas[k - L + 1:k + 1])
+            want = G @ xs[k - delay]
+            weights = np.prod(np.abs(thetas[k - L + 1:k + 1])[None] ** exps, axis=(1, 2))
+            sizes = np.tensordot(weights, np.abs(F), axes=1) @ np.abs(ys[k - L + 1:k + 1]).ravel()
+            scale = max(1.0, float(np.abs(want).max()), float(sizes.max()))
+            worst = max(worst, float(np.abs(got - want).max()) / scale)
+    return [Check("identity G x = f(y, theta) on simulated runs (relative)", worst, IDENTITY_RTOL)]
+
+
+def verify(card) -> list:
+    """Re-check a card's identity on fresh simulations of its plant matrices (no solver)."""
+    return checks(card.data["matrices"], card.data["schedule"], seed=1)
+
+
+def design(problem, analysis: Analysis) -> DesignResult:
+    """The window formula (Proposition 4), its arrays and its certificate."""
+    plant, opts = problem.plant, problem.options
+    inv, K = analysis.data["inverse"], analysis.data["K"]
+    F, L, delay = formula(opts.G, inv, K, plant.p)
+    Fm, exps = to_arrays(F, L, plant.s)
+    if exps.max(initial=0) > MAX_EXPONENT:
+        raise InfeasibleError(f"{NAME}: the formula has theta powers up to {int(exps.max())} "
+                              f"(at most {MAX_EXPONENT} supported)")
+    parts = {name: np.array([getattr(plant, name)] + [part[name] for part in plant.parts]) for name in "AECD"}
+    matrices = {"F": Fm, "Fexp": exps, "G": opts.G, "P": np.array(analysis.data["P"]),
+                **{f"{k}_parts": v for k, v in parts.items()}, "C": plant.C}
+    schedule = {"kind": "window", "dt": plant.dt, "length": L, "delay": delay, "theta": plant.s,
+                "uses_theta": bool(exps.any()), "step_policy": "error"}
+    results_checks = checks(matrices, schedule)
+    failed = [c for c in results_checks if not c.holds]
+    if failed:
+        raise InfeasibleError(f"{NAME} design of {problem.name}: the formula does not reproduce G x on simulated "
+                              f"runs: {failed[0].name} = {failed[0].value:.3g} (needs <= {failed[0].bound:.3g})")
+    cert = {"solver": "none", "status": "closed form (Proposition 4)", "parameters": {}, "lmi_margin": 0.0,
+            "verify_fraction": 1.0, "lmi_eig_min": {},
+            "checks": {c.name: c.to_data() for c in results_checks}, "verified": True, "solve_time_s": 0.0}
+    results = {"r": inv.r, "K": K, "nilpotency_class": analysis.data["t"], "window": L, "delay": delay,
+               "formula": describe(Fm, exps, plant.p, L, delay),
+               "decay_bound": None, "overshoot_bound": None,
+               "bound": f"gx_k = G x_(k-{delay}) exactly from k = {L - 1} on (window of {L} outputs)"}
+    return DesignResult(0, plant.dt, schedule, matrices, cert, results, None, None, kernel="window")
+
+
+def describe(F: np.ndarray, exps: np.ndarray, p: int, L: int, delay: int) -> str:
+    """The formula as text, e.g. ``G x_k = 11 y_k + 2 y_k+1``."""
+    def lag(pos):
+        off = pos - (L - 1 - delay)
+        return "k" if off == 0 else f"k{off:+d}"
+    rows = []
+    for row in range(F.shape[1]):
+        terms = []
+        for t in range(F.shape[0]):
+            w = "·".join(f"θ{i + 1}_{lag(pos)}" + (f"^{int(e)}" if e > 1 else "")
+                         for pos in range(L) for i in range(exps.shape[2]) for e in [exps[t, pos, i]] if e)
+            for pos in range(L):
+                for j in range(p):
+                    c = F[t, row, pos * p + j]
+                    if abs(c) > 1e-12:
+                        y = f"y{j + 1}_{lag(pos)}" if p > 1 else f"y_{lag(pos)}"
+                        terms.append(f"{c:.6g}" + (f"·{w}" if w else "") + f"·{y}")
+        rows.append(f"(G x)_{row + 1} at k = " + (" + ".join(terms) if terms else "0"))
+    return "; ".join(rows)
