@@ -13,6 +13,9 @@ The known and unknown inputs come from a pre-step listener: at each t_k it sets 
 the plant's inputs and on the observer's inputs that no plant output feeds; ecospy applies them just
 before ``fmi2DoStep(t_k, h)``. Our master sets them before it reads ``xhat(t_k)``; no observer output
 depends on ``u`` (the model structures say ``xhat`` depends on ``y`` only), so the two agree.
+One exception: a plant output that depends on ``u`` and feeds the observer (the ``ydot`` of a plant with
+unknown parameters, seed 001) reaches the observer as ecospy read it after the plant's step, with the
+previous ``u``; our master sets the new ``u`` first. The loops agree exactly only for a constant ``u``.
 
 ecospy never reports a refused step to its caller: a doStep that returns fmi2Discard or fmi2Error is
 logged and time advances anyway. Compare the result with a reference to notice one.
@@ -134,7 +137,7 @@ class EcospyRun:
     x : ndarray, shape (K + 1, n)
         The plant's ``x[i]``.
     xhat : ndarray, shape (K + 1, n)
-        The observer's ``xhat[i]``.
+        The observer's ``xhat[i]`` (or the output named by ``estimate``: ``gx[i]`` of a functional observer).
     connections : list of (str, str)
         The connections made, ``("plant::y[1]", "observer::y[1]")``, ...
     seconds : dict
@@ -148,7 +151,7 @@ class EcospyRun:
     seconds: dict = field(default_factory=dict)
 
 
-def run_ecospy(plant_fmu, observer_fmu, step: float, t_end: float, inputs=None) -> EcospyRun:
+def run_ecospy(plant_fmu, observer_fmu, step: float, t_end: float, inputs=None, estimate: str = "xhat") -> EcospyRun:
     """Co-simulate a plant FMU and an observer FMU in ecospy at a fixed communication step.
 
     Every observer input named like a plant output (``y``; ``mode``, ``theta``, ``ydot`` where the
@@ -169,6 +172,8 @@ def run_ecospy(plant_fmu, observer_fmu, step: float, t_end: float, inputs=None) 
         :class:`uiofmu.cosim.inputs.SignalInputs`): at each t_k these are set on the plant's
         inputs and on the observer's inputs that no plant output feeds, held over the step.
         By default nothing is set: every input keeps its start value (u = 0, d = 0).
+    estimate : str, optional
+        The observer output recorded as ``xhat`` (``"gx"`` for a functional observer).
 
     Returns
     -------
@@ -186,14 +191,14 @@ def run_ecospy(plant_fmu, observer_fmu, step: float, t_end: float, inputs=None) 
     K = int(round(t_end / step))
     plant_out, plant_in = ports(plant_fmu, "output"), ports(plant_fmu, "input")
     obs_out, obs_in = ports(observer_fmu, "output"), ports(observer_fmu, "input")
-    if "x" not in plant_out or "xhat" not in obs_out:
-        raise ValueError("the plant needs outputs x[i] and the observer outputs xhat[i]")
+    if "x" not in plant_out or estimate not in obs_out:
+        raise ValueError(f"the plant needs outputs x[i] and the observer outputs {estimate}[i]")
     integers = {"plant": integer_variables(plant_fmu), "observer": integer_variables(observer_fmu)}
     fed = [name for name in obs_in if name in plant_out]
     sinks = [("plant", name, plant_in[name]) for name in plant_in]
     sinks += [("observer", name, obs_in[name]) for name in obs_in if name not in fed]
     x_ids = [f"plant::{v}" for v in plant_out["x"]]
-    xhat_ids = [f"observer::{v}" for v in obs_out["xhat"]]
+    xhat_ids = [f"observer::{v}" for v in obs_out[estimate]]
     connections = [(f"plant::{a}", f"observer::{b}") for name in fed for a, b in zip(plant_out[name], obs_in[name])]
 
     seconds = {}

@@ -293,7 +293,7 @@ def test_the_table_has_one_entry_per_value_reference(cfmus):
 
 
 @pytest.mark.parametrize("ports,fragment", [
-    ([PortSpec("mode", 1, "input", "switching mode", type="Integer")], "the C affine kernel has no port 'mode'"),
+    ([PortSpec("theta", 1, "input", "scheduling parameter")], "the C affine kernel has no port 'theta'"),
     ([PortSpec("xhat", 2, "input", "estimate")], "port xhat: declared an input Real, the C affine kernel implements "
                                                  "an output Real"),
     ([PortSpec("y", 1, "input", "measurement", type="Integer")], "port y: declared an input Integer"),
@@ -307,6 +307,6 @@ def test_a_port_the_kernel_does_not_implement_is_refused_at_build_time(example1_
 
 
 def test_a_kernel_without_c_code_is_refused_at_build_time(example1_card, monkeypatch, tmp_path):
-    monkeypatch.setattr(Card, "kernel", property(lambda self: "window"))
-    with pytest.raises(FmuError, match="the C backend has no kernel 'window'"):
+    monkeypatch.setattr(Card, "kernel", property(lambda self: "no-such-kernel"))
+    with pytest.raises(FmuError, match="the C backend has no kernel 'no-such-kernel'"):
         build_observer(example1_card[0], tmp_path / "o.fmu", backend="c")

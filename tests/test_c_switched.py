@@ -370,7 +370,7 @@ def test_the_c_switched_plant_equals_the_runtime(tmp_path, rule):
     from fmpy import read_model_description
 
     md = read_model_description(str(path))
-    assert "switched plant" in md.description
+    assert "switched linear plant" in md.description
     names = [v.name for v in md.modelVariables]
     assert names.index("mode[1]") == (names.index("d[1]") + 1 if rule == "input" else len(names) - 1)
     assert ("seed[1]" in names) == (rule == "random")

@@ -41,8 +41,8 @@ def test_awkward_floats_survive(example1_card, tmp_path):
     (lambda d: d["matrices"].update(N=[[1.0]]), "matrices.N: expected 2 entries on axis 0, found 1"),
     (lambda d: d["dims"].update(n="two"), "dims.n: expected an integer, found the string 'two'"),
     (lambda d: d["schedule"].update(kind="psychic"),
-     "schedule.kind: expected one of 'constant', 'interval', 'geometric', 'mode', 'window', found the string "
-     "'psychic'"),
+     "schedule.kind: expected one of 'constant', 'interval', 'geometric', 'mode', 'window', 'continuous', found "
+     "the string 'psychic'"),
     (lambda d: d["matrices"].pop("Xz"), "matrices: missing Xz"),
 ])
 def test_bad_cards_are_refused(example1_card, mutate, fragment):

@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from tests.conftest import EXAMPLES
@@ -32,8 +33,12 @@ def test_demo(cli, tmp_path):
     ("seed000_ltv_vs_classical.py", ["fig1_x2_estimates.png", "fig2_eigenvalues.png", "fig6_alpha.png",
                                      "ltv/metrics.json", "example1_comparison.json"]),
     ("card_from_someone_else.py", ["observer.fmu", "hostile.fmu"]),
+    ("seed001_delayed.py", ["errors_and_margin.png", "summary.json", "premise_input/h0.001/report.png",
+                            "outside_the_premise/h0.001/metrics.json"]),
     ("seed002_switched.py", ["fig2_threshold.png", "fig2_random.png", "three_modes.png", "summary.json",
                              "setup2_threshold/metrics.json", "three_modes/report.png"]),
+    ("seed003_deadbeat.py", ["example_functional.png", "needs_theta_functional.png", "summary.json",
+                             "example/metrics.json", "example/report.png", "needs_theta/results.csv"]),
 ])
 def test_example_scripts(script, outputs, tmp_path):
     """Each script runs in a temporary folder and writes there (UIOFMU_EXAMPLES_OUT), not into examples/out."""
@@ -46,12 +51,39 @@ def test_example_scripts(script, outputs, tmp_path):
         assert "unchanged after the refused builds: True" in proc.stdout
         assert "PWNED exists: False" in proc.stdout and proc.stdout.count("exit 2") == 2
         assert not (tmp_path / "PWNED").exists()
+    if script == "seed001_delayed.py":
+        runs = json.loads((tmp_path / "out" / "seed001_delayed" / "summary.json").read_text())["runs"]
+        fine, coarse, outside = runs.values()
+        assert fine["theta_error_after_1.5s_when_valid"] < 1e-2 < coarse["theta_error_after_1.5s_when_valid"]
+        assert fine["invalid_stretches"] == 0 < outside["invalid_stretches"]
     if script == "seed002_switched.py":
         summary = json.loads((tmp_path / "out" / "seed002_switched" / "summary.json").read_text())
         assert not summary["setup1"]["exists"]
         assert max(summary["setup2"]["largest_gap_to_paper"].values()) < 1e-3
         assert summary["setup2_threshold"]["largest_relative_error_after_one_step"] < 1e-9
         assert summary["three_modes"]["bound_respected"]
+    if script == "seed003_deadbeat.py":
+        summary = json.loads((tmp_path / "out" / "seed003_deadbeat" / "summary.json").read_text())
+        ex = summary["example"]
+        assert ex["exists"] and ex["r"] == 2 and ex["t"] == 2 and ex["K"] == 1
+        assert ex["P_1_lower_left"] == pytest.approx(-18.0, abs=1e-9) and ex["paper_prints"] == -14.0
+        assert np.allclose(ex["P_1"], [[-4, 1, 0], [-16, 4, 0], [-18, 4, -1]], rtol=0, atol=1e-9)
+        assert np.allclose(ex["P_2"], [[0, 0, 0], [0, 0, 0], [-1, 0, 0]], rtol=0, atol=1e-9)
+        assert ex["invariant_is_span_e3"] and ex["Phat_2_is_zero"]
+        assert np.allclose(ex["Phat_1"], [[-4, 1], [-16, 4]], rtol=0, atol=1e-9)
+        assert ex["coefficients"] == pytest.approx({"y_k-2": 0, "y_k-1": 0, "y_k": 11, "y_k+1": 2}, abs=1e-9)
+        assert ex["card"]["formula"] == "(G x)_1 at k = 11·y_k + 2·y_k+1" and not ex["uses_theta"]
+        assert not summary["G_identity"]["exists"]
+        assert any("nilpotent" in r and "Phat_1: -1" in r for r in summary["G_identity"]["reasons"])
+        assert summary["G_prop6"]["K"] == 0 and summary["G_prop6"]["formula"] == "(G x)_1 at k = 1·y_k+1"
+        for key, steps in (("example_cosim", 12), ("needs_theta_cosim", 400)):
+            run = summary[key]
+            assert run["steps"] == steps and run["exact_from_first_full_window"] and run["steps_to_exact"] == 3
+        assert summary["example_cosim"]["max_relative_error_vs_3x1_2x2"] < 1e-13
+        assert summary["example_cosim"]["pythonfmu_observer_max_difference"] <= 1e-12
+        assert summary["needs_theta_cosim"]["uses_theta"]
+        assert summary["needs_theta_cosim"]["max_relative_error_vs_window"] < 1e-13
+        assert summary["needs_theta_cosim"]["median_relative_error_with_theta_zero"] > 1e-2
     folder = tmp_path / "out" / {"seed000_ltv_vs_classical.py": "seed000_ltv"}.get(script, script.removesuffix(".py"))
     for name in outputs:
         assert (folder / name).stat().st_size > 0

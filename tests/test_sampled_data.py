@@ -235,3 +235,107 @@ def test_a_repeated_interval_sequence_that_grows_the_fixed_error_means_no_observ
     for h in data["observer"]["intervals"]:                       # each interval alone has an observer
         alone = problem_from_data({**data, "observer": {**data["observer"], "intervals": [h]}})
         assert uiofmu.check(alone).exists
+
+
+#: Campaign plants of seed 11 (p = q) whose sampled zeros lie within 3e-5 of the unit circle:
+#: alpha has less than 6e-5 of room, and the Schur form of (15) lost it in the solver's cancellation.
+NEAR_LIMIT_SEEDS = (11000015, 11000114, 11000126)
+
+
+def _campaign_problem(seed: int, **observer):
+    from uiofmu.families.random_plants import random_problem
+
+    data = random_problem("sampled-data", seed)
+    return problem_from_data({**data, "observer": {**data["observer"], **observer}})
+
+
+@pytest.mark.parametrize("seed", NEAR_LIMIT_SEEDS)
+def test_near_limit_zeros_alpha_max_certifies(seed):
+    """Regression (seed 11 of the campaign): "max" certifies a tiny but honest alpha, and the
+    stored matrices prove the Lyapunov decrease with it for every pair of intervals."""
+    problem = _campaign_problem(seed)
+    assert problem.options.alpha == "max" and problem.plant.p == problem.plant.q
+    card = uiofmu.design(problem)
+    d = card.data
+    assert d["certificate"]["verified"] is True
+    assert all(c.holds for c in uiofmu.verify(card))
+    limit = d["alpha_limit_from_zeros"]
+    assert 0 < limit < 1e-4
+    assert 1e-3 * limit <= d["alpha"] < limit
+    assert d["decay_bound"] == pytest.approx(np.sqrt(1 - d["alpha"]), rel=1e-15) and d["decay_bound"] < 1
+    M = {k: np.array(v) for k, v in d["matrices"].items()}
+    N = len(d["intervals"])
+    for i in range(N):                      # independent of the family's checks: the decrease itself
+        for j in range(N):
+            L = M["N"][i, j]
+            Q = d["decay_bound"] ** 2 * M["Pl"][j] - L.T @ M["Pl"][i] @ L
+            assert np.linalg.eigvalsh(0.5 * (Q + Q.T))[0] > 0
+    assert np.linalg.eigvalsh(M["Pl"])[:, 0].min() > 0
+
+
+def test_increment_form_is_the_schur_form():
+    """(15) on ker C in increment form is congruent to the Schur form: same Schur complement
+    ``Pj - F' P F``, so it holds exactly when the Schur form does."""
+    from uiofmu.families.sampled_data import _increment_lmi
+    from uiofmu.lmi import NUMPY_OPS
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        m = int(rng.integers(1, 5))
+        F = rng.normal(size=(m, m)) * 0.6
+        X, Y = rng.normal(size=(m, m)), rng.normal(size=(m, m))
+        P, Pj = X @ X.T + 0.1 * np.eye(m), Y @ Y.T + 0.1 * np.eye(m)
+        M = _increment_lmi(P, P @ (np.eye(m) - F), Pj, NUMPY_OPS)
+        schur = np.block([[P, P @ F], [F.T @ P, Pj]])
+        T = np.block([[np.eye(m), -np.eye(m)], [np.zeros((m, m)), np.eye(m)]])
+        np.testing.assert_allclose(M, T.T @ schur @ T, atol=1e-12 * np.abs(schur).max())
+        comp = M[m:, m:] - M[m:, :m] @ np.linalg.solve(P, M[:m, m:])
+        np.testing.assert_allclose(comp, Pj - F.T @ P @ F, atol=1e-10 * np.abs(schur).max())
+        assert (np.linalg.eigvalsh(M)[0] > 0) == (np.linalg.eigvalsh(Pj - F.T @ P @ F)[0] > 0)
+
+
+def test_recentring_resolves_an_ill_conditioned_ker_c_certificate():
+    """Seed 11000114: at half the room the ker-C LMIs need ``mu`` of 1e4 in the plant's
+    coordinates, beyond CLARABEL's relative tolerance; recentred on the refused point they need 2,
+    and the mapped point passes the re-check in the original coordinates."""
+    from uiofmu.families.sampled_data import _reduced_lmis, analyse, fixed_error_maps
+
+    problem = _campaign_problem(11000114)
+    analysis = analyse(problem)
+    F = fixed_error_maps(analysis.data["samples"], problem.plant.C)
+    c = 1.0 - 0.5 * (1.0 - analysis.data["decay_floor"] ** 2)
+    plain = _reduced_lmis(F, recentre=False).solve(c=c)
+    assert not plain.verified
+    system = _reduced_lmis(F)
+    sol = system.solve(c=c)
+    assert sol.verified and system.solves == 2
+    again = _reduced_lmis(F, recentre=False).recheck(sol.values, {"c": c})     # in the original coordinates
+    assert again.verified
+    P = [sol.values[f"P{i}"] for i in range(len(F))]
+    for i, Fi in enumerate(F):
+        for Pj in P:
+            assert np.linalg.eigvalsh(c * Pj - Fi.T @ P[i] @ Fi)[0] > 0
+
+
+def test_six_intervals_without_a_common_certificate_are_refused_by_check():
+    """Seed 11000094 (p = q = 1, six intervals): every interval designs alone, but the largest margin
+    of Corollary 2 on ker C, in recentred coordinates, is negative even at alpha = 0 (the pair
+    0.10 s / 0.41 s has none), so check proves that no observer of this family can be certified;
+    without 0.41 s the design certifies."""
+    from uiofmu.families.sampled_data import analyse, best_margin, fixed_error_maps
+
+    problem = _campaign_problem(11000094)
+    report = uiofmu.check(problem)
+    assert not report.exists
+    cond = next(c for c in report.conditions if c.name == "certificate on ker C")
+    assert not cond.holds and "largest margin is negative even at alpha = 0" in cond.message
+    assert cond.values["best_margin_status"] == "optimal" and cond.values["best_margin"] < -1e-5
+    with pytest.raises(uiofmu.NoObserverError):
+        uiofmu.design(problem)
+    shorter = _campaign_problem(11000094, intervals=list(problem.options.intervals[:-1]))
+    card = uiofmu.design(shorter)
+    assert card.data["certificate"]["verified"] is True and all(c.holds for c in uiofmu.verify(card))
+    feasible = _campaign_problem(11000114)                    # and a positive margin where one exists
+    samples = analyse(feasible).data["samples"]
+    t, status, _ = best_margin(fixed_error_maps(samples, feasible.plant.C), 1.0)
+    assert status == "optimal" and t > 0

@@ -66,6 +66,10 @@ def _cmd_design(args) -> int:
     for key in ("decay_bound", "overshoot_bound", "alpha"):
         if card.data.get(key) is not None:
             print(f"  {key:16s} {card.data[key]:.6g}")
+    if card.data.get("formula"):                  # a functional observer (window kernel)
+        print(f"  formula          {card.data['formula']}")
+        print(f"  window           {card.data['window']} outputs (r = {card.data['r']}, K = {card.data['K']}), "
+              f"gx is G x of {card.data['delay']} step(s) back")
     search = card.data.get("search")
     if search:
         print(f"  search           {search['parameter']} over {search['solves']} solve(s) in {search['seconds']:.3f} s")
@@ -80,20 +84,22 @@ def _cmd_design(args) -> int:
 
 def _cmd_build(args) -> int:
     from .runtime.card import read_card
-    from .fmu.export import build_observer, default_backend, model_identifier
+    from .fmu.export import build_observer, choose_backend, model_identifier
     from .synthesis import recheck
 
     card = read_card(args.design)
     out = check_output_file(args.output or f"{model_identifier(card.name, 'observer')}.fmu", "FMU", ".fmu")
     recheck(card)
-    backend = args.backend or default_backend()
+    backend, note = choose_backend(card, args.backend)
+    if note:
+        print(f"{card.name}: note: {note}")
     path = build_observer(card, out, backend=backend)
     print(f"{card.name}: {card.family} observer FMU ({backend} backend) written to {path}")
     return 0
 
 
 def _cmd_plant(args) -> int:
-    from .fmu.export import build_plant, default_backend, model_identifier
+    from .fmu.export import build_plant, choose_backend, model_identifier, plant_kind
     from .mujoco_plant import build_mujoco_plant, is_mujoco_plant, load_spec
     from .problem import load_problem
     from .runtime.errors import FmuError
@@ -112,9 +118,11 @@ def _cmd_plant(args) -> int:
         return 0
     problem = load_problem(args.problem)
     out = check_output_file(args.output or f"{model_identifier(problem.name, 'plant')}.fmu", "FMU", ".fmu")
-    backend = args.backend or default_backend()
+    backend, note = choose_backend(problem.plant, args.backend)
+    if note:
+        print(f"{problem.name}: note: {note}")
     path = build_plant(problem.plant, problem.name, out, step=problem.options.step, backend=backend)
-    print(f"{problem.name}: {problem.plant.time} plant FMU ({backend} backend) written to {path}")
+    print(f"{problem.name}: {problem.plant.time} {plant_kind(problem.plant)} FMU ({backend} backend) written to {path}")
     return 0
 
 
@@ -172,8 +180,30 @@ def print_summary(metrics: dict, paths: dict | None = None, file=None) -> None:
     if "dhat_rms_error" in metrics:
         p("  dhat rms error       " + ", ".join(f"{v:.4g}" for v in metrics["dhat_rms_error_second_half"])
           + " (second half of the run)")
+    if "validity" in metrics:                      # a delayed observer with parameter identification
+        _print_delayed(metrics, p)
     for key, path in (paths or {}).items():
         p(f"  {key:20s} {path}")
+
+
+def _print_delayed(metrics: dict, p) -> None:
+    """The lines of :func:`print_summary` for a delayed observer: validity, theta, no certified bound."""
+    v = metrics["validity"]
+    first = f"from t = {v['first_valid_time']:g} s" if v["first_valid_time"] is not None else "never valid"
+    p(f"  valid                {100 * v['fraction']:.1f} % of the run ({first}; {v['invalid_stretches']} invalid "
+      f"stretch(es) after it; premise bound sigma_min >= {v['sigma_bound']:.3g})")
+    s = metrics.get("state_from_first_valid")
+    if s is not None:
+        at = f"t = {s['time_to_1pct']:g} s" if s["time_to_1pct"] is not None else "not reached"
+        p(f"  state error          {s['error_norm']:.4g} at the first valid point; 1 % of it: {at}")
+    th = metrics.get("theta")
+    if th is not None:
+        at = f"t = {th['time_to_1pct']:g} s" if th["time_to_1pct"] is not None else "not reached"
+        p("  thetahat             " + ", ".join(f"{x:.6g}" for x in th["final"]) + " (true "
+          + ", ".join(f"{x:.6g}" for x in th["true"]) + ", from the plant FMU)")
+        p(f"  theta error          final {th['final_error_norm']:.3g} ({th['final_relative_error']:.3g} relative); "
+          f"within 1 % of |theta| while valid: {at}")
+    p("  certified bound      none compared: it holds on the premise set only")
 
 
 def _cmd_cosim(args) -> int:
@@ -289,7 +319,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("build", help="pack a design card as an FMI 2.0 Co-Simulation FMU",
                        description="Pack the observer of a design card as an FMI 2.0 Co-Simulation FMU with inputs "
                                    "y[i], u[i], outputs xhat[i], r[i] (and dhat[i]), parameter xhat0[i] (and "
-                                   "h_prev0 for observers scheduled on design intervals).")
+                                   "h_prev0 for observers scheduled on design intervals); a functional observer "
+                                   "(family deadbeat-functional) has inputs y[i] (and theta[i]), outputs gx[i] and "
+                                   "the Integer gx_valid[1]; a delayed observer (family delayed-uio) has inputs y[i], "
+                                   "ydot[i], u[i], outputs xhat[i], thetahat[i], r[i], sigma_min[1] and the Integer "
+                                   "valid[1], and is a pythonfmu FMU only (the C backend has no kernel for it: the "
+                                   "default picks python and says so).")
     p.add_argument("design", help="design card (JSON) from `uiofmu design`")
     p.add_argument("-o", "--output", metavar="OBS.fmu", help="FMU path (default: NAME_observer.fmu)")
     p.add_argument("--backend", choices=["c", "python"],
@@ -302,7 +337,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "the true state x[i], parameter x0[i]. A continuous plant is integrated exactly "
                                    "for any step (inputs held); a discrete plant accepts only steps of its dt. A "
                                    "folder with mujoco.toml gives a MuJoCo plant FMU (fixed substeps, a shorter last "
-                                   "one so every step ends exactly on time; physical parameters settable).")
+                                   "one so every step ends exactly on time; physical parameters settable). An LPV "
+                                   "plant has the inputs d[i] (and theta[i] for [plant.theta] kind = \"input\"), "
+                                   "outputs y[i], x[i] (and theta[i] = T x for kind = \"state\").")
     p.add_argument("problem", help="problem file (TOML) or a plants/NAME folder")
     p.add_argument("-o", "--output", metavar="PLANT.fmu", help="FMU path (default: NAME_plant.fmu)")
     p.add_argument("--backend", choices=["c", "python"],
@@ -348,8 +385,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("validate", help="fmpy's validate_fmu plus a self-test against the reference runtime",
                        description="Check an FMU built by uiofmu: fmpy's validate_fmu must report nothing, then "
-                                   "the FMU runs side by side with the reference (runtime for observers, exact "
-                                   "discretisation for plants) on random inputs and steps. Exit 2 on any problem.")
+                                   "the FMU runs side by side with the reference (the runtime for observers, "
+                                   "functional ones on random y and theta; the exact discretisation for linear "
+                                   "plants, the runtime for switched and LPV ones) on random inputs and steps. Exit "
+                                   "2 on any problem.")
     p.add_argument("fmu", help="FMU built by uiofmu")
     p.add_argument("--steps", type=_count(1), default=200, help="length of the random sequence (default 200)")
     p.add_argument("--seed", type=_count(0), default=0, help="seed (default 0)")

@@ -208,6 +208,14 @@ class LmiSystem:
         ``certify(values, parameters) -> bool``: the family's checks at the matrices the runtime
         would store from a point the LMI re-check accepts. A point they reject counts as not
         verified, so a search goes on to a value that certifies instead of failing after it.
+    recentre : callable, optional
+        ``recentre(values) -> (system, back) | None``: the same LMIs in coordinates chosen from a
+        point the solver returned but the re-check refused (e.g. a congruence that turns its Lyapunov
+        matrix into the identity), as a system without ``recentre``, and ``back(values)``, its point
+        in this system's variables. :meth:`solve` then solves once more there when the solver gave
+        no proof of infeasibility, and re-checks the mapped point here, in these coordinates; when
+        it verifies, later solves start in the new coordinates. Only a failed solve costs the extra
+        solve.
 
     Attributes
     ----------
@@ -229,7 +237,9 @@ class LmiSystem:
     backend: str = "direct"
     homogeneous: bool = False
     certify: Callable | None = None
+    recentre: Callable | None = None
     _conic: object = field(init=False, repr=False, default=None)
+    _frame: tuple | None = field(init=False, repr=False, default=None)
     _vars: dict = field(init=False, repr=False)
     _params: dict = field(init=False, repr=False)
     _lmis: list = field(init=False, repr=False)
@@ -275,6 +285,11 @@ class LmiSystem:
         goal = cp.Minimize(self.objective(self._vars)) if self.objective else cp.Minimize(0)
         self._problem = cp.Problem(goal, constraints)
 
+    @property
+    def recentred(self) -> bool:
+        """Whether solves now start in coordinates chosen by ``recentre``."""
+        return self._frame is not None
+
     def evaluate(self, values: dict, parameters: dict) -> list[Lmi]:
         """The LMIs as numpy matrices at ``values`` (the re-check's input)."""
         return self.build(values, parameters, NUMPY_OPS)
@@ -282,12 +297,48 @@ class LmiSystem:
     def solve(self, **parameters) -> LmiSolution:
         """Solve for the given parameter values, then re-check the returned point.
 
+        With ``recentre``, a point the re-check refuses (the solver proved nothing) is solved
+        again in the coordinates ``recentre`` chooses from it (see :class:`LmiSystem`).
+
         Returns
         -------
         LmiSolution
             Also when the solver fails (``values`` empty, ``verified`` False).
         """
         pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
+        sol = self._solve_in(self._frame, pvals)
+        if sol.verified or self.recentre is None or not sol.values or sol.status in INFEASIBLE:
+            return sol
+        try:
+            t0 = time.perf_counter()
+            frame = self.recentre(sol.values)
+            self.assembly_time += time.perf_counter() - t0
+        except (np.linalg.LinAlgError, ValueError):
+            frame = None
+        if frame is None:
+            return sol
+        again = self._solve_in(frame, pvals)
+        if again.verified:
+            self._frame = frame
+            return again
+        return sol
+
+    def _solve_in(self, frame, pvals: dict) -> LmiSolution:
+        """One solve in this system's coordinates (``frame`` None) or in a recentred ``frame``
+        ``(system, back)``, whose point is mapped back and re-checked here."""
+        if frame is None:
+            return self._solve_once(pvals)
+        system, back = frame
+        inner = system.solve(**pvals)
+        self.solves += 1
+        self.solver_time += inner.solve_time
+        values = back(inner.values) if inner.values else {}
+        sol = self.recheck(values, pvals, inner.status)
+        return LmiSolution(sol.values, pvals, inner.status, sol.eig_min, sol.verified, inner.solve_time,
+                           inner.setup_time, sol.objective, self.margin)
+
+    def _solve_once(self, pvals: dict) -> LmiSolution:
+        """One solve in this system's own coordinates, re-checked."""
         t0 = time.perf_counter()
         if self._conic is not None:
             values, status, solve_time = self._conic.solve(pvals, self.solver_tol)

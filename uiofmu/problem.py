@@ -15,6 +15,7 @@ from .runtime.errors import ProblemError
 from .runtime.files import parse_toml, read_text
 from .runtime.matrices import as_scalar, as_vector
 from .lpv_plant import LpvPlant, parse_lpv
+from .parametric_plant import ParametricPlant, parse_parametric
 from .plant import Plant
 from .switched_plant import SwitchedPlant, parse_switched
 from .runtime.registry import AVAILABLE, KNOWN
@@ -157,7 +158,9 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     if pt.has("scheduling") and pt.has("modes"):
         raise ProblemError("plant.scheduling: a plant is either switched ([[plant.modes]]) or LPV "
                            "([[plant.scheduling]]), not both")
-    if pt.has("scheduling"):
+    if pt.has("parameters"):
+        plant = parse_parametric(pt)
+    elif pt.has("scheduling"):
         plant = parse_lpv(pt)
     elif pt.has("modes"):
         plant = parse_switched(pt)
@@ -177,6 +180,9 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     if isinstance(plant, SwitchedPlant) and not getattr(module, "SWITCHED", False):
         raise ProblemError(f"plant.modes: a switched plant needs a family that designs for switched plants "
                            f"(observer.family = \"switched\"), found {family!r}")
+    if isinstance(plant, ParametricPlant) != bool(getattr(module, "PARAMETRIC", False)):
+        raise ProblemError(f"plant.parameters: a plant with unknown parameters needs observer.family = "
+                           f"\"delayed-uio\", and that family such a plant; found {family!r}")
     if isinstance(plant, LpvPlant) and not getattr(module, "LPV", False):
         raise ProblemError(f"plant.scheduling: an LPV plant needs a family that designs for LPV plants "
                            f"(observer.family = \"deadbeat-functional\"), found {family!r}")

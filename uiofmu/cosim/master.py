@@ -3,6 +3,11 @@
 Order at each communication point t_k (SPEC): read the plant's ``y`` (and true ``x``); set
 the plant's ``u``, ``d`` and the observer's ``y``, ``u``; read ``xhat`` (and ``r``,
 ``dhat``); then ``doStep(t_k, h_k)`` on both. Inputs are held over each step.
+
+A delayed observer (kernel ``delayed``, seed 001) also takes the plant's ``ydot`` (set after the
+plant's ``u`` of t_k, so it is ``C x'`` with the input of the step about to be taken); the master
+records its ``thetahat``, ``sigma_min`` and ``valid`` at every point and compares ``thetahat`` with the
+true ``theta``, read from the plant FMU's parameter ``theta`` (the observer never reads it).
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from ..runtime.files import atomic_output, check_output_dir, write_atomic
 from ..families import certified_bound
 from .fmi import Fmu, FmuCallError, read_model_json, vector_sizes
 from .inputs import CsvInputs, SignalInputs
-from .metrics import error_metrics, functional_metrics
+from .metrics import delayed_metrics, error_metrics, functional_metrics
 from ..progress import progress
 from ..runtime.observer import Runtime
 from ..runtime.observer import default_horizon as default_t_end
@@ -45,6 +50,7 @@ class CosimResult:
     bound: np.ndarray | None = None
     mode: np.ndarray | None = None
     functional: dict | None = None
+    delayed: dict | None = None
 
     def columns(self) -> dict:
         """Named columns for ``results.csv``."""
@@ -63,6 +69,13 @@ class CosimResult:
             cols["error_norm"] = np.linalg.norm(f["gx"] - f["true"], axis=1)
             return cols
         cols["error_norm"] = np.linalg.norm(self.x - self.xhat, axis=1)
+        if self.delayed is not None:
+            dl = self.delayed
+            for i in range(dl["thetahat"].shape[1]):
+                cols[f"thetahat[{i + 1}]"] = dl["thetahat"][:, i]
+            if dl["theta"] is not None:
+                cols["theta_error_norm"] = np.linalg.norm(dl["thetahat"] - dl["theta"], axis=1)
+            cols["sigma_min"], cols["valid"] = dl["sigma_min"], dl["valid"]
         return cols
 
 
@@ -104,7 +117,9 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
     plant_path, observer_path : str or Path
         FMUs; the plant has inputs ``u``, ``d`` and outputs ``y``, ``x``; the observer, built by
         uiofmu (its design card gives the default inputs and the certified bound), has inputs
-        ``y``, ``u`` and outputs ``xhat``, ``r`` (and ``dhat``).
+        ``y``, ``u`` and outputs ``xhat``, ``r`` (and ``dhat``). A delayed observer also takes the
+        plant's ``ydot`` and outputs ``thetahat``, ``sigma_min``, ``valid``; its plant has the parameter
+        ``theta`` (the truth ``thetahat`` is compared with).
     steps : array_like
         Step lengths h_0, h_1, ... (see :func:`uiofmu.cosim.steps.step_sequence`).
     inputs : object, optional
@@ -113,7 +128,8 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         Override the plant's initial state and the observer's initial estimate.
     plant_parameters : dict, optional
         Other plant parameters to set before initialisation, by port name (e.g. ``{"seed": [7]}``
-        for a plant switching at random).
+        for a plant switching at random, ``{"theta": [...]}`` for a plant with unknown parameters:
+        the plant simulates them and the metrics compare ``thetahat`` with them).
     show_progress : bool, optional
         Progress bar (default: when stderr is a terminal).
 
@@ -137,6 +153,8 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         fed, sourced = routes(plant, obs, inputs.sizes)
         plant.initialize(0.0, {**(plant_parameters or {}), **({"x0": plant_x0} if plant_x0 is not None else {})})
         obs.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
+        # the true parameters of a plant with unknown ones, as the plant FMU simulates them
+        theta_true = plant.get("theta") if "theta" in plant.ports("parameter") else None
         n, p = len(plant.refs("x")), len(plant.refs("y"))
         m, q = len(plant.refs("u")), len(plant.refs("d"))
         T = np.zeros(K + 1)
@@ -175,6 +193,8 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
                 bar.update()
     if card.kernel == "window":
         return _functional_result(card, T, steps, X, Y, U, D, H, MODE)
+    if card.kernel == "delayed":
+        return _delayed_result(card, T, steps, X, Y, U, D, H, theta_true)
     XH, R = H["xhat"], H["r"]
     DH = H.get("dhat", np.zeros((K + 1, 0)))
     nq = DH.shape[1]
@@ -209,6 +229,24 @@ def _functional_result(card, T, steps, X, Y, U, D, H, MODE) -> CosimResult:
     result.metrics = functional_metrics(T, steps, H["gx"], true, H["gx_valid"][:, 0], delay,
                                         int(card.schedule["length"]))
     result.metrics["formula"] = card.data.get("formula", "")
+    return result
+
+
+def _delayed_result(card, T, steps, X, Y, U, D, H, theta_true) -> CosimResult:
+    """The run of a delayed observer (seed 001): the state error metrics, :func:`delayed_metrics`
+    (theta against the plant's true theta, validity), and no certified bound: the card's bound holds
+    on its premise set only, which a run is not known to stay in."""
+    K1 = len(T)
+    empty = np.zeros((K1, 0))
+    valid = H["valid"][:, 0]
+    sigma_bound = float(card.schedule["sigma_bound"])
+    theta = None if theta_true is None or theta_true.size != H["thetahat"].shape[1] else theta_true
+    result = CosimResult(T, steps, X, H["xhat"], Y, U, D, H["r"], empty, card=card,
+                         delayed={"thetahat": H["thetahat"], "theta": theta, "sigma_min": H["sigma_min"][:, 0],
+                                  "valid": valid, "sigma_bound": sigma_bound})
+    result.metrics = error_metrics(T, steps, X, H["xhat"])
+    result.metrics.update(delayed_metrics(T, steps, X, H["xhat"], H["thetahat"], theta, valid, H["sigma_min"][:, 0],
+                                          sigma_bound, card.data.get("bound", "")))
     return result
 
 

@@ -135,3 +135,96 @@ def functional_metrics(times: np.ndarray, steps: np.ndarray, gx: np.ndarray, tru
         "step_min": float(steps.min()) if steps.size else None,
         "step_max": float(steps.max()) if steps.size else None,
     }
+
+
+def _stretches(flag: np.ndarray, times: np.ndarray) -> list:
+    """The maximal runs of points where ``flag`` holds, as ``[first time, last time]`` pairs."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flag.astype(int), [0]])))
+    return [[float(times[a]), float(times[b - 1])] for a, b in zip(edges[::2], edges[1::2])]
+
+
+#: Most invalid stretches listed in ``metrics.json`` (their count is always given).
+MAX_STRETCHES = 20
+
+
+def delayed_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.ndarray, thetahat: np.ndarray,
+                    theta: np.ndarray | None, valid: np.ndarray, sigma_min: np.ndarray, sigma_bound: float,
+                    bound_text: str = "") -> dict:
+    """The metrics of a delayed observer with parameter identification (seed 001).
+
+    Parameters
+    ----------
+    times, steps : arrays
+        Communication points t_0..t_K and step lengths h_0..h_{K-1}.
+    x, xhat : (K+1, n) arrays
+        True state and estimate.
+    thetahat : (K+1, n_theta) array
+        The observer's ``thetahat`` at each point (held while not valid).
+    theta : (n_theta,) array or None
+        The true parameters, read from the plant FMU's parameter ``theta`` (None: the plant has none,
+        and there are no theta metrics).
+    valid : (K+1,) array
+        The observer's ``valid`` (1 or 0).
+    sigma_min : (K+1,) array
+        The observer's run-time rank margin ``sigma_min(C D_y)``.
+    sigma_bound : float
+        The card's premise bound on it (``schedule.sigma_bound``).
+    bound_text : str
+        The card's ``bound`` (a statement about the premise set).
+
+    Returns
+    -------
+    dict
+        ``validity``: ``fraction`` (of the run's time during which the estimates were valid, each step
+        counted as valid when it starts valid), ``points_valid``, ``first_valid_point`` and
+        ``first_valid_time`` (None if never), the ``invalid_stretches`` after the first valid point
+        (count and up to :data:`MAX_STRETCHES` ``[from, to]`` time pairs), ``sigma_bound`` and the smallest
+        ``sigma_min`` after start-up; ``state_from_first_valid``: the state error at the first valid point
+        and the time from which it stays below 1 % of it; ``theta`` (with a true theta): ``true``,
+        ``final``, ``final_error_norm``, ``final_relative_error``, ``time_to_1pct`` and ``steps_to_1pct``
+        (the first valid point from which every valid point has ``||thetahat - theta|| <= 0.01 ||theta||``;
+        None if the last valid point does not), ``max_error_norm_when_valid``, ``rms_error_when_valid``;
+        ``certified_bound``: a sentence saying that no bound is compared, and why.
+    """
+    ok = np.asarray(valid) > 0.5
+    on = np.flatnonzero(ok)
+    first = int(on[0]) if on.size else None
+    weights = np.asarray(steps, dtype=float)
+    total = float(weights.sum())
+    fraction = float(weights[ok[:-1]].sum() / total) if total > 0 else float(ok.mean())
+    after = slice(first, None) if first is not None else slice(0, 0)
+    invalid = _stretches(~ok[after], times[after]) if first is not None else []
+    started = times >= (times[first] if first is not None else np.inf)
+    out = {"validity": {
+        "fraction": fraction, "points_valid": int(ok.sum()), "points": int(ok.size),
+        "first_valid_point": first, "first_valid_time": None if first is None else float(times[first]),
+        "invalid_stretches": len(invalid), "invalid_stretch_times": invalid[:MAX_STRETCHES],
+        "sigma_bound": float(sigma_bound),
+        "sigma_min_after_start": float(np.min(sigma_min[started])) if started.any() else None}}
+    norms = np.linalg.norm(x - xhat, axis=1)
+    if first is not None:
+        k = settling_index(norms[first:], 0.01)
+        out["state_from_first_valid"] = {"error_norm": float(norms[first]),
+                                         "steps_to_1pct": None if k is None else first + k,
+                                         "time_to_1pct": None if k is None else float(times[first + k])}
+    if theta is not None:
+        theta = np.asarray(theta, dtype=float)
+        err = np.linalg.norm(thetahat - theta, axis=1)
+        scale = float(np.linalg.norm(theta))
+        good = ok & (err <= 0.01 * scale)
+        bad = np.flatnonzero(ok & ~good)
+        k1 = None
+        if on.size and good[on[-1]]:
+            later = on[on > bad[-1]] if bad.size else on
+            k1 = int(later[0])
+        out["theta"] = {
+            "true": theta.tolist(), "true_from": "the plant FMU's parameter theta (the observer never reads it)",
+            "final": thetahat[-1].tolist(), "final_error_norm": float(err[-1]),
+            "final_relative_error": float(err[-1] / scale) if scale > 0 else None,
+            "steps_to_1pct": k1, "time_to_1pct": None if k1 is None else float(times[k1]),
+            "max_error_norm_when_valid": float(err[ok].max()) if on.size else None,
+            "rms_error_when_valid": np.sqrt(np.mean((thetahat[ok] - theta) ** 2, axis=0)).tolist() if on.size else None}
+    out["certified_bound"] = ("none for this family: the design's bound holds on the premise set only (trajectories "
+                              "whose Gamma stays in the premise grid's set), which a run is not known to stay in, so "
+                              "no run is compared with it" + (f"; the card says: {bound_text}" if bound_text else ""))
+    return out

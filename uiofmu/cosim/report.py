@@ -29,6 +29,8 @@ def plot_report(result, path, title: str | None = None) -> Path:
 
     if result.functional is not None:
         return plot_functional(result, path, title)
+    if result.delayed is not None:
+        return plot_delayed(result, path, title)
     m = result.metrics
     scale, unit = (3600.0, "h") if result.times[-1] > 4 * 3600 else (1.0, "s")
     t = result.times / scale
@@ -152,6 +154,96 @@ def plot_functional(result, path, title: str | None = None) -> Path:
     ax.set_title("inputs and outputs")
     ax.set_xlabel("step k")
     ax.legend(fontsize=8, ncol=3)
+    if title:
+        fig.suptitle(title)
+    path = Path(path)
+    with atomic_output(path, "report") as part:
+        fig.savefig(part, dpi=110, format="png")
+    plt.close(fig)
+    return path
+
+
+def _shade_invalid(ax, t, valid) -> None:
+    """Shade the stretches of ``t`` where ``valid`` is 0 (each point's stretch runs to the next point)."""
+    bad = np.asarray(valid) < 0.5
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(int), [0]])))
+    for a, b in zip(edges[::2], edges[1::2]):
+        ax.axvspan(t[a], t[min(b, len(t) - 1)], color="0.88", lw=0, zorder=0)
+
+
+def plot_delayed(result, path, title: str | None = None) -> Path:
+    """``report.png`` of a delayed observer with parameter identification (seed 001): states and
+    estimates, the state error, the rank margin ``sigma_min`` against the card's premise bound, and
+    ``thetahat`` against the true ``theta``; the stretches where the observer says its estimates are not
+    valid (start-up, margin below the bound) shaded in every panel.
+
+    Parameters
+    ----------
+    result : CosimResult
+        With ``delayed`` (``thetahat``, ``theta``, ``sigma_min``, ``valid``, ``sigma_bound``).
+    path : str or Path
+    title : str, optional
+
+    Returns
+    -------
+    Path
+    """
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    m, dl = result.metrics, result.delayed
+    t, valid = result.times, dl["valid"]
+    v = m["validity"]
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharex=True, constrained_layout=True)
+    for ax in axes.flat:
+        _shade_invalid(ax, t, valid)
+        ax.grid(alpha=0.3)
+    ax = axes[0, 0]
+    for i in range(result.x.shape[1]):
+        c = colors[i % len(colors)]
+        ax.plot(t, result.x[:, i], color=c, lw=1.6, label=f"x[{i + 1}]")
+        ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--", label=f"xhat[{i + 1}]")
+    ax.set_title("true state (solid) and estimate (dashed); shaded: not valid")
+    ax.legend(ncol=2, fontsize=8)
+
+    ax = axes[0, 1]
+    norms = np.linalg.norm(result.x - result.xhat, axis=1)
+    floor = max(float(norms.max()), 1e-300) * 1e-9
+    ax.semilogy(t, np.maximum(norms, floor), lw=1.5, label=f"measured ||x - xhat|| (below {floor:.1e} drawn there)")
+    ax.set_title("state error (no certified bound: it holds on the premise set only)")
+    ax.legend(fontsize=8)
+
+    ax = axes[1, 0]
+    sig = np.asarray(dl["sigma_min"], dtype=float)
+    low = dl["sigma_bound"] * 1e-3
+    ax.semilogy(t, np.maximum(sig, low), lw=1.3, label=f"sigma_min(C D_y) at run time (below {low:.1e} drawn there)")
+    ax.set_ylim(bottom=low / 2)
+    ax.axhline(dl["sigma_bound"], color="k", ls="--", lw=1.2, label=f"premise bound {dl['sigma_bound']:.3g}")
+    ax.set_title(f"rank margin; valid {100 * v['fraction']:.1f} % of the run, from t = "
+                 + (f"{v['first_valid_time']:g} s" if v["first_valid_time"] is not None else "never"))
+    ax.set_xlabel("time [s]")
+    ax.legend(fontsize=8)
+
+    ax = axes[1, 1]
+    th = dl["thetahat"]
+    for i in range(th.shape[1]):
+        c = colors[i % len(colors)]
+        if dl["theta"] is not None:
+            ax.axhline(dl["theta"][i], color=c, lw=1.6, label=f"theta[{i + 1}] = {dl['theta'][i]:.4g} (plant)")
+        ax.plot(t, th[:, i], color=c, lw=1.1, ls="--", label=f"thetahat[{i + 1}]")
+    if dl["theta"] is not None:             # transients while the observer starts may be far off: keep theta in view
+        mid, spread = float(np.mean(dl["theta"])), float(np.ptp(dl["theta"])) + float(np.max(np.abs(dl["theta"])))
+        ax.set_ylim(mid - 2 * spread, mid + 2 * spread)
+    tm = m.get("theta")
+    if tm is not None:
+        when = f"within 1 % from t = {tm['time_to_1pct']:g} s" if tm["time_to_1pct"] is not None else "never within 1 %"
+        ax.set_title(f"parameters: {when}, final relative error {tm['final_relative_error']:.2g}")
+    else:
+        ax.set_title("parameter estimate (the plant has no parameter theta to compare with)")
+    ax.set_xlabel("time [s]")
+    ax.legend(fontsize=8, ncol=2)
     if title:
         fig.suptitle(title)
     path = Path(path)

@@ -1,8 +1,14 @@
 """``uiofmu validate``: the static check of fmpy, then the FMU against the reference.
 
 An observer FMU is run side by side with the reference runtime (:class:`uiofmu.runtime.observer.Runtime`)
-on random inputs and a random sequence of the steps its schedule admits; a plant FMU against
-the exact discretisation of its plant (scipy's matrix exponential) on random steps.
+on random inputs and a random sequence of the steps its schedule admits; a functional observer
+(window kernel) against :class:`uiofmu.runtime.window.WindowRuntime` on random outputs and scheduling
+values; a delayed observer (seed 001) against :class:`uiofmu.runtime.delayed.DelayedRuntime` on smooth
+``y``, ``ydot``, ``u`` from a simulated plant with its design matrices and random aperiodic steps; a plant
+FMU against the exact discretisation of its plant (scipy's matrix exponential) on random steps, a
+switched one against :class:`uiofmu.runtime.switching.SwitchedPlantRuntime`, an LPV one against
+:class:`uiofmu.runtime.lpv.LpvPlantRuntime` and one with unknown parameters against
+:class:`uiofmu.runtime.parametric_plant.ParametricPlantRuntime`.
 
 The relative difference divides by one scale for the whole run: the largest absolute
 difference over every sample and every output channel, divided by
@@ -75,8 +81,104 @@ def _compare(report: Validation, got: np.ndarray, ref: np.ndarray) -> None:
     report.max_rel_diff = report.max_abs_diff / report.scale
 
 
+def _window_observer(fmu: Fmu, card, report: Validation, steps: int, rng) -> None:
+    """A functional observer FMU (window kernel) against :class:`~uiofmu.runtime.window.WindowRuntime`:
+    ``gx`` and ``gx_valid`` at every point, on random outputs ``y`` and, when the FMU takes it, random
+    scheduling values ``theta`` (a window observer steps at its ``dt`` only)."""
+    from ..runtime.window import WindowRuntime
+
+    rt = WindowRuntime(card)
+    fmu.initialize(0.0)
+    takes_theta, t = fmu.has("theta"), 0.0
+    for k in range(steps + 1):
+        y = rng.normal(size=rt.p) * 3
+        fmu.set("y", y)
+        rt.set_y(y)
+        if takes_theta:
+            theta = rng.normal(size=rt.s)
+            fmu.set("theta", theta)
+            rt.set_theta(theta)
+        _compare(report, np.concatenate([fmu.get("gx"), fmu.get("gx_valid")]),
+                 np.concatenate([rt.gx(), [1.0 if rt.valid else 0.0]]))
+        if k < steps:
+            fmu.step(t, rt.dt)
+            rt.step(rt.dt)
+            t += rt.dt
+    report.steps = steps
+
+
+class _Sines:
+    """A smooth random input: per channel a sum of three sines (amplitudes 5 to 20, 0.3 to 3 Hz)."""
+
+    def __init__(self, m: int, rng):
+        self.a = rng.uniform(5.0, 20.0, size=(3, m))
+        self.w = 2 * np.pi * rng.uniform(0.3, 3.0, size=(3, m))
+        self.phi = rng.uniform(0.0, 2 * np.pi, size=(3, m))
+
+    def __call__(self, t: float) -> np.ndarray:
+        return np.sum(self.a * np.sin(self.w * t + self.phi), axis=0)
+
+
+def _delayed_plant_data(card) -> dict:
+    """A plant for the delayed kernel's signals: the card's ``Abar, Bbar, Cbar, D0, Dy`` and the problem's
+    true theta (ones where the card has none)."""
+    mats = card.matrices
+    n_theta = mats["D0"].shape[1]
+    try:
+        theta = [float(v) for v in card.data["problem"]["plant"]["parameters"]["theta"]]
+    except (KeyError, TypeError, ValueError):
+        theta = []
+    theta = theta if len(theta) == n_theta else [1.0] * n_theta
+    return {"time": "continuous", "A": mats["Abar"].tolist(), "B": mats["Bbar"].tolist(), "C": mats["Cbar"].tolist(),
+            "parameters": {"theta": theta, "D0": mats["D0"].tolist(),
+                           "Dy": [{"output": i + 1, "D": D.tolist()} for i, D in enumerate(mats["Dy"])]}}
+
+
+def _delayed_observer(fmu: Fmu, card, report: Validation, steps: int, rng) -> None:
+    """A delayed observer FMU against :class:`~uiofmu.runtime.delayed.DelayedRuntime`: ``xhat``,
+    ``thetahat``, ``r``, ``sigma_min`` and ``valid`` at every point, fed the same ``y``, ``ydot`` (a
+    :class:`~uiofmu.runtime.parametric_plant.ParametricPlantRuntime` of the card's matrices driven by a
+    random sum of sines) and ``u``, from a random ``xhat0``, on random aperiodic steps (0.5 to 1.5 times a
+    mean that is the card's default ``step``, or longer so that the run lasts 1.5 times the largest
+    delay: the estimates become valid, and the delay buffer is read, inside the run)."""
+    from ..runtime.delayed import DelayedRuntime
+    from ..runtime.parametric_plant import ParametricPlantRuntime
+
+    rt = DelayedRuntime(card)
+    plant = ParametricPlantRuntime(_delayed_plant_data(card))
+    u_of = _Sines(rt.m, rng)
+    xhat0 = 0.5 * rng.normal(size=rt.n)
+    rt.xhat0 = xhat0.copy()
+    rt.reset()
+    fmu.initialize(0.0, {"xhat0": xhat0})
+    mean = max(float(card.schedule["step"]), 1.5 * rt.tau / steps)
+    t = 0.0
+    for k in range(steps + 1):
+        plant.u[:] = u_of(t)
+        y, ydot = plant.y(), plant.ydot()
+        for name, value in (("y", y), ("ydot", ydot), ("u", plant.u)):
+            fmu.set(name, value)
+        rt.set_y(y)
+        rt.set_ydot(ydot)
+        rt.set_u(plant.u)
+        got = np.concatenate([fmu.get(name) for name in ("xhat", "thetahat", "r", "sigma_min", "valid")])
+        ref = np.concatenate([rt.xhat(), rt.theta(), rt.residual(), [rt.margin()], [1.0 if rt.valid else 0.0]])
+        _compare(report, got, ref)
+        if k < steps:
+            h = float(rng.uniform(0.5, 1.5) * mean)
+            fmu.step(t, h)
+            rt.step(h)
+            plant.step(h)
+            t += h
+    report.steps = steps
+
+
 def _observer(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
     card = card_from_data(spec["card"])
+    if card.kernel == "window":
+        return _window_observer(fmu, card, report, steps, rng)
+    if card.kernel == "delayed":
+        return _delayed_observer(fmu, card, report, steps, rng)
     rt = Runtime(card)
     choices = rt.schedule.admissible_steps()
     xhat0 = rng.normal(size=rt.n)
@@ -131,10 +233,84 @@ def _switched_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng) -
     report.steps = steps
 
 
+#: An LPV plant's validation restarts from a new initial state once its state leaves this bound.
+LPV_BOUND = 1e3
+
+
+def _lpv_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng) -> None:
+    """An LPV plant FMU against :class:`~uiofmu.runtime.lpv.LpvPlantRuntime`: states, outputs and theta,
+    with random unknown inputs and (kind ``input``) random scheduling values.
+
+    An LPV plant may be unstable, and with theta from the state it is a nonlinear system that can
+    leave every bound in a few steps (the paper's (17)): the run is cut into episodes, each from a
+    small random initial state (fmi2Reset, then a new ``x0``), and an episode ends once the
+    reference's state leaves :data:`LPV_BOUND`. The reference is the FMU's own arithmetic for a
+    pythonfmu FMU; a C FMU may differ by round-off, hence the plant tolerance."""
+    from ..runtime.lpv import LpvPlantRuntime
+
+    ref = LpvPlantRuntime(data)
+    report.tolerance = PLANT_RTOL
+    done, first = 0, True
+    while done < steps:
+        if not first:
+            fmu.reset()
+        first = False
+        ref.x0 = 0.1 * rng.normal(size=ref.n)
+        ref.reset()
+        fmu.initialize(0.0, {"x0": ref.x0})
+        t = 0.0
+        while done < steps:
+            ref.d[:] = 0.1 * rng.normal(size=ref.q)
+            fmu.set("d", ref.d)
+            if ref.kind == "input":
+                ref.theta_in[:] = rng.uniform(-1.0, 1.0, size=ref.s)
+                fmu.set("theta", ref.theta_in)
+            _compare(report, np.concatenate([fmu.get("x"), fmu.get("y"), fmu.get("theta")]),
+                     np.concatenate([ref.x, ref.y(), ref.theta()]))
+            fmu.step(t, ref.dt)
+            ref.step(ref.dt)
+            t += ref.dt
+            done += 1
+            if not np.abs(ref.x).max() <= LPV_BOUND:
+                break
+        _compare(report, fmu.get("x"), ref.x)
+    report.steps = steps
+
+
+def _parametric_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng) -> None:
+    """A plant FMU with unknown parameters against :class:`~uiofmu.runtime.parametric_plant.ParametricPlantRuntime`:
+    ``x``, ``y`` and ``ydot`` at every point, from a random ``x0`` and a random ``theta`` (0.5 to 1.5 times
+    the plant's, set as the FMU's parameter), with random inputs held over random steps (0.2 to 2 times
+    ten substeps)."""
+    from ..runtime.parametric_plant import ParametricPlantRuntime
+
+    ref = ParametricPlantRuntime(data)
+    ref.x0 = 0.1 * rng.normal(size=ref.n)
+    ref.params[:] = ref.theta0 * rng.uniform(0.5, 1.5, size=ref.params.size)
+    ref.reset()
+    fmu.initialize(0.0, {"x0": ref.x0, "theta": ref.params})
+    t = 0.0
+    for _ in range(steps):
+        ref.u[:] = rng.normal(size=ref.m)
+        fmu.set("u", ref.u)
+        _compare(report, np.concatenate([fmu.get("x"), fmu.get("y"), fmu.get("ydot")]),
+                 np.concatenate([ref.x, ref.y(), ref.ydot()]))
+        h = float(rng.uniform(0.2, 2.0) * 10 * ref.substep)
+        fmu.step(t, h)
+        ref.step(h)
+        t += h
+    _compare(report, fmu.get("x"), ref.x)
+    report.steps = steps
+
+
 def _plant(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
     data = spec["plant"]
     if "modes" in data:
         return _switched_plant(fmu, data, report, steps, rng)
+    if "scheduling" in data:
+        return _lpv_plant(fmu, data, report, steps, rng)
+    if "parameters" in data:
+        return _parametric_plant(fmu, data, report, steps, rng)
     plant = Plant.create(data["A"], data["C"], data["E"], data["B"] or None, time=data["time"],
                          dt=data.get("dt"), w=data.get("w"), x0=data["x0"])
     report.tolerance = PLANT_RTOL

@@ -32,6 +32,11 @@ unknown inputs (``p = q``) there is more: ``K_i`` is forced, ``ker C`` is invari
 ``L_ij`` whatever its other gains, and the error there evolves by fixed maps ``F_i``
 (:func:`fixed_error_maps`); when a repeated sequence of intervals multiplies it by 1 or more per
 sample, no exactly-decoupling observer converges for every sequence, and :func:`check` says which.
+Corollary 2 reduces exactly to ``ker C`` there (:func:`_reduced_lmis`), written in increment form
+(the decrease ``(1 - alpha) P_j - F_i' P_i F_i`` as an explicit block, which near the limit the Schur
+form loses in the solver's cancellation) and recentred on a refused point when its Lyapunov
+matrices are too ill-conditioned for the solver's tolerance; :func:`check` proves that no
+certificate exists when the largest margin of those LMIs (:func:`best_margin`) is negative.
 """
 
 from __future__ import annotations
@@ -56,6 +61,7 @@ from ..decoupling import (
     zeros_condition,
 )
 from ..runtime.errors import InfeasibleError, ProblemError
+from ..structure import kernel_maps, product_radius
 from ..existence import Condition, Existence, complex_list
 from ..lmi import Lmi, LmiSystem, tune
 from ..scaling import (
@@ -71,6 +77,7 @@ from ..runtime.schedules import STEP_POLICIES
 from ..runtime.tolerances import (
     IDENTITY_RTOL,
     LMI_MARGIN,
+    MARGIN_PROOF_RTOL,
     SEARCH_TOL,
     STEP_RTOL,
     VERIFY_FRACTION,
@@ -235,20 +242,28 @@ def fixed_error_maps(samples, C) -> list:
     ``ker C``: ``K_i = E_i (C E_i)^-1``, ``C (I - K_i C) A_i = 0``, and the error there evolves
     by ``F_i = N' (I - K_i C) A_i N`` (``N`` an orthonormal basis of ``ker C``) whatever the other
     gains, over every sequence of intervals. Returns the ``F_i``."""
-    p, n = C.shape
-    basis = np.linalg.svd(C)[2][p:].T
-    return [basis.T @ ((np.eye(n) - s.E @ np.linalg.solve(C @ s.E, C)) @ s.A) @ basis for s in samples]
+    n = C.shape[1]
+    return kernel_maps([(np.eye(n) - s.E @ np.linalg.solve(C @ s.E, C)) @ s.A for s in samples], C)
 
 
-def _reduced_lmis(F) -> LmiSystem:
+def _reduced_lmis(F, recentre: bool = True) -> LmiSystem:
     """Corollary 2 on ``ker C`` when ``p = q`` (:func:`fixed_error_maps`): Lyapunov matrices
-    ``P_i`` with ``F_i' P_i F_i < (1 - alpha) P_j`` for all ``i, j`` (Schur form), ``I <= P_i <= mu I``.
+    ``P_i`` with ``F_i' P_i F_i < (1 - alpha) P_j`` for all ``i, j``, ``I <= P_i <= mu I``.
 
     Exact for ``p = q``: every certificate of (15)-(16), restricted to ``ker C``, is one of these,
     and each of these gives one of (15)-(16) (:func:`structural_variables`). Infeasible here
     means that no observer of this family can be certified for the intervals.
+
+    Each pair is written in increment form, the Schur form ``[[P_i, P_i F_i], [*, (1 - alpha) P_j]]``
+    after the congruence ``[[I, -I], [0, I]]`` (:func:`_increment_lmi`), with ``G_i = I - F_i``
+    computed once in double precision: the same LMI, but the decrease ``(1 - alpha) P_j - F_i' P_i F_i``,
+    which near the limit is a tiny difference of two large matrices, becomes an explicit block
+    instead of the solver's cancellation. With ``recentre``, a point the re-check refuses is
+    solved again in the coordinates where its mean Lyapunov matrix is the identity
+    (:func:`_recentred_ker_c`).
     """
     N, m = len(F), F[0].shape[0]
+    G = [np.eye(m) - f for f in F]
 
     def build(v, prm, ops):
         out = []
@@ -256,14 +271,121 @@ def _reduced_lmis(F) -> LmiSystem:
             P = v[f"P{i}"]
             out.append(Lmi(f"P_{i + 1} >= I", P - ops.eye(m), strict=False))
             out.append(Lmi(f"P_{i + 1} <= mu I", v["mu"] * ops.eye(m) - P, strict=False))
-            Y = P @ F[i]
+            Y = P @ G[i]
             for j in range(N):
-                out.append(Lmi(f"(15) on ker C i={i + 1} j={j + 1}", ops.bmat([[P, Y], [Y.T, prm["c"] * v[f"P{j}"]]])))
+                out.append(Lmi(f"(15) on ker C i={i + 1} j={j + 1}",
+                               _increment_lmi(P, Y, prm["c"] * v[f"P{j}"], ops)))
         return out
 
     variables = {"mu": ("scalar",), **{f"P{i}": ("symmetric", m) for i in range(N)}}
     return LmiSystem(f"{NAME} (15) on ker C", variables, {"c": 0.99}, build, objective=lambda v: v["mu"],
-                     homogeneous=True)
+                     homogeneous=True, recentre=(lambda values: _recentred_ker_c(F, values)) if recentre else None)
+
+
+#: Most recentrings of :func:`best_margin` (it stops earlier once its coordinates settle).
+MARGIN_RECENTRINGS = 12
+
+
+def best_margin(F, c: float) -> tuple:
+    """The largest margin of Corollary 2 on ``ker C`` (``p = q``) at ``c = 1 - alpha``: ``max t``
+    with every increment LMI of :func:`_reduced_lmis` ``>= t I``, every ``P_i >= t I`` and
+    ``sum_i trace P_i = 1``, relative to the mean eigenvalue ``1 / (N m)`` of the ``P_i``.
+
+    Unlike the design LMIs, this problem is bounded and always feasible (``t`` may be negative),
+    so CLARABEL answers it where the design LMIs sit on the edge of feasibility, and certificates
+    exist exactly when its ``t > 0`` (the LMIs are homogeneous; the sign does not depend on the
+    coordinates). Near the edge its optimal ``P_i`` are ill-conditioned and ``t`` is lost in
+    the solver's tolerance, so it is solved again in the coordinates where the mean of the last
+    ``P_i`` is the identity (as :func:`_recentred_ker_c`), until they settle (``eig_max / eig_min``
+    of that mean below 1.01) or after :data:`MARGIN_RECENTRINGS` solves.
+
+    Returns
+    -------
+    (float or None, str, int)
+        ``N m t`` at the last solve (None when CLARABEL returned no point), CLARABEL's status
+        there, and the number of solves.
+    """
+    N, m = len(F), F[0].shape[0]
+    basis = np.eye(m)
+
+    def system(maps):
+        G = [np.eye(m) - f for f in maps]
+
+        def build(v, prm, ops):
+            t = v["t"]
+            out = [Lmi("sum_i trace P_i = 1", sum(basis[k:k + 1] @ v[f"P{i}"] @ basis[:, k:k + 1]
+                                              for i in range(N) for k in range(m)) - np.ones((1, 1)),
+                       equality=True)]
+            for i in range(N):
+                P = v[f"P{i}"]
+                out.append(Lmi(f"P_{i + 1} >= t I", P - t * ops.eye(m), strict=False))
+                for j in range(N):
+                    out.append(Lmi(f"(15) on ker C i={i + 1} j={j + 1} >= t I",
+                                   _increment_lmi(P, P @ G[i], prm["c"] * v[f"P{j}"], ops) - t * ops.eye(2 * m),
+                                   strict=False))
+            return out
+
+        variables = {"t": ("scalar",), **{f"P{i}": ("symmetric", m) for i in range(N)}}
+        return LmiSystem(f"{NAME} best margin on ker C", variables, {"c": 0.99}, build,
+                         objective=lambda v: -1.0 * v["t"])
+
+    maps, t, status = list(F), None, ""
+    for k in range(1, MARGIN_RECENTRINGS + 1):
+        sol = system(maps).solve(c=c)
+        status = sol.status
+        if not sol.values:
+            return t if k > 1 else None, status, k
+        t = float(sol.values["t"]) * N * m
+        w, V = np.linalg.eigh(sum(0.5 * (sol.values[f"P{i}"] + sol.values[f"P{i}"].T) for i in range(N)) / N)
+        if not np.all(np.isfinite(w)) or w[-1] <= 0 or w[-1] < 1.01 * w[0]:
+            return t, status, k
+        w = np.maximum(w, 1e-12 * w[-1])
+        R, Ri = (V * np.sqrt(w)) @ V.T, (V / np.sqrt(w)) @ V.T
+        maps = [R @ f @ Ri for f in maps]
+    return t, status, MARGIN_RECENTRINGS
+
+
+def _recentred_ker_c(F, values: dict):
+    """The LMIs of :func:`_reduced_lmis` in the coordinates ``xi = P0^(1/2) e`` of ``ker C``, ``P0``
+    the mean of a point's ``P_i`` scaled to ``eig_min(P0) = 1``: maps ``P0^(1/2) F_i P0^(-1/2)``,
+    whose Lyapunov matrices near that point are near the identity, so that the solver's relative
+    tolerance resolves all of their directions (a point of :func:`_reduced_lmis` may need
+    ``mu`` of 1e4 in the plant's coordinates where these need 2).
+
+    Returns
+    -------
+    tuple or None
+        ``(system, back)`` for :attr:`uiofmu.lmi.LmiSystem.recentre`: ``back`` maps a point to
+        ``P_i = P0^(1/2) Pt_i P0^(1/2)`` and ``mu = mut eig_max(P0)``, which satisfies every LMI
+        here with at least the margin it had there (``P0 >= I``); None when the mean is not
+        positive definite.
+    """
+    P0 = sum(0.5 * (np.asarray(values[f"P{i}"]) + np.asarray(values[f"P{i}"]).T) for i in range(len(F))) / len(F)
+    w, V = np.linalg.eigh(P0)
+    if not np.all(np.isfinite(w)) or w[-1] <= 0:
+        return None
+    w = np.maximum(w, 1e-12 * w[-1])
+    w = w / w[0]
+    R, Ri = (V * np.sqrt(w)) @ V.T, (V / np.sqrt(w)) @ V.T          # P0^(1/2), P0^(-1/2)
+
+    def back(v):
+        out = {f"P{i}": R @ v[f"P{i}"] @ R for i in range(len(F))}
+        out["mu"] = np.asarray(float(v["mu"]) * w[-1])
+        return out
+
+    return _reduced_lmis([R @ f @ Ri for f in F], recentre=False), back
+
+
+def _increment_lmi(P, Y, Pj, ops):
+    """``[[P, -Y], [-Y', Pj - P + Y + Y']]``: the Schur form ``[[P, P F], [F' P, Pj]]`` of
+    ``Pj - F' P F > 0`` with ``Y = P (I - F)``, after the congruence ``[[I, -I], [0, I]]``.
+
+    Positive definite exactly when the Schur form is (same Schur complement ``Pj - F' P F``), and
+    the right block is the decrease itself up to ``Y' P^-1 Y``: where ``F`` has an eigenvalue near
+    the unit circle that block is small and explicit, so an interior-point solver resolves it to its
+    relative tolerance instead of losing it in the cancellation ``Pj - F' P F``.
+    """
+    return ops.bmat([[P, -Y], [-Y.T, Pj - P + Y + Y.T]])
 
 
 def structural_variables(v: dict, samples, C) -> dict:
@@ -303,6 +425,17 @@ def _certificate_condition(samples, C, opts, limit: float) -> Condition:
                          "the error on ker C is scalar (n = p + 1): the zeros decide, as above", {"alpha": alpha})
     sol = _reduced_lmis(F).solve(c=1.0 - alpha)
     values = {"alpha": alpha, "status": sol.status}
+    if not sol.verified and sol.status not in INFEASIBLE:
+        t, status, solves = best_margin(F, 1.0)
+        values.update(best_margin=t, best_margin_status=status, best_margin_solves=solves)
+        if t is not None and status == "optimal" and t < -MARGIN_PROOF_RTOL:
+            return Condition("certificate on ker C", False, True,
+                             f"with p = q the LMIs of Corollary 2 reduce exactly to ker C, and there their largest "
+                             f"margin is negative even at alpha = 0: {t:.3g} of the Lyapunov matrices' mean eigenvalue "
+                             f"(CLARABEL {status} after {solves} solve(s) in recentred coordinates): no quadratic "
+                             "Lyapunov function per interval decreases over every succession of these intervals, "
+                             "so no observer of this family can be certified; drop intervals from observer.intervals",
+                             values)
     if sol.status in INFEASIBLE:
         return Condition("certificate on ker C", False, True,
                          f"with p = q the LMIs of Corollary 2 reduce exactly to ker C, and there CLARABEL proves them "
@@ -319,22 +452,11 @@ def _switching_condition(samples, C, opts) -> Condition:
     sample: the spectral radius of its product, to the power 1/length (sequences of up to three
     intervals). Its largest value also bounds the decay from below, like the sampled zeros."""
     F = np.array(fixed_error_maps(samples, C))                     # (N, m, m)
-    N, m = F.shape[0], F.shape[1]
-    best, seq = 0.0, (0,)
-    if m == 0:
+    if F.shape[1] == 0:
         return Condition("fixed error under switching", True, False,
                          "exact decoupling leaves no error on ker C (p = q = n)", {"switching_radius": 0.0,
                                                                                    "sequence": []})
-    products = F
-    for length in (1, 2, 3):                    # every product F_{i_L} ... F_{i_1}, all at once
-        if length > 1:
-            if N ** length > MAX_PRODUCTS:
-                break
-            products = (F[:, None] @ products[None]).reshape(-1, m, m)
-        radius = np.abs(np.linalg.eigvals(products)).max(axis=-1) ** (1.0 / length)
-        k = int(np.argmax(radius))
-        if radius[k] > best * (1 + 1e-12):
-            best, seq = float(radius[k]), tuple(reversed(np.unravel_index(k, (N,) * length)))
+    best, seq = product_radius(F, 3, MAX_PRODUCTS)
     text = ", ".join(f"{opts.intervals[i]:g}" for i in seq) + " s"
     values = {"switching_radius": best, "sequence": [opts.intervals[i] for i in seq]}
     if not best < 1.0 - ZERO_MARGIN:
@@ -588,6 +710,9 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "search": searched,
         "design_method": method,
         "scaling": scaling_data(t if method == "lmi" else np.ones(n), opts.scaling),
+        "lmi_coordinates": ("recentred: ker C in the coordinates where the mean Lyapunov matrix of a point the "
+                            "re-check refused is the identity (the point mapped back and re-checked)"
+                            if system.recentred else "as scaled"),
         "spectral_radius_max": float(np.abs(np.linalg.eigvals(matrices["N"])).max()),
         "eigenvalues_L_constant": [complex_list(e) for e in np.linalg.eigvals(diagonal)],
     }

@@ -1,7 +1,8 @@
 """The C backend: a standalone native observer FMU (no Python in the importer).
 
 The card's matrices become constant C data (``design_data.c``, with the variable table of the
-card's ports) next to the card's kernel (``c/kernel_affine.c``: the observer maths) and the shared
+card's ports) next to the card's kernel (``c/kernel_affine.c``: the observer maths of every affine
+card; ``c/kernel_window.c``: the window formula of a dead-beat functional observer) and the shared
 FMI 2.0 Co-Simulation plumbing (``c/fmi2_plumbing.c``: states and legal calls, logging, get/set,
 FMU states, status queries); the system C compiler builds ``binaries/linux64/<model>.so``. The
 sources and the FMI headers travel in ``sources/`` with a ``<SourceFiles>`` list, so ``fmpy
@@ -26,11 +27,11 @@ from xml.etree.ElementTree import Element, SubElement, tostring
 import numpy as np
 
 from .. import __version__
-from ..runtime.card import Card
+from ..runtime.card import MAX_POWER, Card
 from ..runtime.errors import CardError, FmuError
 from ..runtime.files import atomic_output, check_output_file
 from ..runtime.schedules import schedule_axes
-from ..runtime.ports import model_structure, observer_experiment, plant_ports, write_experiment
+from ..runtime.ports import lpv_plant_ports, model_structure, observer_experiment, plant_ports, write_experiment
 from ..runtime.text import c_string
 from ..runtime.tolerances import STEP_RTOL
 
@@ -85,6 +86,12 @@ C_KERNELS = {
         "mode_prev0": ("UIOFMU_AFFINE_MODE_PREV0", "parameter", "Integer"),
         "mode": ("UIOFMU_AFFINE_MODE", "input", "Integer"),
     }),
+    "window": CKernel("kernel_window.c", "kernel_window.h", "UIOFMU_KERNEL_WINDOW", {
+        "y": ("UIOFMU_WINDOW_Y", "input", "Real"),
+        "theta": ("UIOFMU_WINDOW_THETA", "input", "Real"),
+        "gx": ("UIOFMU_WINDOW_GX", "output", "Real"),
+        "gx_valid": ("UIOFMU_WINDOW_GX_VALID", "output", "Integer"),
+    }),
 }
 
 
@@ -97,23 +104,66 @@ _PLANT_PORTS = {
 }
 
 #: The C kernels of plants, by plant kind: linear, and switched by rule (one kernel,
-#: ``c/kernel_plant.c``, whose Integer port ``mode`` is an input for rule ``input``, else an output).
+#: ``c/kernel_plant.c``, whose Integer port ``mode`` is an input for rule ``input``, else an output),
+#: and LPV by the kind of its theta (one kernel, ``c/kernel_lpv.c``, whose port ``theta`` is an input
+#: for kind ``input``, else the output ``T x``).
 PLANT_KERNELS = {
     "linear": CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", _PLANT_PORTS),
     **{f"switched-{rule}": CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", {
         **_PLANT_PORTS, "seed": ("UIOFMU_PLANT_SEED", "parameter", "Integer"),
         "mode": ("UIOFMU_PLANT_MODE", "input" if rule == "input" else "output", "Integer")})
        for rule in ("threshold", "input", "random")},
+    **{f"lpv-{kind}": CKernel("kernel_lpv.c", "kernel_lpv.h", "UIOFMU_KERNEL_LPV", {
+        "x0": ("UIOFMU_LPV_X0", "parameter", "Real"),
+        "u": ("UIOFMU_LPV_U", "input", "Real"),
+        "d": ("UIOFMU_LPV_D", "input", "Real"),
+        "theta": ("UIOFMU_LPV_THETA", kind if kind == "input" else "output", "Real"),
+        "y": ("UIOFMU_LPV_Y", "output", "Real"),
+        "x": ("UIOFMU_LPV_X", "output", "Real")})
+       for kind in ("state", "input")},
 }
 TIMES = {"discrete": "UIOFMU_DISCRETE", "continuous": "UIOFMU_CONTINUOUS"}
 RULES = {"threshold": "UIOFMU_RULE_THRESHOLD", "input": "UIOFMU_RULE_INPUT", "random": "UIOFMU_RULE_RANDOM"}
+THETA_KINDS = {"state": "UIOFMU_THETA_STATE", "input": "UIOFMU_THETA_INPUT"}
+
+#: Why the C backend has no kernel for these models (what ``--backend c`` says, and the note of the default).
+PYTHON_ONLY = {
+    "delayed": "the C backend has no kernel 'delayed' (the continuous-time delayed UIO with parameter "
+               "identification: RK4 substeps, a time-stamped delay buffer and a rank test at every substep are "
+               "implemented in the Python runtime only)",
+    "parametric": "the C backend has no kernel for a plant with unknown parameters (x' = A x + B u + D(y) theta "
+                  "with RK4 substeps and the output ydot are implemented in the Python runtime only)",
+}
+
+
+def c_refusal(model) -> str | None:
+    """Why the C backend cannot pack ``model``, or None when it can.
+
+    Parameters
+    ----------
+    model : Card or plant or dict
+        A design card, a plant (with ``to_data``) or a plant's data.
+
+    Returns
+    -------
+    str or None
+        One sentence naming what the C backend lacks (:data:`PYTHON_ONLY`).
+    """
+    if isinstance(model, Card):
+        if model.kernel in C_KERNELS:
+            return None
+        return PYTHON_ONLY.get(model.kernel, f"the C backend has no kernel {str(model.kernel)[:40]!r} "
+                                             f"(it has {', '.join(C_KERNELS)})")
+    data = model.to_data() if hasattr(model, "to_data") else model
+    return PYTHON_ONLY["parametric"] if isinstance(data, dict) and "parameters" in data else None
+
 
 def c_kernel(card: Card) -> CKernel:
     """The C kernel of a card; FmuError when there is none for its ``kernel``."""
     kernel = C_KERNELS.get(card.kernel)
     if kernel is None:
-        raise FmuError(f"the C backend has no kernel {str(card.kernel)[:40]!r} (it has {', '.join(C_KERNELS)}); "
-                       "use --backend python")
+        raise FmuError(f"--backend c: {c_refusal(card)}; use --backend python (or leave --backend out: the "
+                       "default picks python for this card)")
     return kernel
 
 
@@ -224,6 +274,8 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
     str
         The C source.
     """
+    if card.kernel == "window":
+        return _window_source(card, guid, identifier)
     d = card.dims
     sched = card.schedule
     kind = sched["kind"]
@@ -266,6 +318,42 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
     return "\n".join(lines)
 
 
+def _window_source(card: Card, guid: str, identifier: str) -> str:
+    """``design_data.c`` of a window-kernel card (a dead-beat functional observer): one constant
+    ``UiofmuWindow`` (``c/kernel_window.h``: ``F`` as terms x d x p L doubles, ``Fexp`` as terms x L x s
+    integer powers, the window length, delay and period), its variable table and ``UIOFMU_FMU``;
+    numbers only, as :func:`design_source`."""
+    kernel = c_kernel(card)
+    table = variable_table(card)
+    sched = card.schedule
+    F, exps = np.asarray(card.matrices["F"], dtype=float), np.asarray(card.matrices["Fexp"])
+    p = _count(card.dims["p"], "dims.p")
+    L = _count(sched["length"], "schedule.length")
+    s = _count(sched["theta"], "schedule.theta")
+    delay = _count(sched["delay"], "schedule.delay")
+    if F.ndim != 3 or exps.ndim != 3 or F.shape[2] != p * L or exps.shape != (F.shape[0], L, s):
+        raise CardError(f"design card matrices: F {F.shape} and Fexp {exps.shape} do not fit p = {p}, L = {L}, "
+                        f"s = {s}")
+    terms, rows = F.shape[0], F.shape[1]
+    powers = [int(e) for e in exps.ravel()]
+    if any(e != v or not 0 <= e <= MAX_POWER for e, v in zip(powers, exps.ravel())):
+        raise CardError(f"design card matrices.Fexp: expected integer powers from 0 to {MAX_POWER}")
+    uses_theta = sched.get("uses_theta")
+    if not isinstance(uses_theta, bool):
+        raise CardError(f"design card schedule.uses_theta: expected true or false, found {str(uses_theta)[:40]!r}")
+    lines = ["/* Generated by uiofmu from a design card. */", f'#include "{kernel.header}"', "",
+             f"static const double m_F[] = {_doubles(F, 'matrices.F', terms * rows * p * L)};",
+             "static const int m_Fexp[] = {" + (", ".join(map(str, powers)) if powers else "0") + "};", "",
+             "const UiofmuWindow UIOFMU_WINDOW = {",
+             f"    .p = {p}, .d = {int(rows)}, .s = {s}, .length = {L}, .delay = {delay}, "
+             f".uses_theta = {int(uses_theta)}, .terms = {int(terms)},",
+             f"    .dt = {_double(sched['dt'], 'schedule.dt')}, "
+             f".step_rtol = {_double(sched.get('step_rtol', STEP_RTOL), 'schedule.step_rtol')},",
+             "    .F = m_F, .Fexp = m_Fexp, .F_length = UIOFMU_LENGTH(m_F), .Fexp_length = UIOFMU_LENGTH(m_Fexp),",
+             "};", "", *fmu_table(guid, identifier, kernel, table)]
+    return "\n".join(lines)
+
+
 def fmu_table(guid: str, identifier: str, kernel: CKernel, table: list) -> list:
     """The lines of ``design_data.c`` after the kernel's data: the variable table and ``UIOFMU_FMU``
     (the GUID and model identifier as escaped C literals, the kernel's symbol)."""
@@ -280,7 +368,17 @@ def fmu_table(guid: str, identifier: str, kernel: CKernel, table: list) -> list:
 
 
 def plant_kernel(data: dict) -> CKernel:
-    """The C kernel of a plant's data: ``linear``, or ``switched-<rule>`` for data with ``modes``."""
+    """The C kernel of a plant's data: ``linear``, ``switched-<rule>`` for data with ``modes``, or
+    ``lpv-<kind>`` for data with ``scheduling`` (the kind of its ``theta``); FmuError for a plant with
+    unknown parameters (no C kernel: :data:`PYTHON_ONLY`)."""
+    if "parameters" in data:
+        raise FmuError(f"--backend c: {PYTHON_ONLY['parametric']}; use --backend python (or leave --backend out: "
+                       "the default picks python for this plant)")
+    if "scheduling" in data:
+        kind = data.get("theta", {}).get("kind") if isinstance(data.get("theta"), dict) else None
+        if kind not in THETA_KINDS:
+            raise FmuError(f"plant theta.kind: expected one of {', '.join(THETA_KINDS)}, found {str(kind)[:40]!r}")
+        return PLANT_KERNELS[f"lpv-{kind}"]
     if "modes" not in data:
         return PLANT_KERNELS["linear"]
     rule = data.get("switching", {}).get("rule") if isinstance(data.get("switching"), dict) else None
@@ -340,13 +438,68 @@ def _switched_source(data: dict, guid: str, identifier: str) -> str:
     return "\n".join(lines)
 
 
+def _lpv_source(data: dict, guid: str, identifier: str) -> str:
+    """``design_data.c`` of an LPV plant (:meth:`uiofmu.lpv_plant.LpvPlant.to_data`): see
+    :func:`plant_source`. Each of ``A, E, C, D`` as ``1 + s`` blocks, block 0 the constant part and
+    block i the part of theta^(i); ``T`` (kind ``state``; zeros for ``input``) and ``x0``; the
+    variable table from :func:`uiofmu.runtime.ports.lpv_plant_ports`."""
+    kernel = plant_kernel(data)
+    kind = data["theta"]["kind"]
+    if data.get("time", "discrete") != "discrete":
+        raise FmuError(f"plant time: an LPV plant is discrete, found {str(data.get('time'))[:40]!r}")
+    parts = data["scheduling"]
+    if not isinstance(parts, list) or not 1 <= len(parts) <= 2048:
+        raise FmuError("plant scheduling: expected a list of 1 to 2048 components")
+    A = np.asarray(data["A"], dtype=float)
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or not A.shape[0]:
+        raise FmuError(f"plant A: expected a square matrix, found shape {A.shape}")
+    n, s = A.shape[0], len(parts)
+    C = np.asarray(data["C"], dtype=float).reshape(-1, n)
+    E = np.asarray(data["E"], dtype=float).reshape(n, -1)
+    p, q = C.shape[0], E.shape[1]
+    D = np.asarray(data.get("D") if data.get("D") is not None else np.zeros((p, q)), dtype=float).reshape(p, q)
+    shapes = {"A": (n, n), "E": (n, q), "C": (p, n), "D": (p, q)}
+    blocks = {"A": [A], "E": [E], "C": [C], "D": [D]}
+    for i, part in enumerate(parts):
+        if not isinstance(part, dict):
+            raise FmuError(f"plant scheduling[{i}]: expected a table of parts")
+        for name, shape in shapes.items():
+            value = part.get(name)
+            arr = np.zeros(shape) if value is None else np.asarray(value, dtype=float)
+            if arr.size != shape[0] * shape[1]:
+                raise FmuError(f"plant scheduling[{i}].{name}: expected {shape[0]} x {shape[1]}, found shape "
+                               f"{arr.shape}")
+            blocks[name].append(arr.reshape(shape))
+    T = np.asarray(data["theta"].get("T", np.zeros((s, n))) if kind == "state" else np.zeros((s, n)), dtype=float)
+    if T.size != s * n:
+        raise FmuError(f"plant theta.T: expected {s} x {n}, found shape {T.shape}")
+    x0 = np.asarray(data.get("x0") or np.zeros(n), dtype=float)
+    feeds_d = bool(any(np.any(b) for b in blocks["D"]))
+    table = table_rows(kernel, "LPV plant", lpv_plant_ports(n, p, q, s, kind, feeds_d))
+    lines = ["/* Generated by uiofmu from an LPV plant. */", f'#include "{kernel.header}"', ""]
+    for key, arr, size in (("A", blocks["A"], (s + 1) * n * n), ("E", blocks["E"], (s + 1) * n * q),
+                           ("C", blocks["C"], (s + 1) * p * n), ("D", blocks["D"], (s + 1) * p * q),
+                           ("T", T, s * n), ("x0", x0, n)):
+        lines.append(f"static const double m_{key}[] = {_doubles(arr, f'plant.{key}', size)};")
+    arrays = ", ".join(f".{k} = m_{k}, .{k}_length = UIOFMU_LENGTH(m_{k})" for k in ("A", "E", "C", "D", "T", "x0"))
+    lines += ["", "const UiofmuLpv UIOFMU_LPV = {",
+              f"    .n = {n}, .p = {p}, .q = {q}, .s = {s}, .kind = {THETA_KINDS[kind]},",
+              f"    .dt = {_double(data.get('dt') or 0.0, 'plant.dt')}, "
+              f".step_rtol = {_double(STEP_RTOL, 'step_rtol')},",
+              f"    {arrays},", "};", "", *fmu_table(guid, identifier, kernel, table)]
+    return "\n".join(lines)
+
+
 def plant_source(data: dict, guid: str, identifier: str) -> str:
     """``design_data.c`` of a plant (``Plant.to_data()``, or a switched plant's data with ``modes``
-    and ``switching``): one constant ``UiofmuPlant`` (``c/kernel_plant.h``), its variable table
+    and ``switching``, or an LPV plant's with ``scheduling``: :func:`_lpv_source`): one constant
+    ``UiofmuPlant`` (``c/kernel_plant.h``), its variable table
     (from :func:`uiofmu.runtime.ports.plant_ports`) and ``UIOFMU_FMU``. Numbers only (every float
     by :func:`repr` after a finiteness check, every array with its length checked against the dims
     and compiled with ``UIOFMU_LENGTH``), and the GUID and model identifier as escaped C literals:
     no text of the problem reaches the source."""
+    if "scheduling" in data:
+        return _lpv_source(data, guid, identifier)
     if "modes" in data:
         return _switched_source(data, guid, identifier)
     kernel = PLANT_KERNELS["linear"]
@@ -411,9 +564,9 @@ def write_variables(root, ports) -> None:
 
 def model_description(card: Card, guid: str, identifier: str, sources: list[str]) -> bytes:
     """``modelDescription.xml`` with the ports of the python backend."""
-    from ..runtime.fmu_model import ObserverModel
+    from ..runtime.fmu_model import make_model
 
-    model = ObserverModel({"card": card.data})
+    model = make_model({"kind": "observer", "card": card.data})
     model.refresh()
     return description_xml(identifier, guid, f"{card.family} unknown-input observer of {card.name} "
                            f"(uiofmu {__version__}, C backend)", sources, observer_experiment(card), model.ports)
@@ -522,6 +675,7 @@ def build_c_observer(card: Card, output, identifier: str, call_floor: bool = Fal
     FMI call itself); never use it for anything else.
     """
     output = check_output_file(output, "FMU", ".fmu")
+    c_kernel(card)                         # a card the C backend has no kernel for is refused first
     _check_platform()
     guid = guid_of(card.data)
     return pack_c_fmu(output, identifier, c_kernel(card), design_source(card, guid, identifier),
@@ -533,12 +687,13 @@ def build_c_plant(plant, output, identifier: str, experiment: dict | None = None
                   description: str | None = None, call_floor: bool = False) -> Path:
     """Write the C FMU of a plant to ``output`` (``c/kernel_plant.c``: exact zero-order hold for
     any step of a continuous plant, dt only for a discrete one; a switched plant in its current
-    mode, picked by its rule).
+    mode, picked by its rule; ``c/kernel_lpv.c``: an LPV plant at its theta, from the state or
+    the input ``theta``).
 
     Parameters
     ----------
-    plant : uiofmu.plant.Plant or uiofmu.switched_plant.SwitchedPlant
-        A checked linear or switched plant.
+    plant : uiofmu.plant.Plant, uiofmu.switched_plant.SwitchedPlant or uiofmu.lpv_plant.LpvPlant
+        A checked linear, switched or LPV plant.
     output : str or Path
         The ``.fmu`` file to write.
     identifier : str
@@ -555,11 +710,12 @@ def build_c_plant(plant, output, identifier: str, experiment: dict | None = None
     Path
     """
     output = check_output_file(output, "FMU", ".fmu")
-    _check_platform()
     data = plant.to_data()
+    plant_kernel(data)                     # a plant the C backend has no kernel for is refused first
+    _check_platform()
     spec = {"kind": "plant", "plant": data, **({"experiment": experiment} if experiment else {})}
     guid = guid_of({"backend": "c", **spec})
-    what = "switched plant" if "modes" in data else "linear plant"
+    what = "LPV plant" if "scheduling" in data else "switched plant" if "modes" in data else "linear plant"
     text = description or f"{plant.time} {what} (uiofmu {__version__}, C backend)"
     return pack_c_fmu(output, identifier, plant_kernel(data), plant_source(data, guid, identifier),
                       lambda sources: plant_model_description(data, text, guid, identifier, sources, experiment),

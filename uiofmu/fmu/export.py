@@ -84,11 +84,45 @@ def _build_python(spec: dict, ident: str, description: str, output: Path, extra_
     return output
 
 
-def default_backend() -> str:
-    """``c`` where a C compiler is found, else ``python``."""
-    from .c_backend import c_compiler
+def default_backend(model=None) -> str:
+    """``c`` where a C compiler is found and the C backend has a kernel for ``model``, else ``python``.
 
-    return "c" if c_compiler() else "python"
+    Parameters
+    ----------
+    model : Card or plant, optional
+        What is to be packed (:func:`uiofmu.fmu.c_backend.c_refusal`); without it, only the compiler decides.
+
+    Returns
+    -------
+    str
+    """
+    return choose_backend(model)[0]
+
+
+def choose_backend(model=None, requested: str | None = None) -> tuple[str, str | None]:
+    """The backend that packs ``model``, and why the default is not ``c`` when a compiler is there.
+
+    Parameters
+    ----------
+    model : Card or plant, optional
+    requested : {"c", "python"}, optional
+        The ``--backend`` given: it is returned as it is (``c`` for a model without a C kernel is
+        refused later, by the C backend, with its reason).
+
+    Returns
+    -------
+    (str, str or None)
+        The backend, and a one-line note when the default picked ``python`` because the C backend
+        has no kernel for ``model`` (None otherwise).
+    """
+    from .c_backend import c_compiler, c_refusal
+
+    if requested:
+        return requested, None
+    reason = c_refusal(model) if model is not None else None
+    if reason:
+        return "python", f"{reason}: building with the python backend (pythonfmu) instead"
+    return ("c" if c_compiler() else "python"), None
 
 
 def build_observer(card: Card, output, backend: str | None = None) -> Path:
@@ -102,13 +136,14 @@ def build_observer(card: Card, output, backend: str | None = None) -> Path:
         The ``.fmu`` file to write.
     backend : {"c", "python"}, optional
         ``c``: a standalone native binary plus its sources (the default where a C compiler
-        is found); ``python``: pythonfmu (the host needs Python with numpy).
+        is found and the C backend has the card's kernel: not ``delayed``); ``python``: pythonfmu
+        (the host needs Python with numpy).
 
     Returns
     -------
     Path
     """
-    backend = backend or default_backend()
+    backend = backend or default_backend(card)
     if backend not in BACKENDS:
         raise FmuError(f"--backend: expected one of {', '.join(BACKENDS)}, found {backend!r}")
     ident = model_identifier(card.name, "observer")
@@ -126,19 +161,23 @@ def plant_kind(plant) -> str:
     threshold)`` or ``LPV plant (1 scheduling component, theta from the state)``."""
     if getattr(plant, "modes", None):
         return f"switched linear plant ({len(plant.modes)} modes, rule {plant.switching['rule']})"
+    if getattr(plant, "n_theta", None):
+        return f"plant with {plant.n_theta} unknown parameter(s) theta (D(y) theta, RK4 substeps, output ydot)"
     if getattr(plant, "parts", None):
         return f"LPV plant ({len(plant.parts)} scheduling component(s), theta from the {plant.theta['kind']})"
     return "linear plant"
 
 
 def build_plant(plant: Plant, name: str, output, step: float | None = None, backend: str | None = None) -> Path:
-    """Pack a linear plant as an FMU (exact between communication points).
+    """Pack a plant as an FMU (a linear one exact between communication points).
 
     Parameters
     ----------
-    plant : Plant or SwitchedPlant
+    plant : Plant, SwitchedPlant, LpvPlant or ParametricPlant
         A switched plant (:class:`uiofmu.switched_plant.SwitchedPlant`) adds the Integer ``mode``
-        of its switching rule (:mod:`uiofmu.runtime.switching`).
+        of its switching rule (:mod:`uiofmu.runtime.switching`); a plant with unknown parameters
+        (:class:`uiofmu.parametric_plant.ParametricPlant`) has the parameter ``theta`` and the output
+        ``ydot`` and is integrated with RK4 substeps (:mod:`uiofmu.runtime.parametric_plant`; pythonfmu only).
     name : str
         Model name (the FMU's model identifier is ``NAME_plant``).
     output : str or Path
@@ -148,13 +187,14 @@ def build_plant(plant: Plant, name: str, output, step: float | None = None, back
         continuous plant without it has none).
     backend : {"c", "python"}, optional
         ``c``: a standalone native binary plus its sources (``c/kernel_plant.c``; the default
-        where a C compiler is found); ``python``: pythonfmu (the host needs Python with numpy).
+        where a C compiler is found, except for a plant with unknown parameters, which has no C
+        kernel); ``python``: pythonfmu (the host needs Python with numpy).
 
     Returns
     -------
     Path
     """
-    backend = backend or default_backend()
+    backend = backend or default_backend(plant)
     if backend not in BACKENDS:
         raise FmuError(f"--backend: expected one of {', '.join(BACKENDS)}, found {backend!r}")
     ident = model_identifier(name, "plant")

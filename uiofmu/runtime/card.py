@@ -17,7 +17,7 @@ import numpy as np
 from .errors import CardError
 from .files import parse_json, read_text, write_atomic
 from .matrices import as_array, as_scalar, as_vector
-from .ports import check_declared, observer_ports, window_ports
+from .ports import check_declared, delayed_ports, observer_ports, window_ports
 from .registry import KNOWN
 from .schedules import AXES
 from .text import check_name, check_text
@@ -145,9 +145,10 @@ class Card:
 #: Runtime kernels: how an observer steps. ``affine``: ``z+ = N z + L y + G u + c``,
 #: ``xhat = Xz z + Xy y`` with the matrices its schedule picks (:mod:`uiofmu.runtime.observer`).
 #: ``window``: ``gx = sum_t w_t(theta) F_t [y window]`` on the last outputs (:mod:`uiofmu.runtime.window`).
-KERNELS = ("affine", "window")
+#: ``delayed``: a continuous-time delayed UIO integrated inside the FMU (:mod:`uiofmu.runtime.delayed`).
+KERNELS = ("affine", "window", "delayed")
 #: The schedule kind of each kernel that has its own (the affine kernel takes every other kind).
-KERNEL_SCHEDULE = {"window": "window"}
+KERNEL_SCHEDULE = {"window": "window", "delayed": "continuous"}
 #: Longest output window of a window kernel, and its largest power of a theta value.
 MAX_WINDOW, MAX_POWER = 1024, 64
 #: Largest dimension a card may declare (states, inputs, outputs, observer states).
@@ -156,12 +157,13 @@ MAX_DIM = 1000
 MAX_INTERVALS = 256
 #: Keys a schedule may hold, per kind (``step_policy`` and ``step_rtol`` for all).
 SCHEDULE_KEYS = {"constant": {"dt"}, "interval": {"intervals", "h_prev0"}, "geometric": {"alpha", "dt"},
-                 "mode": {"dt", "modes", "mode_prev0"}, "window": {"dt", "length", "delay", "theta", "uses_theta"}}
+                 "mode": {"dt", "modes", "mode_prev0"}, "window": {"dt", "length", "delay", "theta", "uses_theta"},
+                 "continuous": {"delays", "max_substep", "sigma_bound", "step"}}
 #: Most modes a mode schedule may have (its card holds N^2 step matrices).
 MAX_MODES = 16
 #: The step policies each schedule kind accepts (see :mod:`uiofmu.runtime.schedules`).
 KIND_POLICIES = {"constant": ("error",), "interval": ("error", "nearest"), "geometric": ("error", "count"),
-                 "mode": ("error",), "window": ("error",)}
+                 "mode": ("error",), "window": ("error",), "continuous": ("error",)}
 #: Longest free text (``bound``, ``generator``, solver names) a card may hold.
 MAX_TEXT = 1000
 
@@ -225,6 +227,16 @@ def _check_schedule(spec, dt) -> dict:
         if "alpha" not in spec:
             raise CardError("design card schedule.alpha: required for a geometric schedule")
         _number(spec["alpha"], "schedule.alpha", low=0.0, high=1.0, open_low=True, open_high=True)
+    if kind == "continuous":
+        delays = spec.get("delays")
+        if not isinstance(delays, list) or not 1 <= len(delays) <= 16:
+            raise CardError(f"design card schedule.delays: expected a list of 1 to 16 delays, found {_kind(delays)}")
+        values = [_number(t, f"schedule.delays[{i}]", low=0.0, open_low=True) for i, t in enumerate(delays)]
+        if any(b <= a for a, b in zip(values, values[1:])):
+            raise CardError(f"design card schedule.delays: expected increasing delays, found {values}")
+        for key in ("max_substep", "step"):
+            _number(spec.get(key), f"schedule.{key}", low=0.0, open_low=True)
+        _number(spec.get("sigma_bound"), "schedule.sigma_bound", low=0.0)
     if kind == "window":
         length = _integer(spec.get("length"), "schedule.length", 1, MAX_WINDOW)
         _integer(spec.get("delay"), "schedule.delay", 0, length - 1)
@@ -279,15 +291,39 @@ def _check_window(mats: dict, dims: dict, schedule: dict) -> dict:
     return {"F": F, "Fexp": exps}
 
 
+def _check_delayed(mats: dict, dims: dict, schedule: dict) -> dict:
+    """The delayed kernel's matrices: the plant's ``Abar, Bbar, Cbar, D0, Dy`` and the gain ``K`` of the
+    augmented system (``len(delays) + 1`` copies)."""
+    n, m, p = dims["n"], dims["m"], dims["p"]
+    c = len(schedule["delays"]) + 1
+    if dims["nz"] != n * c:
+        raise CardError(f"design card dims.nz = {dims['nz']}: the delayed kernel has n (len(delays) + 1) = {n * c}")
+    for name in ("Abar", "Bbar", "Cbar", "D0", "Dy", "K"):
+        if name not in mats:
+            raise CardError(f"design card matrices.{name}: required by the delayed kernel")
+    D0 = as_array(mats["D0"], "design card matrices.D0", (n, None), CardError)
+    shapes = {"Abar": (n, n), "Bbar": (n, m), "Cbar": (p, n), "D0": (n, D0.shape[1]),
+              "Dy": (p, n, D0.shape[1]), "K": (n * c, p * c)}
+    return {name: as_array(mats[name], f"design card matrices.{name}", shape, CardError)
+            for name, shape in shapes.items()}
+
+
+#: The matrices each kernel with its own checks reads (every other matrix: any finite array).
+KERNEL_MATRICES = {"window": (("F", "Fexp"), _check_window), "delayed": (("Abar", "Bbar", "Cbar", "D0", "Dy", "K"),
+                                                                        _check_delayed)}
+
+
 def _check_matrices(mats, dims: dict, kind: str, schedule: dict) -> dict:
     """Runtime matrices with their exact shapes; every other matrix a finite numeric array."""
     mats = _table(mats, "matrices")
-    if kind == "window":
+    own = {"window": "window", "continuous": "delayed"}.get(kind)
+    if own:
+        names, check = KERNEL_MATRICES[own]
         for name, value in mats.items():
             _text(name, "matrices key", 64)
-            if name not in ("F", "Fexp"):
+            if name not in names:
                 _any_array(value, f"design card matrices.{name}")
-        return _check_window(mats, dims, schedule)
+        return check(mats, dims, schedule)
     axes = AXES[kind]
     count = {"interval": len(schedule.get("intervals", ())), "mode": schedule.get("modes")}.get(kind)
     out = {}
@@ -401,6 +437,9 @@ def declared_ports(data: dict, matrices: dict) -> list:
     if data.get("kernel", "affine") == "window":
         spec = data["schedule"]
         return window_ports(data["dims"]["p"], matrices["F"].shape[1], spec["theta"] if spec["uses_theta"] else 0)
+    if data.get("kernel", "affine") == "delayed":
+        d = data["dims"]
+        return delayed_ports(d["n"], d["m"], d["p"], matrices["D0"].shape[1])
     feeds_y = bool(np.any(np.asarray(matrices["Xy"]) != 0))
     return observer_ports(data["dims"], data["schedule"]["kind"], "Dy" in matrices, feeds_y)
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from .card import card_from_data
 from .plant_runtime import PlantRuntime
-from .ports import PortSpec, lpv_plant_ports, plant_ports
+from .ports import PortSpec, lpv_plant_ports, parametric_plant_ports, plant_ports
 from .observer import Runtime, RuntimeInputError
 from .schedules import StepRejected
 from .state import StateReader, StateRejected
@@ -212,6 +212,49 @@ class FunctionalModel(StatefulModel):
         self.dirty = True
 
 
+class DelayedModel(StatefulModel):
+    """A delayed-kernel observer (:mod:`uiofmu.runtime.delayed`) as FMU ports:
+    ``y, ydot, u -> xhat, thetahat, r, sigma_min, valid``."""
+
+    kind = "observer"
+
+    def __init__(self, spec: dict):
+        from .delayed import DelayedRuntime
+
+        self.card = card_from_data(spec["card"])
+        self.rt = DelayedRuntime(self.card)
+        self._declare(self.card.ports, {"xhat0": self.rt.xhat0.copy(), "y": self.rt.y, "ydot": self.rt.ydot,
+                                        "u": self.rt.u})
+        self.dirty = True
+
+    def initialize(self) -> None:
+        """Take ``xhat0`` and start over (empty delay buffer)."""
+        self.rt.xhat0 = self.named["xhat0"].values.copy()
+        self.rt.reset()
+        self.dirty = True
+
+    def notices(self) -> list:
+        """The kernel's notes for the log (validity lost; drained)."""
+        out = list(self.rt.notices)
+        self.rt.notices.clear()
+        return out
+
+    def refresh(self) -> None:
+        """Recompute the outputs from the current inputs and state."""
+        named = self.named
+        named["xhat"].values[:] = self.rt.xhat()
+        named["thetahat"].values[:] = self.rt.theta()
+        named["r"].values[:] = self.rt.residual()
+        named["sigma_min"].values[0] = self.rt.margin()
+        named["valid"].values[0] = 1.0 if self.rt.valid else 0.0
+        self.dirty = False
+
+    def step(self, t: float, h: float) -> None:
+        """One communication step; raises StepRejected or RuntimeInputError."""
+        self.rt.step(h)
+        self.dirty = True
+
+
 class PlantModel(StatefulModel):
     """A plant as FMU ports: ``u, d -> y, x``; parameters ``x0`` and the runtime's physical ones.
 
@@ -224,7 +267,7 @@ class PlantModel(StatefulModel):
 
     def __init__(self, rt, param_targets: dict | None = None):
         self.rt = rt
-        physical = [(name, param_targets[name]) for name in rt.param_names]
+        physical = [(name, param_targets[name]) for name in rt.param_names] if param_targets else []
         arrays = {"x0": rt.x0.copy(), "u": rt.u, "d": rt.d,
                   **{name: rt.params[i:i + 1].copy() for i, name in enumerate(rt.param_names)}}
         rule = getattr(rt, "rule", None)
@@ -233,6 +276,9 @@ class PlantModel(StatefulModel):
         if hasattr(rt, "theta_in"):
             arrays["theta"] = rt.theta_in if rt.kind == "input" else None
             specs = lpv_plant_ports(rt.n, rt.p, rt.q, rt.s, rt.kind, bool(np.any(rt.parts["D"])))
+        elif hasattr(rt, "ydot"):
+            arrays["theta"] = rt.params.copy()
+            specs = parametric_plant_ports(rt.n, rt.m, rt.p, rt.params.size)
         else:
             specs = plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, rule)
         self._declare(specs, arrays)
@@ -242,8 +288,11 @@ class PlantModel(StatefulModel):
         """Take the parameters (initial state, seed, physical parameters) and reset."""
         named = self.named
         self.rt.x0 = named["x0"].values.copy()
-        for i, name in enumerate(self.rt.param_names):
-            self.rt.params[i] = named[name].values[0]
+        if hasattr(self.rt, "ydot"):
+            self.rt.params[:] = named["theta"].values
+        else:
+            for i, name in enumerate(self.rt.param_names):
+                self.rt.params[i] = named[name].values[0]
         self.rt.apply_parameters()
         if "seed" in named:
             self.rt.seed = int(named["seed"].values[0])
@@ -271,6 +320,8 @@ class PlantModel(StatefulModel):
         port = self.named.get("theta")
         if port is not None and port.causality == "output":
             port.values[:] = self.rt.theta()
+        if "ydot" in self.named:
+            self.named["ydot"].values[:] = self.rt.ydot()
         self.dirty = False
 
     def step(self, t: float, h: float) -> None:
@@ -291,6 +342,10 @@ def make_model(spec: dict, resources: str = "."):
 
         return PlantModel(MujocoRuntime(spec["mujoco"], resources), spec["mujoco"].get("parameters", {}))
     if spec["kind"] == "plant":
+        if "parameters" in spec["plant"]:
+            from .parametric_plant import ParametricPlantRuntime
+
+            return PlantModel(ParametricPlantRuntime(spec["plant"]))
         if "scheduling" in spec["plant"]:
             from .lpv import LpvPlantRuntime
 
@@ -302,8 +357,10 @@ def make_model(spec: dict, resources: str = "."):
         return PlantModel(PlantRuntime(spec["plant"]))
     if spec["card"].get("kernel") == "window":
         return FunctionalModel(spec)
+    if spec["card"].get("kernel") == "delayed":
+        return DelayedModel(spec)
     return ObserverModel(spec)
 
 
-__all__ = ["FunctionalModel", "ObserverModel", "PlantModel", "Port", "RuntimeInputError", "StateRejected",
-           "StepRejected", "make_model"]
+__all__ = ["DelayedModel", "FunctionalModel", "ObserverModel", "PlantModel", "Port", "RuntimeInputError",
+           "StateRejected", "StepRejected", "make_model"]

@@ -236,10 +236,21 @@ __all__ = ["Runtime", "RuntimeInputError", "StepRejected"]
 def default_horizon(card: Card, floor: int = 50, cap: int = 5000) -> float:
     """A run long enough for the certified bound to fall to 1e-3 of the initial error: 50 to 5000
     steps of the mean admissible step (the default ``--t-end`` of ``uiofmu cosim`` and the stop
-    time of the FMU's ``<DefaultExperiment>``)."""
+    time of the FMU's ``<DefaultExperiment>``).
+
+    A discrete design (``decay_bound`` delta, ``overshoot_bound`` M) needs ``log(1e-3 / M) / log(delta)``
+    steps. A continuous-time kernel (``decay_rate`` beta in 1/s, ``overshoot`` M, no ``decay_bound``) needs
+    its largest delay (the start-up, before any estimate is valid) plus ``log(1e3 M) / beta`` seconds
+    (``10 / beta`` without M), in steps of the schedule's default ``step``. Without either, ``cap`` steps.
+    """
     decay, over = card.data.get("decay_bound"), card.data.get("overshoot_bound")
+    h = float(np.mean(make_schedule(card.schedule, card.matrices).admissible_steps()))
     k = cap
     if decay and over and 0 < decay < 1:
         k = int(math.ceil(math.log(1e-3 / over) / math.log(decay)))
-    h = float(np.mean(make_schedule(card.schedule, card.matrices).admissible_steps()))
+    elif decay is None and (card.data.get("decay_rate") or 0) > 0:
+        rate, over = float(card.data["decay_rate"]), card.data.get("overshoot")
+        seconds = math.log(1e3 * over) / rate if over and over >= 1 else 10.0 / rate
+        seconds += max([float(t) for t in card.schedule.get("delays", [])], default=0.0)
+        k = int(math.ceil(seconds / h)) if math.isfinite(seconds) else cap
     return min(max(k, floor), cap) * h

@@ -86,9 +86,11 @@ def experiment(step: float, stop: float) -> dict:
 
 
 def observer_experiment(card) -> dict:
-    """An observer's default experiment: its first admissible step (``dt``, or the first design
-    interval), until the certified bound has fallen to 1e-3 (:func:`default_horizon`), and at
-    most :data:`MAX_EXPERIMENT_STEPS` steps."""
+    """An observer's default experiment: its first admissible step (``dt``, the first design
+    interval, or the default ``step`` of a continuous-time kernel), until the certified bound has
+    fallen to 1e-3 (:func:`default_horizon`; for the delayed kernel its start-up plus the decay of
+    its premise-set bound), and at most :data:`MAX_EXPERIMENT_STEPS` steps (1 s for the delayed
+    example at 1 ms: the estimates are valid from its delay, 0.5 s)."""
     from .observer import default_horizon
     from .schedules import make_schedule
 
@@ -221,6 +223,35 @@ def lpv_plant_ports(n: int, p: int, q: int, s: int, kind: str, feeds_d: bool) ->
     if kind == "state":
         ports.append(PortSpec("theta", s, "output", "scheduling parameter T x at the current point"))
     return ports
+
+
+def parametric_plant_ports(n: int, m: int, p: int, n_theta: int) -> list:
+    """The declaration of a plant with unknown parameters (:mod:`uiofmu.runtime.parametric_plant`):
+    parameters ``x0`` and ``theta`` (the true values it simulates), input ``u``, outputs ``y``, its
+    derivative ``ydot = C x'`` (depending on ``u``) and ``x``."""
+    return [PortSpec("x0", n, "parameter", "initial state"),
+            PortSpec("theta", n_theta, "parameter", "the unknown constant parameters the plant simulates"),
+            PortSpec("u", m, "input", "known inputs (held over the step)"),
+            PortSpec("y", p, "output", "measured outputs C x"),
+            PortSpec("ydot", p, "output", "their derivative C x' at the current point", depends=("u",)),
+            PortSpec("x", n, "output", "true state (for validation)")]
+
+
+def delayed_ports(n: int, m: int, p: int, n_theta: int) -> list:
+    """The declaration of the delayed kernel (:mod:`uiofmu.runtime.delayed`): parameter ``xhat0``; inputs
+    ``y``, ``ydot``, ``u``; outputs ``xhat``, ``thetahat``, ``r``, the rank margin ``sigma_min`` and the
+    Integer ``valid`` (1 while the estimates are valid)."""
+    return [PortSpec("xhat0", n, "parameter", "initial state estimate (also of the delayed copies)"),
+            PortSpec("y", p, "input", "measured outputs at the current communication point"),
+            PortSpec("ydot", p, "input", "their measured derivative"),
+            PortSpec("u", m, "input", "known inputs (held over the step)"),
+            PortSpec("xhat", n, "output", "state estimate (held while not valid)", depends=("y", "ydot", "u")),
+            PortSpec("thetahat", n_theta, "output", "parameter estimate (34) (held while not valid)",
+                     depends=("y", "ydot", "u")),
+            PortSpec("r", p, "output", "output residual y - C xhat", depends=("y", "ydot", "u")),
+            PortSpec("sigma_min", 1, "output", "rank margin sigma_min(C D_y) now", depends=("y", "ydot")),
+            PortSpec("valid", 1, "output", "1 while the estimates are valid (delays filled, margin above the "
+                     "premise bound)", type="Integer", depends=("y", "ydot"))]
 
 
 def check_declared(declared, expected: list) -> None:

@@ -38,7 +38,7 @@ FAMILIES = {e.name: e for e in (
     Entry("switched", "Millerioux, Daafouz (seed 002)", "switched"),
     Entry("sampled-data", "Etienne, Langueh, Hetel, ECC 2023 (seed 004)", "sampled_data"),
     Entry("deadbeat-functional", "Fiacchini, Millerioux (seed 003)", "deadbeat_functional"),
-    Entry("delayed-uio", "Fouka et al. (seed 001)", None),
+    Entry("delayed-uio", "Fouka et al. (seed 001)", "delayed_uio"),
 )}
 
 #: Names a problem file or a card may give.

@@ -21,6 +21,9 @@ A schedule is the only thing that differs between families at run time; the step
 ``window``
     The window kernel's formula (:mod:`uiofmu.runtime.window`), designed for the period ``dt``: as
     ``constant`` for the steps it admits.
+``continuous``
+    A continuous-time kernel integrated inside the FMU (:mod:`uiofmu.runtime.delayed`): any step
+    ``h > 0``; ``step`` is the default communication step.
 ``geometric``
     Matrices polynomial in ``a = alpha^k`` (the asymptotic-decoupling family): every matrix
     has a leading axis of coefficients, ``M(a) = M[0] + a M[1] + a^2 M[2] + ...``, evaluated
@@ -51,6 +54,7 @@ AXES = {
     "interval": {"N": 2, "L": 2, "G": 1, "c": 1, "Yx": 1, "Yu": 1, "Yc": 1, "Xz": 1, "Xy": 1, "Dy": 1},
     "mode": {"N": 2, "L": 2, "G": 1, "c": 1, "Yx": 1, "Yu": 1, "Yc": 1, "Xz": 1, "Xy": 1, "Dy": 1},
     "window": {},
+    "continuous": {},
     "geometric": {k: 1 for k in ("N", "L", "G", "c", "Yx", "Yu", "Yc", "Xz", "Xy", "Dy")},
 }
 
@@ -228,6 +232,23 @@ class GeometricSchedule:
         return [self.dt]
 
 
+class ContinuousSchedule:
+    """A continuous-time kernel: every step is admissible; ``step`` is the default one."""
+
+    def __init__(self, spec: dict, matrices: dict, step_rtol: float = STEP_RTOL):
+        self.dt = float(spec["step"])
+        self.policy = _policy(spec)
+        self.notices: list[str] = []
+
+    def initial_h_prev(self) -> float:
+        """The default step."""
+        return self.dt
+
+    def admissible_steps(self) -> list:
+        """The default communication step (any other is admissible too)."""
+        return [self.dt]
+
+
 class ModeSchedule:
     """Matrices per pair of modes (alpha_k, alpha_{k-1}) of a switched plant, period ``dt``."""
 
@@ -269,7 +290,7 @@ class ModeSchedule:
 
 
 SCHEDULES = {"constant": ConstantSchedule, "interval": IntervalSchedule, "geometric": GeometricSchedule,
-             "mode": ModeSchedule, "window": ConstantSchedule}
+             "mode": ModeSchedule, "window": ConstantSchedule, "continuous": ContinuousSchedule}
 
 
 def make_schedule(spec: dict, matrices: dict):

@@ -16,6 +16,12 @@ LMI_MARGIN = 1e-6
 #: Feasibility and gap tolerances asked of CLARABEL.
 SOLVER_TOL = 1e-8
 
+#: A bounded "largest margin" problem (``max t`` with every LMI ``>= t I`` and the Lyapunov matrices
+#: normalised by their trace, solved by CLARABEL to optimality in well-conditioned coordinates)
+#: proves that no certificate exists when ``t`` is below ``-MARGIN_PROOF_RTOL`` times the Lyapunov
+#: matrices' mean eigenvalue: 100x the solver tolerance, so that its own error cannot flip the sign.
+MARGIN_PROOF_RTOL = 100 * SOLVER_TOL
+
 #: The independent re-check accepts a strict LMI when its smallest eigenvalue, evaluated
 #: with numpy at the stored matrices, is at least ``VERIFY_FRACTION * LMI_MARGIN``.
 VERIFY_FRACTION = 0.1

@@ -1,0 +1,216 @@
+"""The delayed UIO with parameter identification (seed 001, Fouka et al.): rule (7), the decoupling
+(19)-(23) with the analytic Hdot, the error dynamics, (34), validity, and convergence inside and
+outside the premise family (the reference runtime against the plant runtime)."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+import uiofmu
+from tests.conftest import EXAMPLES
+from uiofmu.families.delayed_uio import minimal_delays
+from uiofmu.problem import load_problem, problem_from_data
+from uiofmu.runtime.card import card_from_data
+from uiofmu.runtime.delayed import DelayedRuntime, augmented, decoupling, gamma, stacked
+from uiofmu.runtime.errors import ProblemError
+from uiofmu.runtime.parametric_plant import ParametricPlantRuntime
+from uiofmu.runtime.state import StateRejected
+
+
+@pytest.fixture(scope="module")
+def example():
+    """The example's problem and its card (decay 5 1/s)."""
+    problem = load_problem(EXAMPLES / "seed001_example.toml")
+    return problem, uiofmu.design(problem)
+
+
+def run(card, problem, h: float, t_end: float, u=None, theta=None):
+    """The plant runtime and the reference observer side by side: times, state errors, theta errors,
+    validity, margins."""
+    data = problem.plant.to_data()
+    plant = ParametricPlantRuntime(data)
+    if theta is not None:
+        plant.params[:] = theta
+    rt = DelayedRuntime(card)
+    signals = u or problem.u
+    rows = []
+    t = 0.0
+    for _ in range(int(round(t_end / h))):
+        plant.u[:] = [s(t) for s in signals]
+        rt.set_y(plant.y())
+        rt.set_ydot(plant.ydot())
+        rt.set_u(plant.u)
+        rows.append((t, np.linalg.norm(plant.x - rt.xhat()), np.linalg.norm(rt.theta() - plant.theta),
+                     rt.valid, rt.margin()))
+        rt.step(h)
+        plant.step(h)
+        t += h
+    return np.array(rows, dtype=float)
+
+
+@pytest.mark.parametrize("n_theta,n_y,m", [(3, 2, 1), (4, 2, 1), (5, 2, 2), (2, 2, 0), (1, 3, 0), (7, 3, 2)])
+def test_rule_7(n_theta, n_y, m):
+    assert minimal_delays(n_theta, n_y) == m
+    assert n_theta / n_y - 1 <= m < n_theta / n_y
+
+
+def test_check_reports_the_paper_s_conditions(example):
+    problem, _ = example
+    existence = uiofmu.check(problem)
+    values = {c.name: c.values for c in existence.conditions}
+    assert values["rank of the original system"] == {"rank_CD": 2, "rank_D": 3}
+    assert values["delays from rule (7)"] == {"m_rule": 1, "m": 1}
+    symbolic = values["rank C D_y on the premise family"]["symbolic"]
+    assert "y1*y2_t1 - y1_t1*y2" in symbolic and "y2" in symbolic      # (y2, y2_tau) != 0, y1 y2_tau != y1_tau y2
+    assert values["P_y D_y = 0"]["residual"] < 1e-12
+    too_few = copy.deepcopy(problem.data)
+    too_few["plant"]["parameters"]["theta"] = [1.0, 2.0, 0.5, 0.1]
+    for part in too_few["plant"]["parameters"]["Dy"]:
+        part["D"] = [row + [0.0] for row in part["D"]]
+    too_few["plant"]["parameters"]["D0"] = [[0.0] * 3 + [1.0], [0.0] * 4, [0.0] * 4]
+    too_few["observer"]["delays"] = []
+    with pytest.raises(ProblemError, match="observer.delays: expected increasing positive delays"):
+        problem_from_data(too_few)
+
+
+def test_decoupling_and_the_analytic_hdot():
+    """P D = 0 to 1e-12, Hdot equal to the finite difference of H along a smooth signal, and the
+    identities (i)-(iii) that make e' = (Gamma - K C) e whatever u and theta."""
+    rng = np.random.default_rng(0)
+    n, p, nt, c = 3, 2, 3, 2
+    A, B, C = rng.normal(size=(n, n)), rng.normal(size=(n, 1)), rng.normal(size=(p, n))
+    D0, Dy = rng.normal(size=(n, nt)) * 0.1, rng.normal(size=(p, n, nt))
+    Aa, Ba, Ca = augmented(A, c), augmented(B, c), augmented(C, c)
+    w, phase = rng.uniform(1, 3, size=(c, p)), rng.uniform(0, 6, size=(c, p))
+    ys = lambda t: np.sin(w * t + phase)                     # noqa: E731
+    yds = lambda t: w * np.cos(w * t + phase)                 # noqa: E731
+    for t in np.linspace(0.1, 3.0, 25):
+        Da, Dadot = stacked(D0, Dy, ys(t), yds(t))
+        H, Hdot, sigma = decoupling(Ca, Da, Dadot)
+        assert sigma > 1e-3
+        P = np.eye(n * c) + H @ Ca
+        assert np.abs(P @ Da).max() <= 1e-12 * max(1.0, np.abs(Da).max())
+        eps = 1e-6
+        Hp = decoupling(Ca, stacked(D0, Dy, ys(t + eps), yds(t + eps))[0], Dadot)[0]
+        Hm = decoupling(Ca, stacked(D0, Dy, ys(t - eps), yds(t - eps))[0], Dadot)[0]
+        np.testing.assert_allclose(Hdot, (Hp - Hm) / (2 * eps), rtol=1e-5, atol=1e-6 * np.abs(Hdot).max())
+        K = rng.normal(size=(n * c, p * c))
+        G = gamma(Aa, Ca, H, Hdot)
+        N, L = G - K @ Ca, K - (G - K @ Ca) @ H
+        Pdot = Hdot @ Ca
+        assert np.abs(Pdot + P @ Aa - N @ P - L @ Ca).max() <= 1e-9 * max(1.0, np.abs(G).max())     # (i)
+        assert np.abs(P @ Ba - (np.eye(n * c) + H @ Ca) @ Ba).max() == 0.0                          # (iii)
+
+
+def test_theta_is_exact_with_a_zero_state_error(example):
+    """(34) with the true augmented state and the measured derivatives returns theta (round-off)."""
+    problem, card = example
+    plant = ParametricPlantRuntime(problem.plant.to_data())
+    rt = DelayedRuntime(card)
+    h, t, history = 1e-3, 0.0, []
+    for _ in range(700):
+        plant.u[:] = [s(t) for s in problem.u]
+        history.append(plant.x.copy())
+        rt.set_y(plant.y())
+        rt.set_ydot(plant.ydot())
+        rt.set_u(plant.u)
+        if t >= 0.6:
+            break
+        rt.step(h)
+        plant.step(h)
+        t += h
+    xa = np.concatenate([history[-1], history[-1 - 500]])              # x(t), x(t - 0.5)
+    rt.running, rt.xa = False, xa
+    assert rt.valid
+    rt.running = True
+    ya, yad, ua = rt._augmented_at(rt.t, rt._now())
+    Da = rt._matrices(ya, yad)[0]
+    theta = np.linalg.lstsq(rt.Ca @ Da, yad - rt.Ca @ (rt.Aa @ xa + rt.Ba @ ua), rcond=None)[0]
+    np.testing.assert_allclose(theta, problem.plant.theta, atol=1e-6)
+
+
+def test_start_up_is_flagged_and_the_estimate_converges_inside_the_premise(example):
+    problem, card = example
+    rows = run(card, problem, 1e-3, 1.8)
+    t, e, eth, valid = rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
+    assert not valid[t < 0.5].any()                                     # start-up: t < tau
+    assert valid[t >= 0.6].mean() > 0.99
+    late = t >= 1.5
+    assert e[late].max() < 1e-3 * e[0]                                  # ||e|| < 1e-3 ||e_0||
+    assert np.median(eth[late]) < 1e-2                                  # thetahat within 1e-2 of theta
+
+
+def test_outside_the_premise_the_margin_collapses_and_the_run_says_so(example):
+    """A multi-sine input outside the premise family: sigma_min falls below the bound, the flag says
+    invalid there, and thetahat is held (never a fresh value while invalid)."""
+    problem, card = example
+    from uiofmu.signals import parse_signals
+
+    u = parse_signals([[{"kind": "sine", "amplitude": 20.0, "frequency_hz": 1.3},
+                        {"kind": "sine", "amplitude": 10.0, "frequency_hz": 3.1}]], "u", 1)
+    data = problem.plant.to_data()
+    plant = ParametricPlantRuntime(data)
+    rt = DelayedRuntime(card)
+    h, t = 1e-3, 0.0
+    invalid, held = 0, 0
+    last = rt.theta().copy()
+    for _ in range(1500):
+        plant.u[:] = [s(t) for s in u]
+        rt.set_y(plant.y())
+        rt.set_ydot(plant.ydot())
+        rt.set_u(plant.u)
+        theta = rt.theta().copy()
+        if t >= 0.5 and not rt.valid:
+            invalid += 1
+            assert rt.margin() < card.schedule["sigma_bound"]
+            held += np.array_equal(theta, last)
+        last = theta
+        rt.step(h)
+        plant.step(h)
+        t += h
+    assert invalid > 20 and held == invalid
+    assert any("below the premise bound" in n for n in rt.notices)
+
+
+def test_state_round_trip_with_the_delay_buffer(example):
+    problem, card = example
+    plant = ParametricPlantRuntime(problem.plant.to_data())
+    rt = DelayedRuntime(card)
+    h, t = 1e-3, 0.0
+    for _ in range(600):
+        plant.u[:] = [s(t) for s in problem.u]
+        rt.set_y(plant.y())
+        rt.set_ydot(plant.ydot())
+        rt.set_u(plant.u)
+        rt.step(h)
+        plant.step(h)
+        t += h
+    state = rt.get_state()
+    assert state["rows"] >= 500
+    other = DelayedRuntime(card)
+    other.set_state(copy.deepcopy(state))
+    for r in (rt, other):
+        r.set_y(plant.y())
+        r.set_ydot(plant.ydot())
+        r.set_u(plant.u)
+        r.step(h)
+    np.testing.assert_array_equal(rt.xhat(), other.xhat())
+    bad = copy.deepcopy(state)
+    width = len(bad["buffer"]) // bad["rows"]
+    bad["buffer"][0], bad["buffer"][width] = bad["buffer"][width], bad["buffer"][0]      # times out of order
+    with pytest.raises(StateRejected, match="buffer"):
+        other.set_state(bad)
+
+
+def test_the_card_says_where_its_certificate_holds(example):
+    _, card = example
+    assert "premise set only" in card.data["bound"] and "not a global certificate" in card.data["bound"]
+    assert card.data["premise"]["sigma_min"] == card.schedule["sigma_bound"] > 0
+    assert all(c.holds for c in uiofmu.verify(card))
+    data = copy.deepcopy(card.data)
+    K = np.array(data["matrices"]["K"])
+    data["matrices"]["K"] = (0.2 * K).tolist()
+    assert not all(c.holds for c in uiofmu.verify(card_from_data(data)))

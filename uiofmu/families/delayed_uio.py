@@ -1,0 +1,485 @@
+"""Delayed UIO with parameter identification (Fouka, Nehaoua, Arioui, Mammar, L-CSS 2019; seed 001).
+
+The plant ``x' = A x + B u + D(y) theta``, ``y = C x`` (:mod:`uiofmu.parametric_plant`) has more
+unknown parameters than outputs, so ``rank C D(y) < rank D(y)``: the observer augments it with
+``m`` delayed copies (8), ``m`` from rule (7), ``n_theta / n_y - 1 <= m < n_theta / n_y``, i.e.
+``m = ceil(n_theta / n_y) - 1`` (the seed notes' reading: m = 1 for the example). Its gains and
+certificate, in the notation of :mod:`uiofmu.runtime.delayed` (the kernel this family runs on):
+
+* ``H``, ``P``, ``G = P Ba`` from (19)-(21), rational in ``ya``; ``Gamma = Hdot Ca + P Aa`` (23) with the
+  analytic ``Hdot`` (it needs ``ydot`` and the delayed ``ydot``).
+* The paper's polytope with ``2^(2 n_y)`` vertices does not exist: ``Gamma`` is rational in the outputs,
+  their derivatives and their delayed values. The design grids ``Gamma`` honestly instead, over a
+  declared *premise family*: ``count`` trajectories of the plant driven by the problem's ``[signals] u``
+  (each scaled by a factor drawn in ``premise.scale`` and shifted in time by up to ``premise.shift``
+  seconds), simulated with ``premise.theta`` (default: the plant's), ``samples`` points each between
+  the largest delay and ``premise.duration``.
+* LMI (29) for one Lyapunov matrix and one gain on every grid point, with a decay ``beta`` (1/s)::
+
+      Gamma_g' Q + Q Gamma_g - Ca' R' - R Ca + 2 beta Q < 0,   I <= Q <= t I,   [[Q, R], [R', cap^2 I]] >= 0
+
+  (``K = Q^-1 R``; the last LMI is ``R' Q^-1 R <= cap^2 I``, and with ``Q >= I`` it gives ``||K|| <= cap``;
+  ``t`` minimised). The certificate holds on the premise set: along
+  any trajectory whose ``Gamma`` stays in it, ``||e(t)|| <= sqrt(t) exp(-beta t) ||e(0)||``; not globally,
+  and the card says so. The run-time validity flag compares the rank margin with the premise's.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..certificate import Check, certificate, positive_check
+from ..existence import Condition, Existence
+from ..lmi import Lmi, LmiSystem
+from ..progress import progress
+from ..parametric_plant import ParametricPlant
+from ..runtime.delayed import augmented, decoupling, gamma, hermite, stacked
+from ..runtime.errors import InfeasibleError, ProblemError
+from ..runtime.matrices import as_vector
+from ..runtime.parametric_plant import ParametricPlantRuntime
+from ..runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, SEARCH_TOL, VERIFY_FRACTION
+from ..structure import rank
+from . import Analysis, DesignResult
+
+NAME = "delayed-uio"
+#: The family designs for plants with unknown parameters (``[plant.parameters]``).
+PARAMETRIC = True
+
+
+@dataclass(frozen=True)
+class Premise:
+    """The trajectory family the design is gridded on (see the module docstring)."""
+
+    signals: str
+    count: int
+    samples: int
+    seed: int
+    duration: float
+    scale: tuple
+    shift: float
+    theta: tuple | None
+    sigma_floor: float | None = None
+
+    def to_data(self) -> dict:
+        """The card's record of it."""
+        return {"signals": self.signals, "count": self.count, "samples": self.samples, "seed": self.seed,
+                "duration": self.duration, "scale": list(self.scale), "shift": self.shift,
+                "theta": None if self.theta is None else list(self.theta), "sigma_floor": self.sigma_floor}
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of the delayed UIO.
+
+    Attributes
+    ----------
+    delays : tuple of float
+        The delays tau_i (s).
+    decay : float or "max"
+        beta (1/s), the certified decay rate of the error on the premise set.
+    premise : Premise
+    gain_cap : float
+        Bound on ``||K||``: the FMU integrates explicitly, so the gain sets its substep.
+    xhat0 : numpy.ndarray or None
+    step : float
+        The default communication step (s).
+    """
+
+    delays: tuple
+    decay: object
+    premise: Premise
+    gain_cap: float
+    xhat0: np.ndarray | None
+    step: float
+
+
+def parse_options(table, plant) -> Options:
+    """Read ``[observer]``: ``delays``, ``decay``, ``premise``, ``gain_cap``, ``xhat0``, ``dt``."""
+    from ..problem import Table
+
+    if not isinstance(plant, ParametricPlant):
+        raise ProblemError('observer.family = "delayed-uio": the plant needs its [plant.parameters] (the unknown '
+                           "constant parameters theta and D(y))")
+    delays = as_vector(table.get("delays"), table.key("delays"))
+    if delays.size == 0 or np.any(delays <= 0) or np.any(np.diff(delays) <= 0):
+        raise ProblemError(f"{table.key('delays')}: expected increasing positive delays in s, found {delays.tolist()}")
+    decay = table.tunable("decay", "max", low=0.0, open_low=True)
+    pt = Table(table.get("premise", {}), table.key("premise"))
+    signals = pt.choice("signals", ("u",), "u")
+    ints = {}
+    for key, default, low, high in (("count", 6, 1, 100), ("samples", 300, 2, 100_000), ("seed", 1, 0, 2 ** 31 - 1)):
+        value = pt.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise ProblemError(f"{pt.key(key)}: expected an integer from {low} to {high}, found {repr(value)[:40]}")
+        ints[key] = value
+    duration = pt.scalar("duration", 10.0 * float(delays.max()), low=float(delays.max()), open_low=True)
+    scale = as_vector(pt.get("scale", [0.5, 1.5]), pt.key("scale"), 2)
+    if not 0 <= scale[0] <= scale[1]:
+        raise ProblemError(f"{pt.key('scale')}: expected [low, high] with 0 <= low <= high, found {scale.tolist()}")
+    shift = pt.scalar("shift", 10.0, low=0.0)
+    theta = pt.get("theta", None)
+    theta = None if theta is None else tuple(as_vector(theta, pt.key("theta"), plant.n_theta).tolist())
+    floor = pt.scalar("sigma_floor", None, low=0.0, open_low=True) if pt.has("sigma_floor") else None
+    pt.done()
+    premise = Premise(signals, ints["count"], ints["samples"], ints["seed"], duration, tuple(scale.tolist()),
+                      shift, theta, floor)
+    gain_cap = table.scalar("gain_cap", 1e4, low=0.0, open_low=True)
+    xhat0 = table.vector("xhat0", plant.n, None)
+    step = table.scalar("dt", 1e-3, low=0.0, open_low=True)
+    return Options(tuple(delays.tolist()), decay, premise, gain_cap, xhat0, step)
+
+
+# -- existence ----------------------------------------------------------------------------------
+def minimal_delays(n_theta: int, n_y: int) -> int:
+    """Rule (7): the integer m with ``n_theta / n_y - 1 <= m < n_theta / n_y``, i.e. ``ceil(n_theta / n_y) - 1``."""
+    return max(0, -(-n_theta // n_y) - 1)
+
+
+def symbolic_rank_condition(plant: ParametricPlant, copies: int) -> str:
+    """When ``Ca Da`` loses rank, as a condition on the signals: the nonzero ``n_theta`` minors, factored
+    (sympy), all vanish. Symbols ``y1, y2, ...`` now and ``y1_t1, ...`` delayed by tau_1."""
+    import sympy
+
+    p, nt = plant.p, plant.n_theta
+    names = [[sympy.Symbol(f"y{i + 1}" + (f"_t{c}" if c else "")) for i in range(p)] for c in range(copies)]
+
+    def exact(M):
+        return sympy.Matrix(M.shape[0], M.shape[1], [sympy.nsimplify(float(v), rational=True) for v in M.ravel()])
+
+    blocks = [exact(plant.C) * (exact(plant.D0) + sum((names[c][i] * exact(plant.Dy[i]) for i in range(p)),
+                                                     sympy.zeros(plant.n, nt))) for c in range(copies)]
+    F = sympy.Matrix.vstack(*blocks)
+    from itertools import combinations
+
+    minors = set()
+    for rows in combinations(range(F.shape[0]), nt):
+        det = sympy.factor(F.extract(list(rows), list(range(nt))).det())
+        if det != 0:
+            minors.add(det)
+    if not minors:
+        return "C D_y never has full column rank"
+    common = sympy.factor(sympy.gcd_list(list(minors)))
+    shown = sorted((str(m) for m in minors), key=len)[:6]
+    text = f"rank C D_y < {nt} exactly where all of {', '.join(shown)}" + (" ..." if len(minors) > 6 else "")
+    text += " vanish"
+    if common != 1:
+        text += f" (every minor has the factor {common}: it must not vanish)"
+    return text
+
+
+# -- the premise family ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Grid:
+    """The premise grid: per point, ``Gamma``, the rank margin, ``|P Da|`` and the signals."""
+
+    gammas: np.ndarray
+    sigmas: np.ndarray
+    decoupling: np.ndarray
+    times: np.ndarray
+
+
+def simulate_family(plant: ParametricPlant, signals, theta: np.ndarray, draws, duration: float, shortest: float):
+    """The plant from ``x0`` for every ``(scale, shift)`` of ``draws`` at once (RK4, the input held over
+    each step of ``delta``, as the plant FMU holds it): times, outputs, their derivatives with the new
+    input (right limits) and with the previous one (left limits), shapes (K+1,) and (K+1, runs, p)."""
+    rt = ParametricPlantRuntime(plant.to_data())
+    delta = min(rt.substep * 4, shortest / 20, duration / 2000)
+    steps = int(math.ceil(duration / delta))
+    runs = len(draws)
+    scale = np.array([s for s, _ in draws])[:, None]
+    shift = np.array([h for _, h in draws])
+    A, B, C, D0, Dy = plant.A, plant.B, plant.C, plant.D0, plant.Dy
+
+    def f(x, u):
+        y = x @ C.T
+        Dth = D0 @ theta + np.einsum("ri,ij->rj", y, Dy @ theta)
+        return x @ A.T + u @ B.T + Dth
+
+    x = np.tile(plant.x0, (runs, 1))
+    T = np.arange(steps + 1) * delta
+    Ys, Yd, Yl = (np.zeros((steps + 1, runs, plant.p)) for _ in range(3))
+    sub = max(1, int(math.ceil(delta / rt.substep)))
+    dt = delta / sub
+    u = None
+    for k in range(steps + 1):
+        before = u
+        u = scale * np.array([[sig(T[k] + h) for sig in signals] for h in shift]).reshape(runs, plant.m)
+        Ys[k], Yd[k] = x @ C.T, f(x, u) @ C.T
+        Yl[k] = Yd[k] if before is None else f(x, before) @ C.T
+        if k == steps:
+            break
+        for _ in range(sub):
+            k1 = f(x, u)
+            k2 = f(x + dt / 2 * k1, u)
+            k3 = f(x + dt / 2 * k2, u)
+            k4 = f(x + dt * k3, u)
+            x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return T, Ys, Yd, Yl
+
+
+def premise_grid(problem, delays, premise: Premise) -> Grid:
+    """Simulate the premise family (:class:`Premise`) and evaluate ``Gamma`` on its grid (exactly
+    from the simulated signals: y and ydot of the plant, delayed ones by cubic Hermite between the
+    fine simulation's points)."""
+    plant = problem.plant
+    theta = np.array(premise.theta if premise.theta is not None else plant.theta)
+    c = len(delays) + 1
+    Aa, Ca = augmented(plant.A, c), augmented(plant.C, c)
+    rng = np.random.default_rng(premise.seed)
+    draws = [(rng.uniform(*premise.scale), rng.uniform(0.0, premise.shift)) for _ in range(premise.count)]
+    T, Ys, Yd, Yl = simulate_family(plant, problem.u, theta, draws, premise.duration, min(delays))
+    gammas, sigmas, dec, times = [], [], [], []
+    for r in range(premise.count):
+        for t in np.linspace(max(delays) + T[1], premise.duration, premise.samples):
+            pts = [hermite(T, Ys[:, r], Yd[:, r], t - tau, Yl[:, r]) for tau in (0.0,) + tuple(delays)]
+            ya, yad = np.array([q[0] for q in pts]), np.array([q[1] for q in pts])
+            Da, Dadot = stacked(plant.D0, plant.Dy, ya, yad)
+            H, Hdot, sigma = decoupling(Ca, Da, Dadot)
+            sigmas.append(sigma)
+            times.append(t)
+            if H is None:
+                gammas.append(np.full((Aa.shape[0],) * 2, np.nan))
+                dec.append(np.inf)
+                continue
+            gammas.append(gamma(Aa, Ca, H, Hdot))
+            P = np.eye(Aa.shape[0]) + H @ Ca
+            dec.append(float(np.abs(P @ Da).max() / max(1.0, np.abs(Da).max())))
+    return Grid(np.array(gammas), np.array(sigmas), np.array(dec), np.array(times))
+
+
+#: The default rank-margin floor, relative to the premise family's median margin: ``Gamma`` grows like
+#: ``|ydot| / sigma^2``, and below a third of the median the points carry gradients no moderate gain
+#: dominates (the paper's example: |Gamma| up to 5.7e3 at a tenth, 4.6e2 at a third).
+FLOOR_FRACTION = 1.0 / 3.0
+
+
+def sigma_floor(grid: Grid, premise: Premise) -> float:
+    """The rank margin below which a premise point is left out of the design and the run-time estimate
+    flagged invalid: ``premise.sigma_floor``, by default :data:`FLOOR_FRACTION` of the family's median margin."""
+    return premise.sigma_floor if premise.sigma_floor is not None else FLOOR_FRACTION * float(np.median(grid.sigmas))
+
+
+def _analysis(problem):
+    plant, opts = problem.plant, problem.options
+    conds = []
+    ys = np.random.default_rng(0).normal(size=plant.p)
+    D = plant.D(ys)
+    r_cd, r_d = rank(plant.C @ D), rank(D)
+    conds.append(Condition("rank of the original system", r_cd == r_d, False,
+                           f"rank C D(y) = {r_cd} {'=' if r_cd == r_d else '<'} rank D(y) = {r_d} at generic y"
+                           + ("" if r_cd == r_d else ": theta cannot be decoupled from the outputs alone"),
+                           {"rank_CD": r_cd, "rank_D": r_d}))
+    m_min = minimal_delays(plant.n_theta, plant.p)
+    m = len(opts.delays)
+    ok = m >= m_min
+    conds.append(Condition("delays from rule (7)", ok, True,
+                           f"rule (7): n_theta / n_y - 1 <= m < n_theta / n_y gives m = {m_min} "
+                           f"(n_theta = {plant.n_theta}, n_y = {plant.p}); observer.delays gives m = {m}"
+                           + ("" if ok else ": too few delays") + (" (more than needed)" if m > m_min else ""),
+                           {"m_rule": m_min, "m": m}))
+    copies = m + 1
+    conds.append(Condition("augmented system (8)", True, False,
+                           f"augmented state of dimension {plant.n * copies}, outputs {plant.p * copies}, "
+                           f"parameters {plant.n_theta}", {"n": plant.n * copies, "p": plant.p * copies}))
+    symbolic = symbolic_rank_condition(plant, copies)
+    if not ok:
+        return Existence(NAME, tuple(conds)), None
+    grid = premise_grid(problem, opts.delays, opts.premise)
+    floor = sigma_floor(grid, opts.premise)
+    used = grid.sigmas >= floor
+    fraction = float(np.mean(~used))
+    conds.append(Condition("rank C D_y on the premise family", bool(used.sum() >= 2), True,
+                           f"{symbolic}. On the premise family ({opts.premise.count} trajectories x "
+                           f"{opts.premise.samples} points) sigma_min(C D_y) ranges from {grid.sigmas.min():.3g} to "
+                           f"{grid.sigmas.max():.3g} (median {np.median(grid.sigmas):.3g}); the design uses the points "
+                           f"with sigma_min >= {floor:.3g} (premise.sigma_floor) and leaves out "
+                           f"{100 * fraction:.1f} %, "
+                           "where the observer flags its estimates invalid",
+                           {"symbolic": symbolic, "sigma_min": float(grid.sigmas.min()), "sigma_floor": floor,
+                            "left_out": fraction}))
+    worst = float(grid.decoupling[used].max()) if used.any() else np.inf
+    conds.append(Condition("P_y D_y = 0", worst <= IDENTITY_RTOL, True,
+                           f"largest |P_y D_y| on the premise points used: {worst:.3g} (relative)",
+                           {"residual": worst}))
+    return Existence(NAME, tuple(conds)), Grid(grid.gammas[used], grid.sigmas[used], grid.decoupling[used],
+                                                grid.times[used])
+
+
+def analyse(problem) -> Analysis:
+    """Rank of the original system, rule (7), the augmented system, the rank of C D_y (symbolic and on
+    the premise family), P_y D_y = 0."""
+    existence, grid = _analysis(problem)
+    return Analysis(existence, {"grid": grid})
+
+
+# -- design -----------------------------------------------------------------------------------
+def _lmis(gammas: np.ndarray, Ca: np.ndarray, cap: float) -> LmiSystem:
+    N, py = Ca.shape[1], Ca.shape[0]
+
+    def build(v, prm, ops):
+        Q, R = v["Q"], v["R"]
+        out = [Lmi("Q >= I", Q - ops.eye(N), strict=False), Lmi("Q <= t I", v["t"] * ops.eye(N) - Q, strict=False),
+               Lmi("||K|| <= gain_cap", ops.bmat([[Q, R], [R.T, (cap * cap) * ops.eye(py)]]), strict=False)]
+        RC = R @ Ca
+        for g, G in enumerate(gammas):
+            M = G.T @ Q + Q @ G - RC - RC.T + prm["beta2"] * Q
+            out.append(Lmi(f"(29) at premise point {g + 1}", -1.0 * M))
+        return out
+
+    return LmiSystem(f"{NAME} (29)", {"Q": ("symmetric", N), "R": ("matrix", (N, py)), "t": ("scalar",)},
+                     {"beta2": 1.0}, build, objective=lambda v: v["t"], homogeneous=False)
+
+
+def checks(matrices: dict, gammas: np.ndarray, beta: float) -> list:
+    """The certificate at the stored matrices: ``Q > 0`` and ``-(N_g' Q + Q N_g + 2 beta Q) > 0`` at every
+    premise point (``N_g = Gamma_g - K Ca``), the worst one reported."""
+    Q, K, Ca = (np.asarray(matrices[k], dtype=float) for k in ("Q", "K", "Ca"))
+    worst = np.inf
+    for G in gammas:
+        N = G - K @ Ca
+        M = -(N.T @ Q + Q @ N + 2 * beta * Q)
+        worst = min(worst, float(np.linalg.eigvalsh(0.5 * (M + M.T))[0]))
+    return [positive_check("eig_min(Q)", Q),
+            Check("eig_min of -(N'Q + QN + 2 beta Q) over the premise grid", worst, VERIFY_FRACTION * LMI_MARGIN,
+                  at_most=False),
+            Check("decay rate beta > 0", beta, 0.0, at_most=False)]
+
+
+def verify(card) -> list:
+    """Re-check the card: the premise grid rebuilt from the card's problem (deterministic), the LMI at
+    the stored Q and K on every point."""
+    from ..problem import problem_from_data
+
+    problem = problem_from_data(card.data["problem"], default_name=card.name)
+    grid = premise_grid(problem, problem.options.delays, problem.options.premise)
+    used = grid.gammas[grid.sigmas >= sigma_floor(grid, problem.options.premise)]
+    return checks(card.data["matrices"], used, card.data["decay_rate"])
+
+
+#: Premise points of the first solve of the cutting-plane design, and most points added per round.
+FIRST_POINTS, ADDED_POINTS, MAX_ROUNDS = 40, 40, 15
+
+
+def first_points(gammas: np.ndarray, count: int) -> list:
+    """A spread-out subset: the largest ``Gamma`` first, then each time the point farthest from
+    those chosen (farthest-point sampling in the Frobenius norm)."""
+    flat = gammas.reshape(len(gammas), -1)
+    chosen = [int(np.argmax(np.linalg.norm(flat, axis=1)))]
+    dist = np.linalg.norm(flat - flat[chosen[0]], axis=1)
+    while len(chosen) < min(count, len(gammas)):
+        i = int(np.argmax(dist))
+        chosen.append(i)
+        dist = np.minimum(dist, np.linalg.norm(flat - flat[i], axis=1))
+    return chosen
+
+
+def grid_margins(Q: np.ndarray, K: np.ndarray, Ca: np.ndarray, gammas: np.ndarray, beta: float) -> np.ndarray:
+    """``eig_min(-(N_g' Q + Q N_g + 2 beta Q))`` at every premise point (``N_g = Gamma_g - K Ca``)."""
+    N = gammas - (K @ Ca)[None]
+    M = -(np.swapaxes(N, 1, 2) @ Q[None] + Q[None] @ N + 2 * beta * Q[None])
+    return np.linalg.eigvalsh(0.5 * (M + np.swapaxes(M, 1, 2)))[:, 0]
+
+
+def solve_on_grid(gammas: np.ndarray, Ca: np.ndarray, cap: float, beta: float):
+    """LMI (29) at decay ``beta`` on every premise point, by cutting planes: solve on a spread-out
+    subset, check the point found on every point, add the worst violated ones, solve again.
+
+    The LMIs are solved in time scaled by the largest ``|Gamma|`` (``Gamma / s``, ``beta / s``, ``cap / s``:
+    the same inequalities divided by ``s``, whose numbers CLARABEL's relative tolerance then suits);
+    ``R`` is scaled back, and the check on every point is made in the plant's time.
+
+    Returns
+    -------
+    (LmiSolution, LmiSystem, int) or (None, LmiSystem, int)
+        The verified solution on the last subset (it holds on every point; ``R`` in the plant's time),
+        or None when a subset is already infeasible (then so is the whole grid); the system last
+        solved; the rounds.
+    """
+    s = max(float(max(np.linalg.norm(G, 2) for G in gammas)), 1.0)
+    active = first_points(gammas, FIRST_POINTS)
+    for rounds in range(1, MAX_ROUNDS + 1):
+        system = _lmis(gammas[active] / s, Ca, cap / s)
+        sol = system.solve(beta2=2 * beta / s)
+        if not sol.verified:
+            return None, system, rounds
+        sol.values["R"] = s * sol.values["R"]
+        Q = 0.5 * (sol.values["Q"] + sol.values["Q"].T)
+        K = np.linalg.solve(Q, sol.values["R"])
+        margins = grid_margins(Q, K, Ca, gammas, beta) / s
+        bad = [int(i) for i in np.argsort(margins) if margins[i] < VERIFY_FRACTION * LMI_MARGIN and i not in active]
+        if not bad:
+            return sol, system, rounds
+        active += bad[:ADDED_POINTS]
+    return None, system, MAX_ROUNDS
+
+
+def _certified(gammas, Ca, opts, label):
+    """The decay (the requested one, or the fastest by bisection) and its solution."""
+    gmax = float(max(np.linalg.norm(G, 2) for G in gammas))
+    if opts.decay != "max":
+        sol, system, _ = solve_on_grid(gammas, Ca, opts.gain_cap, float(opts.decay))
+        if sol is None:
+            raise InfeasibleError(f"{label}: LMI (29) has no solution at decay {float(opts.decay):g} 1/s with "
+                                  f"||K|| <= gain_cap = {opts.gain_cap:g} on the premise grid (largest |Gamma| "
+                                  f"{gmax:.4g}); ask for a slower decay, raise gain_cap, or raise premise.sigma_floor "
+                                  "(the points of small rank margin carry the largest Gamma)")
+        return float(opts.decay), sol, system, None
+    lo, hi, best = 0.0, gmax + opts.gain_cap, None
+    solves, started = 0, time.perf_counter()
+    with progress(total=None, desc=f"{label}: fastest decay", unit="solve") as bar:
+        for beta in [0.01 * gmax] + [None] * 40:
+            beta = 0.5 * (lo + hi) if beta is None else beta
+            sol, system, rounds = solve_on_grid(gammas, Ca, opts.gain_cap, beta)
+            solves += rounds
+            bar.update()
+            if sol is not None:
+                lo, best = beta, (beta, sol, system)
+            else:
+                hi = beta
+            if best and hi - lo <= SEARCH_TOL * max(lo, 1e-12):
+                break
+    if best is None:
+        raise InfeasibleError(f"{label}: LMI (29) has no solution for any decay on the premise grid with ||K|| <= "
+                              f"gain_cap = {opts.gain_cap:g} (largest |Gamma| {gmax:.4g}); raise gain_cap or "
+                              "premise.sigma_floor")
+    return best[0], best[1], best[2], {"parameter": "decay", "solves": solves, "bracket": [lo, hi],
+                                       "seconds": time.perf_counter() - started}
+
+
+def design(problem, analysis: Analysis) -> DesignResult:
+    """LMI (29) on the premise grid; the kernel's matrices and substep; the card's honest bound."""
+    plant, opts = problem.plant, problem.options
+    grid = analysis.data["grid"]
+    copies = len(opts.delays) + 1
+    Ca = augmented(plant.C, copies)
+    gmax = float(max(np.linalg.norm(G, 2) for G in grid.gammas))
+    beta, sol, system, searched = _certified(grid.gammas, Ca, opts, f"{NAME} design of {problem.name}")
+    Q = 0.5 * (sol.values["Q"] + sol.values["Q"].T)
+    K = np.linalg.solve(Q, sol.values["R"])
+    matrices = {"Q": Q, "K": K, "Ca": Ca, "Abar": plant.A, "Bbar": plant.B, "Cbar": plant.C, "D0": plant.D0,
+                "Dy": plant.Dy}
+    cert = certificate(sol, checks(matrices, grid.gammas, beta), f"{NAME} design of {problem.name}")
+    norm_N = gmax + float(np.linalg.norm(K, 2) * np.linalg.norm(Ca, 2))
+    max_substep = 1.0 / max(norm_N, 1e-9)               # h |lambda| <= 1: inside RK4's stability region
+    eig = np.linalg.eigvalsh(Q)
+    floor = float(grid.sigmas.min())
+    schedule = {"kind": "continuous", "delays": list(opts.delays), "max_substep": max_substep,
+                "sigma_bound": floor, "step": opts.step, "step_policy": "error"}
+    results = {
+        "decay_rate": beta,
+        "decay_bound": None, "overshoot_bound": None,
+        "overshoot": float(np.sqrt(eig[-1] / eig[0])),
+        "bound": (f"on the premise set only: ||e(t)|| <= {np.sqrt(eig[-1] / eig[0]):.4g} exp(-{beta:.4g} t) ||e(0)|| "
+                  "for trajectories whose Gamma stays in the premise grid's set; not a global certificate"),
+        "premise": {**opts.premise.to_data(), "sigma_min": floor, "gamma_max": gmax,
+                    "points": int(len(grid.gammas))},
+        "delays": list(opts.delays), "m": len(opts.delays), "gain_norm": float(np.linalg.norm(K, 2)),
+        "search": searched,
+        "design_method": "lmi (29) gridded on the premise family",
+    }
+    return DesignResult(plant.n * copies, None, schedule, matrices, cert, results, system, opts.xhat0,
+                        kernel="delayed")

@@ -1,0 +1,496 @@
+/* uiofmu: the window observer kernel, the model code of dead-beat functional observer FMUs.
+ *
+ * It plugs into the shared FMI 2.0 plumbing (fmi2_plumbing.c) through UIOFMU_KERNEL_WINDOW: the
+ * plumbing owns the instance states, the value references, the logging and the FMU state
+ * image; this file owns the formula's numbers. The design (UIOFMU_WINDOW: F, Fexp, the window
+ * length L, the period dt) comes from design_data.c, generated from the design card. The step
+ * semantics are those of the reference runtime (uiofmu/runtime/window.py):
+ *
+ *   outputs at t_k:  gx_k     = (sum_t w_t F_t) [y_{k-L+1}; ...; y_k]     when k >= L - 1, else 0
+ *                    w_t      = prod_{l, i} theta_{k-L+1+l}^(i) ^ Fexp[t][l][i]   (0^0 = 1)
+ *                    gx_valid = 1 when k >= L - 1, else 0
+ *   fmi2DoStep(t, h): push (y_k, theta_k) into the window, k <- k + 1
+ *
+ * where y_k and theta_k are the inputs at t_k and the older points are the window: a ring
+ * buffer of the last L - 1 points in the instance. There is no recursion and nothing to drift:
+ * every output is the formula on the data. A design that does not use theta has no theta port;
+ * its window holds theta = 0 (every power is 0, every weight 1).
+ *
+ * NaN or infinite inputs refuse the step with fmi2Error and a log line naming the input; a step
+ * other than dt (relative tolerance step_rtol) is refused with fmi2Discard and a log line, as
+ * the constant schedule of the affine kernel. Either way nothing changes.
+ *
+ * Defensive throughout, so that no call sequence makes it read or write out of bounds:
+ * check_design_data checks every number the kernel indexes with (dims, window length, the
+ * lengths of F and Fexp against terms x d x p L and terms x L x s, every power) before
+ * fmi2Instantiate makes an instance; check_values checks every number of a state before
+ * fmi2SetFMUstate or fmi2DeSerializeFMUstate takes any of it (see "FMU state" below).
+ */
+#include <limits.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2_plumbing.h"
+#include "kernel_window.h"
+
+/* Bounds of what a design may ask for (uiofmu/runtime/card.py: MAX_WINDOW = 1024); with them
+   every index product stays well inside int and size_t. */
+#define MAX_DIM 16384
+#define MAX_LENGTH 1024
+#define MAX_TERMS 1048576
+#define MAX_NUMBERS 67108864 /* doubles of F, ints of Fexp */
+
+typedef struct {
+    FmuInstance *fmu; /* the plumbing's instance: log lines go through it */
+    const UiofmuWindow *d;
+    int W; /* L - 1 slots of the ring */
+    /* state (what fmi2GetFMUstate saves) */
+    long k;
+    int head;            /* slot of the oldest point (the next one overwritten) */
+    double *ys, *thetas; /* W x p and W x s, slot by slot */
+    double *y, *theta;   /* the inputs at the current point */
+    /* outputs and work space */
+    int dirty;
+    double *gx, *M; /* d; d x p L: sum_t w_t F_t */
+    double *block;  /* everything above, one allocation */
+} Window;
+
+/* ---------------------------------------------------------------------------------------- */
+/* The maths                                                                                  */
+
+static int valid(const Window *s) { return s->k >= (long)s->W; }
+
+/* Point l (0 = the oldest, L - 1 = the current one) of the window: its outputs and theta. */
+static const double *y_at(const Window *s, int l) {
+    return l < s->W ? s->ys + (size_t)((s->head + l) % s->W) * (size_t)s->d->p : s->y;
+}
+
+static const double *theta_at(const Window *s, int l) {
+    return l < s->W ? s->thetas + (size_t)((s->head + l) % s->W) * (size_t)s->d->s : s->theta;
+}
+
+/* w_t: the product of the window's theta values to the powers of term t. */
+static double weight(const Window *s, int t) {
+    const UiofmuWindow *d = s->d;
+    double w = 1.0;
+    for (int l = 0; l < d->length; l++) {
+        const double *th = theta_at(s, l);
+        const int *e = d->Fexp + ((size_t)t * (size_t)d->length + (size_t)l) * (size_t)d->s;
+        for (int i = 0; i < d->s; i++)
+            if (e[i]) w *= pow(th[i], (double)e[i]);
+    }
+    return w;
+}
+
+static void refresh(Window *s) {
+    const UiofmuWindow *d = s->d;
+    if (!s->dirty) return;
+    if (!valid(s)) {
+        memset(s->gx, 0, (size_t)d->d * sizeof(double));
+        s->dirty = 0;
+        return;
+    }
+    size_t cols = (size_t)d->p * (size_t)d->length, sz = (size_t)d->d * cols;
+    memset(s->M, 0, sz * sizeof(double));
+    for (int t = 0; t < d->terms; t++) {
+        double w = weight(s, t);
+        const double *F = d->F + (size_t)t * sz;
+        for (size_t e = 0; e < sz; e++) s->M[e] += w * F[e];
+    }
+    for (int r = 0; r < d->d; r++) {
+        const double *row = s->M + (size_t)r * cols;
+        double acc = 0.0;
+        for (int l = 0; l < d->length; l++) {
+            const double *y = y_at(s, l);
+            for (int j = 0; j < d->p; j++) acc += row[(size_t)l * d->p + j] * y[j];
+        }
+        s->gx[r] = acc;
+    }
+    s->dirty = 0;
+}
+
+static void reset_state(Window *s) {
+    const UiofmuWindow *d = s->d;
+    s->k = 0;
+    s->head = 0;
+    memset(s->ys, 0, (size_t)s->W * (size_t)d->p * sizeof(double));
+    memset(s->thetas, 0, (size_t)s->W * (size_t)d->s * sizeof(double));
+    s->dirty = 1;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* The design, checked once at fmi2Instantiate: everything the runtime later indexes with.   */
+
+static int design_error(char *msg, size_t len, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
+static int design_error(char *msg, size_t len, const char *fmt, ...) {
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, len, fmt, ap);
+    va_end(ap);
+    return 0;
+}
+
+/* a * b in *out, 0 when it exceeds MAX_NUMBERS. */
+static int mul_count(size_t a, size_t b, size_t *out) {
+    if (a && b > MAX_NUMBERS / a) return 0;
+    *out = a * b;
+    return 1;
+}
+
+static int check_design_data(const UiofmuWindow *d, char *msg, size_t len) {
+    const int dims[3] = {d->p, d->d, d->s};
+    const char *const dim_name[3] = {"p", "d", "s"};
+    size_t pl, rows, total_f, tl, total_e;
+    for (int i = 0; i < 3; i++)
+        if (dims[i] < (i < 2 ? 1 : 0) || dims[i] > MAX_DIM)
+            return design_error(msg, len, "%s = %d is out of range [%d, %d]", dim_name[i], dims[i], i < 2 ? 1 : 0,
+                                MAX_DIM);
+    if (d->length < 1 || d->length > MAX_LENGTH)
+        return design_error(msg, len, "window length L = %d is out of range [1, %d]", d->length, MAX_LENGTH);
+    if (d->delay < 0 || d->delay >= d->length)
+        return design_error(msg, len, "delay = %d is out of range [0, L - 1 = %d]", d->delay, d->length - 1);
+    if (d->uses_theta != 0 && d->uses_theta != 1)
+        return design_error(msg, len, "uses_theta = %d is neither 0 nor 1", d->uses_theta);
+    if (d->terms < 1 || d->terms > MAX_TERMS)
+        return design_error(msg, len, "terms = %d is out of range [1, %d]", d->terms, MAX_TERMS);
+    if (!(isfinite(d->dt) && d->dt > 0) || !(isfinite(d->step_rtol) && d->step_rtol >= 0))
+        return design_error(msg, len, "dt = %g, step_rtol = %g: expected a finite period > 0 and step_rtol >= 0",
+                            d->dt, d->step_rtol);
+    if (!mul_count((size_t)d->p, (size_t)d->length, &pl) || !mul_count(pl, (size_t)d->d, &rows) ||
+        !mul_count(rows, (size_t)d->terms, &total_f))
+        return design_error(msg, len, "F of %d terms of %d x %d x %d is larger than %d numbers", d->terms, d->d, d->p,
+                            d->length, MAX_NUMBERS);
+    if (!d->F || d->F_length != total_f)
+        return design_error(msg, len, "F: %d terms of %d x %d (p L) need %zu numbers, its array holds %zu", d->terms,
+                            d->d, d->p * d->length, total_f, d->F ? d->F_length : 0);
+    for (size_t e = 0; e < total_f; e++)
+        if (!isfinite(d->F[e])) return design_error(msg, len, "F[%zu] = %g is not finite", e, d->F[e]);
+    if (!mul_count((size_t)d->terms, (size_t)d->length, &tl) || !mul_count(tl, (size_t)d->s, &total_e))
+        return design_error(msg, len, "Fexp of %d terms of %d x %d is larger than %d numbers", d->terms, d->length,
+                            d->s, MAX_NUMBERS);
+    if (!d->Fexp || d->Fexp_length != (total_e ? total_e : 1))
+        return design_error(msg, len, "Fexp: %d terms of %d x %d (L s) need %zu numbers, its array holds %zu",
+                            d->terms, d->length, d->s, total_e, d->Fexp ? d->Fexp_length : 0);
+    for (size_t e = 0; e < total_e; e++) {
+        if (d->Fexp[e] < 0 || d->Fexp[e] > UIOFMU_WINDOW_MAX_POWER)
+            return design_error(msg, len, "Fexp[%zu] = %d is not a power from 0 to %d", e, d->Fexp[e],
+                                UIOFMU_WINDOW_MAX_POWER);
+        if (d->Fexp[e] && !d->uses_theta)
+            return design_error(msg, len, "Fexp[%zu] = %d, but the design does not use theta", e, d->Fexp[e]);
+    }
+    return 1;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* The kernel's operations (UiofmuKernel)                                                    */
+
+static int window_check_design(char *msg, size_t len) { return check_design_data(&UIOFMU_WINDOW, msg, len); }
+
+static int window_port(int id, UiofmuPort *out) {
+    static const char *const NAME[UIOFMU_WINDOW_PORTS] = {"y", "theta", "gx", "gx_valid"};
+    static const int CAUSALITY[UIOFMU_WINDOW_PORTS] = {UIOFMU_INPUT, UIOFMU_INPUT, UIOFMU_OUTPUT, UIOFMU_OUTPUT};
+    const UiofmuWindow *d = &UIOFMU_WINDOW;
+    int size;
+    switch (id) {
+    case UIOFMU_WINDOW_Y: size = d->p; break;
+    case UIOFMU_WINDOW_THETA: size = d->uses_theta ? d->s : 0; break;
+    case UIOFMU_WINDOW_GX: size = d->d; break;
+    case UIOFMU_WINDOW_GX_VALID: size = 1; break;
+    default: return 0;
+    }
+    out->name = NAME[id];
+    out->size = size;
+    out->causality = CAUSALITY[id];
+    out->type = id == UIOFMU_WINDOW_GX_VALID ? UIOFMU_INTEGER : UIOFMU_REAL;
+    return 1;
+}
+
+static void *window_instantiate(FmuInstance *fmu) {
+    const UiofmuWindow *d = &UIOFMU_WINDOW;
+    Window *s = (Window *)calloc(1, sizeof(Window));
+    if (!s) {
+        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: out of memory");
+        return NULL;
+    }
+    s->fmu = fmu;
+    s->d = d;
+    s->W = d->length - 1;
+    /* every count below is bounded by the checked design (W p <= p L, d p L <= the length of F) */
+    size_t W = (size_t)s->W, p = (size_t)d->p, th = (size_t)d->s, rows = (size_t)d->d;
+    size_t total = W * p + W * th + p + th + rows + rows * p * (size_t)d->length;
+    s->block = (double *)calloc(total ? total : 1, sizeof(double));
+    if (!s->block) {
+        free(s);
+        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: out of memory");
+        return NULL;
+    }
+    double *b = s->block;
+    s->ys = b; b += W * p;
+    s->thetas = b; b += W * th;
+    s->y = b; b += p;
+    s->theta = b; b += th;
+    s->gx = b; b += rows;
+    s->M = b;
+    reset_state(s);
+    return s;
+}
+
+static void window_free(void *self) {
+    Window *s = (Window *)self;
+    if (!s) return;
+    free(s->block);
+    free(s);
+}
+
+static void window_reset(void *self) {
+    Window *s = (Window *)self;
+    memset(s->y, 0, (size_t)s->d->p * sizeof(double));
+    memset(s->theta, 0, (size_t)s->d->s * sizeof(double));
+    reset_state(s);
+}
+
+static UiofmuResult window_exit_initialization(void *self) {
+    reset_state((Window *)self); /* no parameters: an empty window at step 0 */
+    return UIOFMU_DONE;
+}
+
+static UiofmuResult window_calculate(void *self, const char *fn) {
+    (void)fn;
+    refresh((Window *)self);
+    return UIOFMU_DONE;
+}
+
+/* The storage of element `index` of port `port` (the plumbing checked both against the table). */
+static double *element(Window *s, int port, int index) {
+    switch (port) {
+    case UIOFMU_WINDOW_Y: return &s->y[index];
+    case UIOFMU_WINDOW_THETA: return &s->theta[index];
+    case UIOFMU_WINDOW_GX: return &s->gx[index];
+    default: return NULL;
+    }
+}
+
+static double window_get_real(void *self, int port, int index) {
+    const double *v = element((Window *)self, port, index);
+    return v ? *v : 0.0;
+}
+
+static void window_set_real(void *self, int port, int index, double value) {
+    Window *s = (Window *)self;
+    double *v = port == UIOFMU_WINDOW_Y || port == UIOFMU_WINDOW_THETA ? element(s, port, index) : NULL; /* inputs */
+    if (!v) return;
+    *v = value;
+    s->dirty = 1;
+}
+
+/* The Integer port: gx_valid (an output). */
+static int window_get_integer(void *self, int port, int index) {
+    (void)index;
+    return port == UIOFMU_WINDOW_GX_VALID ? valid((const Window *)self) : 0;
+}
+
+static void window_set_integer(void *self, int port, int index, int value) {
+    (void)self;
+    (void)port;
+    (void)index;
+    (void)value; /* no Integer input */
+}
+
+static int inputs_finite(Window *s, double t, const double *v, int len, const char *name) {
+    char bt[32];
+    for (int i = 0; i < len; i++)
+        if (!isfinite(v[i])) {
+            uiofmu_log(s->fmu, fmi2Error, "t = %s: input %s[%d] = %s at step k = %ld is not finite", uiofmu_num(t, bt),
+                       name, i + 1, isnan(v[i]) ? "nan" : (v[i] > 0 ? "inf" : "-inf"), s->k);
+            return 0;
+        }
+    return 1;
+}
+
+static UiofmuResult window_step(void *self, double t, double h) {
+    Window *s = (Window *)self;
+    const UiofmuWindow *d = s->d;
+    char bt[32], bh[32], bd[32];
+    /* the inputs first, as the reference runtime: a bad one is an input error, not a step rejected */
+    if (!inputs_finite(s, t, s->y, d->p, "y") || !inputs_finite(s, t, s->theta, d->s, "theta"))
+        return UIOFMU_REFUSED;
+    if (fabs(h - d->dt) > d->step_rtol * d->dt) {
+        uiofmu_log(s->fmu, fmi2Discard,
+                   "t = %s: this observer was designed for steps of dt = %s s and received h = %s s "
+                   "(step_policy = 'error')", uiofmu_num(t, bt), uiofmu_num(d->dt, bd), uiofmu_num(h, bh));
+        return UIOFMU_DISCARDED;
+    }
+    if (s->W > 0) { /* the current point replaces the oldest */
+        memcpy(s->ys + (size_t)s->head * (size_t)d->p, s->y, (size_t)d->p * sizeof(double));
+        memcpy(s->thetas + (size_t)s->head * (size_t)d->s, s->theta, (size_t)d->s * sizeof(double));
+        s->head = (s->head + 1) % s->W;
+    }
+    if (s->k < LONG_MAX) s->k += 1;
+    s->dirty = 1;
+    return UIOFMU_DONE;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* FMU state: the kernel's doubles
+ *
+ * The plumbing writes the image's header (magic, layout, size, GUID, the shape words p, d, s,
+ * L and the count D of doubles; fmi2_plumbing.c) and checks it; then come
+ * D = 2 + (L - 1) (p + s) + p + s doubles, written and read with memcpy (no alignment
+ * assumed), in the platform's byte order:
+ *
+ *   k, phase, ys[(L - 1) p], thetas[(L - 1) s], y[p], theta[s]
+ *
+ * the window oldest point first (the ring unrolled: equal windows, equal bytes), as the
+ * reference runtime's get_state. fmi2SetFMUstate and fmi2DeSerializeFMUstate refuse a state
+ * (fmi2Error and a log line with the numbers) unless every value is one this FMU can be in
+ * (check_values), all checked before any of it is used:
+ *   k        an integer 0 <= k <= 2^53 (and within long); 0 before initialisation ends
+ *   phase    0 instantiated, 1 initialisation mode, 2 initialised, 3 terminated (the
+ *            plumbing's instance state; a discarded step is saved as 2: it changed nothing)
+ *   ys, thetas finite (fmi2DoStep pushes only inputs it checked), and 0 in the points not yet
+ *            filled (the oldest L - 1 - k while k < L - 1: reset_state zeroes them); thetas all
+ *            0 when the design has no theta port
+ *   y, theta any value, NaN and Inf included: inputs that fmi2SetReal takes whatever their
+ *            value and fmi2DoStep checks before any use (an instance holds such an input
+ *            legitimately: a master set it, the step was refused); theta 0 when the design has
+ *            no theta port (nothing sets it)
+ */
+
+#define MAX_SAFE_INTEGER 9007199254740992.0 /* 2^53 */
+
+enum { SV_K, SV_PHASE, SV_SCALARS };
+
+typedef unsigned char Byte;
+
+static double getd(const Byte *b, size_t index) { double v; memcpy(&v, b + index * sizeof v, sizeof v); return v; }
+
+static int state_refused(Window *s, const char *ctx, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
+static int state_refused(Window *s, const char *ctx, const char *fmt, ...) {
+    char buf[768];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    uiofmu_log(s->fmu, fmi2Error, "%s: %s", ctx, buf);
+    return 0;
+}
+
+static size_t window_state_count(void) {
+    const UiofmuWindow *d = &UIOFMU_WINDOW;
+    size_t W = (size_t)(d->length - 1);
+    return SV_SCALARS + W * ((size_t)d->p + (size_t)d->s) + (size_t)d->p + (size_t)d->s;
+}
+
+static void window_state_shape(uint32_t shape[UIOFMU_SHAPE], const char *names[UIOFMU_SHAPE]) {
+    const UiofmuWindow *d = &UIOFMU_WINDOW;
+    static const char *const NAMES[UIOFMU_SHAPE] = {"p", "d", "s", "L"};
+    shape[0] = (uint32_t)d->p;
+    shape[1] = (uint32_t)d->d;
+    shape[2] = (uint32_t)d->s;
+    shape[3] = (uint32_t)d->length;
+    for (int i = 0; i < UIOFMU_SHAPE; i++) names[i] = NAMES[i];
+}
+
+static void window_save_state(void *self, int phase, Byte *o) {
+    Window *s = (Window *)self;
+    const UiofmuWindow *d = s->d;
+    size_t py = (size_t)d->p * sizeof(double), pt = (size_t)d->s * sizeof(double);
+    double scalars[SV_SCALARS] = {(double)s->k, (double)phase};
+    memcpy(o, scalars, sizeof scalars); o += sizeof scalars;
+    for (int l = 0; l < s->W; l++) { memcpy(o, y_at(s, l), py); o += py; }
+    for (int l = 0; l < s->W; l++) { memcpy(o, theta_at(s, l), pt); o += pt; }
+    memcpy(o, s->y, py); o += py;
+    memcpy(o, s->theta, pt);
+}
+
+/* Whether the doubles at v (k, phase, ...; see above) are a state this FMU can be in. */
+static int check_values(Window *s, const char *ctx, const Byte *v) {
+    static const char *const VECTOR[2] = {"ys", "thetas"};
+    const UiofmuWindow *d = s->d;
+    char b1[32];
+    double k = getd(v, SV_K), phase = getd(v, SV_PHASE);
+    if (!(isfinite(k) && k >= 0 && k == floor(k) && k <= MAX_SAFE_INTEGER && k <= (double)LONG_MAX))
+        return state_refused(s, ctx, "k = %s is not a step count (an integer, 0 <= k <= 2^53)", uiofmu_num(k, b1));
+    if (!(phase == UIOFMU_PHASE_INSTANTIATED || phase == UIOFMU_PHASE_INITIALIZATION || phase == UIOFMU_PHASE_RUNNING ||
+          phase == UIOFMU_PHASE_TERMINATED))
+        return state_refused(s, ctx, "phase = %s is none of 0 (instantiated), 1 (initialisation mode), "
+                             "2 (initialised), 3 (terminated)", uiofmu_num(phase, b1));
+    if (phase < UIOFMU_PHASE_RUNNING && k != 0)
+        return state_refused(s, ctx, "k = %s in phase %d, before initialisation ended: expected 0", uiofmu_num(k, b1),
+                             (int)phase);
+    /* the points not yet filled: the oldest W - k while k < W */
+    int empty = k < (double)s->W ? s->W - (int)k : 0;
+    const int width[2] = {d->p, d->s};
+    size_t at = SV_SCALARS;
+    for (int w = 0; w < 2; w++) {
+        for (int l = 0; l < s->W; l++)
+            for (int i = 0; i < width[w]; i++) {
+                double x = getd(v, at + (size_t)l * (size_t)width[w] + (size_t)i);
+                if (!isfinite(x))
+                    return state_refused(s, ctx, "%s[%d][%d] = %s is not finite", VECTOR[w], l + 1, i + 1,
+                                         uiofmu_num(x, b1));
+                if (x != 0 && l < empty)
+                    return state_refused(s, ctx, "%s[%d][%d] = %s at k = %s: expected 0 (a point not yet filled)",
+                                         VECTOR[w], l + 1, i + 1, uiofmu_num(x, b1), uiofmu_num(k, b1));
+                if (x != 0 && w == 1 && !d->uses_theta)
+                    return state_refused(s, ctx, "thetas[%d][%d] = %s: expected 0 (this design has no theta input)",
+                                         l + 1, i + 1, uiofmu_num(x, b1));
+            }
+        at += (size_t)s->W * (size_t)width[w];
+    }
+    at += (size_t)d->p; /* y[p]: taken as it is (see above) */
+    if (!d->uses_theta)
+        for (int i = 0; i < d->s; i++) {
+            double x = getd(v, at + (size_t)i);
+            if (x != 0)
+                return state_refused(s, ctx, "theta[%d] = %s: expected 0 (this design has no theta input)", i + 1,
+                                     uiofmu_num(x, b1));
+        }
+    return 1;
+}
+
+static int window_check_state(void *self, const char *ctx, const Byte *v, int *phase) {
+    if (!check_values((Window *)self, ctx, v)) return 0;
+    *phase = (int)getd(v, SV_PHASE);
+    return 1;
+}
+
+static void window_load_state(void *self, const Byte *v) {
+    Window *s = (Window *)self;
+    const UiofmuWindow *d = s->d;
+    size_t W = (size_t)s->W, p = (size_t)d->p, th = (size_t)d->s;
+    s->k = (long)getd(v, SV_K);
+    s->head = 0; /* saved oldest first */
+    const Byte *o = v + SV_SCALARS * sizeof(double);
+    memcpy(s->ys, o, W * p * sizeof(double)); o += W * p * sizeof(double);
+    memcpy(s->thetas, o, W * th * sizeof(double)); o += W * th * sizeof(double);
+    memcpy(s->y, o, p * sizeof(double)); o += p * sizeof(double);
+    memcpy(s->theta, o, th * sizeof(double));
+    s->dirty = 1;
+}
+
+const UiofmuKernel UIOFMU_KERNEL_WINDOW = {
+    .name = "window",
+    .check_design = window_check_design,
+    .ports = UIOFMU_WINDOW_PORTS,
+    .port = window_port,
+    .instantiate = window_instantiate,
+    .free_instance = window_free,
+    .reset = window_reset,
+    .exit_initialization = window_exit_initialization,
+    .calculate = window_calculate,
+    .get_real = window_get_real,
+    .set_real = window_set_real,
+    .get_integer = window_get_integer, /* gx_valid */
+    .set_integer = window_set_integer,
+    .step = window_step,
+    .state_count = window_state_count,
+    .state_shape = window_state_shape,
+    .save_state = window_save_state,
+    .check_state = window_check_state,
+    .load_state = window_load_state,
+};
