@@ -22,12 +22,13 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/uiofmu demo --out out/demo
 
+# on every core (pytest-xdist; each test file on one worker, so its module fixtures are built once)
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --dist loadfile
 
 # the suite without the tests marked valgrind, cmake, mujoco or slow (see pyproject.toml)
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -m "not valgrind and not cmake and not mujoco and not slow"
+	$(PY) -m pytest -q -n auto --dist loadfile -m "not valgrind and not cmake and not mujoco and not slow"
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
@@ -38,6 +39,8 @@ fuzz: $(STAMP)
 	$(PY) tests/cfuzz.py --seconds $(FUZZ_SECONDS) --family all
 	$(PY) tests/fuzz_campaign.py --cases 300 --seed $(FUZZ_SEED) --seconds $(FUZZ_SECONDS)
 
+# the FMU catalogue: every example's observer and plant FMU, checked (validate, our master, fmpy, ecospy);
+# writes fmus/README.md (in git; tests/test_fmus_catalogue.py fails when it is stale)
 fmus: $(STAMP)
 	$(PY) examples/build_fmus.py --out fmus
 
@@ -45,4 +48,5 @@ examples: $(STAMP)
 	for f in examples/*.py; do $(PY) $$f || exit 1; done
 
 clean:
-	rm -rf out fmus examples/out build *.egg-info
+	rm -rf out examples/out build *.egg-info
+	find fmus -mindepth 1 -not -name README.md -exec rm -rf {} +

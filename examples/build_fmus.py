@@ -1,25 +1,22 @@
-"""``make fmus``: build the example observer and plant FMUs into a folder (default fmus/)."""
+"""``make fmus``: build the FMU catalogue into fmus/, check every FMU, and write fmus/README.md.
 
-import argparse
-from pathlib import Path
+An observer FMU and its plant FMU for every example of every family (and the MuJoCo quarter-car
+plant), each validated and run in our master, fmpy and ecospy: see :mod:`uiofmu.catalogue`.
 
-from _common import ROOT, design_and_build, main_guard
+    python examples/build_fmus.py                        # everything; writes fmus/README.md
+    python examples/build_fmus.py --only quarter-car     # one example's FMUs and checks (no README)
+    python examples/build_fmus.py --out /tmp/fmus        # another folder (its README.md there)
+"""
 
-PROBLEMS = [ROOT / "examples" / "seed000_example1.toml", ROOT / "examples" / "seed000_example1_ltv.toml",
-            ROOT / "plants" / "two_room_building" / "problem.toml", ROOT / "plants" / "quarter_car" / "problem.toml"]
+import sys
+
+from _common import ROOT, main_guard
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--out", default=str(ROOT / "fmus"))
-    out = Path(parser.parse_args().out)
-    for path in PROBLEMS:
-        problem, card, obs, plant = design_and_build(path, out)
-        print(f"{problem.name}: {obs.name}, {plant.name}")
-    from uiofmu.mujoco_plant import build_mujoco_plant, load_spec
+    from uiofmu.catalogue import main as catalogue
 
-    mujoco = build_mujoco_plant(load_spec(ROOT / "plants" / "quarter_car"), out / "quarter-car_mujoco_plant.fmu")
-    print(f"quarter-car: {mujoco.name}")
+    sys.exit(catalogue(sys.argv[1:], root=ROOT))
 
 
 if __name__ == "__main__":

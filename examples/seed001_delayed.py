@@ -17,14 +17,14 @@ import json
 
 import numpy as np
 
-from _common import OUT, ROOT, design_and_build, main_guard
+from _common import ROOT, design_and_build, main_guard, output_folder, panels, savefig
 
 EX = ROOT / "examples"
 
 
-def figure(plt, runs: dict, path, sigma_bound: float):
+def figure(runs: dict, path, sigma_bound: float):
     """State error, thetahat error and the rank margin of each run, invalid stretches shaded."""
-    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, constrained_layout=True)
+    fig, axes = panels(3, (9, 8))
     for name, r in runs.items():
         e = np.linalg.norm(r.x - r.xhat, axis=1)
         axes[0].semilogy(r.times, np.maximum(e, 1e-12), lw=1, label=name)
@@ -40,23 +40,17 @@ def figure(plt, runs: dict, path, sigma_bound: float):
     for ax in axes:
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    savefig(fig, path)
 
 
 def main():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     import uiofmu
     from uiofmu.cosim.inputs import SignalInputs
     from uiofmu.cosim.master import cosimulate, write_outputs
     from uiofmu.cosim.steps import step_sequence
     from uiofmu.signals import parse_signals
 
-    out = OUT / "seed001_delayed"
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder("seed001_delayed")
     path = EX / "seed001_example.toml"
     existence = uiofmu.check(uiofmu.load_problem(path))
     values = {c.name: c.values for c in existence.conditions}
@@ -94,7 +88,7 @@ def main():
         print(f"{name}: valid {100 * row['validity']:.0f} % of the run ({row['invalid_stretches']} invalid stretches "
               f"after start-up); from 1.5 s median state error {row['state_error_after_1.5s']:.2g}, thetahat error "
               f"{shown} (theta = {problem.plant.theta.tolist()})")
-    figure(plt, runs, out / "errors_and_margin.png", card.schedule["sigma_bound"])
+    figure(runs, out / "errors_and_margin.png", card.schedule["sigma_bound"])
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(f"figures in {out}")
 

@@ -17,17 +17,17 @@ import json
 
 import numpy as np
 
-from _common import OUT, ROOT, design_and_build, main_guard
+from _common import ROOT, design_and_build, main_guard, output_folder, panels, savefig
 
 EX = ROOT / "examples"
 PAPER = {"K1": [[0, 0], [0.3166, -0.4893], [0.3166, -0.4893]], "K2": [[0, 0], [0.8295, 0.0236], [0.8295, 0.0236]],
          "Q": [[0.3333, 0.3333], [0.2060, -0.3176], [-0.4606, 0.0157]]}
 
 
-def figure2(plt, result, path, title):
+def figure2(result, path, title):
     """The mode sequence and the error components (the paper's Figure 2), with the certified bound."""
     k = np.arange(len(result.times))
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True, constrained_layout=True)
+    fig, axes = panels(2, (8, 6))
     axes[0].step(k[:-1], result.mode[:-1], where="post")
     axes[0].set_yticks(sorted(set(result.mode[:-1].astype(int))))
     axes[0].set_ylabel("mode alpha_k")
@@ -40,23 +40,17 @@ def figure2(plt, result, path, title):
     axes[1].set_xlabel("k")
     axes[1].set_ylabel("error")
     axes[1].legend(fontsize=8)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    savefig(fig, path)
 
 
 def main():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     import uiofmu
     from uiofmu.cosim.master import cosimulate, write_outputs
     from uiofmu.cosim.steps import step_sequence
     from uiofmu.fmu.export import build_plant
     from uiofmu.problem import problem_from_data
 
-    out = OUT / "seed002_switched"
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder("seed002_switched")
     summary = {}
 
     setup1 = uiofmu.check(uiofmu.load_problem(EX / "seed002_setup1.toml"))
@@ -80,13 +74,13 @@ def main():
     steps = step_sequence("fixed:1.0", 200.0)
     rule = cosimulate(plant, obs, steps)
     write_outputs(rule, out / "setup2_threshold", title="seed 002 setup 2, threshold switching")
-    figure2(plt, rule, out / "fig2_threshold.png", "setup 2: the paper's rule (mode 2 when x1 >= 6)")
+    figure2(rule, out / "fig2_threshold.png", "setup 2: the paper's rule (mode 2 when x1 >= 6)")
     data = copy.deepcopy(problem.data)
     data["plant"]["switching"] = {"rule": "random", "probabilities": [0.5, 0.5], "seed": 3}
     random_plant = build_plant(problem_from_data(data).plant, "seed002-setup2-random", out / "fmus" / "random.fmu")
     rand = cosimulate(random_plant, obs, step_sequence("fixed:1.0", 40.0))
     write_outputs(rand, out / "setup2_random", title="seed 002 setup 2, random switching")
-    figure2(plt, rand, out / "fig2_random.png", "setup 2: random switching (both modes unstable: 40 steps)")
+    figure2(rand, out / "fig2_random.png", "setup 2: random switching (both modes unstable: 40 steps)")
     for name, r in (("threshold", rule), ("random", rand)):
         e = np.linalg.norm(r.x - r.xhat, axis=1)
         rel = float((e[1:] / np.maximum(1.0, np.linalg.norm(r.x[1:], axis=1))).max())
@@ -99,7 +93,7 @@ def main():
     _, card3, obs3, plant3 = design_and_build(EX / "seed002_three_modes.toml", out / "fmus")
     r3 = cosimulate(plant3, obs3, step_sequence("fixed:0.1", 20.0))
     write_outputs(r3, out / "three_modes", title="three modes, random switching")
-    figure2(plt, r3, out / "three_modes.png", f"three modes: certified decay {card3.data['decay_bound']:.6g} "
+    figure2(r3, out / "three_modes.png", f"three modes: certified decay {card3.data['decay_bound']:.6g} "
             "(joint spectral radius 0.749928)")
     summary["three_modes"] = {"decay_bound": card3.data["decay_bound"], "joint_spectral_radius": 0.749928,
                               "overshoot_bound": card3.data["overshoot_bound"],

@@ -23,7 +23,7 @@ import json
 
 import numpy as np
 
-from _common import OUT, ROOT, design_and_build, main_guard
+from _common import ROOT, design_and_build, main_guard, output_folder, panels, savefig
 
 EX = ROOT / "examples"
 #: What the paper prints for P_theta's lower-left entry (its (3, 1) entry is -14 - theta_k there; -18 is right).
@@ -41,12 +41,12 @@ def relative_errors(result, window: int, true=None) -> np.ndarray:
     return np.where(f["valid"] > 0.5, err, np.nan)
 
 
-def figure(plt, result, err, path, title, linthresh=None):
+def figure(result, err, path, title, linthresh=None):
     """The functional and its estimate (top; a symmetric log scale from ``linthresh`` when given), their
     relative difference (bottom, :func:`relative_errors`), the window-filling steps shaded."""
     f, m = result.functional, result.metrics
     k = np.arange(len(result.times))
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True, constrained_layout=True)
+    fig, axes = panels(2, (8, 6))
     for ax in axes:
         ax.axvspan(-0.5, m["valid_from"] - 0.5, color="0.9", label="window filling")
     axes[0].plot(k, f["true"][:, 0], "k-", lw=2, label=f"G x ({m['delay']} step(s) back)")
@@ -62,15 +62,10 @@ def figure(plt, result, err, path, title, linthresh=None):
     axes[1].set_ylabel("relative error")
     axes[1].set_ylim(1e-18, 1e-12)
     axes[1].legend(fontsize=8)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    savefig(fig, path)
 
 
 def main():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     import uiofmu
     from uiofmu.cosim.master import cosimulate, default_inputs, write_outputs
     from uiofmu.cosim.steps import step_sequence
@@ -78,8 +73,7 @@ def main():
     from uiofmu.fmu.export import build_observer
     from uiofmu.problem import problem_from_data
 
-    out = OUT / "seed003_deadbeat"
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder("seed003_deadbeat")
     summary = {}
 
     # 1. the existence theory and the design of the paper's example
@@ -144,7 +138,7 @@ def main():
     direct = np.full(len(x), np.nan)
     direct[delay:] = 3 * x[:-delay, 0] + 2 * x[:-delay, 1]       # 3 x1 + 2 x2 of the point delay steps back
     err = relative_errors(run, card.data["window"], direct)
-    figure(plt, run, err, out / "example_functional.png", "(17) with a random unknown input: gx against 3 x1 + 2 x2",
+    figure(run, err, out / "example_functional.png", "(17) with a random unknown input: gx against 3 x1 + 2 x2",
            linthresh=1e-6)
     m = run.metrics
     summary["example_cosim"] = {
@@ -166,7 +160,7 @@ def main():
     run_t = cosimulate(plant_t, obs_t, step_sequence(f"fixed:{h!r}", 400 * h))
     write_outputs(run_t, out / "needs_theta", title="seed 003: a plant whose formula needs theta")
     err_t = relative_errors(run_t, card_t.data["window"])
-    figure(plt, run_t, err_t, out / "needs_theta_functional.png", f"theta an input: {card_t.data['formula']}")
+    figure(run_t, err_t, out / "needs_theta_functional.png", f"theta an input: {card_t.data['formula']}")
     theta = np.array([default_inputs(card_t).values(t)["theta"] for t in run_t.times])
     L, ft = card_t.data["window"], run_t.functional
     F_t, exps = card_t.matrices["F"], card_t.matrices["Fexp"]

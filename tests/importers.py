@@ -19,6 +19,9 @@ previous ``u``; our master sets the new ``u`` first. The loops agree exactly onl
 
 ecospy never reports a refused step to its caller: a doStep that returns fmi2Discard or fmi2Error is
 logged and time advances anyway. Compare the result with a reference to notice one.
+
+For the tests that drive one FMU through fmpy (:class:`uiofmu.cosim.fmi.Fmu`): :func:`call_error` (the
+error a refused call raises) and :func:`check_state_round_trip` (fmi2GetFMUstate, restore, serialise).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 _NAME = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\[([1-9][0-9]*)\]")
 
@@ -99,6 +103,72 @@ def default_step(fmu) -> float:
     if de is None or de.stepSize is None:
         raise ValueError(f"{fmu}: no <DefaultExperiment stepSize>")
     return float(de.stepSize)
+
+
+def call_error(fn, *args):
+    """The :class:`uiofmu.cosim.fmi.FmuCallError` that ``fn(*args)`` raises (the test fails if it returns).
+
+    Parameters
+    ----------
+    fn : callable
+        A call into an FMU through :class:`uiofmu.cosim.fmi.Fmu` (fmpy), ``fmu.step`` say.
+    *args
+        Its arguments.
+
+    Returns
+    -------
+    FmuCallError
+        The error, with the FMI status, the function and the FMU's log lines.
+    """
+    from uiofmu.cosim.fmi import FmuCallError
+
+    with pytest.raises(FmuCallError) as info:
+        fn(*args)
+    return info.value
+
+
+def check_state_round_trip(a, b, drive, first, rest, h: float):
+    """Save an FMU's state after ``first``, and check that restoring it gives the same run of ``rest``.
+
+    ``a`` and ``b`` (two instances of one FMU) are initialised at t = 0; ``a`` is driven over ``first``
+    and its state saved and serialised; then ``a`` runs ``rest``, the state is restored in ``a`` and
+    deserialised in ``b``: both run ``rest`` again identically, and both states serialise to the
+    same bytes.
+
+    Parameters
+    ----------
+    a, b : uiofmu.cosim.fmi.Fmu
+        Two instances, not initialised.
+    drive : callable
+        ``drive(fmu, inputs, t0, h)``: sets each step's inputs, steps, and returns the outputs.
+    first, rest : tuple of ndarray
+        The inputs before and after the save, one row per step.
+    h : float
+        The communication step.
+
+    Returns
+    -------
+    state : object
+        ``a``'s saved state (restored in ``a`` at the end).
+    blob : bytes
+        Its serialisation.
+    once : ndarray
+        The outputs over ``rest``.
+    """
+    a.initialize(0.0)
+    b.initialize(0.0)
+    drive(a, first, 0.0, h)
+    state = a.get_state()
+    blob = a.serialize(state)
+    t = len(first[0]) * h
+    once = drive(a, rest, t, h)
+    a.set_state(state)
+    assert a.serialize(a.get_state()) == blob
+    np.testing.assert_array_equal(drive(a, rest, t, h), once)
+    b.set_state(b.deserialize(blob))
+    assert b.serialize(b.get_state()) == blob
+    np.testing.assert_array_equal(drive(b, rest, t, h), once)
+    return state, blob, once
 
 
 def preload_libpython() -> str | None:
@@ -262,6 +332,95 @@ def run_ecospy(plant_fmu, observer_fmu, step: float, t_end: float, inputs=None, 
                 raise errors[0]
             sim.terminate()
     return EcospyRun(T, X, XH, connections, seconds)
+
+
+def import_ecospy():
+    """ecospy, or a failed test with a precise message when its native library cannot load.
+
+    Returns
+    -------
+    module
+        ``ecospy``.
+    """
+    try:
+        import ecospy
+    except OSError as exc:  # libecosc.so: libtbb.so.12: cannot open shared object file
+        pytest.fail(f"ecospy's native library does not load ({exc}); install libtbb12: apt-get install -y libtbb12")
+    return ecospy
+
+
+class TableInputs:
+    """Inputs held per communication step from arrays (the master's and ecospy's input source).
+
+    Parameters
+    ----------
+    h : float
+        The communication step.
+    table : dict of str to ndarray
+        ``{name: values}``, one row per communication point t_k = k h.
+    """
+
+    def __init__(self, h: float, table: dict):
+        self.h, self.table = h, table
+        self.sizes = {name: values.shape[1] for name, values in table.items()}
+
+    def values(self, t: float) -> dict:
+        """The rows of the communication point nearest to ``t``."""
+        k = min(int(round(t / self.h)), len(next(iter(self.table.values()))) - 1)
+        return {name: values[k] for name, values in self.table.items()}
+
+
+def ecospy_equals_master(plant_fmu, observer_fmu, step: float, steps: int, inputs, *, fed: dict | None = None,
+                         estimate: str = "xhat", what: str = ""):
+    """Run the plant and observer loop in ecospy and in our master, and assert that the two agree.
+
+    Both run ``steps`` communication steps of ``step`` with the same ``inputs``. Asserted: ecospy made
+    exactly the connections ``fed`` names, in order (``plant::y[1]`` to ``observer::y[1]``, ...); both
+    clocks are the same ``steps + 1`` points; ``x`` and the estimate agree to 1e-12 (relative, and
+    absolute against the largest value of ours); the estimate moved and is finite (a refused step,
+    which ecospy logs and steps over, makes our master raise instead).
+
+    Parameters
+    ----------
+    plant_fmu, observer_fmu : str or Path
+        The FMUs (see :func:`run_ecospy`).
+    step : float
+        The communication step h.
+    steps : int
+        The number of steps K.
+    inputs : object
+        The input source of both masters (``values(t)``, ``sizes``: :class:`TableInputs`).
+    fed : dict of str to int, optional
+        The plant outputs connected to the observer and their sizes, in order; by default
+        ``{"y": p}`` with p the plant outputs of our master's run.
+    estimate : str, optional
+        The observer output compared: ``"xhat"``, or a functional observer's ``"gx"``.
+    what : str, optional
+        Names the run in the messages of failed assertions.
+
+    Returns
+    -------
+    ours : CosimResult
+        Our master's run.
+    theirs : EcospyRun
+        ecospy's run.
+    """
+    from uiofmu.cosim.master import cosimulate
+
+    import_ecospy()
+    ours = cosimulate(plant_fmu, observer_fmu, np.full(steps, step), inputs, show_progress=False)
+    theirs = run_ecospy(plant_fmu, observer_fmu, step, steps * step, inputs, estimate=estimate)
+    fed = {"y": ours.y.shape[1]} if fed is None else fed
+    assert theirs.connections == [(f"plant::{name}[{i}]", f"observer::{name}[{i}]") for name, size in fed.items()
+                                  for i in range(1, size + 1)]
+    assert theirs.times.shape == ours.times.shape == (steps + 1,)
+    np.testing.assert_array_equal(theirs.times, ours.times, err_msg=what)
+    mine = ours.xhat if estimate == "xhat" else ours.functional[estimate]
+    for name, a, b in (("x", theirs.x, ours.x), (estimate, theirs.xhat, mine)):
+        scale = max(float(np.max(np.abs(b))), 1e-300)
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * scale, err_msg=f"{what}: {name}" if what else name)
+    assert np.ptp(theirs.xhat) > 0 and np.all(np.isfinite(theirs.xhat))
+    return ours, theirs
 
 
 class FmpyStalled(RuntimeError):

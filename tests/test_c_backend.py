@@ -35,7 +35,8 @@ def test_c_fmu_equals_runtime(cfmus, family):
     with zipfile.ZipFile(path) as z:
         names = set(z.namelist())
     binary = f"binaries/linux64/{md.coSimulation.modelIdentifier}.so"
-    assert {"sources/fmi2_plumbing.c", "sources/kernel_affine.c", "sources/design_data.c", binary} <= names
+    assert {"sources/fmi2_plumbing.c", "sources/kernel_util.c", "sources/kernel_affine.c", "sources/design_data.c",
+            binary} <= names
     report = validate(path, steps=400, seed=17)
     assert report.ok and report.max_rel_diff <= 1e-12
 

@@ -17,34 +17,30 @@ the point delay steps back from the first full window on (relative 1e-9).
 (f) fmi2Instantiate refuses hand-edited, inconsistent design data of both kernels.
 (g) Random call sequences (odd inputs and steps, byte-flipped and cut state images, resets,
 calls in the wrong state) get statuses up to fmi2Error, never fmi2Fatal or a crash.
-(h) (a)-(d) and (g) again with the FMUs' own C sources compiled under ASan and UBSan (the helpers of
-test_c_switched.py), run through fmpy in a Python with the sanitizer runtimes preloaded: no report.
-
-The checks are plain functions of an FMU's path, so the sanitized run is the same code: this file
-runs as a script (``python tests/test_c_functional.py observer|plant FMU DATA.json``).
+(h) (a)-(d) and (g) again with the FMUs' own C sources compiled under ASan and UBSan, run through
+fmpy in a Python with the sanitizer runtimes preloaded: no report (the helpers of cfmu.py, as
+test_c_switched.py runs its own). For that the checks take an FMU's path, and this file is a
+script as well (``python tests/test_c_functional.py observer|plant FMU DATA.json``).
 """
 
 from __future__ import annotations
 
 import copy
-import json
 import math
-import os
 import shutil
-import subprocess
 import sys
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from fmpy import read_model_description
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import cfuzz  # noqa: E402
+from cfmu import (DISCARD, ERROR, NEEDS_CC, check_restores, check_sanitized, discarded, refused,  # noqa: E402
+                  refused_edits, run_plant, script_main)
 from test_c_hardening import _layout, _with_double  # noqa: E402
-from test_c_switched import _refused, sanitized_observer, sanitized_plant  # noqa: E402
 from test_deadbeat_functional import EXAMPLE, THETA_PLANT  # noqa: E402
 from uiofmu.cosim.fmi import Fmu, FmuCallError  # noqa: E402
 from uiofmu.cosim.inputs import CsvInputs  # noqa: E402
@@ -52,17 +48,13 @@ from uiofmu.cosim.master import cosimulate  # noqa: E402
 from uiofmu.fmu import c_backend  # noqa: E402
 from uiofmu.fmu.export import build_observer, build_plant  # noqa: E402
 from uiofmu.problem import problem_from_data  # noqa: E402
-from uiofmu.runtime.card import card_from_data  # noqa: E402
 from uiofmu.runtime.lpv import LpvPlantRuntime  # noqa: E402
 from uiofmu.runtime.window import WindowRuntime  # noqa: E402
 from uiofmu.synthesis import design  # noqa: E402
 
-pytestmark = pytest.mark.skipif(c_backend.c_compiler() is None, reason="the C backend needs a C compiler")
-
-RTOL = 1e-12
+pytestmark = NEEDS_CC
 STEPS = 60
-#: The fmpy statuses of fmi2Discard and fmi2Error.
-DISCARD, ERROR = 2, 3
+RTOL = 1e-12
 
 PROBLEMS = {"example": EXAMPLE, "theta-plant": THETA_PLANT}
 
@@ -75,15 +67,6 @@ def assert_rows_close(a, b, what, rtol=RTOL):
     scale = 1.0 + np.abs(b).max(axis=1, keepdims=True)
     err = np.abs(a - b) / scale
     assert np.all(err <= rtol), f"{what}: max relative error {err.max():.3g} at row {int(err.max(axis=1).argmax())}"
-
-
-def _discarded(call, *words):
-    """``call()`` returns fmi2Discard with a log line holding every word."""
-    with pytest.raises(FmuCallError) as info:
-        call()
-    assert info.value.status == DISCARD, info.value
-    text = " ".join(info.value.messages)
-    assert all(w in text for w in words), text
 
 
 # -- the observer -----------------------------------------------------------------------------------
@@ -153,11 +136,11 @@ def check_observer(path, card) -> None:
         for name, value in bad_inputs:
             fmu.set(name, [value])
             word = "nan" if math.isnan(value) else "inf"
-            _refused(lambda: fmu.step(10 * h, h), f"input {name}[1] = ", word, "not finite")
+            refused(lambda: fmu.step(10 * h, h), f"input {name}[1] = ", word, "not finite")
             fmu.set(name, ys[10] if name == "y" else thetas[10])
             assert np.array_equal(_outputs(fmu)[-1:], before[-1:]), "a refused step changed k"
         for bad_h in (h / 2, 2 * h, h * (1 + 1e-3)):
-            _discarded(lambda: fmu.step(10 * h, bad_h), f"dt = {h!r}", "received h")
+            discarded(lambda: fmu.step(10 * h, bad_h), f"dt = {h!r}", "received h")
         got, want = _observe(fmu, rt, card, ys[:20], thetas, k0=10, t0=10 * h)
         assert_rows_close(got, want, "after the refused steps")
     # (b) states: mid-window (k = 2 < L - 1) and after the ring wrapped (k = 30)
@@ -174,8 +157,14 @@ def _check_states(path, card, ys, thetas, at: int) -> None:
         rt = WindowRuntime(card)
         _observe(a, rt, card, ys[:at], thetas)
         a.set("y", ys[at])                      # an input set but not yet stepped travels too
-        state = a.get_state()
-        blob = a.serialize(state)
+
+        def run(fmu):
+            return _observe(fmu, None, card, ys[:at + 12], thetas, at, at * h)[0]
+
+        def restored(fmu):
+            assert np.array_equal(fmu.get("y"), ys[at])
+
+        blob, after = check_restores(a, b, run, restored)
         # the window in the image is the runtime's, oldest first, bit for bit
         _, data = _layout(blob)
         values = np.frombuffer(blob[data:], dtype="<f8")
@@ -185,16 +174,6 @@ def _check_states(path, card, ys, thetas, at: int) -> None:
         assert np.array_equal(values[2:2 + W * p], ref["ys"]), "the window's outputs"
         assert np.array_equal(values[2 + W * p:2 + W * (p + s)], ref["thetas"]), "the window's theta"
         assert np.array_equal(values[2 + W * (p + s):2 + W * (p + s) + p], ys[at])
-        after, _ = _observe(a, None, card, ys[:at + 12], thetas, at, at * h)
-        a.set_state(state)
-        again, _ = _observe(a, None, card, ys[:at + 12], thetas, at, at * h)
-        assert np.array_equal(after, again), "get/set state"
-        b.initialize(0.0)
-        b.set_state(b.deserialize(blob))
-        assert np.array_equal(b.get("y"), ys[at])
-        restored, _ = _observe(b, None, card, ys[:at + 12], thetas, at, at * h)
-        assert np.array_equal(after, restored), "serialised state in another instance"
-        assert a.serialize(a.get_state()) == b.serialize(b.get_state())
         # forged images
         y0, th0, _, th_in = _window_at(card)
         forged = [(0, -1.0, "k = -1"), (0, 0.5, "k = 0.5"), (0, math.nan, "k = nan"), (0, 2.0 ** 60, "k = "),
@@ -207,11 +186,10 @@ def _check_states(path, card, ys, thetas, at: int) -> None:
         if not card.schedule["uses_theta"]:
             forged += [(th0 + W * s - 1, 0.5, "no theta input"), (th_in, 0.5, "no theta input")]
         for index, value, word in forged:
-            _refused(lambda: b.deserialize(_with_double(blob, index, value)), word)
-        _refused(lambda: b.deserialize(blob[:-8]))
+            refused(lambda: b.deserialize(_with_double(blob, index, value)), word)
+        refused(lambda: b.deserialize(blob[:-8]))
         b.set_state(b.deserialize(blob))        # the genuine image still restores the same run
-        restored, _ = _observe(b, None, card, ys[:at + 12], thetas, at, at * h)
-        assert np.array_equal(after, restored), "after the refused states"
+        assert np.array_equal(after, run(b)), "after the refused states"
 
 
 # -- the plant --------------------------------------------------------------------------------------
@@ -229,28 +207,18 @@ def plant_setup(data: dict):
 
 def _plant_run(fmu, rt, data, ds, thetas, k0=0, t0=0.0):
     """Steps k0.. on the FMU (and the runtime): ``y, x, theta`` before each step and after the last."""
-    h = data["dt"]
     inputs = fmu.ports("input")
-    got, want = [], []
 
-    def sample():
-        got.append(np.concatenate([fmu.get("y"), fmu.get("x"), fmu.get("theta")]))
-        if rt is not None:
-            want.append(np.concatenate([rt.y(), rt.x, rt.theta()]))
-
-    for k in range(k0, len(ds)):
+    def feed(k):
         fmu.set("d", ds[k])
         if "theta" in inputs:
             fmu.set("theta", thetas[k])
         if rt is not None:
             rt.d[:] = ds[k]
             rt.theta_in[:] = thetas[k] if rt.kind == "input" else 0.0
-        sample()
-        fmu.step(t0 + (k - k0) * h, h)
-        if rt is not None:
-            rt.step(h)
-    sample()
-    return np.array(got), np.array(want)
+
+    return run_plant(fmu, rt, data["dt"], range(k0, len(ds)), t0, feed, ("y", "x", "theta"),
+                     lambda r: [r.y(), r.x, r.theta()])
 
 
 def check_plant(path, data: dict) -> None:
@@ -274,23 +242,14 @@ def check_plant(path, data: dict) -> None:
     with Fmu(path, "plant") as a, Fmu(path, "plant") as b:
         a.initialize(0.0, {"x0": x0})
         _plant_run(a, None, data, ds[:half], thetas)
-        state = a.get_state()
-        blob = a.serialize(state)
-        after, _ = _plant_run(a, None, data, ds, thetas, half, half * h)
-        a.set_state(state)
-        again, _ = _plant_run(a, None, data, ds, thetas, half, half * h)
-        assert np.array_equal(after, again), "get/set state"
-        b.initialize(0.0)
-        b.set_state(b.deserialize(blob))
-        restored, _ = _plant_run(b, None, data, ds, thetas, half, half * h)
-        assert np.array_equal(after, restored), "serialised state in another instance"
+        blob, _ = check_restores(a, b, lambda fmu: _plant_run(fmu, None, data, ds, thetas, half, half * h)[0])
         n, q = len(data["A"]), len(data["E"][0])
         forged = [(0, 5.0, "phase = 5"), (1, math.nan, "x0[1]"), (1 + n, math.inf, "x[1]"),
                   (0, 1.0, "before initialisation ended")]
         if kind == "state":
             forged.append((1 + 2 * n + q, 0.25, "theta[1] = 0.25"))
         for index, value, word in forged:
-            _refused(lambda: b.deserialize(_with_double(blob, index, value)), word)
+            refused(lambda: b.deserialize(_with_double(blob, index, value)), word)
         if kind == "input":                     # an input theta travels with the state as it is
             b.set_state(b.deserialize(_with_double(blob, 1 + 2 * n + q, 0.25)))
             assert b.get("theta")[0] == 0.25
@@ -300,9 +259,9 @@ def check_plant(path, data: dict) -> None:
         x = fmu.get("x")
         for name in ("d", "theta") if kind == "input" else ("d",):
             fmu.set(name, [math.nan])
-            _refused(lambda: fmu.step(0.0, h), f"input {name}[1] = nan", "not finite")
+            refused(lambda: fmu.step(0.0, h), f"input {name}[1] = nan", "not finite")
             fmu.set(name, [0.0])
-        _discarded(lambda: fmu.step(0.0, h / 2), f"dt = {h!r}", f"h = {h / 2!r}")
+        discarded(lambda: fmu.step(0.0, h / 2), f"dt = {h!r}", f"h = {h / 2!r}")
         assert np.array_equal(fmu.get("x"), x)
         fmu.step(0.0, h)
     random_calls(path, data["dt"], 2)
@@ -386,15 +345,13 @@ def test_a_state_of_another_design_is_refused(cards, tmp_path):
         a.initialize(0.0)
         b.initialize(0.0)
         blob = a.serialize(a.get_state())
-        _refused(lambda: b.deserialize(blob))
+        refused(lambda: b.deserialize(blob))
 
 
 @pytest.mark.parametrize("name", list(PROBLEMS))
 def test_the_c_lpv_plant_equals_the_runtime(tmp_path, name):
     plant = lpv_plant(name)
     path = build_plant(plant, "lpv", tmp_path / "p.fmu", backend="c")
-    from fmpy import read_model_description
-
     md = read_model_description(str(path))
     assert "LPV plant" in md.description
     with zipfile.ZipFile(path) as z:
@@ -410,8 +367,6 @@ def test_the_d_feedthrough_of_an_lpv_plant(tmp_path):
     data["plant"]["scheduling"][0]["C"] = [[0.0, 1.0, 0.0]]
     plant = problem_from_data(data).plant
     path = build_plant(plant, "feed", tmp_path / "p.fmu", backend="c")
-    from fmpy import read_model_description
-
     md = read_model_description(str(path))
     (y,) = [u for u in md.outputs if u.variable.name == "y[1]"]
     assert {d.name for d in y.dependencies} == {"d[1]", "theta[1]"}
@@ -468,74 +423,19 @@ LPV_EDITS = [(".s = 1", ".s = 2", "plant A: 3 blocks of 3 x 3 need 27 numbers"),
              ("m_T[] = {0.0, 0.0, 0.0}", "m_T[] = {1.0, 0.0, 0.0}", "but theta is an input")]
 
 
-def _edited(path: Path, kernel, edits, tmp_path: Path, tag: str):
-    """Each edit of the FMU's design_data.c compiled and instantiated: refused with its words."""
-    unzip = tmp_path / f"unzip-{tag}"
-    with zipfile.ZipFile(path) as z:
-        z.extractall(unzip)
-    src = unzip / "sources"
-    ident = next((unzip / "binaries" / "linux64").iterdir()).stem
-    original = (src / "design_data.c").read_text()
-    for i, (old, edit, words) in enumerate(edits):
-        assert original.count(old) == 1, old
-        (src / "design_data.c").write_text(original.replace(old, edit))
-        c_backend.compile_binary(src, ident, unzip / "binaries" / "linux64", sources=c_backend.kernel_sources(kernel))
-        broken = tmp_path / f"{tag}{i}.fmu"
-        shutil.make_archive(str(broken.with_suffix("")), "zip", unzip)
-        broken.with_suffix(".zip").rename(broken)
-        with pytest.raises(c_backend.FmuError) as info:
-            Fmu(broken, "o")
-        assert "inconsistent" in str(info.value) and words in str(info.value), str(info.value)
-
-
 def test_instantiate_refuses_inconsistent_design_data(cards, tmp_path):
     card = cards["theta-plant"]
-    _edited(build_observer(card, tmp_path / "o.fmu", backend="c"), c_backend.c_kernel(card), WINDOW_EDITS,
-            tmp_path, "window")
+    refused_edits(build_observer(card, tmp_path / "o.fmu", backend="c"), c_backend.c_kernel(card), WINDOW_EDITS,
+                  tmp_path, "window")
     plant = lpv_plant("theta-plant")
-    _edited(build_plant(plant, "lpv", tmp_path / "p.fmu", backend="c"), c_backend.plant_kernel(plant.to_data()),
-            LPV_EDITS, tmp_path, "lpv")
-
-
-def _sanitized(kind: str, fmu: Path, data: dict, work: Path):
-    """This file's checks on ``fmu`` in a Python with the sanitizer runtimes preloaded (as
-    test_c_switched.py runs its own)."""
-    spec = work / f"{kind}-{fmu.stem}.json"
-    spec.write_text(json.dumps(data))
-    libs = [subprocess.run(["gcc", f"-print-file-name={lib}"], capture_output=True, text=True).stdout.strip()
-            for lib in ("libasan.so", "libubsan.so")]
-    env = {**os.environ, "LD_PRELOAD": ":".join(libs), "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=0",
-           "UBSAN_OPTIONS": "print_stacktrace=1"}
-    proc = subprocess.run([sys.executable, __file__, kind, str(fmu), str(spec)], capture_output=True, text=True,
-                          env=env, timeout=600, cwd=str(HERE.parent))
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    for mark in cfuzz.SANITIZER_MARKS:
-        assert mark not in proc.stderr, proc.stderr[-4000:]
-    assert "checked" in proc.stdout, proc.stdout
+    refused_edits(build_plant(plant, "lpv", tmp_path / "p.fmu", backend="c"), c_backend.plant_kernel(plant.to_data()),
+                  LPV_EDITS, tmp_path, "lpv")
 
 
 @pytest.mark.skipif(not shutil.which("gcc"), reason="the sanitizers need gcc")
 def test_the_observers_and_plants_under_asan_and_ubsan(cards, tmp_path):
-    for name, card in cards.items():
-        fmu = sanitized_observer(card, tmp_path / f"{name}.fmu")
-        with zipfile.ZipFile(fmu) as z:     # really instrumented
-            assert b"__asan_" in z.read("binaries/linux64/sanitized_observer.so")
-        _sanitized("observer", fmu, card.data, tmp_path)
-        plant = lpv_plant(name)
-        _sanitized("plant", sanitized_plant(plant, tmp_path / f"{name}-plant.fmu"), plant.to_data(), tmp_path)
-
-
-def main(argv) -> int:
-    """``observer FMU CARD.json`` or ``plant FMU PLANT.json``: the checks, "checked" when they pass."""
-    kind, fmu, spec = argv
-    data = json.loads(Path(spec).read_text())
-    if kind == "observer":
-        check_observer(fmu, card_from_data(data))
-    else:
-        check_plant(fmu, data)
-    print("checked")
-    return 0
+    check_sanitized(__file__, cards, {name: lpv_plant(name) for name in cards}, tmp_path)
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    sys.exit(script_main(sys.argv[1:], check_observer, check_plant))

@@ -416,7 +416,7 @@ def test_instantiate_refuses_inconsistent_design_data(fmus, tmp_path):
     src = unzip / "sources"
     flags = ["-std=c99", "-O2", "-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra", f"-I{src}"]  # compile_binary's
     objects = []
-    for name in ("fmi2_plumbing.c", "kernel_affine.c"):                # the FMU's sources but design_data.c
+    for name in ("fmi2_plumbing.c", "kernel_util.c", "kernel_affine.c"):  # the FMU's sources but design_data.c
         objects.append(str(tmp_path / name.replace(".c", ".o")))
         proc = subprocess.run(["gcc", *flags, "-c", "-o", objects[-1], str(src / name)], capture_output=True, text=True)
         assert proc.returncode == 0 and proc.stderr == "", proc.stderr

@@ -239,7 +239,7 @@ def sanitized(fmu, work) -> object:
                 (src / name[len("sources/"):]).write_bytes(z.read(name))
     exe = work / "plant_test"
     files = [ROOT / "tests" / "c" / "plant_test.c",
-             *(src / n for n in ("fmi2_plumbing.c", "kernel_plant.c", "design_data.c"))]
+             *(src / n for n in ("fmi2_plumbing.c", "kernel_util.c", "kernel_plant.c", "design_data.c"))]
     proc = subprocess.run(["gcc", "-std=c99", *cfuzz.SANITIZER_FLAGS, "-Wall", "-Wextra", f"-I{src}", "-o", str(exe),
                            *map(str, files), "-lm"], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
@@ -277,10 +277,11 @@ def test_the_plant_under_asan_and_ubsan(tmp_path, which, discrete_fmu):
     assert "failures=0" in proc.stderr
 
 
-def test_the_kernel_compiles_warning_free_with_the_strict_flags(tmp_path):
+@pytest.mark.parametrize("source", ["kernel_plant.c", "kernel_util.c"])
+def test_the_kernel_compiles_warning_free_with_the_strict_flags(tmp_path, source):
     proc = subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wshadow", "-Wconversion",
                            "-Wno-sign-conversion", f"-I{HERE}", f"-I{fmi_headers()}", "-c", "-o",
-                           str(tmp_path / "k.o"), str(HERE / "kernel_plant.c")], capture_output=True, text=True)
+                           str(tmp_path / "k.o"), str(HERE / source)], capture_output=True, text=True)
     assert proc.returncode == 0 and proc.stderr.strip() == "", proc.stderr
 
 
@@ -294,9 +295,10 @@ def test_the_model_description_is_a_standalone_fmus(discrete_fmu):
     with zipfile.ZipFile(path) as z:
         names = set(z.namelist())
         xml = z.read("modelDescription.xml").decode()
-    assert {"sources/kernel_plant.c", "sources/fmi2_plumbing.c", "sources/design_data.c",
+    assert {"sources/kernel_plant.c", "sources/kernel_util.c", "sources/fmi2_plumbing.c", "sources/design_data.c",
             f"binaries/linux64/{md.coSimulation.modelIdentifier}.so", "resources/model.json"} <= names
-    assert '<File name="kernel_plant.c" />' in xml and "<DefaultExperiment" in xml
+    assert '<File name="kernel_plant.c" />' in xml and '<File name="kernel_util.c" />' in xml
+    assert "<DefaultExperiment" in xml
     assert [v.name for v in md.modelVariables if v.causality == "output"][:1] == ["y[1]"]
     assert all(u.dependencies == [] for u in md.outputs)  # y = C x: no feedthrough
 

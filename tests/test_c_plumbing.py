@@ -289,7 +289,7 @@ def test_the_table_has_one_entry_per_value_reference(cfmus):
     assert rows[refs["h_prev0[1]"]] == "    {UIOFMU_AFFINE_H_PREV0, 0, UIOFMU_PARAMETER, UIOFMU_REAL},"
     assert rows[refs["xhat[2]"]] == "    {UIOFMU_AFFINE_XHAT, 1, UIOFMU_OUTPUT, UIOFMU_REAL},"
     assert all(row in text for row in rows) and f".nvariables = {len(rows)}," in text
-    assert c_sources(card) == ["fmi2_plumbing.c", "kernel_affine.c", "design_data.c"]
+    assert c_sources(card) == ["fmi2_plumbing.c", "kernel_util.c", "kernel_affine.c", "design_data.c"]
 
 
 @pytest.mark.parametrize("ports,fragment", [

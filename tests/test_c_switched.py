@@ -12,48 +12,41 @@ included; forged bytes with a bad previous mode are refused.
 (d) The C switched plant equals SwitchedPlantRuntime for the rules threshold, input and random
 (with a seed) over 100 steps with random u, d; its state (x, generator, drawn mode, input mode,
 seed) round-trips; a bad input mode is refused with fmi2Error and a log line.
-(e) (a)-(d) again with the FMUs' own C sources compiled under ASan and UBSan (cfuzz.SANITIZER_FLAGS,
-the flags of the fuzzer and of plant_test.c), run through fmpy in a Python with the sanitizer
-runtimes preloaded: no report.
+(e) (a)-(d) again with the FMUs' own C sources compiled under ASan and UBSan (cfmu.sanitized_observer
+and sanitized_plant: cfuzz.SANITIZER_FLAGS, the flags of the fuzzer and of plant_test.c), run
+through fmpy in a Python with the sanitizer runtimes preloaded (cfmu.run_sanitized): no report.
 
-The checks are plain functions of an FMU's path, so the sanitized run is the same code: this file
-runs as a script (``python tests/test_c_switched.py observer|plant FMU DATA.json``).
+Each check is a plain function of an FMU's path, the sanitized run the same code: this file runs
+as a script too (``python tests/test_c_switched.py observer|plant FMU DATA.json``).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
 import shutil
-import subprocess
 import sys
-import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from fmpy import read_model_description
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import cfuzz  # noqa: E402
+from cfmu import (NEEDS_CC, check_restores, check_sanitized, refused, refused_edits, run_plant,  # noqa: E402
+                  script_main)
 from test_c_hardening import _layout, _with_double  # noqa: E402
-from uiofmu.cosim.fmi import Fmu, FmuCallError  # noqa: E402
+from uiofmu.cosim.fmi import Fmu  # noqa: E402
 from uiofmu.fmu import c_backend  # noqa: E402
 from uiofmu.fmu.export import build_observer, build_plant  # noqa: E402
 from uiofmu.problem import problem_from_data  # noqa: E402
-from uiofmu.runtime.card import card_from_data  # noqa: E402
 from uiofmu.runtime.observer import Runtime  # noqa: E402
 from uiofmu.runtime.switching import SwitchedPlantRuntime  # noqa: E402
 from uiofmu.synthesis import design  # noqa: E402
 
-pytestmark = pytest.mark.skipif(c_backend.c_compiler() is None, reason="the C backend needs a C compiler")
-
+pytestmark = NEEDS_CC
 RTOL = 1e-12
 STEPS = 100
-#: The fmpy status of fmi2Error.
-ERROR = 3
 
 SETUP2 = {
     "name": "millerioux-daafouz-setup2",
@@ -89,40 +82,11 @@ def three_modes() -> dict:
 PROBLEMS = {"setup2": SETUP2, "three-modes": three_modes()}
 
 
-def sanitized_observer(card, output: Path) -> Path:
-    """The C observer FMU of ``card`` with its sources compiled under ASan and UBSan."""
-    ident = "sanitized_observer"
-    guid = c_backend.guid_of({"sanitized": True, **card.data})
-    return c_backend.pack_c_fmu(output, ident, c_backend.c_kernel(card), c_backend.design_source(card, guid, ident),
-                                lambda sources: c_backend.model_description(card, guid, ident, sources),
-                                {"kind": "observer", "card": card.data}, list(cfuzz.SANITIZER_FLAGS))
-
-
-def sanitized_plant(plant, output: Path) -> Path:
-    """The C plant FMU of ``plant`` with its sources compiled under ASan and UBSan."""
-    ident = "sanitized_plant"
-    data = plant.to_data()
-    guid = c_backend.guid_of({"sanitized": True, **data})
-    return c_backend.pack_c_fmu(output, ident, c_backend.plant_kernel(data), c_backend.plant_source(data, guid, ident),
-                                lambda sources: c_backend.plant_model_description(data, "sanitized", guid, ident,
-                                                                                  sources, None),
-                                {"kind": "plant", "plant": data}, list(cfuzz.SANITIZER_FLAGS))
-
-
 def assert_close(a, b, what):
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     assert a.shape == b.shape, what
     scale = 1.0 + np.abs(b)
     assert np.all(np.abs(a - b) <= RTOL * scale), f"{what}: max error {np.max(np.abs(a - b) / scale):.3g}"
-
-
-def _refused(call, *words):
-    """``call()`` raises fmi2Error with a log line holding every word."""
-    with pytest.raises(FmuCallError) as info:
-        call()
-    assert info.value.status == ERROR, info.value
-    text = " ".join(info.value.messages)
-    assert all(w in text for w in words), text
 
 
 # -- the observer -----------------------------------------------------------------------------------
@@ -183,13 +147,13 @@ def check_observer(path, card) -> None:
         before = observer_outputs(fmu)
         for bad in (0, N + 1, -7):
             fmu.set("mode", [bad])
-            _refused(lambda: fmu.step(10 * h, h), f"mode = {bad}", f"from 1 to {N}")
+            refused(lambda: fmu.step(10 * h, h), f"mode = {bad}", f"from 1 to {N}")
             assert np.array_equal(observer_outputs(fmu), before), "a refused step changed the outputs"
         got, want = _observe(fmu, rt, card, modes[:20], ys, us, t0=10 * h, k0=10)
         assert_close(got[1:], want[1:], "after the refused steps")
     for bad in (0, N + 1):
         with Fmu(path, "observer") as fmu:
-            _refused(lambda: fmu.initialize(0.0, {"mode_prev0": [bad]}), f"mode_prev0 = {bad}", f"from 1 to {N}")
+            refused(lambda: fmu.initialize(0.0, {"mode_prev0": [bad]}), f"mode_prev0 = {bad}", f"from 1 to {N}")
     with Fmu(path, "observer") as fmu:                # another valid mode_prev0: the runtime with it
         other = N - card.schedule["mode_prev0"] + 1
         fmu.initialize(0.0, {"mode_prev0": [other]})
@@ -199,25 +163,19 @@ def check_observer(path, card) -> None:
     with Fmu(path, "observer") as a, Fmu(path, "observer") as b:
         a.initialize(0.0)
         _observe(a, None, card, modes[:30], ys, us)
-        state = a.get_state()
-        blob = a.serialize(state)
-        after, _ = _observe(a, None, card, modes[:60], ys, us, t0=30 * h, k0=30)
-        a.set_state(state)
-        again, _ = _observe(a, None, card, modes[:60], ys, us, t0=30 * h, k0=30)
-        assert np.array_equal(after, again), "get/set state"
-        b.initialize(0.0)
-        b.set_state(b.deserialize(blob))
-        assert b.get("mode")[0] == modes[29]
-        restored, _ = _observe(b, None, card, modes[:60], ys, us, t0=30 * h, k0=30)
-        assert np.array_equal(after, restored), "serialised state in another instance"
-        assert a.serialize(a.get_state()) == b.serialize(b.get_state())
+
+        def restored(fmu):
+            assert fmu.get("mode")[0] == modes[29]
+
+        blob, _ = check_restores(a, b, lambda fmu: _observe(fmu, None, card, modes[:60], ys, us, t0=30 * h, k0=30)[0],
+                                 restored)
         d = card.dims
         at = 5 + d["nz"] + 2 * d["p"] + d["n"] + d["m"]       # mode, mode_prev, mode_prev0 after u
         b.set_state(b.deserialize(_with_double(blob, at + 1, float(modes[29]))))   # the same: accepted
         for index, value, word in ((at + 1, 0.0, "mode_prev"), (at + 1, N + 1.0, "mode_prev"),
                                    (at + 1, 1.5, "mode_prev"), (at + 2, 0.0, "mode_prev0"), (at, 0.5, "mode"),
                                    (at, float("nan"), "mode")):
-            _refused(lambda: b.deserialize(_with_double(blob, index, value)), word)
+            refused(lambda: b.deserialize(_with_double(blob, index, value)), word)
         # the previous mode is what the restored state carries: another one gives other outputs
         other = 1 + modes[29] % N
         b.set_state(b.deserialize(_with_double(blob, at + 1, float(other))))
@@ -245,16 +203,9 @@ def plant_inputs(data: dict, seed: int):
 
 def _plant_run(fmu, rt, data, us, ds, modes, k0=0, t0=0.0):
     """Steps k0.. on the FMU (and the runtime): ``x, y, mode`` before each step and after the last."""
-    h = data["dt"]
     rule = data["switching"]["rule"]
-    got, want = [], []
 
-    def sample():
-        got.append(np.concatenate([fmu.get("x"), fmu.get("y"), fmu.get("mode")]))
-        if rt is not None:
-            want.append(np.concatenate([rt.x, rt.y(), [rt.mode()]]))
-
-    for k in range(k0, len(us)):
+    def feed(k):
         fmu.set("u", us[k])
         fmu.set("d", ds[k])
         if rule == "input":
@@ -262,12 +213,9 @@ def _plant_run(fmu, rt, data, us, ds, modes, k0=0, t0=0.0):
         if rt is not None:
             rt.u[:], rt.d[:] = us[k], ds[k]
             rt.mode_in = int(modes[k])
-        sample()
-        fmu.step(t0 + (k - k0) * h, h)
-        if rt is not None:
-            rt.step(h)
-    sample()
-    return np.array(got), np.array(want)
+
+    return run_plant(fmu, rt, data["dt"], range(k0, len(us)), t0, feed, ("x", "y", "mode"),
+                     lambda r: [r.x, r.y(), [r.mode()]])
 
 
 def check_plant(path, data: dict) -> None:
@@ -291,21 +239,12 @@ def check_plant(path, data: dict) -> None:
     with Fmu(path, "plant") as a, Fmu(path, "plant") as b:
         a.initialize(0.0, params)
         _plant_run(a, None, data, us[:40], ds, modes)
-        state = a.get_state()
-        blob = a.serialize(state)
-        after, _ = _plant_run(a, None, data, us[:80], ds, modes, 40, 40 * h)
-        a.set_state(state)
-        again, _ = _plant_run(a, None, data, us[:80], ds, modes, 40, 40 * h)
-        assert np.array_equal(after, again), "get/set state"
-        b.initialize(0.0)
-        b.set_state(b.deserialize(blob))
-        restored, _ = _plant_run(b, None, data, us[:80], ds, modes, 40, 40 * h)
-        assert np.array_equal(after, restored), "serialised state in another instance"
+        blob, _ = check_restores(a, b, lambda fmu: _plant_run(fmu, None, data, us[:80], ds, modes, 40, 40 * h)[0])
         n, m, q = len(data["C"][0]), us.shape[1], ds.shape[1]
         at = 1 + 2 * n + m + q                              # mode_in, seed, rng_hi, rng_lo, drawn
         for index, value, word in ((at + 4, 0.0, "drawn"), (at + 4, N + 1.0, "drawn"), (at + 2, 2.0 ** 32, "rng_hi"),
                                    (at + 3, -1.0, "rng_lo"), (at, 0.5, "mode_in"), (at + 1, 2.0 ** 31, "seed")):
-            _refused(lambda: b.deserialize(_with_double(blob, index, value)), word)
+            refused(lambda: b.deserialize(_with_double(blob, index, value)), word)
     if rule == "random":                                # the generator's state is the reference's, bit for bit
         with Fmu(path, "plant") as fmu:
             fmu.initialize(0.0, params)
@@ -325,7 +264,7 @@ def check_plant(path, data: dict) -> None:
             for bad in (0, N + 1):
                 fmu.set("mode", [bad])
                 x = fmu.get("x")
-                _refused(lambda: fmu.step(0.0, h), f"mode = {bad}", f"from 1 to {N}")
+                refused(lambda: fmu.step(0.0, h), f"mode = {bad}", f"from 1 to {N}")
                 assert np.array_equal(fmu.get("x"), x)
             fmu.set("mode", [1])
             fmu.step(0.0, h)
@@ -367,8 +306,6 @@ def switched_plant(rule: str):
 def test_the_c_switched_plant_equals_the_runtime(tmp_path, rule):
     plant = switched_plant(rule)
     path = build_plant(plant, "three", tmp_path / "p.fmu", backend="c")
-    from fmpy import read_model_description
-
     md = read_model_description(str(path))
     assert "switched linear plant" in md.description
     names = [v.name for v in md.modelVariables]
@@ -397,64 +334,13 @@ MODE_EDITS = [(".modes = 2, .mode_prev0 = 1", ".modes = 0, .mode_prev0 = 1", "mo
 
 def test_instantiate_refuses_inconsistent_mode_design_data(cards, tmp_path):
     path = build_observer(cards["setup2"], tmp_path / "o.fmu", backend="c")
-    unzip = tmp_path / "unzip"
-    with zipfile.ZipFile(path) as z:
-        z.extractall(unzip)
-    src = unzip / "sources"
-    ident = next((unzip / "binaries" / "linux64").iterdir()).stem
-    original = (src / "design_data.c").read_text()
-    for i, (old, edit, words) in enumerate(MODE_EDITS):
-        assert original.count(old) == 1, old
-        (src / "design_data.c").write_text(original.replace(old, edit))
-        c_backend.compile_binary(src, ident, unzip / "binaries" / "linux64",
-                                 sources=c_backend.kernel_sources(c_backend.c_kernel(cards["setup2"])))
-        broken = tmp_path / f"edit{i}.fmu"
-        shutil.make_archive(str(broken.with_suffix("")), "zip", unzip)
-        broken.with_suffix(".zip").rename(broken)
-        with pytest.raises(c_backend.FmuError) as info:
-            Fmu(broken, "o")
-        assert "inconsistent" in str(info.value) and words in str(info.value), str(info.value)
-
-
-def _sanitized(kind: str, fmu: Path, data: dict, work: Path):
-    """This file's checks on ``fmu`` in a Python with the sanitizer runtimes preloaded."""
-    spec = work / f"{kind}.json"
-    spec.write_text(json.dumps(data))
-    libs = [subprocess.run(["gcc", f"-print-file-name={lib}"], capture_output=True, text=True).stdout.strip()
-            for lib in ("libasan.so", "libubsan.so")]
-    env = {**os.environ, "LD_PRELOAD": ":".join(libs), "ASAN_OPTIONS": "detect_leaks=0:abort_on_error=0",
-           "UBSAN_OPTIONS": "print_stacktrace=1"}
-    proc = subprocess.run([sys.executable, __file__, kind, str(fmu), str(spec)], capture_output=True, text=True,
-                          env=env, timeout=600, cwd=str(HERE.parent))
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    for mark in cfuzz.SANITIZER_MARKS:
-        assert mark not in proc.stderr, proc.stderr[-4000:]
-    assert "checked" in proc.stdout, proc.stdout
+    refused_edits(path, c_backend.c_kernel(cards["setup2"]), MODE_EDITS, tmp_path, "edit")
 
 
 @pytest.mark.skipif(not shutil.which("gcc"), reason="the sanitizers need gcc")
 def test_the_observers_and_plants_under_asan_and_ubsan(cards, tmp_path):
-    for name, card in cards.items():
-        fmu = sanitized_observer(card, tmp_path / f"{name}.fmu")
-        with zipfile.ZipFile(fmu) as z:     # really instrumented
-            assert b"__asan_" in z.read("binaries/linux64/sanitized_observer.so")
-        _sanitized("observer", fmu, card.data, tmp_path)
-    for rule in RULES:
-        plant = switched_plant(rule)
-        _sanitized("plant", sanitized_plant(plant, tmp_path / f"{rule}.fmu"), plant.to_data(), tmp_path)
-
-
-def main(argv) -> int:
-    """``observer FMU CARD.json`` or ``plant FMU PLANT.json``: the checks, "checked" when they pass."""
-    kind, fmu, spec = argv
-    data = json.loads(Path(spec).read_text())
-    if kind == "observer":
-        check_observer(fmu, card_from_data(data))
-    else:
-        check_plant(fmu, data)
-    print("checked")
-    return 0
+    check_sanitized(__file__, cards, {rule: switched_plant(rule) for rule in RULES}, tmp_path)
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    sys.exit(script_main(sys.argv[1:], check_observer, check_plant))

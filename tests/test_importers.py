@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from conftest import EXAMPLES, ROOT, run_cli
-from importers import FmpyStalled, default_step, run_ecospy, run_fmpy_default
+from importers import FmpyStalled, default_step, ecospy_equals_master, run_fmpy_default
 
 #: family -> problem; the observer's default step is dt or the first design interval.
 PROBLEMS = {
@@ -64,16 +64,6 @@ def fmus(tmp_path_factory):
     return get
 
 
-@pytest.fixture(scope="module")
-def ecospy():
-    """ecospy, with a precise message when its native library cannot load."""
-    try:
-        import ecospy
-    except OSError as exc:  # libecosc.so: libtbb.so.12: cannot open shared object file
-        pytest.fail(f"ecospy's native library does not load ({exc}); install libtbb12: apt-get install -y libtbb12")
-    return ecospy
-
-
 def generation_tool(fmu) -> str:
     """The FMU's ``generationTool`` (PythonFMU ... for pythonfmu FMUs)."""
     from fmpy import read_model_description
@@ -83,25 +73,14 @@ def generation_tool(fmu) -> str:
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("family", PROBLEMS)
-def test_ecospy_loop_equals_our_master(ecospy, fmus, family, backend):
-    from uiofmu.cosim.master import cosimulate, default_inputs, observer_card
+def test_ecospy_loop_equals_our_master(fmus, family, backend):
+    from uiofmu.cosim.master import default_inputs, observer_card
 
     plant, observer = fmus(family, "plant"), fmus(family, backend)
     h = default_step(observer)
     inputs = default_inputs(observer_card(observer))  # the problem's [signals]: u and d are not zero
-    ours = cosimulate(plant, observer, np.full(STEPS, h), inputs, show_progress=False)
-    theirs = run_ecospy(plant, observer, h, STEPS * h, inputs)
     what = f"{family}: plant by {generation_tool(plant)}, observer by {generation_tool(observer)}"
-    assert theirs.connections == [(f"plant::y[{i + 1}]", f"observer::y[{i + 1}]") for i in range(ours.y.shape[1])]
-    assert theirs.times.shape == ours.times.shape == (STEPS + 1,)
-    np.testing.assert_array_equal(theirs.times, ours.times, err_msg=what)
-    for name in ("x", "xhat"):
-        a, b = getattr(theirs, name), getattr(ours, name)
-        scale = max(float(np.max(np.abs(b))), 1e-300)
-        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * scale, err_msg=f"{what}: {name}")
-    # the loop did something: the estimate moved, and a refused step (which ecospy logs and
-    # steps over) would have made our master raise above
-    assert np.ptp(theirs.xhat) > 0 and np.all(np.isfinite(theirs.xhat))
+    ecospy_equals_master(plant, observer, h, STEPS, inputs, what=what)
 
 
 def is_standalone(fmu) -> bool:
@@ -118,23 +97,14 @@ def is_standalone(fmu) -> bool:
 
 
 @pytest.mark.parametrize("family", PROBLEMS)
-def test_ecospy_runs_a_loop_of_two_c_fmus_equal_to_our_master(ecospy, fmus, family):
+def test_ecospy_runs_a_loop_of_two_c_fmus_equal_to_our_master(fmus, family):
     """Issue 15: a closed loop of two C FMUs (plant + observer) in a native engine, no Python in the FMUs."""
-    from uiofmu.cosim.master import cosimulate, default_inputs, observer_card
+    from uiofmu.cosim.master import default_inputs, observer_card
 
     plant, observer = fmus(family, "plant-c"), fmus(family, "c")
     assert is_standalone(plant) and is_standalone(observer)
     h = default_step(observer)
-    inputs = default_inputs(observer_card(observer))
-    ours = cosimulate(plant, observer, np.full(STEPS, h), inputs, show_progress=False)
-    theirs = run_ecospy(plant, observer, h, STEPS * h, inputs)
-    assert theirs.connections == [(f"plant::y[{i + 1}]", f"observer::y[{i + 1}]") for i in range(ours.y.shape[1])]
-    np.testing.assert_array_equal(theirs.times, ours.times)
-    for name in ("x", "xhat"):
-        a, b = getattr(theirs, name), getattr(ours, name)
-        scale = max(float(np.max(np.abs(b))), 1e-300)
-        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * scale, err_msg=f"{family}: {name}")
-    assert np.ptp(theirs.xhat) > 0 and np.all(np.isfinite(theirs.xhat))
+    ecospy_equals_master(plant, observer, h, STEPS, default_inputs(observer_card(observer)), what=family)
 
 
 #: every FMU we build: the observers of every family with both backends, and the plants

@@ -24,9 +24,9 @@ import pytest
 from fmpy.validation import validate_fmu
 
 from conftest import run_cli
-from importers import run_ecospy
+from importers import TableInputs, call_error, check_state_round_trip, ecospy_equals_master
 from test_deadbeat_functional import EXAMPLE, THETA_PLANT
-from uiofmu.cosim.fmi import Fmu, FmuCallError
+from uiofmu.cosim.fmi import Fmu
 from uiofmu.fmu.export import build_observer, build_plant
 from uiofmu.problem import problem_from_data, to_toml
 from uiofmu.runtime.lpv import LpvPlantRuntime
@@ -55,13 +55,6 @@ def built(tmp_path_factory):
         return made[key]
 
     return get
-
-
-def _call_error(fn, *args) -> FmuCallError:
-    """The :class:`FmuCallError` that ``fn(*args)`` raises (the test fails if it returns)."""
-    with pytest.raises(FmuCallError) as info:
-        fn(*args)
-    return info.value
 
 
 def _outputs(source) -> np.ndarray:
@@ -143,11 +136,7 @@ def test_state_save_restore_and_serialisation_are_bit_exact(built, key, after):
     rt = WindowRuntime(card)
     _drive(rt, first, 0.0, h)
     with Fmu(path, "a") as a, Fmu(path, "b") as b:
-        a.initialize(0.0)
-        b.initialize(0.0)
-        _drive(a, first, 0.0, h)
-        state = a.get_state()
-        blob = a.serialize(state)
+        _, blob, once = check_state_round_trip(a, b, _drive, first, rest, h)
         saved = json.loads(blob)["model"]["runtime"]
         assert saved["k"] == after and (saved["k"] >= card.schedule["length"] - 1) == (after == 25)
         expected = rt.get_state()
@@ -155,13 +144,6 @@ def test_state_save_restore_and_serialisation_are_bit_exact(built, key, after):
             expected["thetas"] = [0.0] * len(expected["thetas"])
             expected["theta"] = [0.0] * len(expected["theta"])
         assert saved == expected
-        once = _drive(a, rest, after * h, h)
-        a.set_state(state)
-        assert a.serialize(a.get_state()) == blob
-        np.testing.assert_array_equal(_drive(a, rest, after * h, h), once)
-        b.set_state(b.deserialize(blob))
-        assert b.serialize(b.get_state()) == blob
-        np.testing.assert_array_equal(_drive(b, rest, after * h, h), once)
     np.testing.assert_array_equal(_drive(rt, rest, after * h, h), once)
 
 
@@ -181,7 +163,7 @@ def test_a_nan_theta_or_y_is_refused_with_an_error_and_a_log_line(built):
         before = fmu.serialize(fmu.get_state())
         for name in ("theta", "y"):
             fmu.set(name, [np.nan])
-            exc = _call_error(fmu.step, 5 * h, h)
+            exc = call_error(fmu.step, 5 * h, h)
             assert exc.status == 3, exc.status
             assert any(f"input {name}[1] = nan" in m and "not finite" in m for m in exc.messages), exc.messages
             fmu.set(name, inputs[0 if name == "y" else 1][5])
@@ -282,39 +264,8 @@ def test_validate_covers_the_state_scheduled_plant_and_observer(built):
 
 
 # -- a second importer ----------------------------------------------------------------------------------------
-class TableInputs:
-    """Inputs held per communication step from arrays (the master's and ecospy's input source).
-
-    Parameters
-    ----------
-    h : float
-        The communication step.
-    table : dict of str to ndarray
-        ``{name: values}``, one row per communication point t_k = k h.
-    """
-
-    def __init__(self, h: float, table: dict):
-        self.h, self.table = h, table
-        self.sizes = {name: values.shape[1] for name, values in table.items()}
-
-    def values(self, t: float) -> dict:
-        """The rows of the communication point nearest to ``t``."""
-        k = min(int(round(t / self.h)), len(next(iter(self.table.values()))) - 1)
-        return {name: values[k] for name, values in self.table.items()}
-
-
-@pytest.fixture(scope="module")
-def ecospy():
-    """ecospy, with a precise message when its native library cannot load."""
-    try:
-        import ecospy
-    except OSError as exc:  # libecosc.so: libtbb.so.12: cannot open shared object file
-        pytest.fail(f"ecospy's native library does not load ({exc}); install libtbb12: apt-get install -y libtbb12")
-    return ecospy
-
-
 @pytest.mark.parametrize("key, K, size", [("example", 10, 1e-3), ("theta", 40, 1.0)])
-def test_ecospy_runs_the_functional_loop_equal_to_our_master(ecospy, built, key, K, size):
+def test_ecospy_runs_the_functional_loop_equal_to_our_master(built, key, K, size):
     """ecospy connects the plant's y to the observer (and nothing else: the example's theta is the
     plant's own, THETA_PLANT's comes from the input source on both FMUs); gx and x equal our master's,
     and gx is G x of ``delay`` steps back from the first full window on.
@@ -322,8 +273,6 @@ def test_ecospy_runs_the_functional_loop_equal_to_our_master(ecospy, built, key,
     The source's theta reaches the observer one step late in ecospy (its sets are applied just before
     the next doStep), so gx at t_k+1 is computed with theta(t_k) there; THETA_PLANT's formula uses
     theta at lags 1 and 2 only (what the window holds), which is why the two importers agree."""
-    from uiofmu.cosim.master import cosimulate
-
     _, card, observer, plant = built(key)
     assert not card.matrices["Fexp"][:, -1].any()            # no theta of the current point
     h = card.schedule["dt"]
@@ -331,14 +280,8 @@ def test_ecospy_runs_the_functional_loop_equal_to_our_master(ecospy, built, key,
     table = {"d": size * rng.uniform(-1.0, 1.0, size=(K + 1, 1))}
     if key == "theta":
         table["theta"] = rng.uniform(-0.5, 0.5, size=(K + 1, 1))
-    inputs = TableInputs(h, table)
-    ours = cosimulate(plant, observer, np.full(K, h), inputs, show_progress=False)
-    theirs = run_ecospy(plant, observer, h, K * h, inputs, estimate="gx")
-    assert theirs.connections == [("plant::y[1]", "observer::y[1]")]
-    np.testing.assert_array_equal(theirs.times, ours.times)
-    for name, a, b in (("x", theirs.x, ours.x), ("gx", theirs.xhat, ours.functional["gx"])):
-        scale = max(float(np.max(np.abs(b))), 1e-300)
-        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * scale, err_msg=f"{key}: {name}")
+    ours, theirs = ecospy_equals_master(plant, observer, h, K, TableInputs(h, table), fed={"y": 1}, estimate="gx",
+                                        what=key)
     L, delay = card.schedule["length"], card.schedule["delay"]
     G = np.array(DESIGNS[key]["observer"]["G"])
     want = theirs.x[L - 1 - delay:K + 1 - delay] @ G.T

@@ -22,8 +22,8 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from importers import run_ecospy
-from uiofmu.cosim.fmi import Fmu, FmuCallError, read_model_json
+from importers import TableInputs, call_error, check_state_round_trip, ecospy_equals_master
+from uiofmu.cosim.fmi import Fmu, read_model_json
 from uiofmu.fmu.export import build_observer, build_plant
 from uiofmu.problem import problem_from_data
 from uiofmu.runtime.fmu_model import make_model
@@ -130,13 +130,6 @@ def built(tmp_path_factory):
     return get
 
 
-def _call_error(fn, *args) -> FmuCallError:
-    """The :class:`FmuCallError` that ``fn(*args)`` raises (the test fails if it returns)."""
-    with pytest.raises(FmuCallError) as info:
-        fn(*args)
-    return info.value
-
-
 def _observer_outputs(source) -> np.ndarray:
     """``xhat, r, dhat`` of an observer FMU or a :class:`Runtime`."""
     if isinstance(source, Runtime):
@@ -162,6 +155,32 @@ def _drive(fmu, inputs, t0: float, h: float) -> np.ndarray:
         out.append(_observer_outputs(fmu))
         fmu.step(t, h)
         t += h
+    return np.array(out)
+
+
+def _run(rt: Runtime, inputs, h: float) -> np.ndarray:
+    """The runtime driven as :func:`_drive` drives the FMU.
+
+    Parameters
+    ----------
+    rt : Runtime
+    inputs : tuple of ndarray
+        ``(y, u, mode)``, one row per step (:func:`_observer_inputs`).
+    h : float
+        The step.
+
+    Returns
+    -------
+    ndarray
+        ``xhat, r, dhat`` before every step, one row per step.
+    """
+    out = []
+    for y, u, mode in zip(*inputs):
+        rt.set_y(y)
+        rt.set_u(u)
+        rt.set_mode(int(mode))
+        out.append(_observer_outputs(rt).copy())
+        rt.step(h)
     return np.array(out)
 
 
@@ -221,14 +240,7 @@ def test_observer_equals_the_runtime_over_a_random_mode_sequence(built, key):
         fmu.initialize(0.0, {"xhat0": xhat0, "mode_prev0": [mode_prev0]})
         assert fmu.get("mode_prev0").tolist() == [mode_prev0]
         got = _drive(fmu, inputs, 0.0, h)
-    want = []
-    for y, u, mode in zip(*inputs):
-        rt.set_y(y)
-        rt.set_u(u)
-        rt.set_mode(int(mode))
-        want.append(_observer_outputs(rt).copy())
-        rt.step(h)
-    np.testing.assert_array_equal(got, np.array(want))
+    np.testing.assert_array_equal(got, _run(rt, inputs, h))
     assert np.all(np.isfinite(got)) and np.ptp(got) > 0
 
 
@@ -248,7 +260,7 @@ def test_a_bad_mode_is_refused_with_an_error_and_a_log_line(built, key):
             before_state = json.loads(fmu.serialize(fmu.get_state()))["model"]["runtime"]
             before = _observer_outputs(fmu)
             fmu.set("mode", [bad])
-            exc = _call_error(fmu.step, t, h)
+            exc = call_error(fmu.step, t, h)
             assert exc.status == 3, exc                                  # fmi2Error, not fmi2Fatal
             assert any(f"mode = {bad} " in m and f"from 1 to {N}" in m for m in exc.messages), exc.messages
             np.testing.assert_array_equal(_observer_outputs(fmu), before)
@@ -256,19 +268,8 @@ def test_a_bad_mode_is_refused_with_an_error_and_a_log_line(built, key):
             assert after_state.pop("mode") == bad                       # the input as set, nothing else
             assert after_state == {k: v for k, v in before_state.items() if k != "mode"}
         got = _drive(fmu, tuple(v[5:] for v in inputs), t, h)
-    for y, u, mode in zip(*(v[:5] for v in inputs)):
-        rt.set_y(y)
-        rt.set_u(u)
-        rt.set_mode(int(mode))
-        rt.step(h)
-    want = []
-    for y, u, mode in zip(*(v[5:] for v in inputs)):
-        rt.set_y(y)
-        rt.set_u(u)
-        rt.set_mode(int(mode))
-        want.append(_observer_outputs(rt).copy())
-        rt.step(h)
-    np.testing.assert_array_equal(got, np.array(want))
+    _run(rt, tuple(v[:5] for v in inputs), h)
+    np.testing.assert_array_equal(got, _run(rt, tuple(v[5:] for v in inputs), h))
 
 
 def test_a_bad_mode_prev0_stops_the_observer_with_a_log_line(built):
@@ -276,10 +277,10 @@ def test_a_bad_mode_prev0_stops_the_observer_with_a_log_line(built):
     N, h = card.schedule["modes"], card.schedule["dt"]
     for bad in (0, N + 1):
         with Fmu(path, "observer") as fmu:
-            exc = _call_error(fmu.initialize, 0.0, {"mode_prev0": [bad]})
+            exc = call_error(fmu.initialize, 0.0, {"mode_prev0": [bad]})
             assert exc.status == 3 and exc.function == "fmi2ExitInitializationMode", exc
             assert any(f"mode_prev0 = {bad} " in m and f"from 1 to {N}" in m for m in exc.messages), exc.messages
-            exc = _call_error(fmu.step, 0.0, h)
+            exc = call_error(fmu.step, 0.0, h)
             assert exc.status == 3 and any("phase 'invalid'" in m for m in exc.messages), exc.messages
             assert np.all(np.isfinite(fmu.get("xhat")))              # still alive
 
@@ -304,7 +305,7 @@ def test_real_and_integer_accesses_of_the_wrong_type_are_refused(built):
             (("setInteger", [mode_prev0], [2]), "parameter mode_prev0[1] (value reference"),
         ]
         for (function, *args), text in cases:
-            exc = _call_error(fmu._call, function, *args)
+            exc = call_error(fmu._call, function, *args)
             assert exc.status == 3 and any(text in m for m in exc.messages), (function, exc.messages)
         assert fmu.get("mode").tolist() == [2.0] and fmu.get("mode_prev0").tolist() == [1.0]
         inputs = _observer_inputs(card, 5, seed=2)
@@ -321,20 +322,9 @@ def test_state_save_restore_and_serialisation_are_bit_exact_with_the_previous_mo
     inputs = _observer_inputs(card, 50, seed=13)
     first, rest = tuple(v[:30] for v in inputs), tuple(v[30:] for v in inputs)
     with Fmu(path, "a") as a, Fmu(path, "b") as b:
-        a.initialize(0.0)
-        b.initialize(0.0)
-        _drive(a, first, 0.0, h)
-        state = a.get_state()
-        blob = a.serialize(state)
+        state, blob, _ = check_state_round_trip(a, b, _drive, first, rest, h)
         saved = json.loads(blob)["model"]["runtime"]
         assert saved["k"] == 30 and saved["mode_prev"] == int(first[2][-1]) and saved["mode"] == saved["mode_prev"]
-        once = _drive(a, rest, 30 * h, h)
-        a.set_state(state)
-        assert a.serialize(a.get_state()) == blob
-        np.testing.assert_array_equal(_drive(a, rest, 30 * h, h), once)
-        b.set_state(b.deserialize(blob))
-        assert b.serialize(b.get_state()) == blob
-        np.testing.assert_array_equal(_drive(b, rest, 30 * h, h), once)
 
         doc = json.loads(blob)
         other = saved["mode_prev"] % N + 1
@@ -350,7 +340,7 @@ def test_state_save_restore_and_serialisation_are_bit_exact_with_the_previous_mo
 
         before = b.serialize(b.get_state())
         doc["model"]["runtime"]["mode_prev"] = N + 1
-        exc = _call_error(b.set_state, b.deserialize(json.dumps(doc).encode()))
+        exc = call_error(b.set_state, b.deserialize(json.dumps(doc).encode()))
         assert exc.status == 3 and any("mode_prev" in m for m in exc.messages), exc.messages
         assert b.serialize(b.get_state()) == before
 
@@ -430,7 +420,7 @@ def test_input_rule_plant_refuses_a_bad_mode(built):
         before = fmu.get("x")
         for bad in (0, N + 1):
             fmu.set("mode", [bad])
-            exc = _call_error(fmu.step, 0.0, h)
+            exc = call_error(fmu.step, 0.0, h)
             assert exc.status == 3 and any(f"mode = {bad} " in m and f"from 1 to {N}" in m for m in exc.messages)
             np.testing.assert_array_equal(fmu.get("x"), before)
         fmu.set("mode", [3])
@@ -444,7 +434,7 @@ def test_random_plant_state_carries_the_generator_and_mode_is_an_output(built):
         fmu.initialize(0.0)
         other.initialize(0.0)
         mode = fmu.refs("mode")[0]
-        exc = _call_error(fmu._call, "setInteger", [mode], [1])
+        exc = call_error(fmu._call, "setInteger", [mode], [1])
         assert exc.status == 3 and any("is an output: fmi2SetInteger on it is not allowed" in m for m in exc.messages)
 
         def run(f, t0):
@@ -463,44 +453,11 @@ def test_random_plant_state_carries_the_generator_and_mode_is_an_output(built):
 
 
 # -- a second importer ----------------------------------------------------------------------------------------
-class TableInputs:
-    """Inputs held per communication step from arrays (the master's and ecospy's input source).
-
-    Parameters
-    ----------
-    h : float
-        The communication step.
-    table : dict of str to ndarray
-        ``{name: values}``, one row per communication point t_k = k h.
-    """
-
-    def __init__(self, h: float, table: dict):
-        self.h, self.table = h, table
-        self.sizes = {name: values.shape[1] for name, values in table.items()}
-
-    def values(self, t: float) -> dict:
-        """The rows of the communication point nearest to ``t``."""
-        k = min(int(round(t / self.h)), len(next(iter(self.table.values()))) - 1)
-        return {name: values[k] for name, values in self.table.items()}
-
-
-@pytest.fixture(scope="module")
-def ecospy():
-    """ecospy, with a precise message when its native library cannot load."""
-    try:
-        import ecospy
-    except OSError as exc:  # libecosc.so: libtbb.so.12: cannot open shared object file
-        pytest.fail(f"ecospy's native library does not load ({exc}); install libtbb12: apt-get install -y libtbb12")
-    return ecospy
-
-
 @pytest.mark.parametrize("rule, key", [("threshold", "setup2"), ("input", "three")])
-def test_ecospy_runs_the_switched_loop_equal_to_our_master(ecospy, built, rule, key):
+def test_ecospy_runs_the_switched_loop_equal_to_our_master(built, rule, key):
     """ecospy connects the plant's Integer ``mode`` to the observer's (rule threshold) or sets both
     from the input source (rule input), with a bounded random unknown input; the histories equal
     our master's, and the dead-beat observer of setup 2 has no error after one step."""
-    from uiofmu.cosim.master import cosimulate
-
     plant_problem, _, plant = built("plant", rule)
     _, card, observer = built("obs", key)
     h, K = card.schedule["dt"], 40
@@ -509,17 +466,8 @@ def test_ecospy_runs_the_switched_loop_equal_to_our_master(ecospy, built, rule, 
     table = {"u": rng.normal(size=(K + 1, p.m)), "d": rng.uniform(-1.0, 1.0, size=(K + 1, p.q))}
     if rule == "input":
         table["mode"] = rng.integers(1, p.N + 1, size=(K + 1, 1)).astype(float)
-    inputs = TableInputs(h, table)
-    ours = cosimulate(plant, observer, np.full(K, h), inputs, show_progress=False)
-    theirs = run_ecospy(plant, observer, h, K * h, inputs)
-    fed = ["y", "mode"] if rule == "threshold" else ["y"]
-    assert theirs.connections == [(f"plant::{n}[{i + 1}]", f"observer::{n}[{i + 1}]") for n in fed
-                                  for i in range(p.p if n == "y" else 1)]
-    np.testing.assert_array_equal(theirs.times, ours.times)
-    for name in ("x", "xhat"):
-        a, b = getattr(theirs, name), getattr(ours, name)
-        scale = max(float(np.max(np.abs(b))), 1e-300)
-        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * scale, err_msg=f"{rule}: {name}")
+    fed = {"y": p.p, "mode": 1} if rule == "threshold" else {"y": p.p}
+    ours, theirs = ecospy_equals_master(plant, observer, h, K, TableInputs(h, table), fed=fed, what=rule)
     modes = (1 + (ours.x[:-1, 0] >= 6.0)) if rule == "threshold" else table["mode"][:-1, 0]
     assert set(modes.astype(int)) == set(range(1, p.N + 1)), modes
     if key == "setup2":

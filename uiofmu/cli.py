@@ -121,7 +121,8 @@ def _cmd_plant(args) -> int:
     backend, note = choose_backend(problem.plant, args.backend)
     if note:
         print(f"{problem.name}: note: {note}")
-    path = build_plant(problem.plant, problem.name, out, step=problem.options.step, backend=backend)
+    path = build_plant(problem.plant, problem.name, out, step=problem.options.step, backend=backend,
+                       experiment_steps=problem.experiment_steps)
     print(f"{problem.name}: {problem.plant.time} {plant_kind(problem.plant)} FMU ({backend} backend) written to {path}")
     return 0
 
@@ -217,9 +218,39 @@ def _cmd_cosim(args) -> int:
     steps = step_sequence(spec, t_end, seed=args.seed)
     inputs = load_inputs(args.inputs, args.plant, args.observer) if args.inputs else None
     result = cosimulate(args.plant, args.observer, steps, inputs)
-    paths = write_outputs(result, args.out, title=f"{card.name}: {card.family} observer, steps {spec}")
+    paths = write_outputs(result, args.out, title=f"{card.name}: {card.family} observer, steps {spec}",
+                          report=not args.no_report)
     print(f"{card.name}: co-simulation of {Path(args.observer).name} against {Path(args.plant).name}")
     print_summary(result.metrics, paths)
+    return 0
+
+
+def _cmd_campaign(args) -> int:
+    from .cosim.campaign import load_campaign, replay, run_campaign
+
+    campaign = load_campaign(args.spec)
+    check_output_dir(args.out, "--out folder")
+    if args.replay is not None:
+        rep = replay(campaign, args.out, args.replay)
+        print(f"{args.spec}: row {args.replay} replayed ({rep['scenario']['steps']}, seed "
+              f"{rep['scenario']['steps_seed']}): {rep['status']}" + (f" ({rep['reason']})" if rep["reason"] else ""))
+        if rep["metrics"] is not None:
+            print_summary(rep["metrics"], rep["paths"])
+        if rep["matches"] is not None:
+            print("  campaign row         " + ("reproduced bit for bit" if rep["matches"] else "DIFFERS"))
+        return 0 if rep["matches"] is not False else 1
+    print(f"{args.spec}: campaign of {campaign.runs} runs")
+    data = run_campaign(campaign, args.out, workers=args.workers, scheduler=args.scheduler, say=print)
+    print(f"  finished             {data['finished']} runs in {data['elapsed_s']:.1f} s "
+          f"({data['runs_per_s']:.2f} runs/s), {data['failures']} failure(s)")
+    worst = data.get("worst_max_bound_ratio")
+    if worst:
+        print(f"  worst bound ratio    {worst['value']:.6g} (row {worst['row']}, steps {worst['scenario']['steps']})")
+    for entry in data["failure_reasons"][:3]:
+        print(f"  {entry['count']:>6} x {entry['status']:<8} {entry['reason'][:160]}")
+    print(f"  table                {Path(args.out) / 'campaign.csv'}")
+    print(f"  summary              {Path(args.out) / 'summary.json'}")
+    print(f"  figure               {Path(args.out) / 'campaign.png'}")
     return 0
 
 
@@ -381,7 +412,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_count(0), default=0, help="seed of random step kinds (default 0)")
     p.add_argument("--inputs", metavar="CSV", help="input table instead of the problem's [signals]")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--no-report", action="store_true",
+                   help="do not draw DIR/report.png (saves matplotlib's import and the drawing)")
     p.set_defaults(func=_cmd_cosim)
+
+    p = sub.add_parser("campaign", help="many co-simulations on Dask: sampled scenarios, worst case, quantiles",
+                       description="Run a validation campaign (a TOML file: the FMUs or a problem, the runs, "
+                                   "the axes to sample; see README, Campaigns) on Dask: a LocalCluster of worker "
+                                   "processes or an existing scheduler. Writes DIR/campaign.csv (one row per run), "
+                                   "DIR/summary.json and DIR/campaign.png; --replay ROW re-runs one row alone into "
+                                   "DIR/row-ROW and checks it against the table.")
+    p.add_argument("spec", metavar="SPEC.toml", help="campaign file")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_count(1), metavar="N",
+                       help="worker processes of a new LocalCluster (default: the number of CPUs)")
+    where.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler (tcp://host:8786)")
+    p.add_argument("--replay", type=_count(0), metavar="ROW", help="re-run only this row")
+    p.set_defaults(func=_cmd_campaign)
 
     p = sub.add_parser("validate", help="fmpy's validate_fmu plus a self-test against the reference runtime",
                        description="Check an FMU built by uiofmu: fmpy's validate_fmu must report nothing, then "

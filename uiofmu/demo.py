@@ -53,7 +53,8 @@ def run_demo(out, say=print) -> dict:
         f"{card.data['search']['solves']} solve(s) in {time.perf_counter() - t0:.2f} s, certificate "
         f"{'verified' if cert['verified'] else 'NOT verified'}")
     obs = build_observer(card, out / "observer.fmu")
-    plant = build_plant(problem.plant, problem.name, out / "plant.fmu", step=problem.options.step)
+    plant = build_plant(problem.plant, problem.name, out / "plant.fmu", step=problem.options.step,
+                        experiment_steps=problem.experiment_steps)
     say(f"  FMUs                 {obs}, {plant}")
     steps = step_sequence(DEMO_STEPS, DEMO_T_END, seed=DEMO_SEED)
     result = cosimulate(plant, obs, steps)

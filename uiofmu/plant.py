@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import expm
 
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_matrix, as_scalar, as_vector, freeze
@@ -50,6 +49,8 @@ def discretize(A: np.ndarray, inputs: np.ndarray, h: float) -> tuple[np.ndarray,
     Gd : (n, k) array
         ``integral_0^h exp(A s) ds @ inputs``.
     """
+    from scipy.linalg import expm        # here, not at import: reading a card needs no scipy
+
     n, k = inputs.shape
     aug = np.zeros((n + k, n + k))
     aug[:n, :n] = A

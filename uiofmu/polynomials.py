@@ -119,34 +119,43 @@ class PolyMatrix:
         return out
 
 
-def stack(blocks: list) -> PolyMatrix:
-    """Block rows on top of each other (equal numbers of columns)."""
-    cols = blocks[0].shape[1]
-    rows = sum(b.shape[0] for b in blocks)
+def _concat(blocks: list, axis: int) -> PolyMatrix:
+    """Blocks joined along ``axis``, monomial by monomial (a block without a monomial contributes zeros).
+
+    Parameters
+    ----------
+    blocks : list of PolyMatrix
+        Equal in size along the other axis.
+    axis : int
+        0: on top of each other; 1: side by side.
+
+    Returns
+    -------
+    PolyMatrix
+    """
+    shape = list(blocks[0].shape)
+    shape[axis] = sum(b.shape[axis] for b in blocks)
     out: dict = {}
-    r = 0
+    start = 0
     for b in blocks:
+        part = [slice(None), slice(None)]
+        part[axis] = slice(start, start + b.shape[axis])
         for m, c in b.coeffs.items():
             if m not in out:
-                out[m] = np.zeros((rows, cols))
-            out[m][r:r + b.shape[0]] = c
-        r += b.shape[0]
-    return PolyMatrix((rows, cols), out)
+                out[m] = np.zeros(shape)
+            out[m][tuple(part)] = c
+        start += b.shape[axis]
+    return PolyMatrix(tuple(shape), out)
+
+
+def stack(blocks: list) -> PolyMatrix:
+    """Block rows on top of each other (equal numbers of columns)."""
+    return _concat(blocks, 0)
 
 
 def hstack(blocks: list) -> PolyMatrix:
     """Blocks side by side (equal numbers of rows)."""
-    rows = blocks[0].shape[0]
-    cols = sum(b.shape[1] for b in blocks)
-    out: dict = {}
-    c0 = 0
-    for b in blocks:
-        for m, c in b.coeffs.items():
-            if m not in out:
-                out[m] = np.zeros((rows, cols))
-            out[m][:, c0:c0 + b.shape[1]] = c
-        c0 += b.shape[1]
-    return PolyMatrix((rows, cols), out)
+    return _concat(blocks, 1)
 
 
 def shifted(P: PolyMatrix, lag: int) -> PolyMatrix:

@@ -23,6 +23,8 @@ from .signals import Signal, parse_signals
 from .runtime.text import MAX_NAME, check_name
 
 _MISSING = object()
+#: Longest default experiment a problem file may ask for, in communication steps.
+MAX_STEPS = 100_000
 
 class Table:
     """Read one TOML table key by key; :meth:`done` rejects the keys nobody read.
@@ -109,6 +111,10 @@ class Problem:
         The family's frozen options (see the family module).
     u, d : tuple of Signal
         Default co-simulation inputs per channel.
+    experiment_steps : int or None
+        ``[experiment] steps``: the length of the FMUs' default experiments and of a default
+        co-simulation, in communication steps (for plants that cannot run the default length, e.g. an
+        unstable nonlinear one); None for the defaults.
     mode : tuple of Signal
         The mode of a switched plant whose rule is ``input`` (one signal, rounded to the nearest
         integer at each communication point), or empty.
@@ -128,6 +134,7 @@ class Problem:
     data: dict
     mode: tuple[Signal, ...] = ()
     theta: tuple[Signal, ...] = ()
+    experiment_steps: int | None = None
 
 
 def _model_name(name: str) -> str:
@@ -204,8 +211,13 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
                                "the signals")
         theta = parse_signals(st.get("theta"), "signals.theta", plant.s)
     st.done()
+    et = Table(top.get("experiment", {}), "experiment")
+    steps = et.get("steps", None)
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= MAX_STEPS):
+        raise ProblemError(f"experiment.steps: expected an integer from 1 to {MAX_STEPS}, found {repr(steps)[:40]}")
+    et.done()
     top.done()
-    return Problem(_model_name(name), plant, family, options, u, d, copy.deepcopy(data), mode, theta)
+    return Problem(_model_name(name), plant, family, options, u, d, copy.deepcopy(data), mode, theta, steps)
 
 
 def _available() -> list[str]:

@@ -35,8 +35,12 @@ class Term:
     kind: str
     params: tuple
 
+    def __post_init__(self):
+        # the parameters as a dict, built once (a frozen dataclass: set past its __setattr__)
+        object.__setattr__(self, "_p", dict(self.params))
+
     def __call__(self, t: float) -> float:
-        p = dict(self.params)
+        p = self._p
         if self.kind == "constant":
             return p["value"]
         if self.kind == "sine":
@@ -44,8 +48,30 @@ class Term:
         if self.kind == "step":
             return p["value"] if t >= p["time"] else p["initial"]
         index = int(math.floor(t / p["hold"] + 1e-9))
-        draw = np.random.default_rng([int(p["seed"]), max(index, 0)]).standard_normal()
-        return p["mean"] + p["std"] * float(draw)
+        return p["mean"] + p["std"] * _draw(p["seed"], index)
+
+    def at(self, times: np.ndarray) -> np.ndarray:
+        """The term at every time of a float array, bit for bit what :meth:`__call__` gives at each
+        (the same IEEE operations elementwise; ``sin`` from :mod:`math`; one draw per hold interval)."""
+        times = np.asarray(times, dtype=float)
+        p = self._p
+        if self.kind == "constant":
+            return np.full(times.shape, p["value"], dtype=float)
+        if self.kind == "sine":
+            phase = p["omega"] * times + p["phase"]
+            sines = np.fromiter(map(math.sin, phase.ravel().tolist()), dtype=float, count=phase.size)
+            return p["amplitude"] * sines.reshape(times.shape) + p["offset"]
+        if self.kind == "step":
+            return np.where(times >= p["time"], float(p["value"]), float(p["initial"]))
+        index = np.floor(times / p["hold"] + 1e-9)
+        keys, inverse = np.unique(index, return_inverse=True)
+        draws = np.array([_draw(p["seed"], int(i)) for i in keys.tolist()], dtype=float)
+        return p["mean"] + p["std"] * draws[inverse.reshape(times.shape)]
+
+
+def _draw(seed: float, index: int) -> float:
+    """The Gaussian draw of a random term for its hold interval ``index`` (0 before t = 0)."""
+    return float(np.random.default_rng([int(seed), max(index, 0)]).standard_normal())
 
 
 @dataclass(frozen=True)
@@ -55,7 +81,19 @@ class Signal:
     terms: tuple[Term, ...] = ()
 
     def __call__(self, t: float) -> float:
-        return float(sum(term(t) for term in self.terms))
+        total = 0.0                       # left to right, as sum() does on Python 3.11 and :meth:`at` does
+        for term in self.terms:
+            total += term(t)
+        return float(total)
+
+    def at(self, times) -> np.ndarray:
+        """The signal at every time of a float array, bit for bit ``[self(t) for t in times]``
+        (the terms summed left to right from zero, as :func:`sum` does)."""
+        times = np.asarray(times, dtype=float)
+        total = np.zeros(times.shape)
+        for term in self.terms:
+            total = total + term.at(times)
+        return total
 
 
 def parse_term(table, name: str) -> Term:

@@ -16,6 +16,7 @@ import shutil
 import tempfile
 import weakref
 import zipfile
+import ctypes
 from ctypes import byref
 from functools import lru_cache
 from pathlib import Path
@@ -77,6 +78,9 @@ def read_model_json(path) -> dict:
         raise FmuError(f"{path}: resources/model.json is not a uiofmu model")
     return spec
 
+
+#: fmpy's exception for a failed call (bound when the first FMU is loaded: fmpy is imported lazily).
+_FMPY_ERROR: list = [Exception]
 
 _INSTANCES: "weakref.WeakValueDictionary[int, Fmu]" = weakref.WeakValueDictionary()
 _KEYS = itertools.count(1)
@@ -155,7 +159,10 @@ class Fmu:
         from fmpy import calloc, extract, free, read_model_description
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                                fmi2CallbackFunctions)
+        from fmpy.fmi1 import FMICallException
         from fmpy.logging import addLoggerProxy
+
+        _FMPY_ERROR[0] = FMICallException
 
         self.path = Path(path)
         if not self.path.is_file():
@@ -204,13 +211,29 @@ class Fmu:
 
     # -- calls -------------------------------------------------------------------------
     def _call(self, function: str, *args):
-        from fmpy.fmi1 import FMICallException
-
         start = len(self.messages)
         try:
             return getattr(self.slave, function)(*args)
-        except FMICallException as exc:
+        except _FMPY_ERROR[0] as exc:
             raise FmuCallError(exc.function, exc.status, self.messages[start:]) from None
+
+    def function(self, name: str):
+        """fmpy's ctypes function of the binary's ``fmi2...`` function ``name`` (its argument types
+        set by fmpy; it returns the FMI status), for a master's loop on preallocated buffers."""
+        function = getattr(self.slave.dll, name)
+        if function.argtypes is None:        # fmpy sets them all when it loads the binary
+            raise FmuError(f"{self.path}: fmpy did not load {name}")
+        return function
+
+    @property
+    def component(self):
+        """The instance's fmi2Component (an address)."""
+        return self.slave.component
+
+    def value_references(self, names) -> "ctypes.Array":
+        """The value references of the vectors ``names``, concatenated, as an fmi2ValueReference array."""
+        refs = [r for name in names for r in self.refs(name)]
+        return (ctypes.c_uint * len(refs))(*refs)
 
     def refs(self, name: str) -> list[int]:
         """Value references of the vector ``name[1..k]`` (empty when the FMU has none)."""

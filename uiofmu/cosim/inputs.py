@@ -37,6 +37,13 @@ class SignalInputs:
         """``{"u": u(t), "d": d(t)}`` (and ``"mode"``)."""
         return {name: np.array([s(t) for s in signals]) for name, signals in self.signals.items()}
 
+    def values_at(self, times) -> dict:
+        """Every vector at every time at once, ``{name: array (len(times), size)}``; row k is bit for
+        bit ``values(times[k])``."""
+        times = np.asarray(times, dtype=float)
+        return {name: (np.stack([s.at(times) for s in signals], axis=1) if signals else np.zeros((times.size, 0)))
+                for name, signals in self.signals.items()}
+
 
 class CsvInputs:
     """Inputs from a CSV table, each row held from its time on.
@@ -111,3 +118,22 @@ class CsvInputs:
         """Every vector of the table at time t."""
         row = self._row(t)
         return {k: v[row].copy() for k, v in self.tables.items()}
+
+    def values_at(self, times) -> dict:
+        """Every vector at every time at once (row k is ``values(times[k])``)."""
+        times = np.asarray(times, dtype=float)
+        rows = np.searchsorted(self.times, times + 1e-12 * np.maximum(1.0, np.abs(times)), side="right") - 1
+        rows = np.maximum(rows, 0)
+        return {k: v[rows] for k, v in self.tables.items()}
+
+
+def values_at(inputs, times) -> dict:
+    """The vectors of an input source at every time, ``{name: array (len(times), size)}``: its own
+    ``values_at`` when it has one, else ``values(t)`` at each time in turn (inputs are functions of
+    time: the master evaluates them for all its communication points before it steps)."""
+    if hasattr(inputs, "values_at"):
+        return inputs.values_at(times)
+    rows = [inputs.values(float(t)) for t in times]
+    names = rows[0].keys() if rows else inputs.sizes.keys()
+    return {name: np.array([np.ravel(np.asarray(r[name], dtype=float)) for r in rows]).reshape(len(rows), -1)
+            if rows else np.zeros((0, inputs.sizes[name])) for name in names}

@@ -12,9 +12,12 @@ true ``theta``, read from the plant FMU's parameter ``theta`` (the observer neve
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import ctypes
 import json
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,7 +27,7 @@ from ..runtime.errors import FmuError
 from ..runtime.files import atomic_output, check_output_dir, write_atomic
 from ..families import certified_bound
 from .fmi import Fmu, FmuCallError, read_model_json, vector_sizes
-from .inputs import CsvInputs, SignalInputs
+from .inputs import CsvInputs, SignalInputs, values_at
 from .metrics import delayed_metrics, error_metrics, functional_metrics
 from ..progress import progress
 from ..runtime.observer import Runtime
@@ -51,6 +54,7 @@ class CosimResult:
     mode: np.ndarray | None = None
     functional: dict | None = None
     delayed: dict | None = None
+    timing: dict = field(default_factory=dict)
 
     def columns(self) -> dict:
         """Named columns for ``results.csv``."""
@@ -109,7 +113,8 @@ def default_inputs(card: Card):
 
 
 def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, plant_x0=None, xhat0=None,
-               plant_parameters: dict | None = None, show_progress: bool | None = None) -> CosimResult:
+               plant_parameters: dict | None = None, show_progress: bool | None = None,
+               instances=None, card: Card | None = None) -> CosimResult:
     """Run the plant and observer FMUs together on the given communication steps.
 
     Parameters
@@ -123,7 +128,9 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
     steps : array_like
         Step lengths h_0, h_1, ... (see :func:`uiofmu.cosim.steps.step_sequence`).
     inputs : object, optional
-        Has ``u(t)`` and ``d(t)``; by default the signals of the observer's problem.
+        Has ``sizes`` and ``values(t)`` (and ``values_at(times)`` for all points at once); by default
+        the signals of the observer's problem. Inputs are functions of time: they are evaluated for
+        every communication point before the first step.
     plant_x0, xhat0 : array_like, optional
         Override the plant's initial state and the observer's initial estimate.
     plant_parameters : dict, optional
@@ -132,22 +139,44 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         the plant simulates them and the metrics compare ``thetahat`` with them).
     show_progress : bool, optional
         Progress bar (default: when stderr is a terminal).
+    instances : (Fmu, Fmu), optional
+        The plant and observer already loaded (:class:`uiofmu.cosim.fmi.Fmu` of these paths), for many
+        runs in one process: each run starts with ``fmi2Reset`` on both instead of loading them
+        again, and leaves them open (a campaign's worker keeps them for all its runs).
+    card : Card, optional
+        The observer's card, already read and re-checked (:func:`observer_card`) for these runs.
 
     Returns
     -------
     CosimResult
+        Its ``timing`` holds the CPU seconds of the run (``total``; ``steps``: from the initialised
+        FMUs to the histories, inputs included; ``loop``: the stepping alone) and ``fmi_calls_per_step``.
 
     Raises
     ------
     FmuError
         When an FMU refuses a call, naming the FMU, the time, the step and its message.
+
+    Notes
+    -----
+    The loop makes one ``fmi2SetReal`` and one ``fmi2GetReal`` (and ``fmi2SetInteger``,
+    ``fmi2GetInteger`` where an FMU has Integer ports) per FMU and step, through fmpy's ctypes
+    functions on value references resolved once and buffers allocated once: the plant writes its
+    outputs into the same memory the observer reads its inputs from.
     """
-    card = observer_card(observer_path)
+    cpu0 = time.process_time()
+    card = observer_card(observer_path) if card is None else card
     if inputs is None:
         inputs = default_inputs(card)
     steps = np.asarray(steps, dtype=float)
     K = len(steps)
-    with Fmu(plant_path, "plant") as plant, Fmu(observer_path, "observer") as obs:
+    if instances is not None:
+        for fmu in instances:
+            fmu.reset()
+    with contextlib.ExitStack() as stack:
+        # loaded here are closed here, also when the second fails to load; given ones stay open
+        plant, obs = instances or (stack.enter_context(Fmu(plant_path, "plant")),
+                                   stack.enter_context(Fmu(observer_path, "observer")))
         if not plant.has("x"):
             raise FmuError(f"{plant_path}: the plant FMU has no x[...] outputs; the error needs the true state")
         fed, sourced = routes(plant, obs, inputs.sizes)
@@ -155,46 +184,36 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         obs.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
         # the true parameters of a plant with unknown ones, as the plant FMU simulates them
         theta_true = plant.get("theta") if "theta" in plant.ports("parameter") else None
+        cpu1 = time.process_time()
+        T = communication_points(steps)
+        plant_inputs = list(plant.ports("input"))
+        source = values_at(inputs, T)
+        loop = _Loop(plant, obs, plant_inputs, fed, sourced, ["y", "x"], list(obs.ports("output")), source, K)
+        cpu2 = time.process_time()
+        with progress(total=K, desc="co-simulation", unit="step", enabled=show_progress) as bar:
+            loop.run(T.tolist(), steps.tolist(), bar)
+        cpu3 = time.process_time()
         n, p = len(plant.refs("x")), len(plant.refs("y"))
         m, q = len(plant.refs("u")), len(plant.refs("d"))
-        T = np.zeros(K + 1)
         X, Y = np.zeros((K + 1, n)), np.zeros((K + 1, p))
         U, D = np.zeros((K + 1, m)), np.zeros((K + 1, q))
+        X[:], Y[:] = loop.plant_history("x"), loop.plant_history("y")
+        if "u" in source:
+            U[:] = source["u"]
+        if "d" in source:
+            D[:] = source["d"]
         H = {name: np.zeros((K + 1, size)) for name, size in obs.ports("output").items()}
-        plant_inputs = list(plant.ports("input"))
-        MODE = np.zeros(K + 1) if obs.has("mode") else None
-        t = 0.0
-        with progress(total=K, desc="co-simulation", unit="step", enabled=show_progress) as bar:
-            for k in range(K + 1):
-                values = inputs.values(t)
-                for name in plant_inputs:
-                    plant.set(name, values[name])
-                for name in fed:
-                    obs.set(name, plant.get(name))
-                for name in sourced:
-                    obs.set(name, values[name])
-                y = plant.get("y")
-                T[k], X[k], Y[k] = t, plant.get("x"), y
-                if MODE is not None:
-                    MODE[k] = (plant.get("mode") if "mode" in fed else np.round(values["mode"]))[0]
-                U[k], D[k] = values.get("u", U[k]), values.get("d", D[k])
-                for name, history in H.items():
-                    history[k] = obs.get(name)
-                if k == K:
-                    break
-                h = steps[k]
-                for who, fmu in (("observer", obs), ("plant", plant)):
-                    try:
-                        fmu.step(t, h)
-                    except FmuCallError as exc:
-                        raise FmuError(f"the {who} FMU refused step {k} (t = {t:g} s, h = {h:g} s): "
-                                       + (exc.messages[-1] if exc.messages else str(exc))) from None
-                t = float(np.sum(steps[:k + 1])) if k % 1024 == 1023 else t + h
-                bar.update()
+        for name, history in H.items():
+            history[:] = loop.observer_history(name)
+        MODE = None
+        if obs.has("mode"):
+            MODE = loop.plant_history("mode")[:, 0].copy() if "mode" in fed else np.round(source["mode"])[:, 0]
+        cpu4 = time.process_time()
+    timing = {"steps": cpu4 - cpu1, "loop": cpu3 - cpu2, "fmi_calls_per_step": loop.calls_per_step}
     if card.kernel == "window":
-        return _functional_result(card, T, steps, X, Y, U, D, H, MODE)
+        return _timed(_functional_result(card, T, steps, X, Y, U, D, H, MODE), timing, cpu0)
     if card.kernel == "delayed":
-        return _delayed_result(card, T, steps, X, Y, U, D, H, theta_true)
+        return _timed(_delayed_result(card, T, steps, X, Y, U, D, H, theta_true), timing, cpu0)
     XH, R = H["xhat"], H["r"]
     DH = H.get("dhat", np.zeros((K + 1, 0)))
     nq = DH.shape[1]
@@ -213,7 +232,227 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         result.metrics["modes"] = {"switches": int(np.count_nonzero(np.diff(MODE[:-1]))),
                                    "steps_in_mode": {str(int(i)): int(np.count_nonzero(MODE[:-1] == i))
                                                      for i in np.unique(MODE[:-1])}}
+    return _timed(result, timing, cpu0)
+
+
+def _timed(result: CosimResult, timing: dict, cpu0: float) -> CosimResult:
+    result.timing = {"total": time.process_time() - cpu0, **timing}
     return result
+
+
+def communication_points(steps) -> np.ndarray:
+    """The communication points t_0 = 0, t_1, ..., t_K of the steps: each the previous plus its step,
+    re-summed from zero every 1024 steps (so round-off does not pile up over long runs)."""
+    steps = np.asarray(steps, dtype=float)
+    times = np.zeros(len(steps) + 1)
+    for a in range(0, len(steps), 1024):          # add.accumulate adds in order: ((t + h_a) + h_a+1) + ...
+        b = min(a + 1024, len(steps))
+        times[a:b] = np.add.accumulate(np.concatenate([times[a:a + 1], steps[a:b - 1]]))
+        if b % 1024 == 0:
+            times[b] = float(np.sum(steps[:b]))
+        else:
+            times[b] = times[b - 1] + steps[b - 1]
+    return times
+
+
+#: Steps between two progress updates.
+CHUNK = 256
+
+_DTYPES = {"Real": np.float64, "Integer": np.intc}
+
+#: fmi2Status fmi2{Set,Get}{Real,Integer}(fmi2Component, const fmi2ValueReference*, size_t, values*), with the
+#: pointers passed as addresses (into the loop's buffers: no ctypes array per row).
+_VALUES_FUNCTION = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p)
+
+
+class _Loop:
+    """The co-simulation loop on buffers allocated once, with one call per FMU, direction and type.
+
+    For each type (Real, Integer) a matrix with a row per communication point holds, side by side,
+    the plant's inputs, the observer's inputs from the source, the plant outputs the observer takes
+    and the plant's other recorded outputs, so that each call of a step reads or writes one contiguous
+    slice of the point's row (the plant writes what the observer then reads, in the same memory)::
+
+        | plant inputs | observer's source inputs | plant outputs fed to the observer | other plant outputs |
+        '- plant set --'------------- observer set ---------------------------------'
+                                                  '------------------ plant get ----------------------'
+
+    The source's values fill their columns for all points before the first step; the observer's
+    outputs have matrices of their own; the matrices are the histories. A vector the two FMUs type
+    differently (Real on one, Integer on the other) sits with the plant's outputs and is converted
+    into the observer's columns at each step, as :meth:`Fmu.set` would.
+    """
+
+    def __init__(self, plant: Fmu, obs: Fmu, plant_inputs: list, fed: list, sourced: list, recorded: list,
+                 obs_outputs: list, source: dict, K: int):
+        self.K, self.keep = K, []
+        kind = {}
+        for fmu, who, names in ((plant, "plant", [*plant_inputs, *fed, *recorded]),
+                                (obs, "obs", [*fed, *sourced, *obs_outputs])):
+            kind.update({(who, n): "Integer" if fmu.integer(n) else "Real" for n in names})
+        shared = [n for n in fed if kind["plant", n] == kind["obs", n]]
+        converted = [n for n in fed if n not in shared]
+        gets = [*shared, *converted, *(n for n in recorded if n not in fed)]
+        self.plant_cols, self.obs_cols, self.buffers, calls, convert_into = {}, {}, {}, {}, {}
+        for t, dtype in _DTYPES.items():
+            blocks = [("plant set", plant, [n for n in plant_inputs if kind["plant", n] == t]),
+                      ("source", obs, [n for n in [*sourced, *converted] if kind["obs", n] == t]),
+                      ("fed", plant, [n for n in shared if kind["plant", n] == t]),
+                      ("other", plant, [n for n in gets if n not in shared and kind["plant", n] == t])]
+            edges, col, fill = [0], 0, []
+            for block, fmu, names in blocks:
+                for n in names:
+                    width = len(fmu.refs(n))
+                    if block in ("fed", "other"):
+                        self.plant_cols[n] = (t, col, width)
+                    elif block == "plant set" or n in sourced:
+                        fill.append((n, col, col + width))
+                    else:
+                        convert_into[n] = (t, col, width)
+                    col += width
+                edges.append(col)
+            W = np.zeros((K + 1, col), dtype=dtype)
+            for n, a, b in fill:
+                W[:, a:b] = source[n] if t == "Real" else _integers(source[n])
+            outs = [n for n in obs_outputs if kind["obs", n] == t]
+            O = np.zeros((K + 1, sum(len(obs.refs(n)) for n in outs)), dtype=dtype)
+            at = 0
+            for n in outs:
+                self.obs_cols[n] = (t, at, len(obs.refs(n)))
+                at += len(obs.refs(n))
+            self.buffers[t] = (W, O)
+            spans = {"plant set": (plant, blocks[0][2], W, 0),
+                     "observer set": (obs, blocks[1][2] + blocks[2][2], W, edges[1]),
+                     "plant get": (plant, blocks[2][2] + blocks[3][2], W, edges[2]),
+                     "observer get": (obs, outs, O, 0)}
+            for what, (fmu, names, buffer, first) in spans.items():
+                calls[what, t] = _call_entry(fmu, f"fmi2{'Set' if 'set' in what else 'Get'}{t}", names, buffer,
+                                             first, self.keep)
+        self.conversions = [(self.plant_cols[n], convert_into[n]) for n in converted]
+        if converted:     # called with the point's index as its "address" (base 0, stride 1)
+            calls["convert", "Real"] = (self._convert, None, None, None, 0, 1, [], "")
+        order = ["plant set", "plant get", "convert", "observer set", "observer get"]
+        self.calls = [calls[what, t] for what in order for t in _DTYPES if calls.get((what, t)) is not None]
+        self.steps = [(obs.function("fmi2DoStep"), obs.component, obs.messages),
+                      (plant.function("fmi2DoStep"), plant.component, plant.messages)]
+        self.calls_per_step = sum(1 for c in self.calls if c[1] is not None) + len(self.steps)
+
+    def _convert(self, component, refs, count, k) -> int:
+        """Copy the differently typed fed vectors of point ``k`` into the observer's columns."""
+        for (ts, a, width), (td, b, _) in self.conversions:
+            src, dst = self.buffers[ts][0][k], self.buffers[td][0][k]
+            for i in range(width):
+                v = float(src[a + i])
+                dst[b + i] = int(round(v)) if td == "Integer" else v
+        return 0
+
+    def run(self, times: list, steps: list, bar) -> None:
+        """Every communication point, :data:`CHUNK` steps between progress updates."""
+        K = self.K
+        run = _chunk4 if len(self.calls) == 4 and all(c[1] is not None for c in self.calls) else _chunk
+        for k0 in range(0, K + 1, CHUNK):
+            count = min(CHUNK, K + 1 - k0)
+            run(self.calls, self.steps, times, steps, k0, count, K)
+            bar.update(min(count, K - k0))
+
+    def plant_history(self, name: str) -> np.ndarray:
+        """The plant output ``name`` at every point, as floats (no columns when the plant has none)."""
+        if name not in self.plant_cols:
+            return np.zeros((self.K + 1, 0))
+        t, a, width = self.plant_cols[name]
+        return self.buffers[t][0][:, a:a + width].astype(float)
+
+    def observer_history(self, name: str) -> np.ndarray:
+        """The observer output ``name`` at every point, as floats."""
+        t, a, width = self.obs_cols[name]
+        return self.buffers[t][1][:, a:a + width].astype(float)
+
+
+def _integers(values: np.ndarray) -> np.ndarray:
+    """Source values as fmi2Integer, rounded as :meth:`Fmu.set` rounds them (``int(round(v))``)."""
+    ints = [int(round(float(v))) for v in np.ravel(values)]
+    return np.array(ints, dtype=np.int64).astype(np.intc).reshape(np.shape(values))
+
+
+def _call_entry(fmu: Fmu, function: str, names: list, buffer: np.ndarray, first: int, keep: list):
+    """One call of the loop: the binary's function (as :data:`_VALUES_FUNCTION`), the instance, the
+    address of the value references of ``names`` (the array appended to ``keep``, which holds it as long
+    as the loop lives) and where point k's values are: the address ``base + k * stride`` of column
+    ``first`` of row k of ``buffer``; None when the FMU has none of them."""
+    refs = fmu.value_references(names)
+    if not len(refs):
+        return None
+    keep.append(refs)
+    address = ctypes.cast(fmu.function(function), ctypes.c_void_p).value
+    base = buffer.ctypes.data + first * buffer.itemsize
+    return (_VALUES_FUNCTION(address), fmu.component, ctypes.addressof(refs), len(refs), base, buffer.strides[0],
+            fmu.messages, function)
+
+
+def _chunk(calls: list, steps_: list, times: list, steps: list, k0: int, count: int, K: int) -> None:
+    """Points k0 .. k0 + count - 1: the sets and gets of point k, then both doSteps (none at t_K).
+
+    Each call's status is checked: above fmi2Warning it raises :class:`FmuCallError` with the lines the
+    FMU logged during that call (a refused doStep an :class:`FmuError` naming the FMU, step and time).
+    """
+    (odo, oc, olog), (pdo, pc, plog) = steps_
+    for k in range(k0, k0 + count):
+        for function, component, refs, n, base, stride, log, name in calls:
+            start = len(log)
+            status = function(component, refs, n, base + k * stride)
+            if status > 1:
+                raise FmuCallError(name, status, log[start:]) from None
+        if k == K:
+            return
+        t, h = times[k], steps[k]
+        start = len(olog)
+        status = odo(oc, t, h, 1)
+        if status > 1:
+            raise _refused("observer", k, t, h, FmuCallError("fmi2DoStep", status, olog[start:]))
+        start = len(plog)
+        status = pdo(pc, t, h, 1)
+        if status > 1:
+            raise _refused("plant", k, t, h, FmuCallError("fmi2DoStep", status, plog[start:]))
+
+
+def _chunk4(calls: list, steps_: list, times: list, steps: list, k0: int, count: int, K: int) -> None:
+    """:func:`_chunk` unrolled for four calls a step (one set and one get per FMU, the common case)."""
+    (odo, oc, olog), (pdo, pc, plog) = steps_
+    (f1, c1, r1, n1, b1, s1, l1, m1), (f2, c2, r2, n2, b2, s2, l2, m2) = calls[0], calls[1]
+    (f3, c3, r3, n3, b3, s3, l3, m3), (f4, c4, r4, n4, b4, s4, l4, m4) = calls[2], calls[3]
+    for k in range(k0, k0 + count):
+        start = len(l1)
+        status = f1(c1, r1, n1, b1 + k * s1)
+        if status > 1:
+            raise FmuCallError(m1, status, l1[start:]) from None
+        start = len(l2)
+        status = f2(c2, r2, n2, b2 + k * s2)
+        if status > 1:
+            raise FmuCallError(m2, status, l2[start:]) from None
+        start = len(l3)
+        status = f3(c3, r3, n3, b3 + k * s3)
+        if status > 1:
+            raise FmuCallError(m3, status, l3[start:]) from None
+        start = len(l4)
+        status = f4(c4, r4, n4, b4 + k * s4)
+        if status > 1:
+            raise FmuCallError(m4, status, l4[start:]) from None
+        if k == K:
+            return
+        t, h = times[k], steps[k]
+        start = len(olog)
+        status = odo(oc, t, h, 1)
+        if status > 1:
+            raise _refused("observer", k, t, h, FmuCallError("fmi2DoStep", status, olog[start:]))
+        start = len(plog)
+        status = pdo(pc, t, h, 1)
+        if status > 1:
+            raise _refused("plant", k, t, h, FmuCallError("fmi2DoStep", status, plog[start:]))
+
+
+def _refused(who: str, k: int, t: float, h: float, exc: FmuCallError) -> FmuError:
+    return FmuError(f"the {who} FMU refused step {k} (t = {t:g} s, h = {h:g} s): "
+                    + (exc.messages[-1] if exc.messages else str(exc)))
 
 
 def _functional_result(card, T, steps, X, Y, U, D, H, MODE) -> CosimResult:
@@ -291,16 +530,14 @@ def routes(plant, obs, source: dict) -> tuple[list, list]:
     return fed, sourced
 
 
-def write_outputs(result: CosimResult, out_dir, title: str | None = None) -> dict:
-    """Write ``results.csv``, ``metrics.json`` and ``report.png`` into ``out_dir``.
+def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, report: bool = True) -> dict:
+    """Write ``results.csv``, ``metrics.json`` and (unless ``report`` is false) ``report.png`` into ``out_dir``.
 
     Returns
     -------
     dict
         The paths written.
     """
-    from .report import plot_report
-
     out = check_output_dir(out_dir, "output folder")
     cols = result.columns()
     with atomic_output(out / "results.csv", "results table") as part, open(part, "w", newline="") as f:
@@ -309,8 +546,12 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None) -> dic
         for row in zip(*cols.values()):
             w.writerow(["" if isinstance(v, float) and math.isnan(v) else repr(float(v)) for v in row])
     write_atomic(out / "metrics.json", json.dumps(result.metrics, indent=2) + "\n", "metrics")
-    plot_report(result, out / "report.png", title)
-    return {"results": out / "results.csv", "metrics": out / "metrics.json", "report": out / "report.png"}
+    paths = {"results": out / "results.csv", "metrics": out / "metrics.json"}
+    if report:
+        from .report import plot_report     # matplotlib only when a figure is drawn
+
+        paths["report"] = plot_report(result, out / "report.png", title)
+    return paths
 
 
 def load_inputs(csv_path, plant_path, observer_path=None):

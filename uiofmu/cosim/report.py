@@ -9,6 +9,130 @@ import numpy as np
 from ..runtime.files import atomic_output
 
 
+def _pyplot():
+    """matplotlib's pyplot on the Agg backend (no display needed) and the colours of its property cycle.
+
+    Returns
+    -------
+    plt : module
+        ``matplotlib.pyplot``.
+    colors : list of str
+        The colours of ``axes.prop_cycle``, in order.
+    """
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt, plt.rcParams["axes.prop_cycle"].by_key()["color"]
+
+
+def _panels(plt, rows: int, cols: int, figsize: tuple, shade):
+    """A figure of panels over one shared time axis, each shaded by ``shade`` and gridded.
+
+    Parameters
+    ----------
+    plt : module
+        ``matplotlib.pyplot``.
+    rows, cols : int
+        The panels' layout.
+    figsize : tuple of float
+        The figure's size in inches.
+    shade : callable
+        ``shade(ax)`` draws the stretches to shade on one panel (before anything else is drawn).
+
+    Returns
+    -------
+    fig : Figure
+    axes : ndarray of Axes
+    """
+    fig, axes = plt.subplots(rows, cols, figsize=figsize, sharex=True, constrained_layout=True)
+    for ax in axes.flat:
+        shade(ax)
+        ax.grid(alpha=0.3)
+    return fig, axes
+
+
+def _plot_states(ax, t, result, colors, title: str) -> None:
+    """The true states (solid) and their estimates (dashed) in one colour per component.
+
+    Parameters
+    ----------
+    ax : Axes
+    t : ndarray
+        The time axis.
+    result : CosimResult
+        Its ``x`` and ``xhat`` are drawn.
+    colors : list of str
+        The colours, cycled over the components.
+    title : str
+        The panel's title.
+    """
+    for i in range(result.x.shape[1]):
+        c = colors[i % len(colors)]
+        ax.plot(t, result.x[:, i], color=c, lw=1.6, label=f"x[{i + 1}]")
+        ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--", label=f"xhat[{i + 1}]")
+    ax.set_title(title)
+    ax.legend(ncol=2, fontsize=8)
+
+
+def _save(plt, fig, path, title: str | None) -> Path:
+    """Title the figure, write it as ``path`` (a PNG, atomically) and close it.
+
+    Parameters
+    ----------
+    plt : module
+        ``matplotlib.pyplot``.
+    fig : Figure
+    path : str or Path
+    title : str or None
+        The figure's title (none when empty).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    _thin_lines(fig)
+    if title:
+        fig.suptitle(title)
+    path = Path(path)
+    with atomic_output(path, "report") as part:
+        fig.savefig(part, dpi=110, format="png")
+    plt.close(fig)
+    return path
+
+
+#: The most points a line of the report draws; a longer line (a long run) is thinned to about this many
+#: (the axes keep the limits of the full data), a shorter one is drawn as it is.
+MAX_POINTS = 5000
+
+
+def _thin_lines(fig, limit: int = MAX_POINTS) -> None:
+    """Thin every line of ``fig`` with more than ``limit`` points: a line keeps, in each of ``limit / 4``
+    runs of consecutive points, its first, lowest, highest and last (so peaks and steps stay where they
+    are); markers without a line keep evenly spaced points."""
+    for ax in fig.axes:
+        for line in ax.get_lines():
+            x, y = np.asarray(line.get_xdata(), dtype=float), np.asarray(line.get_ydata(), dtype=float)
+            if x.ndim != 1 or x.shape != y.shape or x.size <= limit:
+                continue
+            if line.get_linestyle() in ("None", "", " "):
+                keep = np.unique(np.linspace(0, x.size - 1, limit).round().astype(int))
+            else:
+                edges = np.linspace(0, x.size, limit // 4 + 1).round().astype(int)
+                picks = []
+                for a, b in zip(edges[:-1], edges[1:]):
+                    run = y[a:b]
+                    finite = np.isfinite(run)
+                    picks.append(a)
+                    if finite.any():
+                        picks += [a + int(np.argmin(np.where(finite, run, np.inf))),
+                                  a + int(np.argmax(np.where(finite, run, -np.inf)))]
+                    picks.append(b - 1)
+                keep = np.unique(picks)
+            line.set_data(x[keep], y[keep])
+
+
 def plot_report(result, path, title: str | None = None) -> Path:
     """Write ``report.png``: states and estimates, error norm against the certified bound,
     the communication steps used, and the unknown input against its estimate.
@@ -23,27 +147,18 @@ def plot_report(result, path, title: str | None = None) -> Path:
     -------
     Path
     """
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     if result.functional is not None:
         return plot_functional(result, path, title)
     if result.delayed is not None:
         return plot_delayed(result, path, title)
+    plt, colors = _pyplot()
     m = result.metrics
     scale, unit = (3600.0, "h") if result.times[-1] > 4 * 3600 else (1.0, "s")
     t = result.times / scale
     fig, axes = plt.subplots(2, 2, figsize=(12, 7.5), constrained_layout=True)
     ax = axes[0, 0]
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for i in range(result.x.shape[1]):
-        c = colors[i % len(colors)]
-        ax.plot(t, result.x[:, i], color=c, lw=1.6, label=f"x[{i + 1}]")
-        ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--", label=f"xhat[{i + 1}]")
-    ax.set_title("true state (solid) and estimate (dashed)")
+    _plot_states(ax, t, result, colors, "true state (solid) and estimate (dashed)")
     ax.set_xlabel(f"time [{unit}]")
-    ax.legend(ncol=2, fontsize=8)
     ax.grid(alpha=0.3)
 
     ax = axes[0, 1]
@@ -93,13 +208,7 @@ def plot_report(result, path, title: str | None = None) -> Path:
     ax.set_xlabel(f"time [{unit}]")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    if title:
-        fig.suptitle(title)
-    path = Path(path)
-    with atomic_output(path, "report") as part:
-        fig.savefig(part, dpi=110, format="png")
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, title)
 
 
 def plot_functional(result, path, title: str | None = None) -> Path:
@@ -117,18 +226,11 @@ def plot_functional(result, path, title: str | None = None) -> Path:
     -------
     Path
     """
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt, colors = _pyplot()
     m, f = result.metrics, result.functional
     k = np.arange(len(result.times))
-    fig, axes = plt.subplots(3, 1, figsize=(10, 8.5), sharex=True, constrained_layout=True)
     filling = m["valid_from"] if m["valid_from"] is not None else len(k)
-    for ax in axes:
-        ax.axvspan(-0.5, filling - 0.5, color="0.9", lw=0)
-        ax.grid(alpha=0.3)
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig, axes = _panels(plt, 3, 1, (10, 8.5), lambda ax: ax.axvspan(-0.5, filling - 0.5, color="0.9", lw=0))
     ax = axes[0]
     for i in range(f["gx"].shape[1]):
         c = colors[i % len(colors)]
@@ -154,13 +256,7 @@ def plot_functional(result, path, title: str | None = None) -> Path:
     ax.set_title("inputs and outputs")
     ax.set_xlabel("step k")
     ax.legend(fontsize=8, ncol=3)
-    if title:
-        fig.suptitle(title)
-    path = Path(path)
-    with atomic_output(path, "report") as part:
-        fig.savefig(part, dpi=110, format="png")
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, title)
 
 
 def _shade_invalid(ax, t, valid) -> None:
@@ -188,25 +284,12 @@ def plot_delayed(result, path, title: str | None = None) -> Path:
     -------
     Path
     """
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt, colors = _pyplot()
     m, dl = result.metrics, result.delayed
     t, valid = result.times, dl["valid"]
     v = m["validity"]
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharex=True, constrained_layout=True)
-    for ax in axes.flat:
-        _shade_invalid(ax, t, valid)
-        ax.grid(alpha=0.3)
-    ax = axes[0, 0]
-    for i in range(result.x.shape[1]):
-        c = colors[i % len(colors)]
-        ax.plot(t, result.x[:, i], color=c, lw=1.6, label=f"x[{i + 1}]")
-        ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--", label=f"xhat[{i + 1}]")
-    ax.set_title("true state (solid) and estimate (dashed); shaded: not valid")
-    ax.legend(ncol=2, fontsize=8)
+    fig, axes = _panels(plt, 2, 2, (12, 8), lambda ax: _shade_invalid(ax, t, valid))
+    _plot_states(axes[0, 0], t, result, colors, "true state (solid) and estimate (dashed); shaded: not valid")
 
     ax = axes[0, 1]
     norms = np.linalg.norm(result.x - result.xhat, axis=1)
@@ -244,10 +327,4 @@ def plot_delayed(result, path, title: str | None = None) -> Path:
         ax.set_title("parameter estimate (the plant has no parameter theta to compare with)")
     ax.set_xlabel("time [s]")
     ax.legend(fontsize=8, ncol=2)
-    if title:
-        fig.suptitle(title)
-    path = Path(path)
-    with atomic_output(path, "report") as part:
-        fig.savefig(part, dpi=110, format="png")
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, title)

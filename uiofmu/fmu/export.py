@@ -168,7 +168,8 @@ def plant_kind(plant) -> str:
     return "linear plant"
 
 
-def build_plant(plant: Plant, name: str, output, step: float | None = None, backend: str | None = None) -> Path:
+def build_plant(plant: Plant, name: str, output, step: float | None = None, backend: str | None = None,
+                experiment_steps: int | None = None) -> Path:
     """Pack a plant as an FMU (a linear one exact between communication points).
 
     Parameters
@@ -189,6 +190,9 @@ def build_plant(plant: Plant, name: str, output, step: float | None = None, back
         ``c``: a standalone native binary plus its sources (``c/kernel_plant.c``; the default
         where a C compiler is found, except for a plant with unknown parameters, which has no C
         kernel); ``python``: pythonfmu (the host needs Python with numpy).
+    experiment_steps : int, optional
+        The length of that experiment in steps (a problem's ``[experiment] steps``; default
+        :data:`uiofmu.runtime.ports.PLANT_EXPERIMENT_STEPS`).
 
     Returns
     -------
@@ -199,7 +203,7 @@ def build_plant(plant: Plant, name: str, output, step: float | None = None, back
         raise FmuError(f"--backend: expected one of {', '.join(BACKENDS)}, found {backend!r}")
     ident = model_identifier(name, "plant")
     step = plant.dt if step is None else step
-    experiment = plant_experiment(step) if step else None
+    experiment = plant_experiment(step, experiment_steps) if step else None
     desc = f"{plant.time} {plant_kind(plant)} {name} (uiofmu {__version__}"
     if backend == "c":
         from .c_backend import build_c_plant

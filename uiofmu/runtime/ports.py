@@ -90,17 +90,20 @@ def observer_experiment(card) -> dict:
     interval, or the default ``step`` of a continuous-time kernel), until the certified bound has
     fallen to 1e-3 (:func:`default_horizon`; for the delayed kernel its start-up plus the decay of
     its premise-set bound), and at most :data:`MAX_EXPERIMENT_STEPS` steps (1 s for the delayed
-    example at 1 ms: the estimates are valid from its delay, 0.5 s)."""
+    example at 1 ms: the estimates are valid from its delay, 0.5 s). The stop time is a whole number
+    of steps (a horizon in mean design intervals is rounded up): an importer stepping at ``stepSize``
+    ends on it without a shorter last step, which the observer would refuse."""
     from .observer import default_horizon
     from .schedules import make_schedule
 
     step = make_schedule(card.schedule, card.matrices).admissible_steps()[0]
-    return experiment(step, min(max(default_horizon(card), step), MAX_EXPERIMENT_STEPS * step))
+    steps = min(max(math.ceil(default_horizon(card) / step - 1e-9), 1), MAX_EXPERIMENT_STEPS)
+    return experiment(step, steps * step)
 
 
-def plant_experiment(step: float) -> dict:
-    """A plant's default experiment: :data:`PLANT_EXPERIMENT_STEPS` steps of ``step``."""
-    return experiment(step, PLANT_EXPERIMENT_STEPS * float(step))
+def plant_experiment(step: float, steps: int | None = None) -> dict:
+    """A plant's default experiment: ``steps`` (default :data:`PLANT_EXPERIMENT_STEPS`) steps of ``step``."""
+    return experiment(step, (steps or PLANT_EXPERIMENT_STEPS) * float(step))
 
 
 def write_experiment(root, spec: dict) -> None:

@@ -268,8 +268,7 @@ static fmi2Status outcome(FmuInstance *s, UiofmuResult r) {
 /* ---------------------------------------------------------------------------------------- */
 /* fmi2Instantiate: the data compiled in, checked once                                        */
 
-static int data_error(char *msg, size_t len, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
-static int data_error(char *msg, size_t len, const char *fmt, ...) {
+int uiofmu_design_error(char *msg, size_t len, const char *fmt, ...) {
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(msg, len, fmt, ap);
@@ -288,44 +287,47 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
     size_t g = 0;
     int seen[MAX_PORTS] = {0};
     UiofmuPort p;
-    if (!f->guid || !f->model) return data_error(msg, len, "the design has no GUID or no model identifier");
+    if (!f->guid || !f->model) return uiofmu_design_error(msg, len, "the design has no GUID or no model identifier");
     while (g <= MAX_GUID && f->guid[g]) g++;
-    if (g == 0 || g > MAX_GUID) return data_error(msg, len, "the design's GUID is empty or longer than %d bytes", MAX_GUID);
+    if (g == 0 || g > MAX_GUID)
+        return uiofmu_design_error(msg, len, "the design's GUID is empty or longer than %d bytes", MAX_GUID);
     if (!k || !k->check_design || !k->port || !k->instantiate || !k->free_instance || !k->reset ||
         !k->exit_initialization || !k->calculate || !k->get_real || !k->set_real || !k->step || !k->state_count ||
         !k->state_shape || !k->save_state || !k->check_state || !k->load_state || k->ports < 1 || k->ports > MAX_PORTS)
-        return data_error(msg, len, "the FMU's kernel is incomplete");
+        return uiofmu_design_error(msg, len, "the FMU's kernel is incomplete");
     if (!k->check_design(msg, len)) return 0;
     if (f->nvariables < 0 || f->nvariables > MAX_VARIABLES || !f->variables ||
         f->variables_length != (size_t)(f->nvariables ? f->nvariables : 1))
-        return data_error(msg, len, "%d variables in a table of %zu", f->nvariables, f->variables ? f->variables_length : 0);
+        return uiofmu_design_error(msg, len, "%d variables in a table of %zu", f->nvariables,
+                                   f->variables ? f->variables_length : 0);
     for (int vr = 0; vr < f->nvariables; vr++) {
         const UiofmuVariable *v = &f->variables[vr];
         if (v->port < 0 || v->port >= k->ports || !k->port(v->port, &p))
-            return data_error(msg, len, "value reference %d: port %d is none of the %s kernel's", vr, v->port, k->name);
+            return uiofmu_design_error(msg, len, "value reference %d: port %d is none of the %s kernel's", vr, v->port,
+                                       k->name);
         if (v->index != seen[v->port])
-            return data_error(msg, len, "value reference %d: element %d of port %s, expected element %d", vr, v->index,
-                              p.name, seen[v->port]);
+            return uiofmu_design_error(msg, len, "value reference %d: element %d of port %s, expected element %d", vr,
+                                       v->index, p.name, seen[v->port]);
         if (v->index >= p.size)
-            return data_error(msg, len, "value reference %d: element %d of port %s, which has %d in this design", vr,
-                              v->index, p.name, p.size);
+            return uiofmu_design_error(msg, len, "value reference %d: element %d of port %s, which has %d in this "
+                                       "design", vr, v->index, p.name, p.size);
         if (v->causality < UIOFMU_PARAMETER || v->causality > UIOFMU_OUTPUT || v->type < UIOFMU_REAL ||
             v->type > UIOFMU_INTEGER)
-            return data_error(msg, len, "value reference %d (%s[%d]): causality %d or type %d is unknown", vr, p.name,
-                              v->index + 1, v->causality, v->type);
+            return uiofmu_design_error(msg, len, "value reference %d (%s[%d]): causality %d or type %d is unknown", vr,
+                                       p.name, v->index + 1, v->causality, v->type);
         if (v->causality != p.causality || v->type != p.type)
-            return data_error(msg, len, "value reference %d (%s[%d]) is listed as %s %s, the kernel's port is %s %s", vr,
-                              p.name, v->index + 1, CAUSALITY_NAME[v->causality], TYPE_OF[v->type],
-                              CAUSALITY_NAME[p.causality], TYPE_OF[p.type]);
+            return uiofmu_design_error(msg, len, "value reference %d (%s[%d]) is listed as %s %s, the kernel's port is "
+                                       "%s %s", vr, p.name, v->index + 1, CAUSALITY_NAME[v->causality],
+                                       TYPE_OF[v->type], CAUSALITY_NAME[p.causality], TYPE_OF[p.type]);
         if (v->type == UIOFMU_INTEGER && (!k->get_integer || !k->set_integer))
-            return data_error(msg, len, "value reference %d (%s[%d]) is an Integer the kernel cannot get or set", vr,
-                              p.name, v->index + 1);
+            return uiofmu_design_error(msg, len, "value reference %d (%s[%d]) is an Integer the kernel cannot get or "
+                                       "set", vr, p.name, v->index + 1);
         seen[v->port]++;
     }
     for (int id = 0; id < k->ports; id++)
         if (k->port(id, &p) && seen[id] != p.size)
-            return data_error(msg, len, "port %s has %d elements in this design, the variable table lists %d", p.name,
-                              p.size, seen[id]);
+            return uiofmu_design_error(msg, len, "port %s has %d elements in this design, the variable table lists %d",
+                                       p.name, p.size, seen[id]);
     return 1;
 }
 
@@ -682,8 +684,7 @@ static int phase_of(unsigned state) {
     }
 }
 
-static int state_refused(FmuInstance *s, const char *ctx, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
-static int state_refused(FmuInstance *s, const char *ctx, const char *fmt, ...) {
+int uiofmu_state_refused(FmuInstance *s, const char *ctx, const char *fmt, ...) {
     char buf[768];
     va_list ap;
     va_start(ap, fmt);
@@ -716,25 +717,26 @@ static int check_header(FmuInstance *s, const char *ctx, const Byte *b, size_t a
     const char *guid = s->fmu->guid;
     size_t want = state_size(s), g = strlen(guid), data = state_data(s), count = s->kernel->state_count();
     if (!in_memory && avail < STATE_HEADER)
-        return state_refused(s, ctx, "%zu bytes are too few for a state of this FMU (%zu bytes)", avail, want);
+        return uiofmu_state_refused(s, ctx, "%zu bytes are too few for a state of this FMU (%zu bytes)", avail, want);
     uint32_t magic = get32(b, 0), layout = get32(b, 4), glen;
     uint64_t size = get64(b, 8);
     if (magic != STATE_MAGIC)
-        return state_refused(s, ctx, "not a uiofmu FMU state (magic 0x%08lx, expected 0x%08lx)", (unsigned long)magic,
-                             (unsigned long)STATE_MAGIC);
+        return uiofmu_state_refused(s, ctx, "not a uiofmu FMU state (magic 0x%08lx, expected 0x%08lx)",
+                                    (unsigned long)magic, (unsigned long)STATE_MAGIC);
     if (layout != STATE_LAYOUT)
-        return state_refused(s, ctx, "state layout version %lu, this FMU reads version %lu", (unsigned long)layout,
-                             (unsigned long)STATE_LAYOUT);
+        return uiofmu_state_refused(s, ctx, "state layout version %lu, this FMU reads version %lu",
+                                    (unsigned long)layout, (unsigned long)STATE_LAYOUT);
     if (!in_memory && size != (uint64_t)avail)
-        return state_refused(s, ctx, "the buffer holds %zu bytes, the state in it says %llu bytes (truncated or extended; "
-                             "this FMU's states are %zu bytes)", avail, (unsigned long long)size, want);
+        return uiofmu_state_refused(s, ctx, "the buffer holds %zu bytes, the state in it says %llu bytes (truncated or "
+                                    "extended; this FMU's states are %zu bytes)", avail, (unsigned long long)size,
+                                    want);
     if (size < STATE_HEADER)
-        return state_refused(s, ctx, "the state says it is %llu bytes, less than its %d-byte header",
-                             (unsigned long long)size, STATE_HEADER);
+        return uiofmu_state_refused(s, ctx, "the state says it is %llu bytes, less than its %d-byte header",
+                                    (unsigned long long)size, STATE_HEADER);
     glen = get32(b, 16);
     if ((uint64_t)glen > size - STATE_HEADER)
-        return state_refused(s, ctx, "its GUID length %lu does not fit in a %llu-byte state", (unsigned long)glen,
-                             (unsigned long long)size);
+        return uiofmu_state_refused(s, ctx, "its GUID length %lu does not fit in a %llu-byte state",
+                                    (unsigned long)glen, (unsigned long long)size);
     if ((size_t)glen != g || memcmp(b + STATE_HEADER, guid, g) != 0) {
         char other[80];
         size_t i, shown_len = glen < sizeof other - 4 ? glen : sizeof other - 4;
@@ -743,7 +745,8 @@ static int check_header(FmuInstance *s, const char *ctx, const Byte *b, size_t a
             other[i] = ch >= 0x20 && ch < 0x7f ? (char)ch : '?';
         }
         strcpy(other + i, shown_len < glen ? "..." : "");
-        return state_refused(s, ctx, "the state belongs to the FMU with GUID %s, not to this FMU (GUID %s)", other, guid);
+        return uiofmu_state_refused(s, ctx, "the state belongs to the FMU with GUID %s, not to this FMU (GUID %s)",
+                                    other, guid);
     }
     uint32_t shape[UIOFMU_SHAPE];
     const char *names[UIOFMU_SHAPE];
@@ -760,14 +763,16 @@ static int check_header(FmuInstance *s, const char *ctx, const Byte *b, size_t a
         }
         if (a >= 2) theirs[a - 2] = 0;
         if (o >= 2) ours[o - 2] = 0;
-        return state_refused(s, ctx, "the state has %s and %lu numbers; this FMU has %s and %zu", theirs,
-                             (unsigned long)get32(b, 36), ours, count);
+        return uiofmu_state_refused(s, ctx, "the state has %s and %lu numbers; this FMU has %s and %zu", theirs,
+                                    (unsigned long)get32(b, 36), ours, count);
     }
     if (size != (uint64_t)want)
-        return state_refused(s, ctx, "the state is %llu bytes, this FMU's states are %zu bytes", (unsigned long long)size,
-                             want);
+        return uiofmu_state_refused(s, ctx, "the state is %llu bytes, this FMU's states are %zu bytes",
+                                    (unsigned long long)size, want);
     for (size_t i = STATE_HEADER + g; i < data; i++)
-        if (b[i]) return state_refused(s, ctx, "byte %zu (padding after the GUID) is %u, expected 0", i, (unsigned)b[i]);
+        if (b[i])
+            return uiofmu_state_refused(s, ctx, "byte %zu (padding after the GUID) is %u, expected 0", i,
+                                        (unsigned)b[i]);
     return 1;
 }
 
@@ -776,7 +781,7 @@ static int check_image(FmuInstance *s, const char *ctx, const Byte *b, size_t av
     if (!check_header(s, ctx, b, avail, in_memory)) return 0;
     if (!s->kernel->check_state(s->model, ctx, b + state_data(s), phase)) return 0;
     if (*phase < UIOFMU_PHASE_INSTANTIATED || *phase > UIOFMU_PHASE_TERMINATED)
-        return state_refused(s, ctx, "phase %d is none of 0 .. 3", *phase);
+        return uiofmu_state_refused(s, ctx, "phase %d is none of 0 .. 3", *phase);
     return 1;
 }
 

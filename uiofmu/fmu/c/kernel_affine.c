@@ -35,7 +35,6 @@
  */
 #include <limits.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -43,6 +42,7 @@
 
 #include "fmi2_plumbing.h"
 #include "kernel_affine.h"
+#include "kernel_util.h"
 
 /* Bounds of what a design may ask for (far above what uiofmu designs: dims <= 1000); with them
    every index product (rows x cols, N x N blocks) stays well inside int and size_t. */
@@ -268,21 +268,8 @@ static void reset_state(Instance *s) {
 /* ---------------------------------------------------------------------------------------- */
 /* The design, checked once at fmi2Instantiate: everything the runtime later indexes with.   */
 
-static int design_error(char *msg, size_t len, const char *fmt, ...) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, len, fmt, ap);
-    va_end(ap);
-    return 0;
-}
-
 /* a * b in *out, 0 when it exceeds the doubles an allocation can hold. */
-static int mul_size(size_t a, size_t b, size_t *out) {
-    size_t limit = SIZE_MAX / sizeof(double);
-    if (a && b > limit / a) return 0;
-    *out = a * b;
-    return 1;
-}
+static int mul_size(size_t a, size_t b, size_t *out) { return uiofmu_mul(a, b, SIZE_MAX / sizeof(double), out); }
 
 static void expected_shape(const UiofmuDesign *d, int w, int *rows, int *cols, const char **text) {
     static const char *const TEXT[M_COUNT] = {"nz x nz", "nz x p", "nz x m", "nz x 1", "n x nz", "n x p",
@@ -296,46 +283,48 @@ static void expected_shape(const UiofmuDesign *d, int w, int *rows, int *cols, c
 
 static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
     static const char *const KIND[] = {"constant", "interval", "geometric", "mode"};
-    const int dims[5] = {d->n, d->m, d->p, d->q, d->nz};
+    const int dims[5] = {d->n, d->m, d->p, d->q, d->nz}, low[5] = {1, 0, 1, 0, 0};
     const char *const dim_name[5] = {"n", "m", "p", "q", "nz"};
-    for (int i = 0; i < 5; i++)
-        if (dims[i] < (i == 0 || i == 2 ? 1 : 0) || dims[i] > MAX_DIM)
-            return design_error(msg, len, "dims.%s = %d is out of range [%d, %d]", dim_name[i], dims[i],
-                                i == 0 || i == 2 ? 1 : 0, MAX_DIM);
+    if (!uiofmu_check_dims(msg, len, "dims.", 5, dims, dim_name, low, MAX_DIM)) return 0;
     if (d->nz != d->n) /* z_0 = xhat0 - Xy y_0 is an n-vector */
-        return design_error(msg, len, "dims.nz = %d differs from dims.n = %d (the first step sets z from xhat0)",
-                            d->nz, d->n);
-    if (d->has_dhat != 0 && d->has_dhat != 1) return design_error(msg, len, "has_dhat = %d is neither 0 nor 1", d->has_dhat);
+        return uiofmu_design_error(msg, len, "dims.nz = %d differs from dims.n = %d (the first step sets z from xhat0)",
+                                   d->nz, d->n);
+    if (d->has_dhat != 0 && d->has_dhat != 1)
+        return uiofmu_design_error(msg, len, "has_dhat = %d is neither 0 nor 1", d->has_dhat);
     if (d->kind < UIOFMU_CONSTANT || d->kind > UIOFMU_MODE)
-        return design_error(msg, len, "schedule kind %d is unknown", d->kind);
+        return uiofmu_design_error(msg, len, "schedule kind %d is unknown", d->kind);
     if (d->policy < UIOFMU_POLICY_ERROR || d->policy > UIOFMU_POLICY_COUNT ||
         ((d->kind == UIOFMU_CONSTANT || d->kind == UIOFMU_MODE) && d->policy != UIOFMU_POLICY_ERROR) ||
         (d->kind == UIOFMU_GEOMETRIC && d->policy == UIOFMU_POLICY_NEAREST))
-        return design_error(msg, len, "step policy %d does not go with a %s schedule", d->policy, KIND[d->kind]);
+        return uiofmu_design_error(msg, len, "step policy %d does not go with a %s schedule", d->policy, KIND[d->kind]);
     if (!isfinite(d->dt) || !isfinite(d->alpha) || !isfinite(d->h_prev0) || !isfinite(d->step_rtol) ||
         d->step_rtol < 0 || !(d->h_prev0 > 0))
-        return design_error(msg, len, "dt = %g, alpha = %g, h_prev0 = %g, step_rtol = %g: expected finite numbers, "
-                            "h_prev0 > 0 and step_rtol >= 0", d->dt, d->alpha, d->h_prev0, d->step_rtol);
+        return uiofmu_design_error(msg, len, "dt = %g, alpha = %g, h_prev0 = %g, step_rtol = %g: expected finite "
+                                   "numbers, h_prev0 > 0 and step_rtol >= 0", d->dt, d->alpha, d->h_prev0, d->step_rtol);
     if (d->kind != UIOFMU_INTERVAL && !(d->dt > 0))
-        return design_error(msg, len, "dt = %g: a %s schedule needs a period > 0", d->dt, KIND[d->kind]);
+        return uiofmu_design_error(msg, len, "dt = %g: a %s schedule needs a period > 0", d->dt, KIND[d->kind]);
     if (!d->xhat0 || d->xhat0_length != (size_t)d->n)
-        return design_error(msg, len, "xhat0 holds %zu numbers, expected n = %d", d->xhat0 ? d->xhat0_length : 0, d->n);
+        return uiofmu_design_error(msg, len, "xhat0 holds %zu numbers, expected n = %d",
+                                   d->xhat0 ? d->xhat0_length : 0, d->n);
     for (int i = 0; i < d->n; i++)
-        if (!isfinite(d->xhat0[i])) return design_error(msg, len, "xhat0[%d] = %g is not finite", i + 1, d->xhat0[i]);
+        if (!isfinite(d->xhat0[i]))
+            return uiofmu_design_error(msg, len, "xhat0[%d] = %g is not finite", i + 1, d->xhat0[i]);
     if (d->nintervals < 0 || d->nintervals > MAX_INTERVALS || (d->kind == UIOFMU_INTERVAL && d->nintervals < 1) ||
         !d->intervals ||
         d->intervals_length != (size_t)(d->nintervals ? d->nintervals : 1))
-        return design_error(msg, len, "%d intervals in an array of %zu for a %s schedule", d->nintervals,
-                            d->intervals ? d->intervals_length : 0, KIND[d->kind]);
+        return uiofmu_design_error(msg, len, "%d intervals in an array of %zu for a %s schedule", d->nintervals,
+                                   d->intervals ? d->intervals_length : 0, KIND[d->kind]);
     for (int i = 0; i < d->nintervals; i++) /* read by interval schedules only */
         if (!(isfinite(d->intervals[i]) && (d->intervals[i] > 0 || d->kind != UIOFMU_INTERVAL)))
-            return design_error(msg, len, "interval %d = %g is not a positive finite step", i + 1, d->intervals[i]);
+            return uiofmu_design_error(msg, len, "interval %d = %g is not a positive finite step", i + 1,
+                                       d->intervals[i]);
     if (d->kind == UIOFMU_INTERVAL && !resolves(d, d->h_prev0))
-        return design_error(msg, len, "h_prev0 = %g is not one of the design intervals", d->h_prev0);
+        return uiofmu_design_error(msg, len, "h_prev0 = %g is not one of the design intervals", d->h_prev0);
     if (d->kind == UIOFMU_MODE && !(d->modes >= 1 && d->modes <= MAX_MODES))
-        return design_error(msg, len, "modes = %d is out of range [1, %d] for a mode schedule", d->modes, MAX_MODES);
+        return uiofmu_design_error(msg, len, "modes = %d is out of range [1, %d] for a mode schedule", d->modes,
+                                   MAX_MODES);
     if (d->kind == UIOFMU_MODE && !(d->mode_prev0 >= 1 && d->mode_prev0 <= d->modes))
-        return design_error(msg, len, "mode_prev0 = %d is not a mode (1 to %d)", d->mode_prev0, d->modes);
+        return uiofmu_design_error(msg, len, "mode_prev0 = %d is not a mode (1 to %d)", d->mode_prev0, d->modes);
     for (int w = 0; w < M_COUNT; w++) {
         const UiofmuMatrix *M = &d->mat[w];
         int rows, cols, required = w <= M_C || d->has_dhat;
@@ -348,14 +337,14 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
         else if (d->kind == UIOFMU_MODE) want = (size_t)d->modes * (w == M_N || w == M_L ? (size_t)d->modes : 1);
         else want = 0; /* geometric: any number of coefficients */
         if (M->count < 1 || (want && (size_t)M->count != want) || M->count > MAX_BLOCKS)
-            return design_error(msg, len, "matrix %s has %d blocks, expected %s%zu", MATRIX_NAME[w], M->count,
-                                want ? "" : "at least ", want ? want : (size_t)1);
+            return uiofmu_design_error(msg, len, "matrix %s has %d blocks, expected %s%zu", MATRIX_NAME[w], M->count,
+                                       want ? "" : "at least ", want ? want : (size_t)1);
         if (M->rows != rows || M->cols != cols)
-            return design_error(msg, len, "matrix %s is %d x %d, expected %s = %d x %d", MATRIX_NAME[w], M->rows,
-                                M->cols, shape, rows, cols);
+            return uiofmu_design_error(msg, len, "matrix %s is %d x %d, expected %s = %d x %d", MATRIX_NAME[w], M->rows,
+                                       M->cols, shape, rows, cols);
         if (!M->data || !mul_size((size_t)M->count, msize(M), &total) || M->length != (total ? total : 1))
-            return design_error(msg, len, "matrix %s: %d blocks of %d x %d need %zu numbers, its array holds %zu",
-                                MATRIX_NAME[w], M->count, rows, cols, total, M->data ? M->length : 0);
+            return uiofmu_design_error(msg, len, "matrix %s: %d blocks of %d x %d need %zu numbers, its array holds "
+                                       "%zu", MATRIX_NAME[w], M->count, rows, cols, total, M->data ? M->length : 0);
     }
     return 1;
 }
@@ -392,11 +381,8 @@ static int affine_port(int id, UiofmuPort *out) {
 
 static void *affine_instantiate(FmuInstance *fmu) {
     const UiofmuDesign *d = &UIOFMU_DESIGN;
-    Instance *s = (Instance *)calloc(1, sizeof(Instance));
-    if (!s) {
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: out of memory");
-        return NULL;
-    }
+    Instance *s = (Instance *)uiofmu_alloc(fmu, 1, sizeof(Instance));
+    if (!s) return NULL;
     s->fmu = fmu;
     s->d = d;
     size_t nwork = 0, sz;
@@ -412,10 +398,9 @@ static void *affine_instantiate(FmuInstance *fmu) {
     size_t mx = (size_t)(d->nz > d->n ? d->nz : d->n);
     if ((size_t)d->p > mx) mx = (size_t)d->p;
     s->nblock = (size_t)d->nz + d->p + d->n + d->p + d->m + d->n + d->p + d->q + mx + mx + nwork;
-    s->block = (double *)calloc(s->nblock ? s->nblock : 1, sizeof(double));
+    s->block = (double *)uiofmu_alloc(fmu, s->nblock, sizeof(double));
     if (!s->block) {
         free(s);
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: out of memory");
         return NULL;
     }
     double *b = s->block;
@@ -458,11 +443,7 @@ static void affine_reset(void *self) {
 static UiofmuResult affine_exit_initialization(void *self) {
     Instance *s = (Instance *)self;
     char msg[512], b1[32];
-    for (int i = 0; i < s->d->n; i++)
-        if (!isfinite(s->xhat0[i])) {
-            uiofmu_log(s->fmu, fmi2Error, "parameter xhat0[%d] = %g is not finite", i + 1, s->xhat0[i]);
-            return UIOFMU_REFUSED;
-        }
+    if (!uiofmu_parameter_finite(s->fmu, "xhat0", s->xhat0, s->d->n)) return UIOFMU_REFUSED;
     if (s->d->kind == UIOFMU_INTERVAL) {
         /* step_policy 'nearest' maps any number to an interval; a step must still be one */
         if (s->d->policy == UIOFMU_POLICY_NEAREST && !(isfinite(s->h_prev0) && s->h_prev0 > 0)) {
@@ -534,19 +515,10 @@ static UiofmuResult affine_step(void *self, double t, double h) {
     static const char fn[] = "fmi2DoStep";
     Instance *s = (Instance *)self;
     const UiofmuDesign *d = s->d;
-    char msg[512], bt[32], bh[32], bd[32];
-    for (int i = 0; i < d->p; i++)
-        if (!isfinite(s->y[i])) {
-            uiofmu_log(s->fmu, fmi2Error, "t = %s: input y[%d] = %s at step k = %ld is not finite", uiofmu_num(t, bt),
-                       i + 1, isnan(s->y[i]) ? "nan" : (s->y[i] > 0 ? "inf" : "-inf"), s->k);
-            return UIOFMU_REFUSED;
-        }
-    for (int i = 0; i < d->m; i++)
-        if (!isfinite(s->u[i])) {
-            uiofmu_log(s->fmu, fmi2Error, "t = %s: input u[%d] = %s at step k = %ld is not finite", uiofmu_num(t, bt),
-                       i + 1, isnan(s->u[i]) ? "nan" : (s->u[i] > 0 ? "inf" : "-inf"), s->k);
-            return UIOFMU_REFUSED;
-        }
+    char msg[512], bt[32];
+    if (!uiofmu_inputs_finite(s->fmu, t, s->k, s->y, d->p, "y") ||
+        !uiofmu_inputs_finite(s->fmu, t, s->k, s->u, d->m, "u"))
+        return UIOFMU_REFUSED;
     int i = 0, j = 0;
     if (d->kind == UIOFMU_MODE) {
         /* the mode first, as the reference runtime: a bad one is an input error, not a step rejected */
@@ -573,10 +545,7 @@ static UiofmuResult affine_step(void *self, double t, double h) {
             bad_prev(s, fn);
             return UIOFMU_BROKEN;
         }
-    } else if (d->policy == UIOFMU_POLICY_ERROR && fabs(h - d->dt) > d->step_rtol * d->dt) {
-        uiofmu_log(s->fmu, fmi2Discard,
-                   "t = %s: this observer was designed for steps of dt = %s s and received h = %s s "
-                   "(step_policy = 'error')", uiofmu_num(t, bt), uiofmu_num(d->dt, bd), uiofmu_num(h, bh));
+    } else if (d->policy == UIOFMU_POLICY_ERROR && uiofmu_off_period(s->fmu, t, h, d->dt, d->step_rtol, 1)) {
         return UIOFMU_DISCARDED;
     }
     /* every matrix of the step before anything changes: a missing one refuses the step whole */
@@ -666,19 +635,6 @@ enum { SV_K, SV_H_PREV, SV_H_PREV0, SV_NOTICED, SV_PHASE, SV_SCALARS };
 
 typedef unsigned char Byte;
 
-static double getd(const Byte *b, size_t index) { double v; memcpy(&v, b + index * sizeof v, sizeof v); return v; }
-
-static int state_refused(Instance *s, const char *ctx, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
-static int state_refused(Instance *s, const char *ctx, const char *fmt, ...) {
-    char buf[768];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
-    va_end(ap);
-    uiofmu_log(s->fmu, fmi2Error, "%s: %s", ctx, buf);
-    return 0;
-}
-
 enum { SV_MODE, SV_MODE_PREV, SV_MODE_PREV0, SV_MODES }; /* after u[m], mode schedules only */
 
 /* Index of the first mode double (mode schedules). */
@@ -694,26 +650,23 @@ static size_t affine_state_count(void) {
 static void affine_state_shape(uint32_t shape[UIOFMU_SHAPE], const char *names[UIOFMU_SHAPE]) {
     const UiofmuDesign *d = &UIOFMU_DESIGN;
     static const char *const NAMES[UIOFMU_SHAPE] = {"n", "m", "p", "nz"};
-    shape[0] = (uint32_t)d->n;
-    shape[1] = (uint32_t)d->m;
-    shape[2] = (uint32_t)d->p;
-    shape[3] = (uint32_t)d->nz;
-    for (int i = 0; i < UIOFMU_SHAPE; i++) names[i] = NAMES[i];
+    const int dims[UIOFMU_SHAPE] = {d->n, d->m, d->p, d->nz};
+    uiofmu_shape(shape, names, dims, NAMES);
 }
 
 static void affine_save_state(void *self, int phase, Byte *o) {
     Instance *s = (Instance *)self;
     const UiofmuDesign *d = s->d;
     double scalars[SV_SCALARS] = {(double)s->k, s->h_prev, s->h_prev0, (double)s->noticed, (double)phase};
-    memcpy(o, scalars, sizeof scalars); o += sizeof scalars;
-    memcpy(o, s->z, d->nz * sizeof(double)); o += d->nz * sizeof(double);
-    memcpy(o, s->pred, d->p * sizeof(double)); o += d->p * sizeof(double);
-    memcpy(o, s->xhat0, d->n * sizeof(double)); o += d->n * sizeof(double);
-    memcpy(o, s->y, d->p * sizeof(double)); o += d->p * sizeof(double);
-    memcpy(o, s->u, d->m * sizeof(double)); o += d->m * sizeof(double);
+    o = uiofmu_put(o, scalars, SV_SCALARS);
+    o = uiofmu_put(o, s->z, (size_t)d->nz);
+    o = uiofmu_put(o, s->pred, (size_t)d->p);
+    o = uiofmu_put(o, s->xhat0, (size_t)d->n);
+    o = uiofmu_put(o, s->y, (size_t)d->p);
+    o = uiofmu_put(o, s->u, (size_t)d->m);
     if (d->kind == UIOFMU_MODE) {
         double modes[SV_MODES] = {(double)s->mode, (double)s->mode_prev, (double)s->mode_prev0};
-        memcpy(o, modes, sizeof modes);
+        uiofmu_put(o, modes, SV_MODES);
     }
 }
 
@@ -732,88 +685,95 @@ static const char *interval_note(const UiofmuDesign *d, double h, char *buf, siz
 static int check_values(Instance *s, const char *ctx, const Byte *v) {
     static const char *const VECTOR[3] = {"z", "pred", "xhat0"};
     const UiofmuDesign *d = s->d;
+    FmuInstance *fmu = s->fmu;
     char b1[32], b2[32], note[160];
-    double k = getd(v, SV_K), hp = getd(v, SV_H_PREV), hp0 = getd(v, SV_H_PREV0), noticed = getd(v, SV_NOTICED),
-           phase = getd(v, SV_PHASE);
+    double k = uiofmu_getd(v, SV_K), hp = uiofmu_getd(v, SV_H_PREV), hp0 = uiofmu_getd(v, SV_H_PREV0),
+           noticed = uiofmu_getd(v, SV_NOTICED), phase = uiofmu_getd(v, SV_PHASE);
     int interval = d->kind == UIOFMU_INTERVAL;
     if (!(isfinite(k) && k >= 0 && k == floor(k) && k < MAX_SAFE_INTEGER && k <= (double)LONG_MAX))
-        return state_refused(s, ctx, "k = %s is not a step count (an integer, 0 <= k < 2^53)", uiofmu_num(k, b1));
-    if (!(phase == UIOFMU_PHASE_INSTANTIATED || phase == UIOFMU_PHASE_INITIALIZATION || phase == UIOFMU_PHASE_RUNNING ||
-          phase == UIOFMU_PHASE_TERMINATED))
-        return state_refused(s, ctx, "phase = %s is none of 0 (instantiated), 1 (initialisation mode), "
-                             "2 (initialised), 3 (terminated)", uiofmu_num(phase, b1));
+        return uiofmu_state_refused(fmu, ctx, "k = %s is not a step count (an integer, 0 <= k < 2^53)",
+                                    uiofmu_num(k, b1));
+    if (!uiofmu_phase_ok(fmu, ctx, phase)) return 0;
     int running = phase >= UIOFMU_PHASE_RUNNING;
-    if (!(noticed == 0 || noticed == 1)) return state_refused(s, ctx, "noticed = %s is neither 0 nor 1", uiofmu_num(noticed, b1));
+    if (!(noticed == 0 || noticed == 1))
+        return uiofmu_state_refused(fmu, ctx, "noticed = %s is neither 0 nor 1", uiofmu_num(noticed, b1));
     if (noticed == 1 && !(interval && d->policy == UIOFMU_POLICY_NEAREST))
-        return state_refused(s, ctx, "noticed = 1, but only an interval schedule with step_policy 'nearest' notes a step");
+        return uiofmu_state_refused(fmu, ctx, "noticed = 1, but only an interval schedule with step_policy 'nearest' "
+                                    "notes a step");
     if (!running && k != 0)
-        return state_refused(s, ctx, "k = %s in phase %d, before initialisation ended: expected 0", uiofmu_num(k, b1), (int)phase);
-    if (!(isfinite(hp0) && hp0 > 0)) return state_refused(s, ctx, "h_prev0 = %s is not a step (finite, > 0)", uiofmu_num(hp0, b1));
+        return uiofmu_state_refused(fmu, ctx, "k = %s in phase %d, before initialisation ended: expected 0",
+                                    uiofmu_num(k, b1), (int)phase);
+    if (!(isfinite(hp0) && hp0 > 0))
+        return uiofmu_state_refused(fmu, ctx, "h_prev0 = %s is not a step (finite, > 0)", uiofmu_num(hp0, b1));
     if (!interval && hp0 != d->h_prev0)
-        return state_refused(s, ctx, "h_prev0 = %s differs from this design's %s (not a variable of this FMU)",
-                             uiofmu_num(hp0, b1), uiofmu_num(d->h_prev0, b2));
+        return uiofmu_state_refused(fmu, ctx, "h_prev0 = %s differs from this design's %s (not a variable of this FMU)",
+                                    uiofmu_num(hp0, b1), uiofmu_num(d->h_prev0, b2));
     if (interval && running && !resolves(d, hp0))
-        return state_refused(s, ctx, "h_prev0 = %s s is not a design interval (%s), but initialisation ended",
-                             uiofmu_num(hp0, b1), interval_note(d, hp0, note, sizeof note));
-    if (!(isfinite(hp) && hp > 0)) return state_refused(s, ctx, "h_prev = %s is not a step (finite, > 0)", uiofmu_num(hp, b1));
+        return uiofmu_state_refused(fmu, ctx, "h_prev0 = %s s is not a design interval (%s), but initialisation ended",
+                                    uiofmu_num(hp0, b1), interval_note(d, hp0, note, sizeof note));
+    if (!(isfinite(hp) && hp > 0))
+        return uiofmu_state_refused(fmu, ctx, "h_prev = %s is not a step (finite, > 0)", uiofmu_num(hp, b1));
     if (interval && !resolves(d, hp))
-        return state_refused(s, ctx, "h_prev = %s s is not a design interval (%s)", uiofmu_num(hp, b1),
-                             interval_note(d, hp, note, sizeof note));
+        return uiofmu_state_refused(fmu, ctx, "h_prev = %s s is not a design interval (%s)", uiofmu_num(hp, b1),
+                                    interval_note(d, hp, note, sizeof note));
     if (k == 0 && (running || !interval) && hp != hp0)
-        return state_refused(s, ctx, "h_prev = %s s at k = 0 differs from h_prev0 = %s s", uiofmu_num(hp, b1), uiofmu_num(hp0, b2));
+        return uiofmu_state_refused(fmu, ctx, "h_prev = %s s at k = 0 differs from h_prev0 = %s s", uiofmu_num(hp, b1),
+                                    uiofmu_num(hp0, b2));
     if (!interval && d->policy == UIOFMU_POLICY_ERROR && k > 0 && fabs(hp - d->dt) > d->step_rtol * d->dt)
-        return state_refused(s, ctx, "h_prev = %s s is not the design step dt = %s s (step_policy 'error')",
-                             uiofmu_num(hp, b1), uiofmu_num(d->dt, b2));
+        return uiofmu_state_refused(fmu, ctx, "h_prev = %s s is not the design step dt = %s s (step_policy 'error')",
+                                    uiofmu_num(hp, b1), uiofmu_num(d->dt, b2));
     const int length[3] = {d->nz, d->p, d->n};
     size_t at = SV_SCALARS;
     for (int w = 0; w < 3; w++) {
         for (int i = 0; i < length[w]; i++) {
-            double x = getd(v, at + (size_t)i);
-            if (!isfinite(x)) return state_refused(s, ctx, "%s[%d] = %s is not finite", VECTOR[w], i + 1, uiofmu_num(x, b1));
+            double x = uiofmu_getd(v, at + (size_t)i);
+            if (!isfinite(x))
+                return uiofmu_state_refused(fmu, ctx, "%s[%d] = %s is not finite", VECTOR[w], i + 1, uiofmu_num(x, b1));
             if (w < 2 && k == 0 && x != 0)
-                return state_refused(s, ctx, "%s[%d] = %s at k = 0: expected 0 (the first step sets it)", VECTOR[w],
-                                     i + 1, uiofmu_num(x, b1));
+                return uiofmu_state_refused(fmu, ctx, "%s[%d] = %s at k = 0: expected 0 (the first step sets it)",
+                                            VECTOR[w], i + 1, uiofmu_num(x, b1));
         }
         at += (size_t)length[w];
     }
     /* y[p], u[m]: taken as they are (see above) */
     if (d->kind == UIOFMU_MODE) {
         size_t m0 = mode_at(d);
-        double mode = getd(v, m0 + SV_MODE), mp = getd(v, m0 + SV_MODE_PREV), mp0 = getd(v, m0 + SV_MODE_PREV0);
+        double mode = uiofmu_getd(v, m0 + SV_MODE), mp = uiofmu_getd(v, m0 + SV_MODE_PREV),
+               mp0 = uiofmu_getd(v, m0 + SV_MODE_PREV0);
         if (!(mode == floor(mode) && mode >= INT_MIN && mode <= INT_MAX))
-            return state_refused(s, ctx, "mode = %s is not an fmi2Integer", uiofmu_num(mode, b1));
+            return uiofmu_state_refused(fmu, ctx, "mode = %s is not an fmi2Integer", uiofmu_num(mode, b1));
         if (!(mp == floor(mp) && mp >= 1 && mp <= d->modes))
-            return state_refused(s, ctx, "mode_prev = %s is not a mode (an integer from 1 to %d)", uiofmu_num(mp, b1),
-                                 d->modes);
+            return uiofmu_state_refused(fmu, ctx, "mode_prev = %s is not a mode (an integer from 1 to %d)",
+                                        uiofmu_num(mp, b1), d->modes);
         if (!(mp0 == floor(mp0) && mp0 >= INT_MIN && mp0 <= INT_MAX))
-            return state_refused(s, ctx, "mode_prev0 = %s is not an fmi2Integer", uiofmu_num(mp0, b1));
+            return uiofmu_state_refused(fmu, ctx, "mode_prev0 = %s is not an fmi2Integer", uiofmu_num(mp0, b1));
         if (running && !(mp0 >= 1 && mp0 <= d->modes))
-            return state_refused(s, ctx, "mode_prev0 = %s is not a mode (an integer from 1 to %d), but initialisation "
-                                 "ended", uiofmu_num(mp0, b1), d->modes);
+            return uiofmu_state_refused(fmu, ctx, "mode_prev0 = %s is not a mode (an integer from 1 to %d), but "
+                                        "initialisation ended", uiofmu_num(mp0, b1), d->modes);
         if (running && k == 0 && mp != mp0)
-            return state_refused(s, ctx, "mode_prev = %s at k = 0 differs from mode_prev0 = %s", uiofmu_num(mp, b1),
-                                 uiofmu_num(mp0, b2));
+            return uiofmu_state_refused(fmu, ctx, "mode_prev = %s at k = 0 differs from mode_prev0 = %s",
+                                        uiofmu_num(mp, b1), uiofmu_num(mp0, b2));
     }
     return 1;
 }
 
 static void apply_state(Instance *s, const Byte *v) {
     const UiofmuDesign *d = s->d;
-    s->k = (long)getd(v, SV_K);
-    s->h_prev = getd(v, SV_H_PREV);
-    s->h_prev0 = getd(v, SV_H_PREV0);
-    s->noticed = (int)getd(v, SV_NOTICED);
+    s->k = (long)uiofmu_getd(v, SV_K);
+    s->h_prev = uiofmu_getd(v, SV_H_PREV);
+    s->h_prev0 = uiofmu_getd(v, SV_H_PREV0);
+    s->noticed = (int)uiofmu_getd(v, SV_NOTICED);
     const Byte *o = v + SV_SCALARS * sizeof(double);
-    memcpy(s->z, o, d->nz * sizeof(double)); o += d->nz * sizeof(double);
-    memcpy(s->pred, o, d->p * sizeof(double)); o += d->p * sizeof(double);
-    memcpy(s->xhat0, o, d->n * sizeof(double)); o += d->n * sizeof(double);
-    memcpy(s->y, o, d->p * sizeof(double)); o += d->p * sizeof(double);
-    memcpy(s->u, o, d->m * sizeof(double));
+    o = uiofmu_take(o, s->z, (size_t)d->nz);
+    o = uiofmu_take(o, s->pred, (size_t)d->p);
+    o = uiofmu_take(o, s->xhat0, (size_t)d->n);
+    o = uiofmu_take(o, s->y, (size_t)d->p);
+    uiofmu_take(o, s->u, (size_t)d->m);
     if (d->kind == UIOFMU_MODE) {
         size_t m0 = mode_at(d);
-        s->mode = (int)getd(v, m0 + SV_MODE);
-        s->mode_prev = (int)getd(v, m0 + SV_MODE_PREV);
-        s->mode_prev0 = (int)getd(v, m0 + SV_MODE_PREV0);
+        s->mode = (int)uiofmu_getd(v, m0 + SV_MODE);
+        s->mode_prev = (int)uiofmu_getd(v, m0 + SV_MODE_PREV);
+        s->mode_prev0 = (int)uiofmu_getd(v, m0 + SV_MODE_PREV0);
     }
     s->work_k = -1;
     s->j_prev = -1;
@@ -821,7 +781,7 @@ static void apply_state(Instance *s, const Byte *v) {
 }
 static int affine_check_state(void *self, const char *ctx, const Byte *v, int *phase) {
     if (!check_values((Instance *)self, ctx, v)) return 0;
-    *phase = (int)getd(v, SV_PHASE);
+    *phase = (int)uiofmu_getd(v, SV_PHASE);
     return 1;
 }
 

@@ -34,14 +34,13 @@
  * input).
  */
 #include <math.h>
-#include <stdarg.h>
 #include <stdint.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "fmi2_plumbing.h"
 #include "kernel_lpv.h"
+#include "kernel_util.h"
 
 /* Bounds of what a plant may ask for. */
 #define MAX_DIM 2048
@@ -99,37 +98,20 @@ static void affine_map(const double *A, const double *x, int na, const double *B
 /* ---------------------------------------------------------------------------------------- */
 /* The design, checked once at fmi2Instantiate                                               */
 
-static int design_error(char *msg, size_t len, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
-static int design_error(char *msg, size_t len, const char *fmt, ...) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, len, fmt, ap);
-    va_end(ap);
-    return 0;
-}
-
 /* a * b * c in *out, 0 when it exceeds MAX_NUMBERS. */
 static int count3(size_t a, size_t b, size_t c, size_t *out) {
-    if (a && b > MAX_NUMBERS / a) return 0;
-    size_t ab = a * b;
-    if (ab && c > MAX_NUMBERS / ab) return 0;
-    *out = ab * c;
-    return 1;
+    size_t ab;
+    return uiofmu_mul(a, b, MAX_NUMBERS, &ab) && uiofmu_mul(ab, c, MAX_NUMBERS, out);
 }
 
 static int lpv_check_design(char *msg, size_t len) {
     const UiofmuLpv *d = &UIOFMU_LPV;
-    const int dims[4] = {d->n, d->p, d->q, d->s};
+    const int dims[4] = {d->n, d->p, d->q, d->s}, low[4] = {1, 1, 0, 0};
     const char *const dim_name[4] = {"n", "p", "q", "s"};
-    for (int i = 0; i < 4; i++)
-        if (dims[i] < (i < 2 ? 1 : 0) || dims[i] > MAX_DIM)
-            return design_error(msg, len, "plant %s = %d is out of range [%d, %d]", dim_name[i], dims[i], i < 2 ? 1 : 0,
-                                MAX_DIM);
+    if (!uiofmu_check_dims(msg, len, "plant ", 4, dims, dim_name, low, MAX_DIM)) return 0;
     if (d->kind != UIOFMU_THETA_STATE && d->kind != UIOFMU_THETA_INPUT)
-        return design_error(msg, len, "theta kind %d is neither state (0) nor input (1)", d->kind);
-    if (!(isfinite(d->dt) && d->dt > 0) || !(isfinite(d->step_rtol) && d->step_rtol >= 0))
-        return design_error(msg, len, "dt = %g, step_rtol = %g: expected a finite period > 0 and step_rtol >= 0",
-                            d->dt, d->step_rtol);
+        return uiofmu_design_error(msg, len, "theta kind %d is neither state (0) nor input (1)", d->kind);
+    if (!uiofmu_check_period(msg, len, d->dt, d->step_rtol)) return 0;
     size_t blocks = 1 + (size_t)d->s;
     const char *const name[6] = {"A", "E", "C", "D", "T", "x0"};
     const double *data[6] = {d->A, d->E, d->C, d->D, d->T, d->x0};
@@ -140,18 +122,19 @@ static int lpv_check_design(char *msg, size_t len) {
     for (int w = 0; w < 6; w++) {
         size_t want;
         if (!count3(a[w], rows[w], cols[w], &want))
-            return design_error(msg, len, "plant %s: %zu blocks of %zu x %zu are more than %d numbers", name[w], a[w],
-                                rows[w], cols[w], MAX_NUMBERS);
+            return uiofmu_design_error(msg, len, "plant %s: %zu blocks of %zu x %zu are more than %d numbers", name[w],
+                                       a[w], rows[w], cols[w], MAX_NUMBERS);
         if (!data[w] || length[w] != (want ? want : 1))
-            return design_error(msg, len, "plant %s: %zu blocks of %zu x %zu need %zu numbers, its array holds %zu",
-                                name[w], a[w], rows[w], cols[w], want, data[w] ? length[w] : 0);
+            return uiofmu_design_error(msg, len, "plant %s: %zu blocks of %zu x %zu need %zu numbers, its array "
+                                       "holds %zu", name[w], a[w], rows[w], cols[w], want, data[w] ? length[w] : 0);
         for (size_t e = 0; e < want; e++)
-            if (!isfinite(data[w][e])) return design_error(msg, len, "plant %s[%zu] = %g is not finite", name[w], e,
-                                                           data[w][e]);
+            if (!isfinite(data[w][e]))
+                return uiofmu_design_error(msg, len, "plant %s[%zu] = %g is not finite", name[w], e, data[w][e]);
     }
     if (d->kind == UIOFMU_THETA_INPUT)
         for (size_t e = 0; e < (size_t)d->s * (size_t)d->n; e++)
-            if (d->T[e] != 0) return design_error(msg, len, "plant T[%zu] = %g, but theta is an input", e, d->T[e]);
+            if (d->T[e] != 0)
+                return uiofmu_design_error(msg, len, "plant T[%zu] = %g, but theta is an input", e, d->T[e]);
     return 1;
 }
 
@@ -191,21 +174,17 @@ static void lpv_reset(void *self) {
 
 static void *lpv_instantiate(FmuInstance *fmu) {
     const UiofmuLpv *d = &UIOFMU_LPV;
-    Lpv *s = (Lpv *)calloc(1, sizeof(Lpv));
-    if (!s) {
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: out of memory");
-        return NULL;
-    }
+    Lpv *s = (Lpv *)uiofmu_alloc(fmu, 1, sizeof(Lpv));
+    if (!s) return NULL;
     s->fmu = fmu;
     s->d = d;
     /* bounded by the checked design: each matrix is one block of its array */
     size_t n = (size_t)d->n, p = (size_t)d->p, q = (size_t)d->q, ns = (size_t)d->s;
     size_t big = n > p ? n : p;
     size_t total = 3 * n + q + 2 * ns + p + big + n * n + n * q + p * n + p * q;
-    s->block = (double *)calloc(total, sizeof(double));
+    s->block = (double *)uiofmu_alloc(fmu, total, sizeof(double));
     if (!s->block) {
         free(s);
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: out of memory");
         return NULL;
     }
     double *b = s->block;
@@ -234,12 +213,7 @@ static void lpv_free(void *self) {
 
 static UiofmuResult lpv_exit_initialization(void *self) {
     Lpv *s = (Lpv *)self;
-    char b1[32];
-    for (int i = 0; i < s->d->n; i++)
-        if (!isfinite(s->x0[i])) {
-            uiofmu_log(s->fmu, fmi2Error, "parameter x0[%d] = %s is not finite", i + 1, uiofmu_num(s->x0[i], b1));
-            return UIOFMU_REFUSED;
-        }
+    if (!uiofmu_parameter_finite(s->fmu, "x0", s->x0, s->d->n)) return UIOFMU_REFUSED;
     memcpy(s->x, s->x0, (size_t)s->d->n * sizeof(double));
     s->dirty = 1;
     return UIOFMU_DONE;
@@ -284,39 +258,20 @@ static void lpv_set_real(void *self, int port, int index, double value) {
     s->dirty = 1;
 }
 
-static int inputs_finite(Lpv *s, double t, const double *v, int len, const char *name) {
-    char bt[32];
-    for (int i = 0; i < len; i++)
-        if (!isfinite(v[i])) {
-            uiofmu_log(s->fmu, fmi2Error, "t = %s: input %s[%d] = %s is not finite", uiofmu_num(t, bt), name, i + 1,
-                       isnan(v[i]) ? "nan" : (v[i] > 0 ? "inf" : "-inf"));
-            return 0;
-        }
-    return 1;
-}
-
 static UiofmuResult lpv_step(void *self, double t, double h) {
     Lpv *s = (Lpv *)self;
     const UiofmuLpv *d = s->d;
     int n = d->n, q = d->q;
-    char bt[32], bh[32], bd[32];
-    if (!inputs_finite(s, t, s->dv, q, "d") || !inputs_finite(s, t, s->theta_in, d->s, "theta"))
+    if (!uiofmu_inputs_finite(s->fmu, t, -1, s->dv, q, "d") ||
+        !uiofmu_inputs_finite(s->fmu, t, -1, s->theta_in, d->s, "theta"))
         return UIOFMU_REFUSED;
-    if (fabs(h - d->dt) > d->step_rtol * d->dt) {
-        uiofmu_log(s->fmu, fmi2Discard, "t = %s: this discrete plant steps at dt = %s s and received h = %s s",
-                   uiofmu_num(t, bt), uiofmu_num(d->dt, bd), uiofmu_num(h, bh));
-        return UIOFMU_DISCARDED;
-    }
+    if (uiofmu_off_period(s->fmu, t, h, d->dt, d->step_rtol, 0)) return UIOFMU_DISCARDED;
     current_theta(s);
     scheduled(d->A, (size_t)n * n, s->th, d->s, s->MA);
     scheduled(d->E, (size_t)n * q, s->th, d->s, s->ME);
     affine_map(s->MA, s->x, n, s->ME, s->dv, q, n, s->xn, s->t1);
-    for (int i = 0; i < n; i++)
-        if (!isfinite(s->xn[i])) {
-            uiofmu_log(s->fmu, fmi2Error, "t = %s: the state x[%d] after the step h = %s s would not be finite",
-                       uiofmu_num(t, bt), i + 1, uiofmu_num(h, bh));
-            return UIOFMU_REFUSED; /* th is theta_k of the unchanged state: nothing changed */
-        }
+    if (!uiofmu_next_state_finite(s->fmu, t, h, s->xn, n))
+        return UIOFMU_REFUSED; /* th is theta_k of the unchanged state: nothing changed */
     memcpy(s->x, s->xn, (size_t)n * sizeof(double));
     s->dirty = 1;
     return UIOFMU_DONE;
@@ -327,8 +282,6 @@ static UiofmuResult lpv_step(void *self, double t, double h) {
 
 typedef unsigned char Byte;
 
-static double getd(const Byte *b, size_t index) { double v; memcpy(&v, b + index * sizeof v, sizeof v); return v; }
-
 static size_t lpv_state_count(void) {
     const UiofmuLpv *d = &UIOFMU_LPV;
     return 1 + 2 * (size_t)d->n + (size_t)d->q + (size_t)d->s;
@@ -337,59 +290,34 @@ static size_t lpv_state_count(void) {
 static void lpv_state_shape(uint32_t shape[UIOFMU_SHAPE], const char *names[UIOFMU_SHAPE]) {
     const UiofmuLpv *d = &UIOFMU_LPV;
     static const char *const NAMES[UIOFMU_SHAPE] = {"n", "p", "q", "s"};
-    shape[0] = (uint32_t)d->n;
-    shape[1] = (uint32_t)d->p;
-    shape[2] = (uint32_t)d->q;
-    shape[3] = (uint32_t)d->s;
-    for (int i = 0; i < UIOFMU_SHAPE; i++) names[i] = NAMES[i];
+    const int dims[UIOFMU_SHAPE] = {d->n, d->p, d->q, d->s};
+    uiofmu_shape(shape, names, dims, NAMES);
 }
 
 static void lpv_save_state(void *self, int phase, Byte *o) {
     Lpv *s = (Lpv *)self;
     const UiofmuLpv *d = s->d;
     double ph = (double)phase;
-    memcpy(o, &ph, sizeof ph); o += sizeof ph;
-    memcpy(o, s->x0, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
-    memcpy(o, s->x, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
-    memcpy(o, s->dv, (size_t)d->q * sizeof(double)); o += (size_t)d->q * sizeof(double);
-    memcpy(o, s->theta_in, (size_t)d->s * sizeof(double));
+    o = uiofmu_put(o, &ph, 1);
+    o = uiofmu_put(o, s->x0, (size_t)d->n);
+    o = uiofmu_put(o, s->x, (size_t)d->n);
+    o = uiofmu_put(o, s->dv, (size_t)d->q);
+    uiofmu_put(o, s->theta_in, (size_t)d->s);
 }
 
 static int lpv_check_state(void *self, const char *ctx, const Byte *v, int *phase) {
     Lpv *s = (Lpv *)self;
     const UiofmuLpv *d = s->d;
-    char b1[32], b2[32];
-    double ph = getd(v, 0);
-    if (!(ph == UIOFMU_PHASE_INSTANTIATED || ph == UIOFMU_PHASE_INITIALIZATION || ph == UIOFMU_PHASE_RUNNING ||
-          ph == UIOFMU_PHASE_TERMINATED)) {
-        uiofmu_log(s->fmu, fmi2Error, "%s: phase = %s is none of 0 (instantiated), 1 (initialisation mode), "
-                   "2 (initialised), 3 (terminated)", ctx, uiofmu_num(ph, b1));
-        return 0;
-    }
-    for (int w = 0; w < 2; w++)
-        for (int i = 0; i < d->n; i++) {
-            double x = getd(v, 1 + (size_t)w * d->n + (size_t)i);
-            if (!isfinite(x)) {
-                uiofmu_log(s->fmu, fmi2Error, "%s: %s[%d] = %s is not finite", ctx, w ? "x" : "x0", i + 1,
-                           uiofmu_num(x, b1));
-                return 0;
-            }
-            if (w == 1 && ph < UIOFMU_PHASE_RUNNING && x != d->x0[i]) {
-                uiofmu_log(s->fmu, fmi2Error, "%s: x[%d] = %s in phase %d, before initialisation ended: expected the "
-                           "design's x0[%d] = %s", ctx, i + 1, uiofmu_num(x, b1), (int)ph, i + 1,
-                           uiofmu_num(d->x0[i], b2));
-                return 0;
-            }
-        }
+    char b1[32];
+    double ph = uiofmu_getd(v, 0);
+    if (!uiofmu_phase_ok(s->fmu, ctx, ph) || !uiofmu_plant_x_ok(s->fmu, ctx, v, 1, d->n, ph, d->x0)) return 0;
     /* d[q]: taken as it is (see the header comment); theta[s] as well for kind input */
     if (d->kind == UIOFMU_THETA_STATE)
         for (int i = 0; i < d->s; i++) {
-            double x = getd(v, 1 + 2 * (size_t)d->n + (size_t)d->q + (size_t)i);
-            if (x != 0) {
-                uiofmu_log(s->fmu, fmi2Error, "%s: theta[%d] = %s: expected 0 (theta = T x is an output of this plant, "
-                           "not an input)", ctx, i + 1, uiofmu_num(x, b1));
-                return 0;
-            }
+            double x = uiofmu_getd(v, 1 + 2 * (size_t)d->n + (size_t)d->q + (size_t)i);
+            if (x != 0)
+                return uiofmu_state_refused(s->fmu, ctx, "theta[%d] = %s: expected 0 (theta = T x is an output of "
+                                            "this plant, not an input)", i + 1, uiofmu_num(x, b1));
         }
     *phase = (int)ph;
     return 1;
@@ -399,10 +327,10 @@ static void lpv_load_state(void *self, const Byte *v) {
     Lpv *s = (Lpv *)self;
     const UiofmuLpv *d = s->d;
     const Byte *o = v + sizeof(double);
-    memcpy(s->x0, o, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
-    memcpy(s->x, o, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
-    memcpy(s->dv, o, (size_t)d->q * sizeof(double)); o += (size_t)d->q * sizeof(double);
-    memcpy(s->theta_in, o, (size_t)d->s * sizeof(double));
+    o = uiofmu_take(o, s->x0, (size_t)d->n);
+    o = uiofmu_take(o, s->x, (size_t)d->n);
+    o = uiofmu_take(o, s->dv, (size_t)d->q);
+    uiofmu_take(o, s->theta_in, (size_t)d->s);
     s->dirty = 1;
 }
 

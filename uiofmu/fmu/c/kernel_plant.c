@@ -56,14 +56,13 @@
  */
 #include <limits.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdint.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "fmi2_plumbing.h"
 #include "kernel_plant.h"
+#include "kernel_util.h"
 
 /* Bounds of what a plant may ask for: the augmented matrix is K x K, K = n + m + q + 1. */
 #define MAX_DIM 2048
@@ -233,60 +232,48 @@ int uiofmu_expm(const double *M, int k, double *out, double *work, int *piv) {
 /* ---------------------------------------------------------------------------------------- */
 /* The design, checked once at fmi2Instantiate                                               */
 
-static int design_error(char *msg, size_t len, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
-static int design_error(char *msg, size_t len, const char *fmt, ...) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, len, fmt, ap);
-    va_end(ap);
-    return 0;
-}
-
 /* The switching rule's numbers (thresholds, cumulative probabilities, state index, mode0). */
 static int switching_ok(const UiofmuPlant *d, char *msg, size_t len) {
     int want_th = d->rule == UIOFMU_RULE_THRESHOLD ? d->modes - 1 : 0;
     if (d->nthresholds != want_th || !d->thresholds || d->thresholds_length != (size_t)(want_th ? want_th : 1))
-        return design_error(msg, len, "plant thresholds: %d in an array of %zu, expected %d", d->nthresholds,
-                            d->thresholds ? d->thresholds_length : 0, want_th);
+        return uiofmu_design_error(msg, len, "plant thresholds: %d in an array of %zu, expected %d", d->nthresholds,
+                                   d->thresholds ? d->thresholds_length : 0, want_th);
     for (int i = 0; i < want_th; i++)
         if (!isfinite(d->thresholds[i]) || (i && !(d->thresholds[i] > d->thresholds[i - 1])))
-            return design_error(msg, len, "plant thresholds: entry %d = %g is not finite and above the one before", i + 1,
-                                d->thresholds[i]);
+            return uiofmu_design_error(msg, len, "plant thresholds: entry %d = %g is not finite and above the one "
+                                       "before", i + 1, d->thresholds[i]);
     if (d->rule == UIOFMU_RULE_THRESHOLD && !(d->state >= 0 && d->state < d->n))
-        return design_error(msg, len, "plant switching state = %d is not a state index (0 to %d)", d->state, d->n - 1);
+        return uiofmu_design_error(msg, len, "plant switching state = %d is not a state index (0 to %d)", d->state,
+                                   d->n - 1);
     size_t want_c = d->rule == UIOFMU_RULE_RANDOM ? (size_t)d->modes : 1;
     if (!d->cumulative || d->cumulative_length != want_c)
-        return design_error(msg, len, "plant cumulative probabilities: %zu numbers, expected %zu",
-                            d->cumulative ? d->cumulative_length : 0, want_c);
+        return uiofmu_design_error(msg, len, "plant cumulative probabilities: %zu numbers, expected %zu",
+                                   d->cumulative ? d->cumulative_length : 0, want_c);
     for (size_t i = 0; i < want_c; i++)
         if (!isfinite(d->cumulative[i]))
-            return design_error(msg, len, "plant cumulative probabilities: entry %zu is not finite", i + 1);
+            return uiofmu_design_error(msg, len, "plant cumulative probabilities: entry %zu is not finite", i + 1);
     if (d->rule == UIOFMU_RULE_INPUT && !(d->mode0 >= 1 && d->mode0 <= d->modes))
-        return design_error(msg, len, "plant mode0 = %d is not a mode (1 to %d)", d->mode0, d->modes);
+        return uiofmu_design_error(msg, len, "plant mode0 = %d is not a mode (1 to %d)", d->mode0, d->modes);
     return 1;
 }
 
 static int plant_check_design(char *msg, size_t len) {
     const UiofmuPlant *d = &UIOFMU_PLANT;
-    const int dims[4] = {d->n, d->m, d->p, d->q};
+    const int dims[4] = {d->n, d->m, d->p, d->q}, low[4] = {1, 0, 1, 0};
     const char *const dim_name[4] = {"n", "m", "p", "q"};
-    for (int i = 0; i < 4; i++) {
-        int low = i == 0 || i == 2 ? 1 : 0;
-        if (dims[i] < low || dims[i] > MAX_DIM)
-            return design_error(msg, len, "plant dims.%s = %d is out of range [%d, %d]", dim_name[i], dims[i], low, MAX_DIM);
-    }
+    if (!uiofmu_check_dims(msg, len, "plant dims.", 4, dims, dim_name, low, MAX_DIM)) return 0;
     if (d->time != UIOFMU_DISCRETE && d->time != UIOFMU_CONTINUOUS)
-        return design_error(msg, len, "plant time = %d is neither discrete (0) nor continuous (1)", d->time);
+        return uiofmu_design_error(msg, len, "plant time = %d is neither discrete (0) nor continuous (1)", d->time);
     if (d->time == UIOFMU_DISCRETE && !(isfinite(d->dt) && d->dt > 0))
-        return design_error(msg, len, "plant dt = %g: a discrete plant needs a period > 0", d->dt);
+        return uiofmu_design_error(msg, len, "plant dt = %g: a discrete plant needs a period > 0", d->dt);
     if (!(isfinite(d->step_rtol) && d->step_rtol >= 0 && d->step_rtol < 1))
-        return design_error(msg, len, "plant step_rtol = %g is out of range [0, 1)", d->step_rtol);
+        return uiofmu_design_error(msg, len, "plant step_rtol = %g is out of range [0, 1)", d->step_rtol);
     if (!(d->modes >= 0 && d->modes <= MAX_MODES))
-        return design_error(msg, len, "plant modes = %d is out of range [0, %d]", d->modes, MAX_MODES);
+        return uiofmu_design_error(msg, len, "plant modes = %d is out of range [0, %d]", d->modes, MAX_MODES);
     if ((d->modes == 0) != (d->rule == UIOFMU_RULE_NONE) || d->rule < UIOFMU_RULE_NONE || d->rule > UIOFMU_RULE_RANDOM)
-        return design_error(msg, len, "plant rule = %d does not go with %d modes", d->rule, d->modes);
+        return uiofmu_design_error(msg, len, "plant rule = %d does not go with %d modes", d->rule, d->modes);
     if (d->modes && d->time != UIOFMU_DISCRETE)
-        return design_error(msg, len, "a switched plant is discrete, found time = %d", d->time);
+        return uiofmu_design_error(msg, len, "a switched plant is discrete, found time = %d", d->time);
     if (!switching_ok(d, msg, len)) return 0;
     size_t blocks = d->modes ? (size_t)d->modes : 1;
     struct { const char *name; const double *data; size_t length, want; } M[6] = {
@@ -296,10 +283,11 @@ static int plant_check_design(char *msg, size_t len) {
     for (int i = 0; i < 6; i++) {
         size_t want = M[i].want ? M[i].want : 1; /* an empty array is written as {0.0} */
         if (!M[i].data || M[i].length != want)
-            return design_error(msg, len, "plant %s: %zu numbers compiled in, expected %zu", M[i].name, M[i].length, want);
+            return uiofmu_design_error(msg, len, "plant %s: %zu numbers compiled in, expected %zu", M[i].name,
+                                       M[i].length, want);
         for (size_t e = 0; e < M[i].want; e++)
             if (!isfinite(M[i].data[e]))
-                return design_error(msg, len, "plant %s: entry %zu is not finite", M[i].name, e + 1);
+                return uiofmu_design_error(msg, len, "plant %s: entry %zu is not finite", M[i].name, e + 1);
     }
     return 1;
 }
@@ -388,11 +376,8 @@ static void plant_reset(void *self) {
 
 static void *plant_instantiate(FmuInstance *fmu) {
     const UiofmuPlant *d = &UIOFMU_PLANT;
-    Plant *s = (Plant *)calloc(1, sizeof(Plant));
-    if (!s) {
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: out of memory");
-        return NULL;
-    }
+    Plant *s = (Plant *)uiofmu_alloc(fmu, 1, sizeof(Plant));
+    if (!s) return NULL;
     s->fmu = fmu;
     s->d = d;
     s->K = d->n + d->m + d->q + 1;
@@ -400,13 +385,12 @@ static void *plant_instantiate(FmuInstance *fmu) {
     int continuous = d->time == UIOFMU_CONTINUOUS;
     size_t total = 4 * n + (size_t)d->m + (size_t)d->q + (size_t)d->p +
                    (continuous ? 9 * kk + CACHE_SIZE * n * K : 0);
-    s->block = (double *)calloc(total, sizeof(double));
-    s->piv = continuous ? (int *)calloc(K, sizeof(int)) : NULL;
-    if (!s->block || (continuous && !s->piv)) {
+    s->block = (double *)uiofmu_alloc(fmu, total, sizeof(double));
+    s->piv = continuous && s->block ? (int *)uiofmu_alloc(fmu, K, sizeof(int)) : NULL;
+    if (!s->block || (continuous && !s->piv)) { /* one log line said why */
         free(s->block);
         free(s->piv);
         free(s);
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: out of memory");
         return NULL;
     }
     double *b = s->block;
@@ -437,12 +421,7 @@ static void plant_free(void *self) {
 
 static UiofmuResult plant_exit_initialization(void *self) {
     Plant *s = (Plant *)self;
-    char b1[32];
-    for (int i = 0; i < s->d->n; i++)
-        if (!isfinite(s->x0[i])) {
-            uiofmu_log(s->fmu, fmi2Error, "parameter x0[%d] = %s is not finite", i + 1, uiofmu_num(s->x0[i], b1));
-            return UIOFMU_REFUSED;
-        }
+    if (!uiofmu_parameter_finite(s->fmu, "x0", s->x0, s->d->n)) return UIOFMU_REFUSED;
     memcpy(s->x, s->x0, (size_t)s->d->n * sizeof(double));
     restart(s);
     s->dirty = 1;
@@ -533,23 +512,13 @@ static const double *discretisation(Plant *s, double t, double h) {
     return e->phi;
 }
 
-static int inputs_finite(Plant *s, double t, const double *v, int len, const char *name) {
-    char bt[32];
-    for (int i = 0; i < len; i++)
-        if (!isfinite(v[i])) {
-            uiofmu_log(s->fmu, fmi2Error, "t = %s: input %s[%d] = %s is not finite", uiofmu_num(t, bt), name, i + 1,
-                       isnan(v[i]) ? "nan" : (v[i] > 0 ? "inf" : "-inf"));
-            return 0;
-        }
-    return 1;
-}
-
 static UiofmuResult plant_step(void *self, double t, double h) {
     Plant *s = (Plant *)self;
     const UiofmuPlant *d = s->d;
     int n = d->n, m = d->m, q = d->q;
-    char bt[32], bh[32], bd[32];
-    if (!inputs_finite(s, t, s->u, m, "u") || !inputs_finite(s, t, s->dv, q, "d")) return UIOFMU_REFUSED;
+    char bt[32];
+    if (!uiofmu_inputs_finite(s->fmu, t, -1, s->u, m, "u") || !uiofmu_inputs_finite(s->fmu, t, -1, s->dv, q, "d"))
+        return UIOFMU_REFUSED;
     int mode = current_mode(s);
     if (!(mode >= 1 && mode <= (d->modes ? d->modes : 1))) { /* only an input can be out of range */
         uiofmu_log(s->fmu, fmi2Error, "t = %s: input mode = %d is not a mode of this plant (expected an integer from 1 "
@@ -558,11 +527,7 @@ static UiofmuResult plant_step(void *self, double t, double h) {
     }
     double *xn = s->tmp;
     if (d->time == UIOFMU_DISCRETE) {
-        if (fabs(h - d->dt) > d->step_rtol * d->dt) {
-            uiofmu_log(s->fmu, fmi2Discard, "t = %s: this discrete plant steps at dt = %s s and received h = %s s",
-                       uiofmu_num(t, bt), uiofmu_num(d->dt, bd), uiofmu_num(h, bh));
-            return UIOFMU_DISCARDED;
-        }
+        if (uiofmu_off_period(s->fmu, t, h, d->dt, d->step_rtol, 0)) return UIOFMU_DISCARDED;
         size_t b = (size_t)(mode - 1); /* the mode's block of A, B, E, w */
         const double *A = d->A + b * n * n, *B = d->B + b * n * m, *E = d->E + b * n * q, *w = d->w + b * n;
         for (int i = 0; i < n; i++) {
@@ -585,12 +550,7 @@ static UiofmuResult plant_step(void *self, double t, double h) {
             xn[i] = ax + bu + ed + row[K - 1];
         }
     }
-    for (int i = 0; i < n; i++)
-        if (!isfinite(xn[i])) {
-            uiofmu_log(s->fmu, fmi2Error, "t = %s: the state x[%d] after the step h = %s s would not be finite",
-                       uiofmu_num(t, bt), i + 1, uiofmu_num(h, bh));
-            return UIOFMU_REFUSED;
-        }
+    if (!uiofmu_next_state_finite(s->fmu, t, h, xn, n)) return UIOFMU_REFUSED;
     memcpy(s->x, xn, (size_t)n * sizeof(double));
     draw(s); /* rule random: the mode of the next step */
     s->dirty = 1;
@@ -601,8 +561,6 @@ static UiofmuResult plant_step(void *self, double t, double h) {
 /* FMU state (layout in the header comment)                                                  */
 
 typedef unsigned char Byte;
-
-static double getd(const Byte *b, size_t index) { double v; memcpy(&v, b + index * sizeof v, sizeof v); return v; }
 
 enum { SV_MODE_IN, SV_SEED, SV_RNG_HI, SV_RNG_LO, SV_DRAWN, SV_SWITCHED }; /* after d[q], switched plants only */
 
@@ -616,26 +574,23 @@ static size_t plant_state_count(void) {
 static void plant_state_shape(uint32_t shape[UIOFMU_SHAPE], const char *names[UIOFMU_SHAPE]) {
     const UiofmuPlant *d = &UIOFMU_PLANT;
     static const char *const NAMES[UIOFMU_SHAPE] = {"n", "m", "p", "q"};
-    shape[0] = (uint32_t)d->n;
-    shape[1] = (uint32_t)d->m;
-    shape[2] = (uint32_t)d->p;
-    shape[3] = (uint32_t)d->q;
-    for (int i = 0; i < UIOFMU_SHAPE; i++) names[i] = NAMES[i];
+    const int dims[UIOFMU_SHAPE] = {d->n, d->m, d->p, d->q};
+    uiofmu_shape(shape, names, dims, NAMES);
 }
 
 static void plant_save_state(void *self, int phase, Byte *o) {
     Plant *s = (Plant *)self;
     const UiofmuPlant *d = s->d;
     double ph = (double)phase;
-    memcpy(o, &ph, sizeof ph); o += sizeof ph;
-    memcpy(o, s->x0, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
-    memcpy(o, s->x, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
-    memcpy(o, s->u, (size_t)d->m * sizeof(double)); o += (size_t)d->m * sizeof(double);
-    memcpy(o, s->dv, (size_t)d->q * sizeof(double)); o += (size_t)d->q * sizeof(double);
+    o = uiofmu_put(o, &ph, 1);
+    o = uiofmu_put(o, s->x0, (size_t)d->n);
+    o = uiofmu_put(o, s->x, (size_t)d->n);
+    o = uiofmu_put(o, s->u, (size_t)d->m);
+    o = uiofmu_put(o, s->dv, (size_t)d->q);
     if (d->modes) {
         double sw[SV_SWITCHED] = {(double)s->mode_in, (double)s->seed, (double)(uint32_t)(s->rng >> 32),
                                   (double)(uint32_t)(s->rng & UINT64_C(0xFFFFFFFF)), (double)s->drawn};
-        memcpy(o, sw, sizeof sw);
+        uiofmu_put(o, sw, SV_SWITCHED);
     }
 }
 
@@ -643,44 +598,23 @@ static int plant_check_state(void *self, const char *ctx, const Byte *v, int *ph
     Plant *s = (Plant *)self;
     const UiofmuPlant *d = s->d;
     char b1[32], b2[32], b3[32];
-    double ph = getd(v, 0);
-    if (!(ph == UIOFMU_PHASE_INSTANTIATED || ph == UIOFMU_PHASE_INITIALIZATION || ph == UIOFMU_PHASE_RUNNING ||
-          ph == UIOFMU_PHASE_TERMINATED)) {
-        uiofmu_log(s->fmu, fmi2Error, "%s: phase = %s is none of 0 (instantiated), 1 (initialisation mode), "
-                   "2 (initialised), 3 (terminated)", ctx, uiofmu_num(ph, b1));
-        return 0;
-    }
-    for (int w = 0; w < 2; w++)
-        for (int i = 0; i < d->n; i++) {
-            double x = getd(v, 1 + (size_t)w * d->n + (size_t)i);
-            if (!isfinite(x)) {
-                uiofmu_log(s->fmu, fmi2Error, "%s: %s[%d] = %s is not finite", ctx, w ? "x" : "x0", i + 1, uiofmu_num(x, b1));
-                return 0;
-            }
-            if (w == 1 && ph < UIOFMU_PHASE_RUNNING && x != d->x0[i]) {
-                uiofmu_log(s->fmu, fmi2Error, "%s: x[%d] = %s in phase %d, before initialisation ended: expected the "
-                           "design's x0[%d] = %s", ctx, i + 1, uiofmu_num(x, b1), (int)ph, i + 1, uiofmu_num(d->x0[i], b2));
-                return 0;
-            }
-        }
+    double ph = uiofmu_getd(v, 0);
+    if (!uiofmu_phase_ok(s->fmu, ctx, ph) || !uiofmu_plant_x_ok(s->fmu, ctx, v, 1, d->n, ph, d->x0)) return 0;
     /* u[m], d[q]: taken as they are (see the header comment) */
     if (d->modes) {
         static const char *const NAME[SV_SWITCHED] = {"mode_in", "seed", "rng_hi", "rng_lo", "drawn"};
         const double low[SV_SWITCHED] = {INT_MIN, INT_MIN, 0, 0, 1};
         const double high[SV_SWITCHED] = {INT_MAX, INT_MAX, 4294967295.0, 4294967295.0, d->modes};
         for (int i = 0; i < SV_SWITCHED; i++) {
-            double x = getd(v, switched_at(d) + (size_t)i);
-            if (!(x == floor(x) && x >= low[i] && x <= high[i])) {
-                uiofmu_log(s->fmu, fmi2Error, "%s: %s = %s is not an integer from %s to %s", ctx, NAME[i],
-                           uiofmu_num(x, b1), uiofmu_num(low[i], b2), uiofmu_num(high[i], b3));
-                return 0;
-            }
+            double x = uiofmu_getd(v, switched_at(d) + (size_t)i);
+            if (!(x == floor(x) && x >= low[i] && x <= high[i]))
+                return uiofmu_state_refused(s->fmu, ctx, "%s = %s is not an integer from %s to %s", NAME[i],
+                                            uiofmu_num(x, b1), uiofmu_num(low[i], b2), uiofmu_num(high[i], b3));
         }
-        if (d->rule != UIOFMU_RULE_RANDOM && getd(v, switched_at(d) + SV_DRAWN) != 1) {
-            uiofmu_log(s->fmu, fmi2Error, "%s: drawn = %s, but only rule random draws modes (expected 1)", ctx,
-                       uiofmu_num(getd(v, switched_at(d) + SV_DRAWN), b1));
-            return 0;
-        }
+        double drawn = uiofmu_getd(v, switched_at(d) + SV_DRAWN);
+        if (d->rule != UIOFMU_RULE_RANDOM && drawn != 1)
+            return uiofmu_state_refused(s->fmu, ctx, "drawn = %s, but only rule random draws modes (expected 1)",
+                                        uiofmu_num(drawn, b1));
     }
     *phase = (int)ph;
     return 1;
@@ -690,16 +624,16 @@ static void plant_load_state(void *self, const Byte *v) {
     Plant *s = (Plant *)self;
     const UiofmuPlant *d = s->d;
     const Byte *o = v + sizeof(double);
-    memcpy(s->x0, o, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
-    memcpy(s->x, o, (size_t)d->n * sizeof(double)); o += (size_t)d->n * sizeof(double);
-    memcpy(s->u, o, (size_t)d->m * sizeof(double)); o += (size_t)d->m * sizeof(double);
-    memcpy(s->dv, o, (size_t)d->q * sizeof(double));
+    o = uiofmu_take(o, s->x0, (size_t)d->n);
+    o = uiofmu_take(o, s->x, (size_t)d->n);
+    o = uiofmu_take(o, s->u, (size_t)d->m);
+    uiofmu_take(o, s->dv, (size_t)d->q);
     if (d->modes) {
         size_t at = switched_at(d);
-        s->mode_in = (int)getd(v, at + SV_MODE_IN);
-        s->seed = (int)getd(v, at + SV_SEED);
-        s->rng = ((uint64_t)getd(v, at + SV_RNG_HI) << 32) | (uint64_t)getd(v, at + SV_RNG_LO);
-        s->drawn = (int)getd(v, at + SV_DRAWN);
+        s->mode_in = (int)uiofmu_getd(v, at + SV_MODE_IN);
+        s->seed = (int)uiofmu_getd(v, at + SV_SEED);
+        s->rng = ((uint64_t)uiofmu_getd(v, at + SV_RNG_HI) << 32) | (uint64_t)uiofmu_getd(v, at + SV_RNG_LO);
+        s->drawn = (int)uiofmu_getd(v, at + SV_DRAWN);
     }
     s->dirty = 1;
 }

@@ -28,13 +28,12 @@
  */
 #include <limits.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdint.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "fmi2_plumbing.h"
+#include "kernel_util.h"
 #include "kernel_window.h"
 
 /* Bounds of what a design may ask for (uiofmu/runtime/card.py: MAX_WINDOW = 1024); with them
@@ -125,62 +124,44 @@ static void reset_state(Window *s) {
 /* ---------------------------------------------------------------------------------------- */
 /* The design, checked once at fmi2Instantiate: everything the runtime later indexes with.   */
 
-static int design_error(char *msg, size_t len, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
-static int design_error(char *msg, size_t len, const char *fmt, ...) {
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, len, fmt, ap);
-    va_end(ap);
-    return 0;
-}
-
 /* a * b in *out, 0 when it exceeds MAX_NUMBERS. */
-static int mul_count(size_t a, size_t b, size_t *out) {
-    if (a && b > MAX_NUMBERS / a) return 0;
-    *out = a * b;
-    return 1;
-}
+static int mul_count(size_t a, size_t b, size_t *out) { return uiofmu_mul(a, b, MAX_NUMBERS, out); }
 
 static int check_design_data(const UiofmuWindow *d, char *msg, size_t len) {
-    const int dims[3] = {d->p, d->d, d->s};
+    const int dims[3] = {d->p, d->d, d->s}, low[3] = {1, 1, 0};
     const char *const dim_name[3] = {"p", "d", "s"};
     size_t pl, rows, total_f, tl, total_e;
-    for (int i = 0; i < 3; i++)
-        if (dims[i] < (i < 2 ? 1 : 0) || dims[i] > MAX_DIM)
-            return design_error(msg, len, "%s = %d is out of range [%d, %d]", dim_name[i], dims[i], i < 2 ? 1 : 0,
-                                MAX_DIM);
+    if (!uiofmu_check_dims(msg, len, "", 3, dims, dim_name, low, MAX_DIM)) return 0;
     if (d->length < 1 || d->length > MAX_LENGTH)
-        return design_error(msg, len, "window length L = %d is out of range [1, %d]", d->length, MAX_LENGTH);
+        return uiofmu_design_error(msg, len, "window length L = %d is out of range [1, %d]", d->length, MAX_LENGTH);
     if (d->delay < 0 || d->delay >= d->length)
-        return design_error(msg, len, "delay = %d is out of range [0, L - 1 = %d]", d->delay, d->length - 1);
+        return uiofmu_design_error(msg, len, "delay = %d is out of range [0, L - 1 = %d]", d->delay, d->length - 1);
     if (d->uses_theta != 0 && d->uses_theta != 1)
-        return design_error(msg, len, "uses_theta = %d is neither 0 nor 1", d->uses_theta);
+        return uiofmu_design_error(msg, len, "uses_theta = %d is neither 0 nor 1", d->uses_theta);
     if (d->terms < 1 || d->terms > MAX_TERMS)
-        return design_error(msg, len, "terms = %d is out of range [1, %d]", d->terms, MAX_TERMS);
-    if (!(isfinite(d->dt) && d->dt > 0) || !(isfinite(d->step_rtol) && d->step_rtol >= 0))
-        return design_error(msg, len, "dt = %g, step_rtol = %g: expected a finite period > 0 and step_rtol >= 0",
-                            d->dt, d->step_rtol);
+        return uiofmu_design_error(msg, len, "terms = %d is out of range [1, %d]", d->terms, MAX_TERMS);
+    if (!uiofmu_check_period(msg, len, d->dt, d->step_rtol)) return 0;
     if (!mul_count((size_t)d->p, (size_t)d->length, &pl) || !mul_count(pl, (size_t)d->d, &rows) ||
         !mul_count(rows, (size_t)d->terms, &total_f))
-        return design_error(msg, len, "F of %d terms of %d x %d x %d is larger than %d numbers", d->terms, d->d, d->p,
-                            d->length, MAX_NUMBERS);
+        return uiofmu_design_error(msg, len, "F of %d terms of %d x %d x %d is larger than %d numbers", d->terms, d->d,
+                                   d->p, d->length, MAX_NUMBERS);
     if (!d->F || d->F_length != total_f)
-        return design_error(msg, len, "F: %d terms of %d x %d (p L) need %zu numbers, its array holds %zu", d->terms,
-                            d->d, d->p * d->length, total_f, d->F ? d->F_length : 0);
+        return uiofmu_design_error(msg, len, "F: %d terms of %d x %d (p L) need %zu numbers, its array holds %zu",
+                                   d->terms, d->d, d->p * d->length, total_f, d->F ? d->F_length : 0);
     for (size_t e = 0; e < total_f; e++)
-        if (!isfinite(d->F[e])) return design_error(msg, len, "F[%zu] = %g is not finite", e, d->F[e]);
+        if (!isfinite(d->F[e])) return uiofmu_design_error(msg, len, "F[%zu] = %g is not finite", e, d->F[e]);
     if (!mul_count((size_t)d->terms, (size_t)d->length, &tl) || !mul_count(tl, (size_t)d->s, &total_e))
-        return design_error(msg, len, "Fexp of %d terms of %d x %d is larger than %d numbers", d->terms, d->length,
-                            d->s, MAX_NUMBERS);
+        return uiofmu_design_error(msg, len, "Fexp of %d terms of %d x %d is larger than %d numbers", d->terms,
+                                   d->length, d->s, MAX_NUMBERS);
     if (!d->Fexp || d->Fexp_length != (total_e ? total_e : 1))
-        return design_error(msg, len, "Fexp: %d terms of %d x %d (L s) need %zu numbers, its array holds %zu",
-                            d->terms, d->length, d->s, total_e, d->Fexp ? d->Fexp_length : 0);
+        return uiofmu_design_error(msg, len, "Fexp: %d terms of %d x %d (L s) need %zu numbers, its array holds %zu",
+                                   d->terms, d->length, d->s, total_e, d->Fexp ? d->Fexp_length : 0);
     for (size_t e = 0; e < total_e; e++) {
         if (d->Fexp[e] < 0 || d->Fexp[e] > UIOFMU_WINDOW_MAX_POWER)
-            return design_error(msg, len, "Fexp[%zu] = %d is not a power from 0 to %d", e, d->Fexp[e],
-                                UIOFMU_WINDOW_MAX_POWER);
+            return uiofmu_design_error(msg, len, "Fexp[%zu] = %d is not a power from 0 to %d", e, d->Fexp[e],
+                                       UIOFMU_WINDOW_MAX_POWER);
         if (d->Fexp[e] && !d->uses_theta)
-            return design_error(msg, len, "Fexp[%zu] = %d, but the design does not use theta", e, d->Fexp[e]);
+            return uiofmu_design_error(msg, len, "Fexp[%zu] = %d, but the design does not use theta", e, d->Fexp[e]);
     }
     return 1;
 }
@@ -211,21 +192,17 @@ static int window_port(int id, UiofmuPort *out) {
 
 static void *window_instantiate(FmuInstance *fmu) {
     const UiofmuWindow *d = &UIOFMU_WINDOW;
-    Window *s = (Window *)calloc(1, sizeof(Window));
-    if (!s) {
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: out of memory");
-        return NULL;
-    }
+    Window *s = (Window *)uiofmu_alloc(fmu, 1, sizeof(Window));
+    if (!s) return NULL;
     s->fmu = fmu;
     s->d = d;
     s->W = d->length - 1;
     /* every count below is bounded by the checked design (W p <= p L, d p L <= the length of F) */
     size_t W = (size_t)s->W, p = (size_t)d->p, th = (size_t)d->s, rows = (size_t)d->d;
     size_t total = W * p + W * th + p + th + rows + rows * p * (size_t)d->length;
-    s->block = (double *)calloc(total ? total : 1, sizeof(double));
+    s->block = (double *)uiofmu_alloc(fmu, total, sizeof(double));
     if (!s->block) {
         free(s);
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: out of memory");
         return NULL;
     }
     double *b = s->block;
@@ -300,30 +277,14 @@ static void window_set_integer(void *self, int port, int index, int value) {
     (void)value; /* no Integer input */
 }
 
-static int inputs_finite(Window *s, double t, const double *v, int len, const char *name) {
-    char bt[32];
-    for (int i = 0; i < len; i++)
-        if (!isfinite(v[i])) {
-            uiofmu_log(s->fmu, fmi2Error, "t = %s: input %s[%d] = %s at step k = %ld is not finite", uiofmu_num(t, bt),
-                       name, i + 1, isnan(v[i]) ? "nan" : (v[i] > 0 ? "inf" : "-inf"), s->k);
-            return 0;
-        }
-    return 1;
-}
-
 static UiofmuResult window_step(void *self, double t, double h) {
     Window *s = (Window *)self;
     const UiofmuWindow *d = s->d;
-    char bt[32], bh[32], bd[32];
     /* the inputs first, as the reference runtime: a bad one is an input error, not a step rejected */
-    if (!inputs_finite(s, t, s->y, d->p, "y") || !inputs_finite(s, t, s->theta, d->s, "theta"))
+    if (!uiofmu_inputs_finite(s->fmu, t, s->k, s->y, d->p, "y") ||
+        !uiofmu_inputs_finite(s->fmu, t, s->k, s->theta, d->s, "theta"))
         return UIOFMU_REFUSED;
-    if (fabs(h - d->dt) > d->step_rtol * d->dt) {
-        uiofmu_log(s->fmu, fmi2Discard,
-                   "t = %s: this observer was designed for steps of dt = %s s and received h = %s s "
-                   "(step_policy = 'error')", uiofmu_num(t, bt), uiofmu_num(d->dt, bd), uiofmu_num(h, bh));
-        return UIOFMU_DISCARDED;
-    }
+    if (uiofmu_off_period(s->fmu, t, h, d->dt, d->step_rtol, 1)) return UIOFMU_DISCARDED;
     if (s->W > 0) { /* the current point replaces the oldest */
         memcpy(s->ys + (size_t)s->head * (size_t)d->p, s->y, (size_t)d->p * sizeof(double));
         memcpy(s->thetas + (size_t)s->head * (size_t)d->s, s->theta, (size_t)d->s * sizeof(double));
@@ -366,19 +327,6 @@ enum { SV_K, SV_PHASE, SV_SCALARS };
 
 typedef unsigned char Byte;
 
-static double getd(const Byte *b, size_t index) { double v; memcpy(&v, b + index * sizeof v, sizeof v); return v; }
-
-static int state_refused(Window *s, const char *ctx, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
-static int state_refused(Window *s, const char *ctx, const char *fmt, ...) {
-    char buf[768];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
-    va_end(ap);
-    uiofmu_log(s->fmu, fmi2Error, "%s: %s", ctx, buf);
-    return 0;
-}
-
 static size_t window_state_count(void) {
     const UiofmuWindow *d = &UIOFMU_WINDOW;
     size_t W = (size_t)(d->length - 1);
@@ -388,40 +336,35 @@ static size_t window_state_count(void) {
 static void window_state_shape(uint32_t shape[UIOFMU_SHAPE], const char *names[UIOFMU_SHAPE]) {
     const UiofmuWindow *d = &UIOFMU_WINDOW;
     static const char *const NAMES[UIOFMU_SHAPE] = {"p", "d", "s", "L"};
-    shape[0] = (uint32_t)d->p;
-    shape[1] = (uint32_t)d->d;
-    shape[2] = (uint32_t)d->s;
-    shape[3] = (uint32_t)d->length;
-    for (int i = 0; i < UIOFMU_SHAPE; i++) names[i] = NAMES[i];
+    const int dims[UIOFMU_SHAPE] = {d->p, d->d, d->s, d->length};
+    uiofmu_shape(shape, names, dims, NAMES);
 }
 
 static void window_save_state(void *self, int phase, Byte *o) {
     Window *s = (Window *)self;
     const UiofmuWindow *d = s->d;
-    size_t py = (size_t)d->p * sizeof(double), pt = (size_t)d->s * sizeof(double);
+    size_t py = (size_t)d->p, pt = (size_t)d->s;
     double scalars[SV_SCALARS] = {(double)s->k, (double)phase};
-    memcpy(o, scalars, sizeof scalars); o += sizeof scalars;
-    for (int l = 0; l < s->W; l++) { memcpy(o, y_at(s, l), py); o += py; }
-    for (int l = 0; l < s->W; l++) { memcpy(o, theta_at(s, l), pt); o += pt; }
-    memcpy(o, s->y, py); o += py;
-    memcpy(o, s->theta, pt);
+    o = uiofmu_put(o, scalars, SV_SCALARS);
+    for (int l = 0; l < s->W; l++) o = uiofmu_put(o, y_at(s, l), py);
+    for (int l = 0; l < s->W; l++) o = uiofmu_put(o, theta_at(s, l), pt);
+    o = uiofmu_put(o, s->y, py);
+    uiofmu_put(o, s->theta, pt);
 }
 
 /* Whether the doubles at v (k, phase, ...; see above) are a state this FMU can be in. */
 static int check_values(Window *s, const char *ctx, const Byte *v) {
     static const char *const VECTOR[2] = {"ys", "thetas"};
     const UiofmuWindow *d = s->d;
-    char b1[32];
-    double k = getd(v, SV_K), phase = getd(v, SV_PHASE);
+    char b1[32], b2[32];
+    double k = uiofmu_getd(v, SV_K), phase = uiofmu_getd(v, SV_PHASE);
     if (!(isfinite(k) && k >= 0 && k == floor(k) && k <= MAX_SAFE_INTEGER && k <= (double)LONG_MAX))
-        return state_refused(s, ctx, "k = %s is not a step count (an integer, 0 <= k <= 2^53)", uiofmu_num(k, b1));
-    if (!(phase == UIOFMU_PHASE_INSTANTIATED || phase == UIOFMU_PHASE_INITIALIZATION || phase == UIOFMU_PHASE_RUNNING ||
-          phase == UIOFMU_PHASE_TERMINATED))
-        return state_refused(s, ctx, "phase = %s is none of 0 (instantiated), 1 (initialisation mode), "
-                             "2 (initialised), 3 (terminated)", uiofmu_num(phase, b1));
+        return uiofmu_state_refused(s->fmu, ctx, "k = %s is not a step count (an integer, 0 <= k <= 2^53)",
+                                    uiofmu_num(k, b1));
+    if (!uiofmu_phase_ok(s->fmu, ctx, phase)) return 0;
     if (phase < UIOFMU_PHASE_RUNNING && k != 0)
-        return state_refused(s, ctx, "k = %s in phase %d, before initialisation ended: expected 0", uiofmu_num(k, b1),
-                             (int)phase);
+        return uiofmu_state_refused(s->fmu, ctx, "k = %s in phase %d, before initialisation ended: expected 0",
+                                    uiofmu_num(k, b1), (int)phase);
     /* the points not yet filled: the oldest W - k while k < W */
     int empty = k < (double)s->W ? s->W - (int)k : 0;
     const int width[2] = {d->p, d->s};
@@ -429,33 +372,34 @@ static int check_values(Window *s, const char *ctx, const Byte *v) {
     for (int w = 0; w < 2; w++) {
         for (int l = 0; l < s->W; l++)
             for (int i = 0; i < width[w]; i++) {
-                double x = getd(v, at + (size_t)l * (size_t)width[w] + (size_t)i);
+                double x = uiofmu_getd(v, at + (size_t)l * (size_t)width[w] + (size_t)i);
                 if (!isfinite(x))
-                    return state_refused(s, ctx, "%s[%d][%d] = %s is not finite", VECTOR[w], l + 1, i + 1,
-                                         uiofmu_num(x, b1));
+                    return uiofmu_state_refused(s->fmu, ctx, "%s[%d][%d] = %s is not finite", VECTOR[w], l + 1, i + 1,
+                                                uiofmu_num(x, b1));
                 if (x != 0 && l < empty)
-                    return state_refused(s, ctx, "%s[%d][%d] = %s at k = %s: expected 0 (a point not yet filled)",
-                                         VECTOR[w], l + 1, i + 1, uiofmu_num(x, b1), uiofmu_num(k, b1));
+                    return uiofmu_state_refused(s->fmu, ctx, "%s[%d][%d] = %s at k = %s: expected 0 (a point not yet "
+                                                "filled)", VECTOR[w], l + 1, i + 1, uiofmu_num(x, b1),
+                                                uiofmu_num(k, b2));
                 if (x != 0 && w == 1 && !d->uses_theta)
-                    return state_refused(s, ctx, "thetas[%d][%d] = %s: expected 0 (this design has no theta input)",
-                                         l + 1, i + 1, uiofmu_num(x, b1));
+                    return uiofmu_state_refused(s->fmu, ctx, "thetas[%d][%d] = %s: expected 0 (this design has no "
+                                                "theta input)", l + 1, i + 1, uiofmu_num(x, b1));
             }
         at += (size_t)s->W * (size_t)width[w];
     }
     at += (size_t)d->p; /* y[p]: taken as it is (see above) */
     if (!d->uses_theta)
         for (int i = 0; i < d->s; i++) {
-            double x = getd(v, at + (size_t)i);
+            double x = uiofmu_getd(v, at + (size_t)i);
             if (x != 0)
-                return state_refused(s, ctx, "theta[%d] = %s: expected 0 (this design has no theta input)", i + 1,
-                                     uiofmu_num(x, b1));
+                return uiofmu_state_refused(s->fmu, ctx, "theta[%d] = %s: expected 0 (this design has no theta "
+                                            "input)", i + 1, uiofmu_num(x, b1));
         }
     return 1;
 }
 
 static int window_check_state(void *self, const char *ctx, const Byte *v, int *phase) {
     if (!check_values((Window *)self, ctx, v)) return 0;
-    *phase = (int)getd(v, SV_PHASE);
+    *phase = (int)uiofmu_getd(v, SV_PHASE);
     return 1;
 }
 
@@ -463,13 +407,13 @@ static void window_load_state(void *self, const Byte *v) {
     Window *s = (Window *)self;
     const UiofmuWindow *d = s->d;
     size_t W = (size_t)s->W, p = (size_t)d->p, th = (size_t)d->s;
-    s->k = (long)getd(v, SV_K);
+    s->k = (long)uiofmu_getd(v, SV_K);
     s->head = 0; /* saved oldest first */
     const Byte *o = v + SV_SCALARS * sizeof(double);
-    memcpy(s->ys, o, W * p * sizeof(double)); o += W * p * sizeof(double);
-    memcpy(s->thetas, o, W * th * sizeof(double)); o += W * th * sizeof(double);
-    memcpy(s->y, o, p * sizeof(double)); o += p * sizeof(double);
-    memcpy(s->theta, o, th * sizeof(double));
+    o = uiofmu_take(o, s->ys, W * p);
+    o = uiofmu_take(o, s->thetas, W * th);
+    o = uiofmu_take(o, s->y, p);
+    uiofmu_take(o, s->theta, th);
     s->dirty = 1;
 }
 
