@@ -688,175 +688,6 @@ def description_problems(row: Row, path) -> list:
     return problems
 
 
-def run_fmpy_default(fmu, *, steps: int | None = None, max_stalls: int = 20, timeout: float = 600.0):
-    """Run an FMU alone with ``fmpy.simulate_fmu`` and its ``<DefaultExperiment>``, to its stop time.
-
-    fmpy repeats a step the FMU refused (fmi2Discard, fmi2Terminated false) for ever: the run is
-    stopped after ``max_stalls`` steps without progress.
-
-    Parameters
-    ----------
-    fmu : str or Path
-    steps : int, optional
-        Stop after this many steps of ``stepSize`` instead of at ``stopTime``.
-    max_stalls : int, optional
-    timeout : float, optional
-        fmpy's limit on the wall time, in seconds.
-
-    Returns
-    -------
-    numpy structured array
-        fmpy's result.
-
-    Raises
-    ------
-    RuntimeError
-        When time stalled, the run stopped before the stop time, or an output is not finite.
-    """
-    import fmpy
-
-    state = {"time": None, "stalls": 0}
-
-    def step_finished(t, recorder) -> bool:
-        state["stalls"] = state["stalls"] + 1 if t == state["time"] else 0
-        state["time"] = t
-        return state["stalls"] < max_stalls
-
-    de = fmpy.read_model_description(str(fmu)).defaultExperiment
-    stop = float(de.stopTime) if steps is None else steps * float(de.stepSize)
-    result = fmpy.simulate_fmu(str(fmu), stop_time=None if steps is None else stop, step_finished=step_finished,
-                               timeout=timeout)
-    if state["stalls"] >= max_stalls:
-        raise RuntimeError(f"fmpy repeated a refused step at t = {state['time']!r} {max_stalls} times")
-    if len(result) < 2 or not math.isclose(float(result["time"][-1]), stop, rel_tol=1e-9):
-        raise RuntimeError(f"fmpy stopped at t = {float(result['time'][-1])!r}, before the stop time {stop!r}")
-    for name in result.dtype.names:
-        if not np.all(np.isfinite(result[name])):
-            raise RuntimeError(f"fmpy: {name} is not finite")
-    return result
-
-
-def _vectors(md, causality: str) -> dict:
-    groups: dict = {}
-    for v in md.modelVariables:
-        m = re.fullmatch(r"([A-Za-z_]\w*)\[([1-9]\d*)\]", v.name)
-        if v.causality == causality and m:
-            groups.setdefault(m.group(1), {})[int(m.group(2))] = v.name
-    return {k: [g[i] for i in sorted(g)] for k, g in groups.items()}
-
-
-def import_ecospy():
-    """ecospy, or None when it is not importable (not installed, or its native library does not load)."""
-    try:
-        import ecospy
-    except (ImportError, OSError):
-        return None
-    return ecospy
-
-
-def run_ecospy(plant_fmu, observer_fmu, step: float, steps: int, inputs, estimate: str = "xhat"):
-    """Co-simulate a plant and an observer FMU in ecospy at a fixed step (Jacobi, as our master).
-
-    Every observer input named like a plant output is connected element by element (Integer
-    connections for Integer variables); the other inputs of both FMUs are set from
-    ``inputs.values(t_k)`` by a pre-step listener.
-
-    Parameters
-    ----------
-    plant_fmu, observer_fmu : str or Path
-    step : float
-    steps : int
-    inputs : object
-        ``values(t)``: ``{"u": array, "d": array, ...}`` (:class:`uiofmu.cosim.inputs.SignalInputs`).
-    estimate : str, optional
-        The observer output recorded (``"gx"`` for a functional observer).
-
-    Returns
-    -------
-    times, x, estimate : ndarray
-        Row k at t_k, k = 0..steps.
-    """
-    from ecospy import EcosSimulation, EcosSimulationStructure, SimulationListener
-    from fmpy import read_model_description
-
-    _preload_libpython()
-    md = {"plant": read_model_description(str(plant_fmu)), "observer": read_model_description(str(observer_fmu))}
-    plant_out, plant_in = _vectors(md["plant"], "output"), _vectors(md["plant"], "input")
-    obs_out, obs_in = _vectors(md["observer"], "output"), _vectors(md["observer"], "input")
-    integers = {k: {v.name for v in m.modelVariables if v.type == "Integer"} for k, m in md.items()}
-    fed = [name for name in obs_in if name in plant_out]
-    sinks = [("plant", name, plant_in[name]) for name in plant_in]
-    sinks += [("observer", name, obs_in[name]) for name in obs_in if name not in fed]
-    x_ids = [f"plant::{v}" for v in plant_out["x"]]
-    e_ids = [f"observer::{v}" for v in obs_out[estimate]]
-    with EcosSimulationStructure() as ss:
-        ss.add_model("plant", Path(plant_fmu).resolve())
-        ss.add_model("observer", Path(observer_fmu).resolve())
-        for name in fed:
-            for a, b in zip(plant_out[name], obs_in[name]):
-                connect = ss.make_int_connection if a in integers["plant"] else ss.make_real_connection
-                connect(f"plant::{a}", f"observer::{b}")
-        with EcosSimulation(structure=ss, step_size=float(step)) as sim:
-            T, X, E = np.zeros(steps + 1), np.zeros((steps + 1, len(x_ids))), np.zeros((steps + 1, len(e_ids)))
-            errors: list = []
-
-            def set_inputs(t: float) -> None:
-                values = inputs.values(t)
-                for who, name, names in sinks:
-                    for v, value in zip(names, np.ravel(values[name])):
-                        if v in integers[who]:
-                            sim.set_integer(f"{who}::{v}", int(round(float(value))))
-                        else:
-                            sim.set_real(f"{who}::{v}", float(value))
-
-            def record(k: int) -> None:
-                T[k] = sim.get_time()
-                X[k] = [sim.get_real(i) for i in x_ids]
-                E[k] = [sim.get_real(i) for i in e_ids]
-
-            class Listener(SimulationListener):
-                # exceptions must not cross ecospy's native frames: kept, raised after the steps
-                def pre(self, info):
-                    try:
-                        set_inputs(info.time)
-                    except BaseException as exc:  # noqa: BLE001
-                        errors.append(exc)
-
-                def post(self, info):
-                    try:
-                        record(info.iterations)
-                    except BaseException as exc:  # noqa: BLE001
-                        errors.append(exc)
-
-            set_inputs(0.0)
-            if not sim.init(0.0):
-                from ecospy import EcosLib
-
-                raise RuntimeError(f"ecospy init failed: {EcosLib.get_last_error()}")
-            record(0)
-            sim.add_listener("uiofmu", Listener())
-            sim.step(steps)
-            if errors:
-                raise errors[0]
-            sim.terminate()
-    return T, X, E
-
-
-def _preload_libpython() -> None:
-    """Make the interpreter's symbols global for the pythonfmu FMUs ecospy loads in this process
-    (a no-op for a static interpreter or one linked with libpython; see ``tests/importers.py``)."""
-    import ctypes
-    import sysconfig
-
-    if sysconfig.get_config_var("Py_ENABLE_SHARED"):
-        name = sysconfig.get_config_var("LDLIBRARY")
-        for folder in (sysconfig.get_config_var("LIBDIR"), str(Path(sys.executable).parent.parent / "lib")):
-            path = Path(folder or "") / name
-            if path.is_file():
-                ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
-                return
-
-
 def _master(observer: Row, plant: Row, paths: dict, card):
     """Our master on one pair, over the observer's default experiment with the problem's signals."""
     from .cosim.master import cosimulate, default_inputs
@@ -875,12 +706,16 @@ def _ecospy(observer: Row, plant: Row, paths: dict, card, ours) -> str:
     """ecospy on one pair, compared with our master's run ``ours``: ``equal``, ``ran`` or ``not run``."""
     from .cosim.master import default_inputs
 
+    from .cosim.importers import import_ecospy, run_ecospy
+
     if import_ecospy() is None:
         return "not run"
     spec = observer.experiment
     K = observer.limited.get("ecospy") or int(round(spec["stopTime"] / spec["stepSize"]))
     estimate = "gx" if card.kernel == "window" else "xhat"
-    T, X, E = run_ecospy(paths[plant.file], paths[observer.file], spec["stepSize"], K, default_inputs(card), estimate)
+    run = run_ecospy(paths[plant.file], paths[observer.file], spec["stepSize"], K, default_inputs(card),
+                     estimate=estimate)
+    T, X, E = run.times, run.x, run.xhat
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(E)) and np.ptp(E) > 0):
         raise RuntimeError("the estimate is not finite or never moved")
     if T.shape != ours.times.shape or not np.allclose(T, ours.times, rtol=1e-12, atol=0.0):
@@ -921,6 +756,7 @@ def run_checks(catalogue: Catalogue, paths: dict) -> tuple[dict, list]:
     failures : list of str
         One line per failed check.
     """
+    from .cosim.importers import run_fmpy_default
     from .cosim.validate import validate
 
     results: dict = {}

@@ -533,38 +533,19 @@ def _first_runtime_difference(observer_fmu, card: Card, steps: int, seed: int, r
     inputs and steps of :func:`uiofmu.cosim.validate.validate`; the first step where the largest relative
     difference so far exceeds ``rtol``, with the outputs there, or None."""
     from .cosim.fmi import Fmu
+    from .cosim.validate import random_observer_run
     from .runtime.observer import Runtime
 
-    rng = np.random.default_rng(seed)
     rt = Runtime(card)
-    choices = rt.schedule.admissible_steps()
-    xhat0 = rng.normal(size=rt.n)
-    rt.xhat0 = xhat0.copy()
-    rt.reset()
-    worst, scale, t = 0.0, 1.0, 0.0
+    worst, scale = 0.0, 1.0
     with Fmu(observer_fmu, "testing") as fmu:
-        fmu.initialize(0.0, {"xhat0": xhat0})
-        for k in range(steps + 1):
-            y, u = rng.normal(size=rt.p) * 3, rng.normal(size=rt.m)
-            fmu.set("y", y)
-            fmu.set("u", u)
-            rt.set_y(y)
-            rt.set_u(u)
-            if rt.modes:
-                mode = int(rng.integers(1, rt.modes + 1))
-                fmu.set("mode", [mode])
-                rt.set_mode(mode)
+        for k in random_observer_run(fmu, rt, steps, np.random.default_rng(seed)):
             got, ref = fmu.get("xhat"), rt.xhat()
             scale = max(scale, float(np.abs(ref).max(initial=0.0)))
             diff = np.abs(got - ref)
             worst = max(worst, float(np.where(np.isnan(diff), np.inf, diff).max(initial=0.0)))
             if worst / scale > rtol:
                 return k, got, ref, worst / scale
-            if k < steps:
-                h = float(choices[int(rng.integers(len(choices)))])
-                fmu.step(t, h)
-                rt.step(h)
-                t += h
     return None
 
 

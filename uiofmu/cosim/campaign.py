@@ -395,6 +395,7 @@ def load_campaign(path) -> Campaign:
     Returns
     -------
     Campaign
+        As :func:`campaign_from_data` makes it from the file's table, with the file's text.
 
     Raises
     ------

@@ -395,7 +395,6 @@ def _chunk(calls: list, steps_: list, times: list, steps: list, k0: int, count: 
     Each call's status is checked: above fmi2Warning it raises :class:`FmuCallError` with the lines the
     FMU logged during that call (a refused doStep an :class:`FmuError` naming the FMU, step and time).
     """
-    (odo, oc, olog), (pdo, pc, plog) = steps_
     for k in range(k0, k0 + count):
         for function, component, refs, n, base, stride, log, name in calls:
             start = len(log)
@@ -404,20 +403,11 @@ def _chunk(calls: list, steps_: list, times: list, steps: list, k0: int, count: 
                 raise FmuCallError(name, status, log[start:]) from None
         if k == K:
             return
-        t, h = times[k], steps[k]
-        start = len(olog)
-        status = odo(oc, t, h, 1)
-        if status > 1:
-            raise _refused("observer", k, t, h, FmuCallError("fmi2DoStep", status, olog[start:]))
-        start = len(plog)
-        status = pdo(pc, t, h, 1)
-        if status > 1:
-            raise _refused("plant", k, t, h, FmuCallError("fmi2DoStep", status, plog[start:]))
+        _do_steps(steps_, k, times[k], steps[k])
 
 
 def _chunk4(calls: list, steps_: list, times: list, steps: list, k0: int, count: int, K: int) -> None:
     """:func:`_chunk` unrolled for four calls a step (one set and one get per FMU, the common case)."""
-    (odo, oc, olog), (pdo, pc, plog) = steps_
     (f1, c1, r1, n1, b1, s1, l1, m1), (f2, c2, r2, n2, b2, s2, l2, m2) = calls[0], calls[1]
     (f3, c3, r3, n3, b3, s3, l3, m3), (f4, c4, r4, n4, b4, s4, l4, m4) = calls[2], calls[3]
     for k in range(k0, k0 + count):
@@ -439,15 +429,17 @@ def _chunk4(calls: list, steps_: list, times: list, steps: list, k0: int, count:
             raise FmuCallError(m4, status, l4[start:]) from None
         if k == K:
             return
-        t, h = times[k], steps[k]
-        start = len(olog)
-        status = odo(oc, t, h, 1)
+        _do_steps(steps_, k, times[k], steps[k])
+
+
+def _do_steps(steps_: list, k: int, t: float, h: float) -> None:
+    """fmi2DoStep(t, h) on the observer, then on the plant (``steps_``: their function, component and
+    log); a refusal raises the :class:`FmuError` of :func:`_refused`."""
+    for who, (do, component, log) in zip(("observer", "plant"), steps_):
+        start = len(log)
+        status = do(component, t, h, 1)
         if status > 1:
-            raise _refused("observer", k, t, h, FmuCallError("fmi2DoStep", status, olog[start:]))
-        start = len(plog)
-        status = pdo(pc, t, h, 1)
-        if status > 1:
-            raise _refused("plant", k, t, h, FmuCallError("fmi2DoStep", status, plog[start:]))
+            raise _refused(who, k, t, h, FmuCallError("fmi2DoStep", status, log[start:]))
 
 
 def _refused(who: str, k: int, t: float, h: float, exc: FmuCallError) -> FmuError:

@@ -180,6 +180,37 @@ def _observer(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None
     if card.kernel == "delayed":
         return _delayed_observer(fmu, card, report, steps, rng)
     rt = Runtime(card)
+    for _ in random_observer_run(fmu, rt, steps, rng):
+        got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")])
+        ref = np.concatenate([rt.xhat(), rt.residual(), rt.dhat() if rt.has_dhat else []])
+        _compare(report, got, ref)
+    report.steps = steps
+
+
+def random_observer_run(fmu: Fmu, rt: Runtime, steps: int, rng):
+    """Drive an affine-kernel observer FMU and its reference runtime side by side on random inputs and steps.
+
+    Both start from one random ``xhat0``; at each of the ``steps + 1`` communication points both get the
+    same random ``y`` and ``u`` (and, for a switched plant, a random mode), the generator yields, and
+    then (but after the last point) both take the same random admissible step. The caller reads and
+    compares the outputs of both at each yield: the run of :func:`validate`.
+
+    Parameters
+    ----------
+    fmu : Fmu
+        The observer FMU, not initialised.
+    rt : Runtime
+        The reference runtime of its card (reset here).
+    steps : int
+        The number of steps.
+    rng : numpy.random.Generator
+        The source of the random values, drawn in a fixed order.
+
+    Yields
+    ------
+    int
+        The index k of the communication point, 0 to ``steps``.
+    """
     choices = rt.schedule.admissible_steps()
     xhat0 = rng.normal(size=rt.n)
     rt.xhat0 = xhat0.copy()
@@ -196,15 +227,12 @@ def _observer(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None
             mode = int(rng.integers(1, rt.modes + 1))
             fmu.set("mode", [mode])
             rt.set_mode(mode)
-        got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")])
-        ref = np.concatenate([rt.xhat(), rt.residual(), rt.dhat() if rt.has_dhat else []])
-        _compare(report, got, ref)
+        yield k
         if k < steps:
             h = float(choices[int(rng.integers(len(choices)))])
             fmu.step(t, h)
             rt.step(h)
             t += h
-    report.steps = steps
 
 
 def _switched_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng) -> None:
