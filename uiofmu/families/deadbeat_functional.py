@@ -40,6 +40,7 @@ from ..certificate import Check
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lpv_plant import LpvPlant
 from ..polynomials import PolyMatrix, hstack, shifted, stack
+from ..runtime.card import MAX_POWER
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..runtime.matrices import as_matrix
 from ..runtime.tolerances import IDENTITY_RTOL, RANK_RTOL
@@ -49,8 +50,6 @@ from . import Analysis, DesignResult
 NAME = "deadbeat-functional"
 #: The family designs for LPV plants (``[[plant.scheduling]]``).
 LPV = True
-#: Plants of this family may have no known input.
-MAX_EXPONENT = 64
 
 
 @dataclass(frozen=True)
@@ -380,9 +379,9 @@ def design(problem, analysis: Analysis) -> DesignResult:
     inv, K = analysis.data["inverse"], analysis.data["K"]
     F, L, delay = formula(opts.G, inv, K, plant.p)
     Fm, exps = to_arrays(F, L, plant.s)
-    if exps.max(initial=0) > MAX_EXPONENT:
+    if exps.max(initial=0) > MAX_POWER:
         raise InfeasibleError(f"{NAME}: the formula has theta powers up to {int(exps.max())} "
-                              f"(at most {MAX_EXPONENT} supported)")
+                              f"(at most {MAX_POWER} supported)")
     parts = {name: np.array([getattr(plant, name)] + [part[name] for part in plant.parts]) for name in "AECD"}
     matrices = {"F": Fm, "Fexp": exps, "G": opts.G, "P": np.array(analysis.data["P"]),
                 **{f"{k}_parts": v for k, v in parts.items()}, "C": plant.C}

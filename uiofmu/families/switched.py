@@ -339,7 +339,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     existence = analysis.existence
     C = plant.C
     has_dhat = all(existence.holds(f"rank(CE_{i + 1}) = q") for i in range(plant.N))
-    system = _lmis(modes)
+    system = None                                  # the dead-beat design needs no LMI
     if opts.method == "deadbeat" and not deadbeat:
         ranks = [rank(md.Ct) for md in modes]
         raise ProblemError(f'observer.method = "deadbeat": needs rank Ct_i = n = {plant.n} in every mode, '
@@ -352,6 +352,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         sol = _closed_form(lam, "closed form (dead-beat: Kt_i = At_i Ct_i^+)")
         method, solver, overshoot = "deadbeat", "none", 1.0
     else:
+        system = _lmis(modes)
         tuned = tune(system, "lam2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
                      safe_end=1.0, tol=SEARCH_TOL, label=f"{problem.name}: fastest decay",
                      transform=lambda r: r * r, name="decay")

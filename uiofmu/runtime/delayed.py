@@ -13,10 +13,10 @@ and the observer ``z' = (Gamma - K Ca) xhat + K ya + P Ba ua``, ``xhat = z - H y
 ``thetahat = F^+ (yadot - Ca Aa xhat - Ca Ba ua)``.
 
 Between communication points the kernel integrates ``z`` with fixed RK4 substeps (at most
-``max_substep`` long), the current outputs first-order held with their measured derivative
-(``y(s) = y_k + ydot_k (s - t_k)``), ``u`` held, and the delayed signals read from a time-stamped
-buffer of the past communication points (cubic Hermite in ``y`` and ``ydot``, ``u`` held), so that
-aperiodic steps need no resampling.
+``max_substep`` long), the current outputs expanded to second order with their measured derivative
+(:func:`hermite`), ``u`` held, and the delayed signals read from a time-stamped buffer of the past
+communication points (cubic Hermite in ``y`` and ``ydot``, ``u`` held), so that aperiodic steps
+need no resampling.
 
 Validity: the estimates are valid from the first point where every delayed signal exists
 (``t >= max tau``) and while the rank margin ``sigma_min(Ca Da)`` is at least the card's

@@ -63,6 +63,14 @@ class StepRejected(Exception):
     """A communication step the schedule cannot take (message says what was expected)."""
 
 
+def mode_problem(mode, modes: int, what: str, whose: str) -> str | None:
+    """Why ``mode`` is not one of ``modes`` modes (1..N), or None: the one check of a mode, for the
+    observer's schedule and the switched plant alike (``what`` names the value, ``whose`` the plant)."""
+    if isinstance(mode, (bool, np.bool_)) or not isinstance(mode, (int, np.integer)) or not 1 <= mode <= modes:
+        return f"{what} = {mode!r} is not a mode of {whose} (expected an integer from 1 to {modes})"
+    return None
+
+
 class ModeRejected(ValueError):
     """A mode that is not one of the design's (an input error: the message names the mode and the range)."""
 
@@ -265,9 +273,9 @@ class ModeSchedule:
 
     def index(self, mode, what: str = "mode") -> int:
         """``mode - 1`` for a mode 1..N (raises :class:`ModeRejected` naming the mode and the range)."""
-        if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 1 <= mode <= self.modes:
-            raise ModeRejected(f"{what} = {mode!r} is not a mode of this observer's plant "
-                               f"(expected an integer from 1 to {self.modes})")
+        problem = mode_problem(mode, self.modes, what, "this observer's plant")
+        if problem:
+            raise ModeRejected(problem)
         return int(mode) - 1
 
     def step_matrices(self, k: int, h: float, h_prev: float, mode=None, mode_prev=None, theta=None) -> dict:

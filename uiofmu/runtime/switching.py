@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .plant_runtime import PlantRuntime
-from .schedules import StepRejected
+from .schedules import StepRejected, mode_problem
 from .state import StateReader
 from .stepping import RuntimeInputError, check_step
 from .tolerances import STEP_RTOL
@@ -53,13 +53,6 @@ def draw_mode(output: int, cumulative) -> int:
         if u < c:
             return i + 1
     return len(cumulative)
-
-
-def mode_error(mode, modes: int, who: str) -> str | None:
-    """Why ``mode`` is not a mode of a plant with ``modes`` modes (None when it is one)."""
-    if isinstance(mode, (bool, np.bool_)) or not isinstance(mode, (int, np.integer)) or not 1 <= int(mode) <= modes:
-        return f"{who}: mode = {mode!r} is not a mode of this plant (expected an integer from 1 to {modes})"
-    return None
 
 
 class SwitchedPlantRuntime(PlantRuntime):
@@ -119,7 +112,7 @@ class SwitchedPlantRuntime(PlantRuntime):
     def step(self, h: float) -> None:
         """Advance by ``dt`` in the current mode (a bad input mode: :class:`RuntimeInputError`)."""
         check_step(h, {"u": self.u, "d": self.d})
-        problem = mode_error(self.mode_in, self.N, "input") if self.rule == "input" else None
+        problem = mode_problem(self.mode_in, self.N, "input: mode", "this plant") if self.rule == "input" else None
         if problem:
             raise RuntimeInputError(problem)
         super().step(h)
