@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test test-fast lint fmus examples clean fuzz
+.PHONY: install demo test test-fast test-blas lint fmus examples clean fuzz
 
 FUZZ_SECONDS ?= 600
 FUZZ_SEED    ?= 0
@@ -29,6 +29,20 @@ test: $(STAMP)
 # the suite without the tests marked valgrind, cmake, mujoco or slow (see pyproject.toml)
 test-fast: $(STAMP)
 	$(PY) -m pytest -q -n auto --dist loadfile -m "not valgrind and not cmake and not mujoco and not slow"
+
+# the numerically sensitive tests (verdicts of the examples, reproducers and edge plants; the design
+# rules; the FMU catalogue's README) under other OpenBLAS kernels and thread counts: the same answers
+# on every machine. SkylakeX only where the CPU has AVX-512.
+BLAS_TESTS   := tests/test_same_answers.py tests/test_design_rules.py tests/test_fmus_catalogue.py
+BLAS_KERNELS ?= Prescott Sandybridge Haswell $(shell grep -qw avx512f /proc/cpuinfo 2>/dev/null && echo SkylakeX)
+test-blas: $(STAMP)
+	@set -e; for k in default $(BLAS_KERNELS); do for t in 1 2; do \
+	  echo "== OPENBLAS_CORETYPE=$$k OPENBLAS_NUM_THREADS=$$t"; \
+	  if [ $$k = default ]; then env -u OPENBLAS_CORETYPE OPENBLAS_NUM_THREADS=$$t $(PY) -m pytest -q -n 2 \
+	    --dist loadfile -m "not slow" $(BLAS_TESTS); \
+	  else OPENBLAS_CORETYPE=$$k OPENBLAS_NUM_THREADS=$$t $(PY) -m pytest -q -n 2 --dist loadfile -m "not slow" \
+	    $(BLAS_TESTS); fi; \
+	done; done
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

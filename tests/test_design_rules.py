@@ -165,11 +165,53 @@ def test_check_names_a_weakly_observable_mode():
 
 
 def test_the_weak_mode_is_reached_by_the_fallback():
-    """The DC motor sampled at 0.01 s: decay 0.3 needs gains of 5e6, beyond the LMI's precision; the
-    solver-free fallback certifies it (and its overshoot bound says what such gains cost)."""
-    card = uiofmu.design(_problem(DC_MOTOR, family="lti-uio", dt=0.01, decay=0.3))
-    assert card.data["design_method"].startswith("riccati") and card.data["decay_bound"] == 0.3
+    """The DC motor sampled at 0.01 s: decay 0.7 needs gains of 3e6, beyond the LMI's precision; the
+    solver-free fallback certifies it with margin over the re-check's rounding (and its overshoot
+    bound says what such gains cost)."""
+    card = uiofmu.design(_problem(DC_MOTOR, family="lti-uio", dt=0.01, decay=0.7))
+    assert card.data["design_method"].startswith("riccati") and card.data["decay_bound"] == 0.7
     assert all(c.holds for c in uiofmu.verify(card)) and card.data["overshoot_bound"] > 1e6
+    lyap = card.data["certificate"]["checks"]["eig_min(rho^2 X - N'XN)"]
+    assert lyap["value"] >= 2 * lyap["rounding_floor"] > 1e-7      # the floor, not the margin, decides here
+
+
+def test_a_design_closer_to_the_edge_than_rounding_is_refused_with_the_reason():
+    """Decay 0.3 needs cond(X) = 3.7e14 and gains of 4.8e6: the Lyapunov inequality's value (0.09 in
+    exact arithmetic) is below the rounding floor of its own evaluation, so some BLAS kernels certified
+    it and others refused it. Now every kernel refuses it, saying why and what helps."""
+    match = r"Riccati design at decay 0.3: .* rounding floor .* a slower decay needs smaller gains"
+    with pytest.raises(InfeasibleError, match=match):
+        uiofmu.design(_problem(DC_MOTOR, family="lti-uio", dt=0.01, decay=0.3))
+
+
+def test_the_rounding_floor_bounds_the_error_of_the_re_check():
+    """``rho^2 X - N'XN`` in double precision against exact rational arithmetic at the same matrices,
+    ill-conditioned X and large gains included: the error is below the floor, and the floor is not
+    vacuous (at most 1e4 times the error seen) for matrices of ordinary size."""
+    from fractions import Fraction
+
+    from uiofmu.certificate import lyapunov_check
+
+    rng = np.random.default_rng(5)
+    ratios = []
+    for trial in range(40):
+        n = int(rng.integers(2, 6))
+        V = np.linalg.qr(rng.standard_normal((n, n)))[0]
+        X = V @ np.diag(10.0 ** rng.uniform(0, 3 * (trial % 5), n)) @ V.T
+        X = 0.5 * (X + X.T)
+        N = rng.standard_normal((n, n)) * 10.0 ** rng.uniform(-1, 3 * (trial % 3))
+        rho = float(rng.uniform(0.5, 1.0))
+        check = lyapunov_check("q", N, X, rho)
+        F = [[Fraction(float(v)) for v in row] for row in X]
+        G = [[Fraction(float(v)) for v in row] for row in N]
+        r2 = Fraction(rho) ** 2
+        exact = np.array([[float(r2 * F[i][j] - sum(G[a][i] * F[a][b] * G[b][j] for a in range(n) for b in range(n)))
+                           for j in range(n)] for i in range(n)])
+        err = abs(np.linalg.eigvalsh(0.5 * (exact + exact.T))[0] - check.value)
+        assert err <= check.floor, (trial, err, check.floor)
+        if err > 0:
+            ratios.append(check.floor / err)
+    assert ratios and np.median(ratios) < 1e4
 
 
 def test_a_failed_design_names_the_weak_mode():

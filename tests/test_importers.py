@@ -1,6 +1,6 @@
 """Third-party importers from the package registries run our FMUs (issue 15, item 5).
 
-ecospy (pip; its native library needs the Debian package libtbb12, which ``.ci/run`` installs)
+ecospy (pip; its native library's libtbb.so.12 comes from the pip wheel tbb, loaded by ``import_ecospy``)
 runs the plant + observer loop of every family, and the histories equal those of our own
 master, :func:`uiofmu.cosim.master.cosimulate`, with the same inputs (the problem's
 ``[signals]``) at the observer's default step. fmpy.simulate_fmu with the FMU's default

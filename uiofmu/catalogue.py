@@ -517,8 +517,9 @@ the initial estimate (`h_prev0`, `mode_prev0`: the step and mode assumed before 
   DefaultExperiment; for the loop of two, our master drives both through fmpy:
   `uiofmu cosim --plant fmus/seed000_example1_plant.fmu --observer fmus/seed000_example1_observer.fmu
   --out out/run` (the observer's steps and the problem's signals by default).
-- **ecospy** (pip `ecospy`, its library needs `libtbb12`): `EcosSimulationStructure.add_model("plant", ...)`,
-  `add_model("observer", ...)`, `make_real_connection("plant::y[1]", "observer::y[1]")` for each `y[i]`
+- **ecospy** (pip `ecospy`; its library's `libtbb.so.12` comes from the pip wheel `tbb`):
+  `EcosSimulationStructure.add_model("plant", ...)`, `add_model("observer", ...)`,
+  `make_real_connection("plant::y[1]", "observer::y[1]")` for each `y[i]`
   (and `ydot[i]`), `make_int_connection("plant::mode[1]", "observer::mode[1]")`; then
   `EcosSimulation(structure=ss, step_size=h)`, `sim.init(0.0)`, `sim.step(K)`; set `u` and `d` with
   `sim.set_real("plant::u[1]", v)` (and on the observer's `u`) from a pre-step listener.

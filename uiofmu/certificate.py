@@ -3,17 +3,27 @@
 A design is certified only when every check holds. Each check is a number, a bound and a
 direction, evaluated with numpy on the matrices the runtime will use (not on the solver's
 variables alone), and all of them go into the card.
+
+A verdict never depends on the BLAS kernel: a definiteness check (``Q > 0``) holds only when its
+smallest eigenvalue clears :data:`~uiofmu.runtime.tolerances.ROUNDING_FACTOR` times the bound of
+its own rounding error (:func:`rounding_floor`, from the sizes and magnitudes of the matrices), so a
+check that holds proves the exact inequality at the stored matrices, and identities are judged
+relative to the magnitudes of the products they cancel (:func:`magnitude`), far above their rounding.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .runtime.errors import InfeasibleError
 from .lmi import LmiSolution
-from .runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, VERIFY_FRACTION
+from .runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, ROUNDING_FACTOR, VERIFY_FRACTION
+
+#: The unit round-off of double precision.
+EPS = float(np.finfo(float).eps)
 
 
 @dataclass(frozen=True)
@@ -24,6 +34,9 @@ class Check:
     value: float
     bound: float
     at_most: bool = True
+    #: The bound of the rounding error of ``value`` (0: not derived); the bound is at least
+    #: ``ROUNDING_FACTOR`` times it.
+    floor: float = 0.0
 
     @property
     def holds(self) -> bool:
@@ -32,8 +45,79 @@ class Check:
 
     def to_data(self) -> dict:
         """JSON-ready form."""
-        return {"value": self.value, "bound": self.bound, "relation": "<=" if self.at_most else ">=",
-                "holds": self.holds}
+        out = {"value": self.value, "bound": self.bound, "relation": "<=" if self.at_most else ">=",
+               "holds": self.holds}
+        if self.floor:
+            out["rounding_floor"] = self.floor
+        return out
+
+    def explain(self) -> str:
+        """``name = value (needs >= bound)``, and what the bound comes from when rounding sets it."""
+        text = f"{self.name} = {self.value:.3g} (needs {'<=' if self.at_most else '>='} {self.bound:.3g}"
+        if self.floor and math.isclose(self.bound, ROUNDING_FACTOR * self.floor):     # the floor set the bound
+            text += (f": {ROUNDING_FACTOR:g}x the rounding floor {self.floor:.3g} of its evaluation in double "
+                     "precision, so that no BLAS kernel's rounding can decide it")
+        return text + ")"
+
+
+def round_up(value: float, digits: int) -> float:
+    """``value`` rounded up to ``digits`` significant digits: a bound stays a bound, and a figure that
+    rounding moves in its last bits prints the same on every machine (unless it sits on a boundary)."""
+    if not (value > 0 and math.isfinite(value)):
+        return value
+    scale = 10.0 ** (math.floor(math.log10(value)) - digits + 1)
+    return math.ceil(value / scale * (1 - 4 * EPS)) * scale
+
+
+def magnitude(*products) -> float:
+    """``sum_i || |A_i1| |A_i2| ... ||_F``: the size of the terms an identity cancels.
+
+    Each argument is a sequence of matrices whose product is one term; a residual of rounding is
+    at most a small multiple of ``EPS`` times this, whatever the order of the arithmetic.
+    """
+    total = 0.0
+    for factors in products:
+        term = np.abs(np.asarray(factors[0], dtype=float))
+        for f in factors[1:]:
+            term = term @ np.abs(np.asarray(f, dtype=float))
+        total += float(np.sqrt(np.sum(term * term)))
+    return total
+
+
+def rounding_floor(Q: np.ndarray, terms: np.ndarray, length: int) -> np.ndarray:
+    """The bound of the rounding error of ``eig_min(Q)`` evaluated in double precision.
+
+    ``Q`` is a sum of products whose absolute values add up to ``terms`` (entrywise, e.g.
+    ``rho^2 |X| + |N|' |X| |N|`` for ``rho^2 X - N' X N``), each entry an inner product of at most
+    ``length`` roundings. The evaluation errs by at most ``gamma_length * |terms|`` entrywise
+    (Higham, Accuracy and Stability, (3.13)) and the symmetric eigenvalue solver by a small multiple
+    of ``n EPS ||Q||`` (a backward-stable reduction); both in the Frobenius norm, which bounds the
+    2-norm. Works on stacks (``(..., n, n)``).
+
+    Returns
+    -------
+    numpy.ndarray or float
+        One floor per matrix of the stack.
+    """
+    n = Q.shape[-1]
+    fro = lambda x: np.sqrt(np.sum(x * x, axis=(-2, -1)))    # noqa: E731
+    gamma = length * EPS / (1.0 - length * EPS)
+    return gamma * fro(terms) + 4.0 * n * EPS * fro(Q)
+
+
+def definite_check(name: str, Q: np.ndarray, terms: np.ndarray, length: int, margin: float = LMI_MARGIN,
+                   verify_fraction: float = VERIFY_FRACTION, factor: float = ROUNDING_FACTOR) -> Check:
+    """``Q > 0`` by its smallest eigenvalue, with margin over its own rounding.
+
+    Holds when ``eig_min(Q) >= max(verify_fraction * margin, factor * floor)``, ``floor`` from
+    :func:`rounding_floor`: with ``factor > 1`` the exact ``Q`` at the stored matrices is positive
+    definite, and the verdict is the same under every BLAS kernel unless the value sits within the
+    floor of the bound.
+    """
+    Q = 0.5 * (Q + Q.T)
+    floor = float(rounding_floor(Q, terms, length))
+    return Check(name, float(np.linalg.eigvalsh(Q)[0]), max(verify_fraction * margin, factor * floor),
+                 at_most=False, floor=floor)
 
 
 def identity_check(name: str, residual: np.ndarray, scale: float, rtol: float = IDENTITY_RTOL) -> Check:
@@ -44,10 +128,12 @@ def identity_check(name: str, residual: np.ndarray, scale: float, rtol: float = 
 def lyapunov_check(name: str, N: np.ndarray, X: np.ndarray, rho: float, X_prev: np.ndarray | None = None,
                    margin: float = LMI_MARGIN, verify_fraction: float = VERIFY_FRACTION) -> Check:
     """``rho^2 X_prev - N' X N > 0``: the decay ``||e_{k+1}||_X <= rho ||e_k||_{X_prev}`` at the
-    stored ``N`` (``X_prev = X`` for a common Lyapunov matrix)."""
+    stored ``N`` (``X_prev = X`` for a common Lyapunov matrix), decided with margin over its
+    rounding (:func:`definite_check`)."""
     X_prev = X if X_prev is None else X_prev
-    Q = rho * rho * X_prev - N.T @ X @ N
-    return Check(name, float(np.linalg.eigvalsh(0.5 * (Q + Q.T))[0]), verify_fraction * margin, at_most=False)
+    aN, n = np.abs(N), len(N)
+    terms = rho * rho * np.abs(X_prev) + aN.T @ np.abs(X) @ aN
+    return definite_check(name, rho * rho * X_prev - N.T @ X @ N, terms, 2 * n + 2, margin, verify_fraction)
 
 
 def decay_check(rho: float) -> Check:
@@ -57,8 +143,8 @@ def decay_check(rho: float) -> Check:
 
 def positive_check(name: str, X: np.ndarray, margin: float = LMI_MARGIN,
                    verify_fraction: float = VERIFY_FRACTION) -> Check:
-    """``X > 0`` by its smallest eigenvalue."""
-    return Check(name, float(np.linalg.eigvalsh(0.5 * (X + X.T))[0]), verify_fraction * margin, at_most=False)
+    """``X > 0`` by its smallest eigenvalue, with margin over its rounding (:func:`definite_check`)."""
+    return definite_check(name, X, np.abs(X), 1, margin, verify_fraction)
 
 
 def certificate(solution: LmiSolution, checks: list[Check], label: str, solver: str = "CLARABEL") -> dict:
@@ -87,8 +173,7 @@ def certificate(solution: LmiSolution, checks: list[Check], label: str, solver: 
     failed = [c for c in checks if not c.holds]
     if failed:
         raise InfeasibleError(f"{label}: the certificate does not survive the re-check at the stored matrices: "
-                              + "; ".join(f"{c.name} = {c.value:.3g} (needs {'<=' if c.at_most else '>='} "
-                                          f"{c.bound:.3g})" for c in failed))
+                              + "; ".join(c.explain() for c in failed))
     return {
         "solver": solver,
         "status": solution.status,

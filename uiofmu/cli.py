@@ -16,6 +16,7 @@ from pathlib import Path
 
 from .runtime.files import check_output_dir, check_output_file, write_atomic
 from .runtime.text import identifier
+from .threads import one_blas_thread
 
 EPILOG = """\
 typical session:
@@ -45,12 +46,20 @@ def _cmd_check(args) -> int:
         print(json.dumps(report.to_data(), indent=2))
     else:
         print(f"{problem.name}: existence of a {problem.family} observer")
-        for c in report.conditions:
-            mark = "ok  " if c.holds else ("FAIL" if c.required else "note")
-            print(f"  [{mark}] {c.message}")
-        print("  => an observer exists" if report.exists else "  => no observer exists")
+        for line in check_summary(report):
+            print(line)
     report.require()
     return 0
+
+
+def check_summary(report) -> list[str]:
+    """The lines ``uiofmu check`` prints under its first: each condition, then the verdict."""
+    lines = []
+    for c in report.conditions:
+        mark = "ok  " if c.holds else ("FAIL" if c.required else "note")
+        lines.append(f"  [{mark}] {c.message}")
+    lines.append("  => an observer exists" if report.exists else "  => no observer exists")
+    return lines
 
 
 def _cmd_design(args) -> int:
@@ -61,25 +70,40 @@ def _cmd_design(args) -> int:
     out = check_output_file(args.output or f"{identifier(problem.name)}.design.json", "design card")
     card = design(problem)
     card.write(out)
-    cert = card.data["certificate"]
     print(f"{problem.name}: {card.family} design written to {out}")
+    for line in design_summary(card):
+        print(line)
+    return 0
+
+
+def design_summary(card, timing: bool = True) -> list[str]:
+    """The lines ``uiofmu design`` prints under its first: bounds, formula, search, certificate, time.
+
+    Every figure is one the problem determines, to the digits shown, on every machine; the search's
+    and the design's seconds (left out with ``timing=False``) are the only lines that vary.
+    """
+    lines = []
     for key in ("decay_bound", "overshoot_bound", "alpha"):
         if card.data.get(key) is not None:
-            print(f"  {key:16s} {card.data[key]:.6g}")
+            lines.append(f"  {key:16s} {card.data[key]:.6g}")
     if card.data.get("formula"):                  # a functional observer (window kernel)
-        print(f"  formula          {card.data['formula']}")
-        print(f"  window           {card.data['window']} outputs (r = {card.data['r']}, K = {card.data['K']}), "
-              f"gx is G x of {card.data['delay']} step(s) back")
+        lines.append(f"  formula          {card.data['formula']}")
+        lines.append(f"  window           {card.data['window']} outputs (r = {card.data['r']}, K = {card.data['K']}), "
+                     f"gx is G x of {card.data['delay']} step(s) back")
     search = card.data.get("search")
     if search:
-        print(f"  search           {search['parameter']} over {search['solves']} solve(s) in {search['seconds']:.3f} s")
+        lines.append(f"  search           {search['parameter']} over {search['solves']} solve(s)"
+                     + (f" in {search['seconds']:.3f} s" if timing else ""))
+    cert = card.data["certificate"]
     found = f"CLARABEL {cert['status']}" if cert["solver"] == "CLARABEL" else cert["status"]
-    print(f"  certificate      {'verified' if cert['verified'] else 'NOT verified'} ({found})")
-    t = card.data["timing"]
-    rest = t["total_s"] - t["solver_s"] - t["lmi_assembly_s"]
-    print(f"  time             {t['total_s'] * 1e3:.1f} ms: CLARABEL {t['solver_s'] * 1e3:.1f} ms "
-          f"({t['solves']} solve(s)), LMI assembly {t['lmi_assembly_s'] * 1e3:.1f} ms, rest {rest * 1e3:.1f} ms")
-    return 0
+    lines.append(f"  certificate      {'verified' if cert['verified'] else 'NOT verified'} ({found})")
+    if timing:
+        t = card.data["timing"]
+        rest = t["total_s"] - t["solver_s"] - t["lmi_assembly_s"]
+        lines.append(f"  time             {t['total_s'] * 1e3:.1f} ms: CLARABEL {t['solver_s'] * 1e3:.1f} ms "
+                     f"({t['solves']} solve(s)), LMI assembly {t['lmi_assembly_s'] * 1e3:.1f} ms, "
+                     f"rest {rest * 1e3:.1f} ms")
+    return lines
 
 
 def _cmd_build(args) -> int:
@@ -463,7 +487,8 @@ def main(argv: list[str] | None = None) -> int:
             # numbers that overflow become an exit-2 message of the step that meets them; numpy's
             # warnings on the way there would only add lines to it
             warnings.simplefilter("ignore", RuntimeWarning)
-            return args.func(args)
+            with one_blas_thread():          # small matrices: a second BLAS thread only costs (uiofmu.threads)
+                return args.func(args)
     except KeyboardInterrupt:
         print(f"uiofmu {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -287,9 +287,13 @@ def product_radius(maps, max_length: int = 3, max_products: int = 4096) -> tuple
                 break
             products = (F[:, None] @ products[None]).reshape(-1, m, m)
         radius = np.abs(np.linalg.eigvals(products)).max(axis=-1) ** (1.0 / length)
-        k = int(np.argmax(radius))
-        if radius[k] > best * (1 + 1e-12):
-            best, seq = float(radius[k]), tuple(reversed(np.unravel_index(k, (N,) * length)))
+        top = float(radius.max())
+        if top > best * (1 + 1e-9):
+            # the rotations of a cycle have one radius, equal up to rounding: name the first of them in
+            # index order, so that the same sequence is named under every BLAS kernel
+            ties = np.flatnonzero(radius >= top * (1 - 1e-9))
+            best = top
+            seq = min(tuple(int(i) for i in reversed(np.unravel_index(int(k), (N,) * length))) for k in ties)
     return best, tuple(int(i) for i in seq)
 
 

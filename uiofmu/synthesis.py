@@ -15,6 +15,7 @@ from .existence import Existence
 from .families import DesignResult, available_family
 from .problem import Problem
 from .runtime.tolerances import LMI_MARGIN
+from .threads import single_blas_thread
 
 
 @contextlib.contextmanager
@@ -29,12 +30,14 @@ def _numerics(problem: Problem, stage: str):
                              "units, or choose a smaller sampling period") from None
 
 
+@single_blas_thread(with_scipy=True)
 def check(problem: Problem) -> Existence:
     """Existence analysis of the problem's family (``uiofmu check``)."""
     with _numerics(problem, "existence analysis"):
         return available_family(problem.family).analyse(problem).existence
 
 
+@single_blas_thread(with_scipy=True)
 def design(problem: Problem) -> Card:
     """Analyse, solve the family's design, verify its certificate, return the card (``uiofmu design``).
 
@@ -80,6 +83,7 @@ def _tight_spots(conditions) -> list:
     return notes
 
 
+@single_blas_thread(with_scipy=True)
 def verify(card: Card) -> list:
     """Re-check a design card's certificate from its stored matrices, without any solver.
 

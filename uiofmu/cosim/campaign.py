@@ -54,6 +54,7 @@ import numpy as np
 from ..runtime.errors import FmuError, ProblemError, UserError
 from ..runtime.files import atomic_output, check_output_dir, parse_json, parse_toml, read_bytes, read_text, \
     write_atomic
+from ..threads import single_blas_thread
 
 #: Most runs of one campaign.
 MAX_RUNS = 10_000_000
@@ -703,6 +704,7 @@ def scalar_metrics(metrics: dict) -> dict:
     return out
 
 
+@single_blas_thread
 def run_row(setup: Setup, sc: dict) -> dict:
     """One row of the table: the scenario's status (``ok``, ``failed``: an FMU refused or an input was
     bad; ``crashed``: anything else), its reason and its scalar metrics."""
@@ -717,6 +719,7 @@ def run_row(setup: Setup, sc: dict) -> dict:
     return {"status": "ok", "reason": "", "wall_s": time.perf_counter() - t0, **scalar_metrics(result.metrics)}
 
 
+@single_blas_thread
 def run_batch(setup: Setup, scenarios: list) -> list:
     """A Dask task: the rows of a batch of scenarios, run one after the other in this worker."""
     import warnings
@@ -951,6 +954,7 @@ def run_campaign(campaign: Campaign, out, workers: int | None = None, scheduler:
     return data
 
 
+@single_blas_thread
 def replay(campaign: Campaign, out, row: int) -> dict:
     """Re-run one row alone and write its ``results.csv``, ``metrics.json``, ``report.png`` and
     ``scenario.json`` into ``out/row-ROW``.

@@ -4,8 +4,9 @@
 :func:`run_ecospy` runs the loop of a plant FMU and an observer FMU in ecospy. ``make fmus``
 (:mod:`uiofmu.catalogue`) and the tests (``tests/importers.py``) use both.
 
-ecospy (pip ``ecospy``, optional: :func:`import_ecospy`; its native library needs the Debian package
-``libtbb12``) runs a fixed communication step with a Jacobi scheme. Per step, from its sources
+ecospy (pip ``ecospy``, optional: :func:`import_ecospy`; its native library needs ``libtbb.so.12``, which
+the PyPI wheel ``tbb`` ships and :func:`import_ecospy` loads first, so no system package is needed) runs
+a fixed communication step with a Jacobi scheme. Per step, from its sources
 (``src/ecos/simulation.cpp``, ``src/ecos/algorithm/fixed_step_algorithm.cpp``): the pre-step listeners
 run; every instance applies its pending sets, ``fmi2DoStep(t_k, h)`` and reads its outputs (plant and
 observer in parallel threads); then every connection copies its source's new value to its sink; then
@@ -40,7 +41,7 @@ import numpy as np
 
 _NAME = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\[([1-9][0-9]*)\]")
 #: What :func:`import_ecospy` says when ecospy's native library does not load.
-ECOSPY_HINT = "install libtbb12: apt-get install -y libtbb12"
+ECOSPY_HINT = "install the wheel tbb, which ships libtbb.so.12: pip install tbb (it is in the test extra)"
 
 
 def _description(fmu):
@@ -176,6 +177,7 @@ def import_ecospy(*, required: bool = False):
     ImportError
         With ``required``, as above.
     """
+    preload_tbb()
     try:
         import ecospy
     except ImportError:
@@ -187,6 +189,33 @@ def import_ecospy(*, required: bool = False):
             raise EcospyUnavailable(f"ecospy's native library does not load ({exc}); {ECOSPY_HINT}") from exc
         return None
     return ecospy
+
+
+def preload_tbb() -> str | None:
+    """Load ``libtbb.so.12`` from the PyPI wheel ``tbb`` with ``RTLD_GLOBAL``, for ecospy's native library.
+
+    ``libecosc.so`` needs ``libtbb.so.12`` and finds it by the dynamic loader's search path only; the
+    wheel installs it into ``<prefix>/lib``, which is not on that path. A library loaded globally
+    first satisfies the dependency by its soname, so ecospy loads without the system's ``libtbb12``.
+
+    Returns
+    -------
+    str or None
+        The path loaded, or None when the wheel is not installed (a system copy may still serve).
+    """
+    from importlib import metadata
+
+    try:
+        files = metadata.files("tbb") or []
+    except metadata.PackageNotFoundError:
+        return None
+    for f in files:
+        if f.name == "libtbb.so.12":
+            path = Path(f.locate()).resolve()
+            if path.is_file():
+                ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+                return str(path)
+    return None
 
 
 def preload_libpython() -> str | None:
@@ -356,4 +385,4 @@ def run_ecospy(plant_fmu, observer_fmu, step: float, steps: int, inputs=None, *,
 
 
 __all__ = ["EcospyRun", "EcospyUnavailable", "FmpyStalled", "import_ecospy", "integer_variables", "ports",
-           "preload_libpython", "run_ecospy", "run_fmpy_default"]
+           "preload_libpython", "preload_tbb", "run_ecospy", "run_fmpy_default"]

@@ -33,6 +33,7 @@ from ..progress import progress
 from ..runtime.observer import Runtime
 from ..runtime.observer import default_horizon as default_t_end
 from .steps import step_sequence
+from ..threads import single_blas_thread
 
 
 @dataclass
@@ -112,6 +113,7 @@ def default_inputs(card: Card):
     return SignalInputs(problem.u, problem.d, problem.mode, problem.theta)
 
 
+@single_blas_thread
 def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, plant_x0=None, xhat0=None,
                plant_parameters: dict | None = None, show_progress: bool | None = None,
                instances=None, card: Card | None = None) -> CosimResult:

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import Check, certificate, positive_check
+from ..certificate import Check, certificate, definite_check, positive_check
 from ..existence import Condition, Existence
 from ..lmi import Lmi, LmiSystem
 from ..progress import progress
@@ -303,7 +303,10 @@ def _analysis(problem):
                             "left_out": fraction}))
     worst = float(grid.decoupling[used].max()) if used.any() else np.inf
     conds.append(Condition("P_y D_y = 0", worst <= IDENTITY_RTOL, True,
-                           f"largest |P_y D_y| on the premise points used: {worst:.3g} (relative)",
+                           (f"|P_y D_y| <= {IDENTITY_RTOL:.0e} (relative) on the premise points used: zero to "
+                            "rounding" if worst <= IDENTITY_RTOL else
+                            f"largest |P_y D_y| on the premise points used: {worst:.3g} (relative), above "
+                            f"{IDENTITY_RTOL:.0e}"),
                            {"residual": worst}))
     return Existence(NAME, tuple(conds)), Grid(grid.gammas[used], grid.sigmas[used], grid.decoupling[used],
                                                 grid.times[used])
@@ -338,14 +341,18 @@ def checks(matrices: dict, gammas: np.ndarray, beta: float) -> list:
     """The certificate at the stored matrices: ``Q > 0`` and ``-(N_g' Q + Q N_g + 2 beta Q) > 0`` at every
     premise point (``N_g = Gamma_g - K Ca``), the worst one reported."""
     Q, K, Ca = (np.asarray(matrices[k], dtype=float) for k in ("Q", "K", "Ca"))
-    worst = np.inf
+    worst = None
+    aQ = np.abs(Q)
     for G in gammas:
         N = G - K @ Ca
         M = -(N.T @ Q + Q @ N + 2 * beta * Q)
-        worst = min(worst, float(np.linalg.eigvalsh(0.5 * (M + M.T))[0]))
-    return [positive_check("eig_min(Q)", Q),
-            Check("eig_min of -(N'Q + QN + 2 beta Q) over the premise grid", worst, VERIFY_FRACTION * LMI_MARGIN,
-                  at_most=False),
+        check = definite_check("eig_min of -(N'Q + QN + 2 beta Q) over the premise grid", M,
+                               2.0 * np.abs(N).T @ aQ + 2.0 * beta * aQ, len(Q) + 3)
+        if worst is None or check.value - check.bound < worst.value - worst.bound:
+            worst = check
+    if worst is None:
+        worst = Check("eig_min of -(N'Q + QN + 2 beta Q) over the premise grid", -np.inf, 0.0, at_most=False)
+    return [positive_check("eig_min(Q)", Q), worst,
             Check("decay rate beta > 0", beta, 0.0, at_most=False)]
 
 

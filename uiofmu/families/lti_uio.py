@@ -41,6 +41,7 @@ from ..certificate import (
     decay_check,
     identity_check,
     lyapunov_check,
+    magnitude,
     positive_check,
 )
 from ..decoupling import (
@@ -166,13 +167,13 @@ def checks(matrices: dict, rho: float) -> list:
     P, A, B, E, C = g["P"], g["A_sampled"], g["B_sampled"], g["E_sampled"], g["C"]
     N, L, G, X = g["N"], g["L"], g["G"], g["X"]
     return [
-        identity_check("decoupling ||(I+MC)E||", P @ E, np.linalg.norm(E, 2)),
-        identity_check("||PA - NP - LC||", P @ A - N @ P - L @ C, np.linalg.norm(A, 2)),
-        identity_check("||PB - G||", P @ B - G, np.linalg.norm(B, 2) if B.size else 0.0),
-        identity_check("||P - (I + MC)||", P - np.eye(len(P)) - g["M"] @ C, 1.0),
-        identity_check("||Xy + M||", g["Xy"] + g["M"], np.linalg.norm(g["M"], 2)),
+        identity_check("decoupling ||(I+MC)E||", P @ E, magnitude([E], [g["M"], C, E])),
+        identity_check("||PA - NP - LC||", P @ A - N @ P - L @ C, magnitude([P, A], [N, P], [L, C])),
+        identity_check("||PB - G||", P @ B - G, magnitude([P, B], [G]) if B.size else 0.0),
+        identity_check("||P - (I + MC)||", P - np.eye(len(P)) - g["M"] @ C, magnitude([g["M"], C])),
+        identity_check("||Xy + M||", g["Xy"] + g["M"], magnitude([g["M"]])),
         identity_check("||Xz - I||", g["Xz"] - np.eye(len(P)), 1.0),
-        identity_check("||c - P w||", g["c"] - P @ g["w_sampled"], np.linalg.norm(g["w_sampled"])),
+        identity_check("||c - P w||", g["c"] - P @ g["w_sampled"], magnitude([P, g["w_sampled"][:, None]])),
         positive_check("eig_min(X)", X),
         lyapunov_check("eig_min(rho^2 X - N'XN)", N, X, rho),
         decay_check(rho),
@@ -211,18 +212,39 @@ def _riccati(PA, C, rho: float) -> Tuned:
     for check in (positive_check("eig_min(X)", X), lyapunov_check("eig_min(rho^2 X - N'XN)", N, X, rho)):
         if not check.holds:
             eig = np.linalg.eigvalsh(X)
-            raise InfeasibleError(f"{NAME} Riccati design at decay {rho:.6g}: {check.name} = {check.value:.3g} "
-                                  f"(needs >= {check.bound:.3g}) in double precision, with cond(X) = "
-                                  f"{eig[-1] / max(eig[0], 1e-300):.3g} and gains up to {np.abs(K).max():.3g}")
+            raise InfeasibleError(f"{NAME} Riccati design at decay {rho:.6g}: {check.explain()}, with cond(X) = "
+                                  f"{eig[-1] / max(eig[0], 1e-300):.3g} and gains up to {np.abs(K).max():.3g}; a "
+                                  "slower decay needs smaller gains, and units that bring the states to comparable "
+                                  "sizes a better conditioned X")
     values = {"X": X, "W": X @ K, "K": K, "t": np.array(float(np.linalg.eigvalsh(X)[-1]))}
     status = "closed form (Riccati gain, discrete Lyapunov equation)"
     return Tuned(rho, LmiSolution(values, {"rho2": rho * rho}, status, {}, True, 0.0, 0.0), None)
 
 
-def _tuned(PA, C, t, largest: float, opts: Options, name: str) -> tuple[Tuned, str, LmiSystem]:
+def _runtime(s, C, M, X, K) -> dict:
+    """The card's matrices of a gain ``K`` and its Lyapunov matrix ``X`` (plant coordinates)."""
+    n = len(X)
+    P = np.eye(n) + M @ C
+    N = P @ s.A - K @ C
+    return {"N": N, "L": K - N @ M, "G": P @ s.B, "c": P @ s.w, "Xz": np.eye(n), "Xy": -M, "C": C,
+            "M": M, "K": K, "P": P, "X": 0.5 * (X + X.T), "A_sampled": s.A, "B_sampled": s.B,
+            "E_sampled": s.E, "w_sampled": s.w}
+
+
+def _lmi_runtime(s, C, M, t, values: dict) -> dict:
+    """:func:`_runtime` of an LMI point of the coordinates scaled by ``t``."""
+    X = lyapunov_back(values["X"], t)
+    return _runtime(s, C, M, X, np.linalg.solve(0.5 * (X + X.T), product_back(values["W"], t)))
+
+
+def _tuned(s, C, M, t, largest: float, opts: Options, name: str) -> tuple[Tuned, str, LmiSystem]:
     """The decay and its certificate by the requested method (see the module docstring), and
-    the LMI system (solved in the coordinates scaled by ``t``, :mod:`uiofmu.scaling`)."""
+    the LMI system (solved in the coordinates scaled by ``t``, :mod:`uiofmu.scaling`): a point is
+    accepted only where the certificate's checks at the runtime's matrices hold too."""
+    PA = (np.eye(len(M)) + M @ C) @ s.A
     system = _lmis(PA * t[None, :] / t[:, None], scaled_output(C, t))
+    system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(s, C, M, t, v),
+                                                                    float(np.sqrt(prm["rho2"]))))
     if opts.method == "riccati":
         return _riccati(PA, C, float(opts.decay)), "riccati", system
     try:
@@ -231,6 +253,7 @@ def _tuned(PA, C, t, largest: float, opts: Options, name: str) -> tuple[Tuned, s
                      name="decay", diagnose=opts.method == "lmi")
         v = tuned.solution.values
         back = {**v, "X": lyapunov_back(v["X"], t), "W": product_back(v["W"], t)}
+        back["K"] = _lmi_runtime(s, C, M, t, v)["K"]
         return replace(tuned, solution=replace(tuned.solution, values=back)), "lmi", system
     except InfeasibleError as exc:
         if opts.method == "lmi":
@@ -248,22 +271,13 @@ def design(problem, analysis: Analysis) -> DesignResult:
     plant, opts = problem.plant, problem.options
     C = plant.C
     M = decoupling_gain(C, s.E)
-    P = np.eye(plant.n) + M @ C
-    PA = P @ s.A
     t = state_scaling(plant.A, opts.scaling)
     largest = float(np.abs(fixed).max()) if fixed.size else 0.0
-    tuned, method, system = _tuned(PA, C, t, largest, opts, problem.name)
+    tuned, method, system = _tuned(s, C, M, t, largest, opts, problem.name)
     rho, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
-    X, W = sol.values["X"], sol.values["W"]
-    X = 0.5 * (X + X.T)
-    K = sol.values["K"] if "K" in sol.values else np.linalg.solve(X, W)     # the Riccati design gives K itself
-    N = PA - K @ C
-    L = K - N @ M
-    G = P @ s.B
-    matrices = {"N": N, "L": L, "G": G, "c": P @ s.w, "Xz": np.eye(plant.n), "Xy": -M, "C": C,
-                "M": M, "K": K, "P": P, "X": X, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E,
-                "w_sampled": s.w}
+    matrices = _runtime(s, C, M, sol.values["X"], sol.values["K"])
+    X, N = matrices["X"], matrices["N"]
     cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}",
                        solver="CLARABEL" if method == "lmi" else "none")
     eigX = np.linalg.eigvalsh(X)

@@ -52,6 +52,7 @@ from ..certificate import (
     decay_check,
     identity_check,
     positive_check,
+    rounding_floor,
 )
 from ..decoupling import (
     fixed_modes_condition,
@@ -77,6 +78,7 @@ from ..runtime.schedules import STEP_POLICIES
 from ..runtime.tolerances import (
     IDENTITY_RTOL,
     LMI_MARGIN,
+    ROUNDING_FACTOR,
     MARGIN_PROOF_RTOL,
     SEARCH_TOL,
     STEP_RTOL,
@@ -528,7 +530,13 @@ def checks(matrices: dict, decay: float) -> list:
     res12 = L - (Pi @ A)[:, None] - L @ (K @ C)[None, :] + P @ C
     scale12 = two(A)[:, None] + two(P) * np.linalg.norm(C, 2)
     Q = decay * decay * Pl[None, :] - np.swapaxes(L, -1, -2) @ Pl[:, None] @ L
-    lyap = np.linalg.eigvalsh(0.5 * (Q + np.swapaxes(Q, -1, -2)))[..., 0]
+    Q = 0.5 * (Q + np.swapaxes(Q, -1, -2))
+    lyap = np.linalg.eigvalsh(Q)[..., 0]
+    aL = np.abs(L)
+    floor = rounding_floor(Q, decay * decay * np.abs(Pl)[None, :] + np.swapaxes(aL, -1, -2) @ np.abs(Pl)[:, None]
+                           @ aL, 2 * n + 2)
+    need = np.maximum(VERIFY_FRACTION * LMI_MARGIN, ROUNDING_FACTOR * floor)
+    worstQ = np.unravel_index(int(np.argmin(lyap - need)), lyap.shape)
     ratio = lambda r, s: (r / (IDENTITY_RTOL * np.maximum(1.0, s)))  # noqa: E731
     scale13 = two(E) + two(K) * two(C @ E)                           # (I - K C) E = E - K (C E)
     worst13 = int(np.argmax(ratio(fro(Pi @ E), scale13)))
@@ -544,8 +552,8 @@ def checks(matrices: dict, decay: float) -> list:
         positive_check("min_i eig_min(Pl_i)", Pl[int(np.argmin(np.linalg.eigvalsh(Pl)[:, 0]))]),
         identity_check("(12) max_ij ||L_ij - (I-K_iC)A_i - L_ij K_j C + P_ij C||", res12[worst12],
                        float(scale12[worst12])),
-        Check("min_ij eig_min(delta^2 Pl_j - L_ij' Pl_i L_ij)", float(lyap.min()), VERIFY_FRACTION * LMI_MARGIN,
-              at_most=False),
+        Check("min_ij eig_min(delta^2 Pl_j - L_ij' Pl_i L_ij)", float(lyap[worstQ]), float(need[worstQ]),
+              at_most=False, floor=float(floor[worstQ])),
         decay_check(decay),
     ]
 

@@ -40,7 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import Check, certificate, decay_check, identity_check, lyapunov_check, positive_check
+from ..certificate import (EPS, Check, certificate, decay_check, identity_check, lyapunov_check, positive_check,
+                           round_up)
 from ..decoupling import weak_modes_condition
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSolution, LmiSystem, tune
@@ -296,9 +297,9 @@ def checks(matrices: dict, decay: float) -> list:
         return residuals[i], scales[i]
 
     res = {
-        "decoupling ||P_i E_i||": worst(two(P @ E), two(E)),
-        "||P_i - (I - Q_i C)||": worst(two(P - np.eye(n) + Q @ C), np.ones(len(P))),
-        "||Phi_i - (P_i A_i - K_i C)||": worst(two(Phi - P @ A + K @ C), two(A)),
+        "decoupling ||P_i E_i||": worst(two(P @ E), two(E) + two(Q) * two(C @ E)),
+        "||P_i - (I - Q_i C)||": worst(two(P - np.eye(n) + Q @ C), 1.0 + two(Q) * two(C)),
+        "||Phi_i - (P_i A_i - K_i C)||": worst(two(Phi - P @ A + K @ C), two(P) * two(A) + two(K) * two(C)),
         "||N_ij - Phi_i||": worst(two(g["N"] - Phi[:, None]).max(axis=1), two(Phi)),
         "||L_ij - (K_i + Phi_i Q_j)||": worst(two(g["L"] - K[:, None] - Phi[:, None] @ Q[None, :]).max(axis=1),
                                               two(K) + two(Phi) * two(Q).max()),
@@ -327,6 +328,13 @@ def verify(card) -> list:
     return checks(card.data["matrices"], card.data["decay_bound"])
 
 
+def _lmi_runtime(modes, values: dict, C, has_dhat: bool) -> dict:
+    """The card's matrices of an LMI point: :func:`_runtime` of its gains, and its Lyapunov matrices ``S``."""
+    mats = _runtime(modes, _gains(modes, values), C, has_dhat)
+    mats["S"] = np.array([0.5 * (values[f"S{i}"] + values[f"S{i}"].T) for i in range(len(modes))])
+    return mats
+
+
 def _closed_form(lam: float, status: str) -> LmiSolution:
     """The record of a design without a solve (its certificate is the re-check at the stored matrices)."""
     return LmiSolution({}, {"lam2": lam * lam}, status, {}, True, 0.0, 0.0)
@@ -348,20 +356,27 @@ def design(problem, analysis: Analysis) -> DesignResult:
     if deadbeat and opts.method != "lmi":
         mats = _runtime(modes, _deadbeat(modes), C, has_dhat)
         norm = float(np.linalg.norm(mats["Phi"], 2, axis=(-2, -1)).max())
+        # Phi_i = 0 in exact arithmetic: its computed norm is rounding, so the bound is the rounding
+        # floor of P_i A_i - K_i C (or the norm, if larger), rounded up to one digit: the same figure
+        # under every BLAS kernel
+        two = lambda x: np.linalg.norm(x, 2, axis=(-2, -1))          # noqa: E731
+        floor = 4.0 * plant.n * EPS * float((two(mats["P"]) * two(mats["A_modes"])
+                                             + two(mats["K"]) * np.linalg.norm(C, 2)).max())
+        norm = round_up(max(norm, floor), 1)
         lam = norm if opts.decay == "max" else max(float(opts.decay), norm)
         sol = _closed_form(lam, "closed form (dead-beat: Kt_i = At_i Ct_i^+)")
         method, solver, overshoot = "deadbeat", "none", 1.0
     else:
         system = _lmis(modes)
+        system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(modes, v, C, has_dhat),
+                                                                    float(np.sqrt(prm["lam2"]))))
         tuned = tune(system, "lam2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
                      safe_end=1.0, tol=SEARCH_TOL, label=f"{problem.name}: fastest decay",
                      transform=lambda r: r * r, name="decay")
         lam, sol = tuned.value, tuned.solution
         searched = tuned.search.to_data() if tuned.search else None
-        mats = _runtime(modes, _gains(modes, sol.values), C, has_dhat)
-        S = np.array([0.5 * (sol.values[f"S{i}"] + sol.values[f"S{i}"].T) for i in range(len(modes))])
-        mats["S"] = S
-        eig = np.linalg.eigvalsh(S)
+        mats = _lmi_runtime(modes, sol.values, C, has_dhat)
+        eig = np.linalg.eigvalsh(mats["S"])
         overshoot = float(np.sqrt(eig.max() / eig.min()))
         method, solver = "lmi", "CLARABEL"
     cert = certificate(sol, checks(mats, lam), f"{NAME} design of {problem.name}", solver=solver)

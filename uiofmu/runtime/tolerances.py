@@ -26,6 +26,14 @@ MARGIN_PROOF_RTOL = 100 * SOLVER_TOL
 #: with numpy at the stored matrices, is at least ``VERIFY_FRACTION * LMI_MARGIN``.
 VERIFY_FRACTION = 0.1
 
+#: A definiteness check at the stored matrices (``Q > 0`` by its smallest eigenvalue) is decided only
+#: with margin over its own rounding: it holds when ``eig_min(Q) >= ROUNDING_FACTOR * floor``, ``floor``
+#: the bound of the rounding error of evaluating ``Q`` and its eigenvalue in double precision, derived
+#: from the sizes and magnitudes of the matrices (:func:`uiofmu.certificate.rounding_floor`). With 2,
+#: a check that holds proves the exact inequality at the stored matrices whatever the BLAS kernel, and
+#: a verdict closer to the edge is a refusal that says so, on every machine alike.
+ROUNDING_FACTOR = 2.0
+
 #: Equalities and non-strict LMIs at the solver's point are judged relative to the size of the
 #: point, as CLARABEL's own tolerance is: a residual (or a negative eigenvalue) is accepted up to
 #: ``max(VERIFY_FRACTION * LMI_MARGIN, POINT_RTOL * max(1, |x|_max))``, ``|x|_max`` the largest
