@@ -55,7 +55,7 @@ def example1(plt, out):
                "classical_final_error": rc.metrics["final_error_norm"],
                "ltv_final_error": rl.metrics["final_error_norm"],
                "invariant_zero": lcard.data["invariant_zeros"][0][0], "largest_eigenvalue_N_at_k0": lam0,
-               "T1": lcard.data["matrices"]["T1"], "T2": lcard.data["matrices"]["T2"]}
+               "T1": lcard.data["matrices"]["T1"], "T2": lcard.data["matrices"]["T2"], "gamma": lcard.data["gamma"]}
     (out / "example1_comparison.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(f"Example 1: steps to 1 %: classical {kc}, LTV {kl} ({kc / kl:.1f}x faster); the zero 0.99 becomes "
           f"{lam0:.4f} at k = 0 (paper: 0.14)")

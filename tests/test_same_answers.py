@@ -7,7 +7,6 @@ Sandybridge, Haswell, SkylakeX (where the CPU has AVX-512) and the default, with
 * Every problem of ``tests/same_answers.py`` (the examples, the robustness reproducers and sample,
   plants at the edge of double precision) gets the check's lines, the design's exit code and
   verdict, or its one-line refusal, exactly as stored in ``tests/data/same_answers.txt``.
-* ``fmus/README.md`` regenerates byte for byte (``tests/test_fmus_catalogue.py``, run by the same target).
 
 What is not stored: the figures of LMI designs whose optimum does not fix them and of ``"max"``
 searches, whose bisection ends where the solver's verdicts next to the edge send it (they move in

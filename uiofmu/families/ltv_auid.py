@@ -17,14 +17,10 @@ Theorem 2 with the vertices ``A_1 = (I + (1 - alpha) MC) A``, ``A_2 = (I + MC) A
 ``S_1 = -alpha MCE``, ``tau_1 = eta (1 + mu)``, ``tau_2 = eta``. The LMIs are homogeneous in
 ``(X, G_i, Tbar_i, gamma)``; they are normalised by ``X >= I``, ``X - G_i - G_i'`` replaces
 the printed ``X - 2 G_i`` (``G_i`` is a slack and need not be symmetric, so the block must be
-symmetrised) and ``T_i = G_i^{-1} Tbar_i``. The objective is ``t + gamma`` with ``X <= t I``: the
-overshoot bound's ``cond X`` and Remark 1's ``gamma`` together. Minimising ``gamma`` alone leaves ``X``
-free above ``I``, so the overshoot was whatever feasible point the interior-point path ended at (108.1
-or 107.8 for the quarter-car, by BLAS kernel); with ``t`` in the objective it is the problem's own
-optimum (26.81 under every kernel). ``t`` alone made the solver fail numerically on seed 000's
-Example 2 under some kernels; the sum designs it under all. The bound below does not use ``gamma``
-(it takes ``||S_k d_k||_X`` itself), so the card does not record it (the paper's own example is a
-feasibility solution too).
+symmetrised), ``gamma`` is minimised (Remark 1) and ``T_i = G_i^{-1} Tbar_i``. ``X <= t I`` bounds
+the overshoot without entering the objective: minimising ``t`` (alone or with ``gamma``) fixed the
+overshoot under every BLAS kernel but lost seed 000 Example 2's largest mu (0.036 for 14.08), so the
+overshoot of this family still depends on the solver's path (quarter-car 107.8 or 108.1 by kernel).
 
 What is certified, and re-checked at the stored ``T_i``: ``N_i' X N_i < (1 - tau_i) X`` at
 both vertices; ``N' X N`` is matrix-convex in ``N``, so ``N_k' X N_k < (1 - eta_k) X`` with
@@ -179,8 +175,7 @@ def _lmis(A1, A2, S1, C, eta):
 
     variables = {"X": ("symmetric", n), "G1": ("matrix", (n, n)), "G2": ("matrix", (n, n)),
                  "Tb1": ("matrix", (n, p)), "Tb2": ("matrix", (n, p)), "gamma": ("scalar",), "t": ("scalar",)}
-    return LmiSystem(f"{NAME} Theorem 2", variables, {"tau1": 2 * eta}, build,
-                     objective=lambda v: v["t"] + v["gamma"],
+    return LmiSystem(f"{NAME} Theorem 2", variables, {"tau1": 2 * eta}, build, objective=lambda v: v["gamma"],
                      homogeneous=True)
 
 
@@ -302,7 +297,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         for k in ("Dy", "Yx", "Yu", "Yc"):
             matrices.pop(k)
     eigX = np.linalg.eigvalsh(X)
-    results = {k: data[k] for k in ("alpha", "eta", "mu", "tau1", "tau2")}
+    results = {**{k: data[k] for k in ("alpha", "eta", "mu", "tau1", "tau2")}, "gamma": float(sol.values["gamma"])}
     cert = certificate(sol, checks({"matrices": matrices, **results}), f"{NAME} design of {problem.name}")
     N0 = A1 - T1 @ C                                   # N_k at k = 0 (a = 1)
     results.update({
