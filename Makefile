@@ -33,7 +33,7 @@ test-fast: $(STAMP)
 # the numerically sensitive tests (verdicts of the examples, reproducers and edge plants; the design
 # rules) under other OpenBLAS kernels and thread counts: the same answers
 # on every machine. SkylakeX only where the CPU has AVX-512.
-BLAS_TESTS   := tests/test_same_answers.py tests/test_design_rules.py
+BLAS_TESTS   := tests/test_same_answers.py tests/test_design_rules.py tests/test_fmus_catalogue.py
 BLAS_KERNELS ?= Prescott Sandybridge Haswell $(shell grep -qw avx512f /proc/cpuinfo 2>/dev/null && echo SkylakeX)
 test-blas: $(STAMP)
 	@set -e; for k in default $(BLAS_KERNELS); do for t in 1 2; do \

@@ -9,7 +9,7 @@ exit code the command line gives (0, or 2 for a user-fixable problem).
 
 ``tests/data/same_answers.txt`` is that text as it must come out under every BLAS kernel and thread
 count (``tests/test_same_answers.py``; ``make test-blas`` runs it under each). Run this file to see
-the text, ``--figures`` to add the design's figures, ``--write`` to store the text after a
+the text, ``--figures`` to add the figures of the problems at the edge too, ``--write`` to store the text after a
 deliberate change::
 
     .venv/bin/python tests/same_answers.py --write
@@ -32,9 +32,22 @@ NEAR_UNIT_FIXED_MODE = {"time": "discrete", "dt": 0.1, "A": [[0.0, 1.0], [-0.5, 
 REPRODUCERS = (("sampled-data", 7000022), ("sampled-data", 11000116), ("sampled-data", 11000042))
 #: The start of the design robustness campaign at seed 2024, as tests/test_design_robustness.py draws it.
 SAMPLE_SEED, SAMPLE, KNOBS = 2024, 3, {"n_max": 5, "intervals_max": 4}
+#: Problems whose figures differ between BLAS kernels: a ``"max"`` search that ends where the
+#: solver's verdicts next to the edge send it (measured: seed 000 Example 2's mu 13.30 or 14.08; the
+#: random sampled-data plant whose mode needs gains of 4e8, alpha 0.00056 to 0.0088), or a least
+#: overshoot the solver reaches only to its looser "inaccurate" tolerance (the DC motor's sampled-data
+#: design: 36.08 or 36.20). Their stored text is the verdict only; every other problem's holds the
+#: figures ``uiofmu design`` prints.
+AT_THE_EDGE = ("examples/seed000_example2_consistent.toml", "random sampled-data 7000022",
+               "robustness sample ltv-auid-seed2024000000-stiff-d-n4p2q2m2-du-1",
+               "robustness sample ltv-auid-seed2024000002-near-limit-zeros-d-n5p3q1m0-du+1",
+               "robustness sample sampled-data-seed2024000001-integrators-c-n5p2q1m0-ts-0-du+1-N2",
+               "robustness sample sampled-data-seed2024000002-near-limit-zeros-c-n5p1q1m0-ts+0-du+2-N4",
+               "DC motor, sampled-data on 0.01..0.05 s, alpha 0.9")
 
 
-def _badly_scaled(plant: dict, exponents) -> dict:
+def badly_scaled(plant: dict, exponents) -> dict:
+    """``plant`` in coordinates ``x = diag(10**exponents) xs``: the same system, other units."""
     import numpy as np
 
     T = np.diag(10.0 ** np.asarray(exponents, dtype=float))
@@ -67,7 +80,7 @@ def problems() -> list[tuple[str, dict]]:
                 {"name": "dc-motor", "plant": DC_MOTOR,
                  "observer": {"family": "sampled-data", "intervals": [0.01, 0.02, 0.03, 0.04, 0.05], "alpha": 0.9}}))
     out.append(("DC motor in units 1e5 apart, sampled-data alpha 0.02",
-                {"name": "dc-motor-units", "plant": _badly_scaled(DC_MOTOR, [0, 3, -2]),
+                {"name": "dc-motor-units", "plant": badly_scaled(DC_MOTOR, [0, 3, -2]),
                  "observer": {"family": "sampled-data", "intervals": [0.01, 0.02], "alpha": 0.02}}))
     out.append(("fixed mode 0.99999 from the unit circle, lti-uio decay max",
                 {"name": "near-unit", "plant": NEAR_UNIT_FIXED_MODE, "observer": {"family": "lti-uio",
@@ -76,11 +89,10 @@ def problems() -> list[tuple[str, dict]]:
 
 
 def answer(label: str, doc: dict, figures: bool = False) -> str:
-    """The text of one problem: its check's lines and its design's verdict (or refusal), with exit codes.
+    """The text of one problem: its check's lines and its design's summary (or refusal), with exit codes.
 
-    With ``figures``, the design's printed figures too (bounds, searched values, solves): not all of
-    them are the same under every BLAS kernel yet (see the module docstring of
-    ``tests/test_same_answers.py``), so the stored text holds the verdicts only.
+    The summary is what ``uiofmu design`` prints, timings aside; for a problem of
+    :data:`AT_THE_EDGE` only its verdict line, unless ``figures``.
     """
     import uiofmu
     from uiofmu.cli import _one_line, check_summary, design_summary
@@ -95,7 +107,7 @@ def answer(label: str, doc: dict, figures: bool = False) -> str:
         card = uiofmu.design(problem)
         summary = design_summary(card, timing=False)
         verdict = ["  certificate      " + ("verified" if card.data["certificate"]["verified"] else "NOT verified")]
-        lines += ["design: exit 0"] + (summary if figures else verdict)
+        lines += ["design: exit 0"] + (summary if figures or label not in AT_THE_EDGE else verdict)
     except UserError as exc:
         lines += [f"design: exit 2: {_one_line(exc)}"]
     return "\n".join(lines)

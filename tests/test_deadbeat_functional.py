@@ -224,3 +224,16 @@ def test_a_tampered_formula_fails_its_re_check():
     F[0, 0, 2] = 11.0001
     data["matrices"]["F"] = F.tolist()
     assert not all(c.holds for c in uiofmu.verify(card_from_data(data)))
+
+
+def test_a_formula_hidden_behind_overflowing_plant_matrices_fails_its_re_check():
+    """The re-check's runs of plant matrices scaled by 1e200 overflow: a NaN residual is a failure,
+    not a residual that ``max`` drops, so a wrong coefficient cannot hide behind it."""
+    card = design(EXAMPLE)
+    data = copy.deepcopy(card.data)
+    data["matrices"]["A_parts"] = (np.array(data["matrices"]["A_parts"]) * 1e200).tolist()
+    F = np.array(data["matrices"]["F"])
+    F[0, 0, -1] = 123.0
+    data["matrices"]["F"] = F.tolist()
+    checks = uiofmu.verify(card_from_data(data))
+    assert not all(c.holds for c in checks), [c.to_data() for c in checks]

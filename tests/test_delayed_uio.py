@@ -11,11 +11,12 @@ import pytest
 
 import uiofmu
 from tests.conftest import EXAMPLES
+from uiofmu.synthesis import recheck
 from uiofmu.families.delayed_uio import minimal_delays
 from uiofmu.problem import load_problem, problem_from_data
 from uiofmu.runtime.card import card_from_data
 from uiofmu.runtime.delayed import DelayedRuntime, augmented, decoupling, gamma, stacked
-from uiofmu.runtime.errors import ProblemError
+from uiofmu.runtime.errors import CardError, ProblemError
 from uiofmu.runtime.parametric_plant import ParametricPlantRuntime
 from uiofmu.runtime.state import StateRejected
 
@@ -214,3 +215,19 @@ def test_the_card_says_where_its_certificate_holds(example):
     K = np.array(data["matrices"]["K"])
     data["matrices"]["K"] = (0.2 * K).tolist()
     assert not all(c.holds for c in uiofmu.verify(card_from_data(data)))
+
+
+@pytest.mark.parametrize("beta", [0.0, -1e-3, float("nan")])
+def test_a_card_claiming_no_decay_is_refused(example, beta):
+    """``beta > 0`` is strict: a card whose decay rate is 0 (or not a number) certifies no convergence."""
+    card = example[1]
+    data = copy.deepcopy(card.data)
+    assert all(c.holds for c in uiofmu.verify(card))
+    data["decay_rate"] = beta
+    try:
+        forged = card_from_data(data)
+    except CardError as exc:                 # the schema's own refusal (a non-finite number)
+        assert "decay_rate" in str(exc)
+        return
+    with pytest.raises(CardError, match="certificate"):      # what build and cosim run first
+        recheck(forged)

@@ -20,10 +20,7 @@ from uiofmu.runtime.errors import CardError, InfeasibleError
 from uiofmu.lmi import Lmi, LmiSystem, accepted, eig_min, point_scale, search, tune
 from uiofmu.problem import problem_from_data
 
-DC_MOTOR = {"time": "continuous", "A": [[0.0, 1.0, 0.0], [0.0, -10.0, 1.0], [0.0, -0.02, -2.0]],
-            "B": [[0.0], [0.0], [2.0]], "E": [[0.0], [-100.0], [0.0]], "C": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]}
-NEAR_UNIT_FIXED_MODE = {"time": "discrete", "dt": 0.1, "A": [[0.0, 1.0], [-0.5, 0.99999]], "B": [[0.0], [1.0]],
-                        "E": [[0.2], [0.0]], "C": [[1.0, 0.0]]}
+from same_answers import DC_MOTOR, NEAR_UNIT_FIXED_MODE, badly_scaled as _badly_scaled
 
 
 def _problem(plant, **observer):
@@ -244,15 +241,6 @@ def test_riccati_needs_a_number():
 
 
 # -- state scaling: the same LMIs in balanced coordinates ------------------------------------------
-
-def _badly_scaled(plant, exponents):
-    """``plant`` in coordinates ``x = diag(10**exponents) xs``: the same system, other units."""
-    T = np.diag(10.0 ** np.asarray(exponents, dtype=float))
-    Ti = np.linalg.inv(T)
-    A, B, E, C = (np.array(plant[k], dtype=float) for k in "ABEC")
-    return {**plant, "A": (Ti @ A @ T).tolist(), "B": (Ti @ B).tolist(), "E": (Ti @ E).tolist(),
-            "C": (C @ T).tolist()}
-
 
 def test_scaling_maps_the_lmis_by_congruence():
     """An LMI point of the scaled coordinates, mapped back, gives the plant's LMI matrices

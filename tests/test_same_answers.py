@@ -1,16 +1,19 @@
-"""The same answers on every machine: verdicts, refusals and the FMU catalogue do not depend on the BLAS kernel.
+"""The same answers on every machine: verdicts, figures and refusals do not depend on the BLAS kernel.
 
 OpenBLAS picks its kernel by the CPU, so another machine rounds differently; ``make test-blas`` runs
 this file (and the other numerically sensitive ones) under ``OPENBLAS_CORETYPE`` = Prescott,
 Sandybridge, Haswell, SkylakeX (where the CPU has AVX-512) and the default, with 1 and 2 threads.
 
 * Every problem of ``tests/same_answers.py`` (the examples, the robustness reproducers and sample,
-  plants at the edge of double precision) gets the check's lines, the design's exit code and
-  verdict, or its one-line refusal, exactly as stored in ``tests/data/same_answers.txt``.
+  plants at the edge of double precision) gets the check's lines, the design's exit code and the
+  figures ``uiofmu design`` prints, or its one-line refusal, exactly as stored in
+  ``tests/data/same_answers.txt``.
+* ``tests/test_fmus_catalogue.py`` (also run by ``make test-blas``): the catalogue's
+  ``fmus/README.md`` regenerates byte for byte.
 
-What is not stored: the figures of LMI designs whose optimum does not fix them and of ``"max"``
-searches, whose bisection ends where the solver's verdicts next to the edge send it (they move in
-the 2nd to 4th digit between kernels; ``python tests/same_answers.py --figures`` shows them).
+What is not stored: the figures of the problems of ``same_answers.AT_THE_EDGE``, a ``"max"`` search
+that ends where the solver's verdicts next to the edge send it, or an optimum the solver reaches
+only inaccurately (``python tests/same_answers.py --figures`` shows them).
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ def test_the_set_covers_refusals_and_designs_at_the_edge():
     assert text.count("design: exit 0") >= 20
     assert text.count("no observer exists") >= 4
     assert "rounding floor" in text and text.count("## ") == len(same_answers.problems())
+    assert text.count("overshoot_bound") >= 12 and "examples/seed000_example1_ltv.toml" in text
 
 
 def test_blas_threads_are_one_inside_a_design_and_restored_after(monkeypatch):

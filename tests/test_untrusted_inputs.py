@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+import uiofmu
 from uiofmu.runtime.card import card_from_data
 from uiofmu.runtime.errors import CardError
 from uiofmu.fmu.export import model_identifier
@@ -416,3 +417,44 @@ def test_an_internal_error_is_one_line_with_a_hint(monkeypatch, cli, example1_pa
     res = cli("check", example1_path)
     assert res.code == 1 and res.err.startswith("uiofmu check: internal error: ZeroDivisionError: boom")
     assert "please report it" in res.err and len(res.err.splitlines()) == 1
+
+
+# -- every bound a card prints is re-checked ------------------------------------------------------
+
+_OVERSHOOT_CARDS = ["examples/seed000_example1.toml", "examples/seed000_example1_ltv.toml",
+                    "plants/two_room_building/problem.toml", "examples/seed002_setup2.toml",
+                    "examples/seed002_three_modes.toml"]
+
+
+@pytest.fixture(scope="module")
+def overshoot_cards():
+    from tests.conftest import ROOT
+
+    return {name: uiofmu.design(uiofmu.load_problem(ROOT / name)) for name in _OVERSHOOT_CARDS}
+
+
+@pytest.mark.parametrize("name", _OVERSHOOT_CARDS)
+@pytest.mark.parametrize("claim", [1e-6, 0.0, -1.0, float("nan"), 0.9])
+def test_an_overshoot_below_the_certificates_is_refused(overshoot_cards, name, claim, tmp_path, cli):
+    """``overshoot_bound`` is what the Lyapunov matrices prove (``sqrt(eig_max / eig_min)``, 1 for a
+    dead-beat switched design), never a number anyone may lower: verify fails it and build refuses."""
+    card = overshoot_cards[name]
+    honest = [c for c in uiofmu.verify(card) if c.name.startswith("overshoot_bound")]
+    assert len(honest) == 1 and honest[0].holds and honest[0].bound >= 1.0, (name, honest)
+    data = json.loads(json.dumps(card.data))
+    data["overshoot_bound"] = claim if claim < 1 else claim * honest[0].bound
+    try:
+        forged = card_from_data(data)
+    except CardError:                       # the schema's own refusal (a non-finite number)
+        return
+    assert not all(c.holds for c in uiofmu.verify(forged)), (name, claim)
+    if claim == 1e-6:                       # and through the command line, before any file is written
+        path = _write(tmp_path, data)
+        res = cli("build", path, "-o", tmp_path / "o.fmu")
+        assert res.code == 2 and "overshoot_bound" in res.err and len(res.err.splitlines()) == 1, res
+        assert not (tmp_path / "o.fmu").exists()
+        res = cli("verify", path)
+        assert res.code == 2 and "overshoot_bound" in res.err and "1e-06" in res.err, res
+        honest_path = _write(tmp_path, json.loads(json.dumps(card.data)), "honest.json")
+        res = cli("verify", honest_path)
+        assert res.code == 0 and "every claim" in res.out and "[ok  ] overshoot_bound" in res.out, res

@@ -141,6 +141,34 @@ def decay_check(rho: float) -> Check:
     return Check("decay bound < 1", float(rho), 1.0 - 2.0 ** -52)
 
 
+def overshoot_check(claimed, lyapunov) -> Check:
+    """``overshoot_bound >= sqrt(eig_max / eig_min)`` over the Lyapunov matrices the certificate uses.
+
+    The bound ``||e_k|| <= overshoot * decay**k * ||e_0||`` holds with that ratio; a card whose
+    ``overshoot_bound`` is smaller claims more than its certificate proves. The eigenvalues are
+    moved by their rounding bound (``n eps ||P||_2``) toward the smaller ratio, so a bound computed
+    from the same matrices on another machine passes, and a non-finite claim fails.
+
+    Parameters
+    ----------
+    claimed : float
+        The card's ``overshoot_bound``.
+    lyapunov : sequence of numpy.ndarray
+        The certificate's Lyapunov matrices (one, or one per interval or mode).
+    """
+    eigs = [np.linalg.eigvalsh(0.5 * (P + P.T)) for P in np.asarray(lyapunov, dtype=float)]
+    n = len(eigs[0])
+    slack = 4 * n * EPS * max(float(np.max(np.abs(e))) for e in eigs)
+    low, high = min(float(e[0]) for e in eigs) + slack, max(float(e[-1]) for e in eigs) - slack
+    needed = math.sqrt(max(high, low) / low) if low > 0 else math.inf
+    try:
+        value = float(claimed)
+    except (TypeError, ValueError):
+        value = math.nan
+    return Check("overshoot_bound >= sqrt(eig_max / eig_min) of the Lyapunov matrices",
+                 value if math.isfinite(value) else -math.inf, needed, at_most=False)
+
+
 def positive_check(name: str, X: np.ndarray, margin: float = LMI_MARGIN,
                    verify_fraction: float = VERIFY_FRACTION) -> Check:
     """``X > 0`` by its smallest eigenvalue, with margin over its rounding (:func:`definite_check`)."""

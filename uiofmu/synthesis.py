@@ -148,7 +148,8 @@ def assemble_card(problem: Problem, result: DesignResult, existence: Existence, 
     -------
     Card
     """
-    plant, lmi = problem.plant, result.lmi
+    plant = problem.plant
+    systems = () if result.lmi is None else result.lmi if isinstance(result.lmi, tuple) else (result.lmi,)
     data = {
         "format": FORMAT,
         "version": VERSION,
@@ -166,9 +167,10 @@ def assemble_card(problem: Problem, result: DesignResult, existence: Existence, 
         "certificate": to_lists(result.certificate),
         "problem": problem.data,
         "kernel": result.kernel,
-        "timing": {"total_s": time.perf_counter() - started, "lmi_assembly_s": lmi.assembly_time if lmi else 0.0,
-                   "solver_s": lmi.solver_time if lmi else 0.0, "solves": lmi.solves if lmi else 0,
-                   "backend": lmi.backend if lmi else "none"},
+        "timing": {"total_s": time.perf_counter() - started,
+                   "lmi_assembly_s": sum(s.assembly_time for s in systems),
+                   "solver_s": sum(s.solver_time for s in systems), "solves": sum(s.solves for s in systems),
+                   "backend": systems[0].backend if systems else "none"},
     }
     data["ports"] = [port.to_data() for port in declared_ports(data, result.matrices)]
     return card_from_data(data)

@@ -66,9 +66,9 @@ class DesignResult:
         From :func:`uiofmu.certificate.certificate`.
     results : dict
         Family results at the card's top level (``decay_bound``, ``overshoot_bound``, ...).
-    lmi : LmiSystem or None
-        The design's LMI system (its assembly time, solves and solver time go to ``timing``); None
-        for a design without one.
+    lmi : LmiSystem, tuple of LmiSystem, or None
+        The design's LMI system(s) (their assembly time, solves and solver time add up in ``timing``);
+        None for a design without one.
     xhat0 : array_like or None
         Initial estimate (None: zeros).
     kernel : str

@@ -353,7 +353,7 @@ def checks(matrices: dict, gammas: np.ndarray, beta: float) -> list:
     if worst is None:
         worst = Check("eig_min of -(N'Q + QN + 2 beta Q) over the premise grid", -np.inf, 0.0, at_most=False)
     return [positive_check("eig_min(Q)", Q), worst,
-            Check("decay rate beta > 0", beta, 0.0, at_most=False)]
+            Check("decay rate beta > 0", beta, float(np.finfo(float).tiny), at_most=False)]
 
 
 def verify(card) -> list:

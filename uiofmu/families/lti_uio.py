@@ -42,6 +42,7 @@ from ..certificate import (
     identity_check,
     lyapunov_check,
     magnitude,
+    overshoot_check,
     positive_check,
 )
 from ..decoupling import (
@@ -181,8 +182,9 @@ def checks(matrices: dict, rho: float) -> list:
 
 
 def verify(card) -> list:
-    """Re-check a card's certificate from its matrices alone (no solver)."""
-    return checks(card.data["matrices"], card.data["decay_bound"])
+    """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims."""
+    d = card.data
+    return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
 
 
 def _riccati(PA, C, rho: float) -> Tuned:

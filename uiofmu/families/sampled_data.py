@@ -51,6 +51,7 @@ from ..certificate import (
     certificate,
     decay_check,
     identity_check,
+    overshoot_check,
     positive_check,
     rounding_floor,
 )
@@ -559,8 +560,9 @@ def checks(matrices: dict, decay: float) -> list:
 
 
 def verify(card) -> list:
-    """Re-check a card's certificate from its matrices alone (no solver)."""
-    return checks(card.data["matrices"], card.data["decay_bound"])
+    """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims."""
+    d = card.data
+    return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], d["matrices"]["Pl"])]
 
 
 def in_plant_coordinates(v: dict, t) -> dict:

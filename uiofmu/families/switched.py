@@ -40,8 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import (EPS, Check, certificate, decay_check, identity_check, lyapunov_check, positive_check,
-                           round_up)
+from ..certificate import (EPS, Check, certificate, decay_check, identity_check, lyapunov_check, overshoot_check,
+                           positive_check, round_up)
 from ..decoupling import weak_modes_condition
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSolution, LmiSystem, tune
@@ -324,8 +324,12 @@ def checks(matrices: dict, decay: float) -> list:
 
 
 def verify(card) -> list:
-    """Re-check a card's certificate from its matrices alone (no solver)."""
-    return checks(card.data["matrices"], card.data["decay_bound"])
+    """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims
+    (the ratio of the Lyapunov matrices ``S``; 1 for a dead-beat design, whose bound is ``||Phi_i||``)."""
+    d = card.data
+    S = d["matrices"].get("S")
+    lyapunov = S if S is not None else [np.eye(len(d["matrices"]["C"][0]))]
+    return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], lyapunov)]
 
 
 def _lmi_runtime(modes, values: dict, C, has_dhat: bool) -> dict:
