@@ -234,6 +234,7 @@ def test_control_characters_in_the_name_are_refused(example1_card, tmp_path):
     (lambda d: d["initial"].pop("xhat0"), "initial.xhat0: required"),
     (lambda d: d["initial"].update(xhat0=[0.0]), "initial.xhat0: expected 2 entries, found 1"),
     (lambda d: d.update(family="psychic"), "family: expected one of 'lti-uio'"),
+    (lambda d: d.update(family="delayed-uio"), "family 'delayed-uio' is not its problem's observer.family 'lti-uio'"),
     (lambda d: d.update(decay_bound=1.00009), "decay_bound = 1.00009: a bound of 1 or more certifies no convergence"),
     (lambda d: d["dims"].update(n=10 ** 400), "dims.n: expected an integer in [1, 1000]"),
     (lambda d: d["matrices"]["c"].__setitem__(0, 10 ** 400), "too large for a float"),

@@ -141,25 +141,37 @@ def decay_check(rho: float) -> Check:
     return Check("decay bound < 1", float(rho), 1.0 - 2.0 ** -52)
 
 
+def _spectra(lyapunov) -> np.ndarray:
+    """The eigenvalues of each Lyapunov matrix of a stack (one row per matrix, ascending)."""
+    P = np.asarray(lyapunov, dtype=float).reshape(-1, *np.shape(lyapunov)[-2:])
+    return np.linalg.eigvalsh(0.5 * (P + np.swapaxes(P, -1, -2)))
+
+
+def overshoot(lyapunov) -> float:
+    """``sqrt(eig_max / eig_min)`` over the Lyapunov matrices of a certificate (one, or a stack of one
+    per interval or mode): the ``overshoot_bound`` of ``||e_k|| <= overshoot * decay**k * ||e_0||``."""
+    eig = _spectra(lyapunov)
+    return float(np.sqrt(eig.max() / eig.min()))
+
+
 def overshoot_check(claimed, lyapunov) -> Check:
     """``overshoot_bound >= sqrt(eig_max / eig_min)`` over the Lyapunov matrices the certificate uses.
 
-    The bound ``||e_k|| <= overshoot * decay**k * ||e_0||`` holds with that ratio; a card whose
-    ``overshoot_bound`` is smaller claims more than its certificate proves. The eigenvalues are
-    moved by their rounding bound (``n eps ||P||_2``) toward the smaller ratio, so a bound computed
-    from the same matrices on another machine passes, and a non-finite claim fails.
+    The bound ``||e_k|| <= overshoot * decay**k * ||e_0||`` holds with that ratio (:func:`overshoot`);
+    a card whose ``overshoot_bound`` is smaller claims more than its certificate proves. The
+    eigenvalues are moved by their rounding bound (``4 n eps max |eig|``) toward the smaller ratio,
+    so a bound computed from the same matrices on another machine passes, and a non-finite claim fails.
 
     Parameters
     ----------
     claimed : float
         The card's ``overshoot_bound``.
-    lyapunov : sequence of numpy.ndarray
-        The certificate's Lyapunov matrices (one, or one per interval or mode).
+    lyapunov : array_like
+        The certificate's Lyapunov matrix, or a stack of them (one per interval or mode).
     """
-    eigs = [np.linalg.eigvalsh(0.5 * (P + P.T)) for P in np.asarray(lyapunov, dtype=float)]
-    n = len(eigs[0])
-    slack = 4 * n * EPS * max(float(np.max(np.abs(e))) for e in eigs)
-    low, high = min(float(e[0]) for e in eigs) + slack, max(float(e[-1]) for e in eigs) - slack
+    eig = _spectra(lyapunov)
+    slack = 4 * eig.shape[-1] * EPS * float(np.abs(eig).max())
+    low, high = float(eig.min()) + slack, float(eig.max()) - slack
     needed = math.sqrt(max(high, low) / low) if low > 0 else math.inf
     try:
         value = float(claimed)

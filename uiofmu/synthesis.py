@@ -100,16 +100,21 @@ def verify(card: Card) -> list:
     return available_family(card.family, "design card family").verify(card)
 
 
-def recheck(card: Card) -> None:
+def recheck(card: Card) -> list:
     """Insist that every check of a card's certificate holds at its stored matrices.
 
-    ``certificate.verified`` is only a claim of whoever wrote the card; ``build`` and ``cosim``
-    re-run the checks before they use a card.
+    ``certificate.verified`` is only a claim of whoever wrote the card; ``build``, ``cosim`` and
+    ``verify`` re-run the checks before they use a card.
 
     Parameters
     ----------
     card : Card
         A card that passed the card schema.
+
+    Returns
+    -------
+    list of Check
+        The checks (all of them hold).
 
     Raises
     ------
@@ -118,7 +123,8 @@ def recheck(card: Card) -> None:
         its value and bound).
     """
     try:
-        failed = [c for c in verify(card) if not c.holds]
+        checks = verify(card)
+        failed = [c for c in checks if not c.holds]
     except KeyError as exc:
         raise CardError(f"design card: its certificate cannot be re-checked: matrices.{exc.args[0]} or the "
                         f"family result {exc.args[0]!r} is missing") from None
@@ -129,6 +135,7 @@ def recheck(card: Card) -> None:
         raise CardError(f"design card: the certificate does not hold at the stored matrices: {c.name} = {c.value:.6g}, "
                         f"required {'<=' if c.at_most else '>='} {c.bound:.6g}" +
                         (f" (and {len(failed) - 1} more check(s))" if len(failed) > 1 else ""))
+    return checks
 
 
 def assemble_card(problem: Problem, result: DesignResult, existence: Existence, started: float) -> Card:

@@ -42,6 +42,7 @@ from ..certificate import (
     identity_check,
     lyapunov_check,
     magnitude,
+    overshoot,
     overshoot_check,
     positive_check,
 )
@@ -282,14 +283,13 @@ def design(problem, analysis: Analysis) -> DesignResult:
     X, N = matrices["X"], matrices["N"]
     cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}",
                        solver="CLARABEL" if method == "lmi" else "none")
-    eigX = np.linalg.eigvalsh(X)
     if existence.holds("rank(CE) = q"):
         matrices.update({"Dy": np.linalg.pinv(C @ s.E), "Yx": C @ s.A, "Yu": C @ s.B, "Yc": C @ s.w})
     eigN = np.linalg.eigvals(N)
     results = {
         "decay": rho,
         "decay_bound": rho,
-        "overshoot_bound": float(np.sqrt(eigX[-1] / eigX[0])),
+        "overshoot_bound": overshoot(X),
         "bound": "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0||",
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),

@@ -45,6 +45,7 @@ from ..certificate import (
     decay_check,
     identity_check,
     lyapunov_check,
+    overshoot,
     overshoot_check,
     positive_check,
 )
@@ -318,14 +319,13 @@ def design(problem, analysis: Analysis) -> DesignResult:
     if not existence.holds("rank(CE) = q"):
         for k in ("Dy", "Yx", "Yu", "Yc"):
             matrices.pop(k)
-    eigX = np.linalg.eigvalsh(X)
     results = {**{k: data[k] for k in ("alpha", "eta", "mu", "tau1", "tau2")}, "gamma": gamma}
     cert = certificate(sol, checks({"matrices": matrices, **results}), f"{NAME} design of {problem.name}")
     N0 = A1 - T1 @ C                                   # N_k at k = 0 (a = 1)
     results.update({
         "decay_bound": float(np.sqrt(1 - tau2)),
         "initial_decay_bound": float(np.sqrt(1 - tau1)),
-        "overshoot_bound": float(np.sqrt(eigX[-1] / eigX[0])),
+        "overshoot_bound": overshoot(X),
         "bound": "||e_k|| <= b_k / sqrt(eig_min X), b_{k+1} = sqrt(1 - eta (1 + mu alpha^k)) b_k + ||S_k d_k||_X",
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),

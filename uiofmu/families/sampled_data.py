@@ -51,6 +51,7 @@ from ..certificate import (
     certificate,
     decay_check,
     identity_check,
+    overshoot,
     overshoot_check,
     positive_check,
     rounding_floor,
@@ -699,13 +700,12 @@ def design(problem, analysis: Analysis) -> DesignResult:
             matrices.pop(k)
     decay = float(np.sqrt(1.0 - alpha))
     cert = certificate(sol, checks(matrices, decay), f"{NAME} design of {problem.name}")
-    eig = np.array([np.linalg.eigvalsh(P) for P in Pl])
     zeros = existence.value("stable sampled invariant zeros", "per_interval")
     diagonal = matrices["N"][np.arange(N), np.arange(N)]            # L_ii: a constant interval
     results = {
         "alpha": alpha,
         "decay_bound": decay,
-        "overshoot_bound": float(np.sqrt(eig.max() / eig.min())),
+        "overshoot_bound": overshoot(Pl),
         "bound": "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0|| for every sequence of design intervals",
         "intervals": list(opts.intervals),
         "alpha_limit_from_zeros": limit,

@@ -40,8 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import (EPS, Check, certificate, decay_check, identity_check, lyapunov_check, overshoot_check,
-                           positive_check, round_up)
+from ..certificate import (EPS, Check, certificate, decay_check, identity_check, lyapunov_check, overshoot,
+                           overshoot_check, positive_check, round_up)
 from ..decoupling import weak_modes_condition
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSolution, LmiSystem, tune
@@ -369,7 +369,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         norm = round_up(max(norm, floor), 1)
         lam = norm if opts.decay == "max" else max(float(opts.decay), norm)
         sol = _closed_form(lam, "closed form (dead-beat: Kt_i = At_i Ct_i^+)")
-        method, solver, overshoot = "deadbeat", "none", 1.0
+        method, solver, bound = "deadbeat", "none", 1.0
     else:
         system = _lmis(modes)
         system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(modes, v, C, has_dhat),
@@ -380,14 +380,13 @@ def design(problem, analysis: Analysis) -> DesignResult:
         lam, sol = tuned.value, tuned.solution
         searched = tuned.search.to_data() if tuned.search else None
         mats = _lmi_runtime(modes, sol.values, C, has_dhat)
-        eig = np.linalg.eigvalsh(mats["S"])
-        overshoot = float(np.sqrt(eig.max() / eig.min()))
+        bound = overshoot(mats["S"])
         method, solver = "lmi", "CLARABEL"
     cert = certificate(sol, checks(mats, lam), f"{NAME} design of {problem.name}", solver=solver)
     results = {
         "decay": lam,
         "decay_bound": lam,
-        "overshoot_bound": overshoot,
+        "overshoot_bound": bound,
         "bound": "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0|| under arbitrary switching",
         "modes": plant.N,
         "fixed_eigenvalues": [complex_list(md.fixed) for md in modes],

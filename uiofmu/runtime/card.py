@@ -410,7 +410,10 @@ def check_card(data, require_verified: bool = True) -> dict:
     for key in ("solver", "status"):
         if key in cert:
             _text(cert[key], f"certificate.{key}", 100)
-    _table(data["problem"], "problem")
+    observer = _table(data["problem"], "problem").get("observer")
+    if isinstance(observer, dict) and observer.get("family", data["family"]) != data["family"]:
+        raise CardError(f"design card family {data['family']!r} is not its problem's observer.family "
+                        f"{str(observer.get('family'))[:40]!r}: the card was edited after the design")
     for key in ("decay_bound", "overshoot_bound"):
         if data.get(key) is not None:
             value = _number(data[key], key, low=0.0)
