@@ -54,6 +54,11 @@ def _single_then_other(rng, pool, n, make_single, make_other):
     return singles + [make_other() for _ in range(n - len(singles))]
 
 
+def spread(cases: list, n: int) -> list:
+    """At most ``n`` of ``cases``, evenly spread over the list (its kinds come in blocks)."""
+    return cases[:: max(1, len(cases) // max(n, 1))][:n]
+
+
 def generate(bases: hostile.Bases, n: int, seed: int, only: set | None = None) -> dict:
     """Every category's cases.
 
@@ -100,7 +105,7 @@ def generate(bases: hostile.Bases, n: int, seed: int, only: set | None = None) -
         makers[cat] = make
     makers["card-in-fmu"] = lambda: [hostile.card_in_fmu_case(rng, bases, "card-in-fmu")
                                      for rng in [rng_for("card-in-fmu")] for _ in range(n)]
-    makers["card-tamper"] = lambda: hostile.tamper_cases(bases)[:n]
+    makers["card-tamper"] = lambda: spread(hostile.tamper_cases(bases), n)
     makers["injection"] = lambda: hostile.injection_cases(bases)[: max(n, 0)]
     kinds = ["steps", "steps", "steps", "seed", "t-end", "out", "inputs", "inputs", "inputs", "fmus"]
     makers["cosim-args"] = lambda: [hostile.cosim_case(rng, bases, "cosim-args", kinds[i % len(kinds)])

@@ -36,6 +36,7 @@ import io
 import json
 import math
 import os
+import random
 import re
 import resource
 import shutil
@@ -1782,7 +1783,7 @@ def _vm_size() -> int:
 #: The sub-commands of uiofmu.
 COMMANDS = ("check", "design", "build", "plant", "linearize", "cosim", "validate", "demo")
 #: Commands that load no FMU and may run in the test process.
-IN_PROCESS_COMMANDS = ("check", "design", "build", "plant")
+IN_PROCESS_COMMANDS = ("check", "design", "build", "plant", "verify")
 
 
 def run_inprocess(argv: list[str], cwd: Path, tmpdir: Path, timeout: float, runner) -> RunResult:
@@ -2416,7 +2417,8 @@ def fmu_level_cases(bases: Bases, category: str = "fmu-level") -> list[Case]:
 
 def tamper_cases(bases: Bases, category: str = "card-tamper") -> list[Case]:
     """Cards whose matrices or certificate were altered while ``certificate.verified`` stays
-    true: a product that re-checks the certificate refuses them.
+    true, and the :func:`consistent_forgeries` of every base card: a product that re-checks
+    everything a card claims refuses them (``verify`` and ``build`` exit 2, no FMU).
 
     Parameters
     ----------
@@ -2446,6 +2448,14 @@ def tamper_cases(bases: Bases, category: str = "card-tamper") -> list[Case]:
                                 {"in/card.json": card_text(new)},
                                 [Run(["build", P("in/card.json"), "-o", P("out/obs.fmu"), "--backend", backend],
                                      allowed=frozenset({2}))], ["out/obs.fmu"]))
+    docs = [doc for _, doc in bases.cards.values()]
+    for base, (_, doc) in sorted(bases.cards.items()):
+        for label, new in consistent_forgeries(doc, docs, random.Random(base)):
+            out.append(Case(category, f"card {base}: consistent forgery, {label} (build and verify)",
+                            {"in/card.json": card_text(new)},
+                            [Run(["verify", P("in/card.json")], allowed=frozenset({2})),
+                             Run(["build", P("in/card.json"), "-o", P("out/obs.fmu")], allowed=frozenset({2}))],
+                            ["out/obs.fmu"]))
     return out
 
 
@@ -2529,3 +2539,127 @@ def mujoco_case(rng, category: str = "mujoco-spec", mutation: Mutation | None = 
         argv = ["linearize", P("in/plant"), "-o", P("out/problem.toml")]
         target = "out/problem.toml"
     return Case(category, label, files, [Run(argv)], [target], timeout=120)
+
+
+# -- consistent forgeries ------------------------------------------------------------------------
+def _largest(value) -> float:
+    """The largest finite magnitude in a nested list of numbers (0 for none)."""
+    if isinstance(value, list):
+        return max((_largest(v) for v in value), default=0.0)
+    return abs(value) if isinstance(value, float) and math.isfinite(value) else 0.0
+
+
+def _nudge(value, rng, scale: float | None = None):
+    """``value`` changed by a little (one number by 1e-3 of the largest in its matrix, or a
+    different text, integer, flag), keeping its type and shape: a forgery each field's own
+    validation accepts."""
+    if isinstance(value, float) and scale:
+        return value + 1e-3 * scale
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, int):
+        return value + 1
+    if isinstance(value, float):
+        return value * (1 + 1e-3) + 1e-3 if math.isfinite(value) else 1.0
+    if isinstance(value, str):
+        return value + " (edited)"
+    if value is None:
+        return [[1.0]]
+    if isinstance(value, list) and value:
+        out = copy.deepcopy(value)
+        i = rng.randrange(len(out))
+        out[i] = _nudge(out[i], rng, scale or _largest(value) or None)
+        return out
+    if isinstance(value, dict) and value:
+        out = copy.deepcopy(value)
+        key = rng.choice(sorted(out))
+        out[key] = _nudge(out[key], rng)
+        return out
+    return value
+
+
+#: The certificates' Lyapunov matrices: any one that satisfies the LMIs proves the decay, so one from
+#: another design of the same plant may be true; the re-check judges it like any other.
+LYAPUNOV = {"lti-uio": ("X",), "ltv-auid": ("X",), "sampled-data": ("Pl",), "switched": ("S",),
+            "delayed-uio": ("Q",), "deadbeat-functional": ()}
+
+
+def consistent_forgeries(doc: dict, others: list, rng) -> list[tuple[str, dict]]:
+    """Cards whose fields are each valid and that are jointly false, from one designed card ``doc``.
+
+    - every field the card's problem determines (``uiofmu.consistency``: the plant's matrices
+      the FMU runs, the schedule, the step, the derived figures) changed a little;
+    - the problem's own plant changed while the card's matrices stay (a certificate for another plant);
+    - each matrix (but the Lyapunov matrices :data:`LYAPUNOV`) taken from another card ``others`` of
+      the same family where it has the same shape and differs by more than rounding (a matrix from
+      another design), and each bound from another card where it claims what no certificate of
+      this card can prove (:func:`_false_below`).
+
+    Returns
+    -------
+    list of (label, dict)
+        Each forgery with what was changed; every one must be refused by ``build`` and ``verify``.
+    """
+    import numpy as np
+
+    from uiofmu.consistency import DETERMINED
+    from uiofmu.runtime.card import card_from_data
+    from uiofmu.synthesis import verify
+
+    out = []
+    paths = [c.name[:-len(DETERMINED)] for c in verify(card_from_data(doc)) if c.name.endswith(DETERMINED)]
+    for path in paths:
+        keys = path.split(".")
+        new = copy.deepcopy(doc)
+        parent = new
+        for key in keys[:-1]:
+            parent = parent[key]
+        before = parent.get(keys[-1])
+        parent[keys[-1]] = _nudge(before, rng)
+        if parent[keys[-1]] != before:
+            out.append((f"{path} nudged", new))
+    plant = doc["problem"]["plant"]
+    for key in ("A", "E", "C", "D0"):
+        if isinstance(plant.get(key), list) and plant[key]:
+            new = copy.deepcopy(doc)
+            new["problem"]["plant"][key] = _nudge(plant[key], rng)
+            out.append((f"problem.plant.{key} changed, matrices kept", new))
+    for other in others:
+        if other["family"] != doc["family"] or other["name"] == doc["name"]:
+            continue
+        for key, value in doc["matrices"].items():
+            theirs = other["matrices"].get(key)
+            if key in LYAPUNOV[doc["family"]] or theirs is None or np.shape(theirs) != np.shape(value):
+                continue
+            mine, theirs_ = np.asarray(value, dtype=float), np.asarray(theirs, dtype=float)
+            if np.abs(mine - theirs_).max() > 1e-6 * max(np.abs(mine).max(), 1e-300):   # another matrix, not rounding
+                new = copy.deepcopy(doc)
+                new["matrices"][key] = copy.deepcopy(theirs)
+                out.append((f"matrices.{key} from {other['name']}", new))
+        for key, floor in _false_below(doc).items():
+            mine, theirs = doc.get(key), other.get(key)
+            if isinstance(mine, float) and isinstance(theirs, float) and theirs < floor:
+                new = copy.deepcopy(doc)
+                new[key] = theirs
+                out.append((f"{key} {theirs:.4g} from {other['name']} (the card's is {mine:.4g})", new))
+    return out
+
+
+def _false_below(doc: dict) -> dict:
+    """The bounds below which a card's claim is false beyond doubt, whatever its certificate: a
+    decay below the spectral radius of a step matrix ``N`` the runtime applies (every constant
+    sequence of steps decays no faster), an overshoot below ``sqrt(cond)`` of its Lyapunov matrices
+    (what its certificate proves; the family's re-check may accept no less)."""
+    import numpy as np
+
+    m, out = doc["matrices"], {}
+    if doc["family"] in ("lti-uio", "sampled-data", "switched"):
+        n = doc["dims"]["n"]
+        N = np.asarray(m["N"], dtype=float).reshape(-1, n, n)
+        out["decay_bound"] = float(max(np.abs(np.linalg.eigvals(x)).max() for x in N))
+    keys = [k for k in LYAPUNOV[doc["family"]] if k in m]
+    if keys and doc.get("overshoot_bound") is not None:
+        P = np.asarray(m[keys[0]], dtype=float)
+        eig = np.linalg.eigvalsh(P.reshape(-1, *P.shape[-2:]))
+        out["overshoot_bound"] = float(np.sqrt(eig.max() / eig.min()))
+    return out

@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from conftest import run_cli
+from conftest import EXAMPLES, run_cli
 
 pytest.importorskip("distributed")
 
@@ -217,3 +217,329 @@ def test_axes_the_fmus_cannot_take_exit_2(fmus, tmp_path, axes, message):
     result = run_cli("campaign", spec, "--out", tmp_path / "out")
     assert result.code == 2 and message in result.err, result.err
     assert time.perf_counter() - t0 < 10     # refused before any cluster starts
+
+
+# --------------------------------------------------------------------------------------------
+# a campaign of any size starts at once, in bounded memory
+# --------------------------------------------------------------------------------------------
+def test_scenarios_are_made_as_they_are_asked_for(fmus, tmp_path):
+    """The scenario iterator of 10,000,000 runs builds only what is asked, the same rows as scenario()."""
+    import tracemalloc
+    from itertools import islice
+
+    from uiofmu.cosim.campaign import batches, load_campaign, prepare, scenario, scenarios
+
+    campaign = load_campaign(campaign_file(tmp_path, fmus, runs=10_000_000))
+    setup = prepare(campaign)
+    tracemalloc.start()
+    try:
+        t0 = time.perf_counter()
+        first = list(islice(scenarios(campaign, setup), 1000))
+        batch = next(batches(campaign, setup, 64))
+        elapsed = time.perf_counter() - t0
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert elapsed < 2.0 and peak < 5_000_000, (elapsed, peak)
+    assert first == [scenario(campaign, setup, r) for r in range(1000)] and batch == first[:64]
+    assert list(scenarios(campaign, setup, start=9_999_999)) == [scenario(campaign, setup, 9_999_999)]
+
+
+def _rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS")) / 1024
+
+
+def test_a_huge_campaign_gives_rows_at_once_and_keeps_them_when_interrupted(fmus, tmp_path):
+    """runs = 10,000,000: rows reach the disk within seconds in a small process; Ctrl-C writes all outputs."""
+    from uiofmu.cosim.campaign import read_table
+
+    spec = campaign_file(tmp_path, fmus, runs=10_000_000)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "uiofmu", "campaign", spec, "--out", str(out), "--workers", "1"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        t0, rows = time.perf_counter(), 0
+        while time.perf_counter() - t0 < 60 and proc.poll() is None and rows == 0:
+            time.sleep(0.2)
+            rows = sum(p.stat().st_size for p in out.glob("campaign.partial-*/rows.part"))
+        first_rows_s, rss = time.perf_counter() - t0, _rss_mb(proc.pid)
+        assert rows > 0, f"no row after {first_rows_s:.0f} s"
+        time.sleep(1.0)
+        assert _rss_mb(proc.pid) < rss + 50 and rss < 400, (rss, _rss_mb(proc.pid))
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    summary = json.loads((out / "summary.json").read_text())
+    table = [int(r["row"]) for r in read_table(out / "campaign.csv")]
+    assert summary["cancelled"] and summary["runs"] == 10_000_000 and summary["finished"] == len(table) > 0
+    assert table == sorted(set(table)) and (out / "campaign.png").stat().st_size > 10_000
+    assert not list(out.glob("campaign.partial-*"))
+
+
+# --------------------------------------------------------------------------------------------
+# --scheduler: checked addresses, and a deadline on the scheduler's answer
+# --------------------------------------------------------------------------------------------
+def run_cli_within(seconds: float, *argv):
+    """``run_cli`` in a thread: its result, or None when it has not returned within ``seconds``."""
+    import threading
+
+    box = {}
+    thread = threading.Thread(target=lambda: box.update(result=run_cli(*argv)), daemon=True)
+    thread.start()
+    thread.join(seconds)
+    return box.get("result")
+
+
+@pytest.fixture
+def fake_service():
+    """A TCP server on 127.0.0.1 that accepts connections and, by its mode, never answers or answers
+    HTTP; yields a function of the mode giving the server's tcp:// address."""
+    import socket
+    import threading
+
+    servers = []
+
+    def serve(server, mode):
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            servers.append(conn)
+            if mode == "http":
+                conn.recv(65536)
+                conn.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 11\r\n\r\nbad request" * 4)
+
+    def start(mode: str) -> str:
+        server = socket.socket()
+        server.bind(("127.0.0.1", 0))
+        server.listen(8)
+        servers.append(server)
+        threading.Thread(target=serve, args=(server, mode), daemon=True).start()
+        return f"tcp://127.0.0.1:{server.getsockname()[1]}"
+
+    yield start
+    for s in servers:
+        s.close()
+
+
+@pytest.mark.parametrize("mode, message", [
+    ("silent", "no answer of a Dask scheduler within 3 s"),
+    ("http", "the service there answers in another protocol than Dask's"),
+])
+def test_a_service_that_is_not_a_scheduler_exits_2_within_the_deadline(fmus, tmp_path, fake_service, monkeypatch,
+                                                                       mode, message):
+    from uiofmu.cosim import campaign
+
+    monkeypatch.setattr(campaign, "SCHEDULER_TIMEOUT_S", 3.0)
+    address = fake_service(mode)
+    t0 = time.perf_counter()
+    result = run_cli_within(30, "campaign", campaign_file(tmp_path, fmus), "--out", tmp_path / "out",
+                            "--scheduler", address)
+    assert result is not None, "the campaign still waits for the service after 30 s"
+    assert result.code == 2 and f"--scheduler {address}: {message}" in result.err, result.err
+    assert result.err.count("\n") == 1 and "Traceback" not in result.err
+    assert time.perf_counter() - t0 < 10
+
+
+@pytest.mark.parametrize("value, message", [
+    ("garbage", "no port"),
+    ("inproc://x", "the protocol 'inproc' is not supported"),
+    ("tls://node:8786", "the protocol 'tls' is not supported"),
+    ("ucx://node:8786", "the protocol 'ucx' is not supported"),
+    ("file:///etc/passwd", "the protocol 'file' is not supported"),
+    ("tcp://" + "a" * 300 + ":8786", "a host of 300 characters, more than 253"),
+    ("tcp://no host:8786", "not a host name"),
+    ("tcp://node:0", "the port '0' is not a number from 1 to 65535"),
+    ("tcp://node:65536", "the port '65536' is not a number from 1 to 65535"),
+    ("", "an empty address"),
+])
+def test_scheduler_addresses_are_checked_before_any_work(fmus, tmp_path, value, message):
+    t0 = time.perf_counter()
+    result = run_cli("campaign", campaign_file(tmp_path, fmus), "--out", tmp_path / "out", "--scheduler", value)
+    assert result.code == 2 and message in result.err and "expected tcp://HOST:PORT" in result.err, result.err
+    assert f"--scheduler {value[:80]!r}" in result.err and result.err.count("\n") == 1
+    assert time.perf_counter() - t0 < 5 and not (tmp_path / "out" / "campaign.csv").exists()
+
+
+def test_scheduler_addresses_that_are_accepted():
+    from uiofmu.cosim.campaign import scheduler_address
+
+    assert scheduler_address("127.0.0.1:8786") == "tcp://127.0.0.1:8786"
+    assert scheduler_address("tcp://node-1.example.org:8786") == "tcp://node-1.example.org:8786"
+    assert scheduler_address("tcp://[::1]:08786") == "tcp://[::1]:8786"
+
+
+# --------------------------------------------------------------------------------------------
+# integers of the campaign file and of the plant FMU, limits of the axes
+# --------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def random_switched_plant(tmp_path_factory):
+    """A plant FMU whose switching is random, with its FMI Integer parameter ``seed``."""
+    from uiofmu.fmu.export import build_plant
+    from uiofmu.problem import load_problem
+
+    folder = tmp_path_factory.mktemp("switched")
+    text = (EXAMPLES / "seed002_setup1.toml").read_text()
+    text = text[:text.index("[plant.switching]")] + '[plant.switching]\nrule = "random"\nseed = 3\n\n' + \
+        text[text.index("[observer]"):]
+    (folder / "problem.toml").write_text(text)
+    problem = load_problem(folder / "problem.toml")
+    return build_plant(problem.plant, problem.name, folder / "plant.fmu", step=problem.options.step)
+
+
+def _integer_campaign(tmp_path, fmus, plant, seed_axis: str) -> str:
+    _, observer, _ = fmus
+    spec = tmp_path / "c.toml"
+    spec.write_text(f'[campaign]\nobserver = "{observer}"\nplant = "{plant}"\nruns = 4\n'
+                    f"[axes]\nplant_parameters = {{seed = {seed_axis}}}\n")
+    return str(spec)
+
+
+@pytest.mark.parametrize("axis, key, found", [
+    ("2147483648", "axes.plant_parameters.seed", "found 2147483648"),
+    ("-2147483649", "axes.plant_parameters.seed", "found -2147483649"),
+    ("1.5", "axes.plant_parameters.seed", "found 1.5"),
+    ("1e20", "axes.plant_parameters.seed", "found 1e+20"),
+    ("[7, 2.5]", "axes.plant_parameters.seed[1]", "found 2.5"),
+    ("{kind = 'normal', mean = 3.0, std = 1.0}", "axes.plant_parameters.seed", "a normal draw is not one"),
+])
+def test_an_integer_plant_parameter_takes_32_bit_integers_only(fmus, random_switched_plant, tmp_path, axis, key,
+                                                                found):
+    result = run_cli("campaign", _integer_campaign(tmp_path, fmus, random_switched_plant, axis),
+                     "--out", tmp_path / "out")
+    assert result.code == 2 and result.err.count("\n") == 1, result.err
+    assert f"{key}: the plant FMU's seed, an Integer parameter, takes integers in [-2147483648, 2147483647]" \
+        in result.err and found in result.err
+
+
+def test_an_integer_plant_parameter_is_recorded_as_the_fmu_gets_it(fmus, random_switched_plant, tmp_path):
+    from uiofmu.cosim.campaign import load_campaign, prepare, scenario
+
+    campaign = load_campaign(_integer_campaign(tmp_path, fmus, random_switched_plant, "[-2147483648, 2147483647]"))
+    setup = prepare(campaign)
+    assert setup.integers == ("seed",)
+    values = {tuple(scenario(campaign, setup, r)["plant.seed"]) for r in range(campaign.runs)}
+    assert values <= {(-2147483648,), (2147483647,)} and all(type(v[0]) is int for v in values)
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("seed", "1.5", "campaign.seed: expected an integer, found 1.5"),
+    ("seed", "true", "campaign.seed: expected an integer, found True"),
+    ("seed", "-2147483648", "campaign.seed: expected an integer in [0, 9223372036854775807], found -2147483648"),
+    ("runs", "2.0", "campaign.runs: expected an integer, found 2.0"),
+    ("runs", "10000001", "campaign.runs: expected an integer in [1, 10000000], found 10000001"),
+    ("batch", "0", "campaign.batch: expected an integer in [1, 100000], found 0"),
+    ("batch", "1e3", "campaign.batch: expected an integer, found 1000.0"),
+])
+def test_integer_keys_of_the_campaign_file(tmp_path, key, value, message):
+    spec = tmp_path / "c.toml"
+    lines = {"problem": "'p.toml'", "runs": "3", key: value}
+    spec.write_text("[campaign]\n" + "".join(f"{k} = {v}\n" for k, v in lines.items()))
+    result = run_cli("campaign", spec, "--out", tmp_path / "out")
+    assert result.code == 2 and message in result.err, result.err
+
+
+@pytest.mark.parametrize("axis, message", [
+    ("xhat0_error = {kind = 'normal', std = 1e300}", "axes.xhat0_error.std: expected a value in [0, 1e+100], "
+                                                      "found 1e+300"),
+    ("xhat0_error = {kind = 'normal', mean = -1e200, std = 1.0}", "axes.xhat0_error.mean: expected a value in "
+                                                                  "[-1e+100, 1e+100], found -1e+200"),
+    ("d_scale = {kind = 'uniform', low = -1e308, high = 1e308}", "axes.d_scale.low: expected a value in [-1e+100"),
+    ("d_scale = {kind = 'uniform', low = 0.0, high = inf}", "axes.d_scale.high: expected a finite number"),
+    ("d_scale = [1.0, 1e101]", "axes.d_scale[1]: expected a value in [-1e+100, 1e+100], found 1e+101"),
+    ("xhat0_error = {kind = 'constant', value = [nan, 0.0]}", "axes.xhat0_error.value[0]: expected a finite number"),
+])
+def test_axes_whose_draws_could_overflow_exit_2_at_load(tmp_path, axis, message):
+    spec = tmp_path / "c.toml"
+    spec.write_text(f"[campaign]\nproblem = 'p.toml'\nruns = 3\n[axes]\n{axis}\n")
+    result = run_cli("campaign", spec, "--out", tmp_path / "out")
+    assert result.code == 2 and message in result.err and result.err.count("\n") == 1, result.err
+
+
+def test_the_figure_and_summary_skip_non_finite_figures(tmp_path):
+    from uiofmu.cosim.campaign import Tally, plot_campaign
+
+    tally = Tally()
+    for row, (t, ratio) in enumerate([(1.0, 0.5), (float("inf"), float("nan")), (2.0, float("inf"))]):
+        tally.add(row, {"status": "ok", "time_to_1pct": t, "max_bound_ratio": ratio})
+    tally.add(3, {"status": "failed", "reason": "refused"})
+    assert tally.worst == (float("inf"), 2, None)
+    quant = tally.quantiles()
+    assert quant["time_to_1pct"]["count"] == 3 and quant["time_to_1pct"]["non_finite"] == 1
+    assert quant["time_to_1pct"]["q100"] == 2.0 and quant["max_bound_ratio"]["q00"] == 0.5
+    assert plot_campaign(tally, None, None, tmp_path / "c.png").stat().st_size > 10_000
+
+
+# --------------------------------------------------------------------------------------------
+# the outputs are replaced together
+# --------------------------------------------------------------------------------------------
+def test_a_failing_campaign_leaves_the_old_outputs_as_they_were(campaign_run, fmus, tmp_path, monkeypatch):
+    import shutil
+
+    from uiofmu.cosim import campaign
+
+    _, old, _ = campaign_run
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in campaign.OUTPUTS:
+        shutil.copy(old / name, out / name)
+    before = {name: (out / name).read_bytes() for name in campaign.OUTPUTS}
+
+    def broken_figure(*args, **kwargs):
+        raise RuntimeError("the figure failed")
+
+    monkeypatch.setattr(campaign, "plot_campaign", broken_figure)
+    result = run_cli("campaign", campaign_file(tmp_path, fmus, runs=4), "--out", out, "--workers", "1")
+    assert result.code == 1 and "the figure failed" in result.err, result.err
+    assert {name: (out / name).read_bytes() for name in campaign.OUTPUTS} == before
+    assert sorted(p.name for p in out.iterdir()) == sorted(campaign.OUTPUTS)
+    assert not list(old.glob("campaign.partial-*"))
+
+
+# --------------------------------------------------------------------------------------------
+# files that are not what they should be
+# --------------------------------------------------------------------------------------------
+def test_a_campaign_file_that_is_not_a_text_file_exits_2_naming_it(tmp_path):
+    folder, missing, binary, fifo = tmp_path / "dir", tmp_path / "missing.toml", tmp_path / "b.toml", tmp_path / "f"
+    folder.mkdir()
+    binary.write_bytes(bytes(range(256)))
+    os.mkfifo(fifo)
+    for path, message in [(folder, "a folder, not a campaign file"), (missing, "no such campaign file"),
+                          (binary, "the campaign file is not UTF-8 text"), (fifo, "not a regular file")]:
+        result = run_cli("campaign", path, "--out", tmp_path / "out")
+        assert result.code == 2 and result.err.startswith(f"uiofmu campaign: error: {path}: "), result.err
+        assert message in result.err and result.err.count("\n") == 1
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root reads a file of mode 000")
+def test_an_unreadable_campaign_file_exits_2_naming_it(tmp_path):
+    spec = tmp_path / "c.toml"
+    spec.write_text("[campaign]\n")
+    spec.chmod(0)
+    result = run_cli("campaign", spec, "--out", tmp_path / "out")
+    assert result.code == 2 and f"{spec}: cannot read the campaign file" in result.err, result.err
+
+
+def test_folders_where_the_campaign_wants_files_exit_2_naming_the_key(fmus, tmp_path):
+    plant, _, _ = fmus
+    spec = tmp_path / "c.toml"
+    spec.write_text(f'[campaign]\nobserver = "{tmp_path}"\nplant = "{plant}"\nruns = 3\n')
+    result = run_cli("campaign", spec, "--out", tmp_path / "out")
+    assert result.code == 2 and f"campaign.observer: {tmp_path}: a folder, not an FMU file" in result.err, result.err
+    spec.write_text(f'[campaign]\nobserver = "o.fmu"\nplant = "{plant}"\nruns = 3\n[axes]\nsteps = "file:."\n')
+    result = run_cli("campaign", spec, "--out", tmp_path / "out")
+    assert result.code == 2 and f"axes.steps[0]: {tmp_path}: a folder, not a step file" in result.err, result.err
+
+
+def test_an_error_never_quotes_a_step_file(tmp_path):
+    """A campaign file may name any file as its steps: its lines are not shown in the message."""
+    (tmp_path / "secret.txt").write_text("root:x:0:0:SECRET-LINE:/root:/bin/bash\n")
+    spec = tmp_path / "c.toml"
+    spec.write_text("[campaign]\nproblem = 'p.toml'\nruns = 3\n[axes]\nsteps = ['file:secret.txt']\n")
+    result = run_cli("campaign", spec, "--out", tmp_path / "out")
+    assert result.code == 2 and "axes.steps[0]: line 1 of" in result.err and "must be a number" in result.err
+    assert "SECRET" not in result.err and "root:x" not in result.err, result.err

@@ -288,7 +288,8 @@ def test_command_line_end_to_end(built, tmp_path):
 def test_plant_theta_changes_the_plant_not_the_observer(built, tmp_path):
     """The plant's parameter theta, changed through cosimulate, changes what the plant does (and the truth
     the metrics compare with); the observer never reads it: an observer FMU built from a card whose
-    problem states another true theta gives bit-identical estimates."""
+    problem states another true theta (its premise family, simulated with the designed theta, unchanged:
+    the card is still what its problem determines) gives bit-identical estimates."""
     from uiofmu.cosim.master import cosimulate
     from uiofmu.fmu.export import build_observer
     from uiofmu.runtime.card import card_from_data
@@ -304,6 +305,8 @@ def test_plant_theta_changes_the_plant_not_the_observer(built, tmp_path):
 
     data = json.loads(short["card"].read_text())
     data["problem"]["plant"]["parameters"]["theta"] = new        # what the observer would read if it did
+    old = base.metrics["theta"]["true"]                          # the premise family stays the designed one
+    data["problem"]["observer"]["premise"]["theta"] = data["premise"]["theta"] = old
     other = build_observer(card_from_data(data), tmp_path / "other.fmu", backend="python")
     again = cosimulate(short["plant"], other, steps, plant_parameters={"theta": new}, show_progress=False)
     for name in ("xhat", "r"):
@@ -332,3 +335,27 @@ def test_ecospy_runs_the_loop_equal_to_our_master(built):
     short = built["short"]
     ours, _ = ecospy_equals_master(short["plant"], short["obs"], H, STEPS, _ConstantInput(), fed={"y": 2, "ydot": 2})
     assert np.ptp(ours.xhat) > 0.1 and ours.metrics["validity"]["points_valid"] > 0
+
+
+def test_a_step_that_needs_too_many_substeps_is_refused_not_run(built):
+    """h / max_substep RK4 substeps a step, bounded by MAX_SUBSTEPS: h = 10 s (2e5 substeps, about 47 s
+    of CPU) is answered at once with fmi2Discard and the longest step accepted; the next step goes through."""
+    import time
+
+    from uiofmu.cosim.fmi import Fmu, FmuCallError
+    from uiofmu.runtime.delayed import MAX_SUBSTEPS
+
+    ex = built["example"]
+    plant = _plant_runtime(ex["toml"])
+    longest = MAX_SUBSTEPS * _card(ex["card"]).schedule["max_substep"]
+    with Fmu(ex["obs"], "observer") as fmu:
+        fmu.initialize(0.0)
+        _drive(fmu, None, plant, 0.0, 0, 700)                 # past the delay: the observer runs
+        assert fmu.get("valid")[0] == 1.0
+        start, began = len(fmu.messages), time.perf_counter()
+        with pytest.raises(FmuCallError) as info:
+            fmu.step(0.7, 10.0)
+        assert info.value.status == 2 and time.perf_counter() - began < 2.0     # fmi2Discard: nothing changed
+        log = " ".join(fmu.messages[start:])
+        assert "h = 10 s needs" in log and f"take steps of at most {longest:.6g} s" in log, log
+        fmu.step(0.7, H)

@@ -329,6 +329,17 @@ def test_invalid_cards_are_refused(bases, work, edit, backend):
     assert_ok(case, work, inprocess=True)
 
 
+def test_consistent_forgeries_through_verify_and_build(bases, work):
+    """The card-tamper cases of ``make fuzz``, consistent forgeries included, a spread of them in
+    process: ``verify`` and ``build`` exit 2 with one line, and no FMU appears."""
+    from fuzz_campaign import spread
+
+    cases = [c for c in hostile.tamper_cases(bases) if "consistent forgery" in c.label]
+    assert len(cases) >= 20, len(cases)
+    for case in spread(cases, 12):
+        assert_ok(case, work, inprocess=True)
+
+
 @pytest.mark.parametrize("label", [label for label, _ in hostile.deep_json_texts()])
 def test_deep_cards_are_refused(work, label):
     case = hostile.Case("card-deep", label, {"in/card.json": dict(hostile.deep_json_texts())[label]},

@@ -92,6 +92,27 @@ def test_parameters_and_reset(spec, plant_fmu):
         np.testing.assert_array_equal(fmu.get("x"), spec.mujoco["x0"])
 
 
+def test_a_step_of_too_many_mujoco_steps_is_refused_not_run(plant_fmu):
+    """h = 1e300 (about 1e304 MuJoCo steps) is answered at once with fmi2Discard and the longest step
+    accepted; nothing changed, so the next step goes through."""
+    import time
+
+    from uiofmu.cosim.fmi import FmuCallError
+    from uiofmu.runtime.mujoco_runtime import MAX_SUBSTEPS
+
+    with Fmu(plant_fmu, "q") as fmu:
+        fmu.initialize(0.0)
+        x0 = fmu.get("x").copy()
+        start, began = len(fmu.messages), time.perf_counter()
+        with pytest.raises(FmuCallError) as info:
+            fmu.step(0.0, 1e300)
+        assert info.value.status == 2 and time.perf_counter() - began < 2.0
+        log = " ".join(fmu.messages[start:])
+        assert f"more than the {MAX_SUBSTEPS} a step may take" in log, log
+        np.testing.assert_array_equal(fmu.get("x"), x0)
+        fmu.step(0.0, 0.01)
+
+
 def test_bad_spec_exits_2(tmp_path, cli):
     (tmp_path / "model.xml").write_text((FOLDER / "model.xml").read_text())
     text = (FOLDER / "mujoco.toml").read_text().replace('d = ["road"]', 'd = ["pothole"]')

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .plant import check_entries, period
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_matrix, freeze
 
@@ -96,7 +97,9 @@ def parse_lpv(table) -> LpvPlant:
     ------
     ProblemError
         Naming the key: a continuous time, a known input, no or too many components, a part of
-        the wrong shape, an unknown key, a malformed ``[plant.theta]``.
+        the wrong shape, an entry above :data:`uiofmu.plant.MAX_ENTRY`, a period outside
+        [:data:`uiofmu.plant.MIN_PERIOD`, :data:`uiofmu.plant.MAX_PERIOD`], an unknown key, a
+        malformed ``[plant.theta]``.
     """
     from .problem import Table
 
@@ -117,7 +120,7 @@ def parse_lpv(table) -> LpvPlant:
     C = as_matrix(table.get("C"), table.key("C"), cols=n)
     D = as_matrix(table.get("D", np.zeros((C.shape[0], E.shape[1]))), table.key("D"), rows=C.shape[0],
                   cols=E.shape[1])
-    dt = table.scalar("dt", low=0.0, open_low=True)
+    dt = period(table.get("dt"), table.key("dt"))
     x0 = table.vector("x0", n, [0.0] * n)
     shapes = {"A": (n, n), "E": E.shape, "C": C.shape, "D": D.shape}
     raw = table.get("scheduling")
@@ -134,6 +137,7 @@ def parse_lpv(table) -> LpvPlant:
             rows, cols = shapes[name]
             part[name] = freeze(np.zeros(shapes[name]) if value is None else
                                 as_matrix(value, st.key(name), rows=rows, cols=cols))
+        check_entries({st.key(name): part[name] for name in PARTS})
         st.done(" (a scheduling table holds the parts A, E, C, D of one component of theta)")
         parts.append(part)
     tt = Table(table.get("theta", {"kind": "input"}), table.key("theta"))
@@ -141,5 +145,7 @@ def parse_lpv(table) -> LpvPlant:
     theta = {"kind": kind}
     if kind == "state":
         theta["T"] = freeze(as_matrix(tt.get("T"), tt.key("T"), rows=len(parts), cols=n))
+        check_entries({tt.key("T"): theta["T"]})
     tt.done()
+    check_entries({table.key(key): M for key, M in (("A", A), ("E", E), ("C", C), ("D", D), ("x0", x0))})
     return LpvPlant(freeze(A), freeze(E), freeze(C), freeze(D), tuple(parts), theta, dt, freeze(np.asarray(x0)))

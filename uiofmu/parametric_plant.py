@@ -17,8 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .plant import check_entries
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_matrix, as_vector, freeze
+from .runtime.parametric_plant import MAX_RATE, SUBSTEP_FRACTION, rate
 
 #: Most unknown parameters.
 MAX_THETA = 16
@@ -82,7 +84,9 @@ def parse_parametric(table) -> ParametricPlant:
     Raises
     ------
     ProblemError
-        Naming the key: a discrete plant, an unknown input ``E``, a malformed parameter table.
+        Naming the key: a discrete plant, an unknown input ``E``, a malformed parameter table, an
+        entry above :data:`uiofmu.plant.MAX_ENTRY`, a plant faster than
+        :data:`uiofmu.runtime.parametric_plant.MAX_RATE`.
     """
     from .problem import Table
 
@@ -120,7 +124,16 @@ def parse_parametric(table) -> ParametricPlant:
             raise ProblemError(f"{et.key('output')}: output {out} is given twice")
         Dy[out - 1] = as_matrix(et.get("D"), et.key("D"), rows=n, cols=theta.size)
         et.done()
+        check_entries({et.key("D"): Dy[out - 1]})
     pt.done(" (theta, D0 and the [[plant.parameters.Dy]] tables)")
+    check_entries({table.key("A"): A, table.key("B"): B, table.key("C"): C, table.key("x0"): x0,
+                   pt.key("theta"): theta, pt.key("D0"): D0})
     if not np.any(Dy) and not np.any(D0):
         raise ProblemError(f"{pt.key('Dy')}: D(y) is zero: theta does not enter the plant")
+    fastest = rate(A, C, D0, Dy, theta)
+    if not fastest <= MAX_RATE:
+        raise ProblemError(f"{table.key('parameters')}: the plant's rate ||A|| + sum |D_i| max |theta| ||C|| + "
+                           f"sum |D0| = {fastest:.3g} 1/s is out of range: at most {MAX_RATE:g} 1/s (its RK4 "
+                           f"substep {SUBSTEP_FRACTION:g} / rate would be shorter than "
+                           f"{SUBSTEP_FRACTION / MAX_RATE:g} s); rescale time or the parameters")
     return ParametricPlant(freeze(A), freeze(B), freeze(C), freeze(D0), freeze(Dy), freeze(theta), freeze(x0))

@@ -17,6 +17,48 @@ from .runtime.matrices import as_matrix, as_scalar, as_vector, freeze
 
 #: Largest magnitude of a plant entry: products of a few such numbers stay finite in double precision.
 MAX_ENTRY = 1e100
+#: Shortest and longest period of a discrete plant, seconds (a nanosecond to about 32 years). A run of
+#: up to ``cosim.steps.MAX_STEPS`` = 1e7 steps then ends before 1e16 s, where a double still resolves
+#: the times ``k dt`` to 1e-8 of a step, and every count the tools form from a period (``t / dt``, the
+#: default experiments' ``steps * dt``) stays finite; a subnormal or huge period (5e-324, 1e308)
+#: overflows them.
+MIN_PERIOD, MAX_PERIOD = 1e-9, 1e9
+
+
+def period(value, key: str) -> float:
+    """A discrete plant's period: a number > 0 within [:data:`MIN_PERIOD`, :data:`MAX_PERIOD`] seconds.
+
+    Raises
+    ------
+    ProblemError
+        Naming ``key``, the value and the range.
+    """
+    dt = as_scalar(value, key, low=0.0, open_low=True)
+    if not MIN_PERIOD <= dt <= MAX_PERIOD:
+        raise ProblemError(f"{key}: expected a period in [{MIN_PERIOD:g}, {MAX_PERIOD:g}] s, found {dt:g} (counts of "
+                           "steps t / dt and stop times steps * dt must stay finite and exact): rescale time")
+    return dt
+
+
+def check_entries(matrices: dict) -> None:
+    """Refuse an entry above :data:`MAX_ENTRY` in magnitude.
+
+    Parameters
+    ----------
+    matrices : dict
+        ``key -> array`` (``"plant.A" -> A``); the key names the entry in the message.
+
+    Raises
+    ------
+    ProblemError
+        Naming the first such entry (``plant.A[0][1]``), its value and the range.
+    """
+    for key, M in matrices.items():
+        big = np.argwhere(np.abs(np.asarray(M, dtype=float)) > MAX_ENTRY)
+        if big.size:
+            at = "".join(f"[{i}]" for i in big[0])
+            raise ProblemError(f"{key}{at}: {float(np.asarray(M)[tuple(big[0])]):g} is out of range: entries up to "
+                               f"{MAX_ENTRY:g} in magnitude (products of such numbers overflow); rescale the units")
 
 
 @dataclass(frozen=True)
@@ -163,7 +205,7 @@ class Plant:
         if time == "discrete":
             if dt is None:
                 raise ProblemError(f"{prefix}.dt: required for a discrete plant (seconds per step)")
-            dt = as_scalar(dt, f"{prefix}.dt", low=0.0, open_low=True)
+            dt = period(dt, f"{prefix}.dt")
         elif dt is not None:
             raise ProblemError(f"{prefix}.dt: only discrete plants have a period; a continuous plant is sampled "
                                "at the communication points")
@@ -171,12 +213,8 @@ class Plant:
             raise ProblemError(f"{prefix}.w: the affine term is defined for discrete plants only")
         w = freeze(np.zeros(n)) if w is None else as_vector(w, f"{prefix}.w", size=n)
         x0 = freeze(np.zeros(n)) if x0 is None else as_vector(x0, f"{prefix}.x0", size=n)
-        for key, M in (("A", A), ("B", B), ("E", E), ("C", C), ("w", w), ("x0", x0)):
-            big = np.argwhere(np.abs(M) > MAX_ENTRY)
-            if big.size:
-                at = "".join(f"[{i}]" for i in big[0])
-                raise ProblemError(f"{prefix}.{key}{at}: {float(M[tuple(big[0])]):g} is out of range: entries up to "
-                                   f"{MAX_ENTRY:g} in magnitude (products of such numbers overflow); rescale the units")
+        check_entries({f"{prefix}.{key}": M for key, M in (("A", A), ("B", B), ("E", E), ("C", C), ("w", w),
+                                                            ("x0", x0))})
         return cls(time=time, A=A, B=B, E=E, C=C, w=w, dt=dt, x0=x0)
 
     def sampled(self, h: float | None = None) -> Sampled:

@@ -8,17 +8,31 @@ A term is a table with a ``kind``:
 * ``step``: ``initial`` before ``time``, ``value`` from ``time`` on.
 * ``random``: a Gaussian value of standard deviation ``std`` (around ``mean``) drawn anew every
   ``hold`` seconds, reproducible from ``seed`` whatever the communication steps.
+
+Every number of a term is finite and at most :data:`MAX_MAGNITUDE` in magnitude (so no sum of terms
+overflows), ``seed`` is an integer from 0 to :data:`MAX_EXACT`, ``std`` >= 0 and ``hold`` > 0. A run is
+refused (naming the term's key) when it would take a random term past :data:`MAX_EXACT` hold intervals or
+a sine past :data:`MAX_EXACT` radians.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_scalar
+
+#: Largest magnitude of a number of a term (as :data:`uiofmu.cosim.campaign.AXIS_LIMIT`): inputs of any
+#: physical plant are many orders below, and a sum of terms stays far from overflowing.
+MAX_MAGNITUDE = 1e100
+#: Largest seed, count of hold intervals and sine argument (radians) of a run: 2**53, the integers a float
+#: holds exactly. Beyond, a hold interval's index or a seed is rounded (two become one) and neighbouring
+#: floats of a sine's argument are more than a radian apart. (A random term draws only at the communication
+#: points, so a short hold costs no memory: what it must not do is leave the exact integers.)
+MAX_EXACT = 2**53
 
 _FIELDS = {
     "constant": {"value"},
@@ -34,13 +48,34 @@ class Term:
 
     kind: str
     params: tuple
+    name: str = field(default="", compare=False)      # its key (``signals.u[0][1]``), for messages
 
     def __post_init__(self):
         # the parameters as a dict, built once (a frozen dataclass: set past its __setattr__)
         object.__setattr__(self, "_p", dict(self.params))
 
+    def check_run(self, t_max: float) -> None:
+        """Refuse evaluating the term up to time ``t_max`` (s) when that takes a random term past
+        :data:`MAX_EXACT` hold intervals or a sine past :data:`MAX_EXACT` radians.
+
+        Raises
+        ------
+        ProblemError
+            Naming the term's key, its parameter and the numbers.
+        """
+        p, key = self._p, self.name or f"a {self.kind} term"
+        if self.kind == "random" and not t_max / p["hold"] <= MAX_EXACT:
+            raise ProblemError(f"{key}.hold = {p['hold']:g} s: the run to t = {t_max:g} s spans "
+                               f"{t_max / p['hold']:.3g} hold intervals, more than {MAX_EXACT} (2**53, "
+                               "uiofmu.signals.MAX_EXACT); give a longer hold")
+        if self.kind == "sine" and not abs(p["omega"]) * t_max + abs(p["phase"]) <= MAX_EXACT:
+            raise ProblemError(f"{key}: omega t + phase reaches {abs(p['omega']) * t_max + abs(p['phase']):.3g} "
+                               f"rad by t = {t_max:g} s (omega = {p['omega']:g} rad/s), more than {MAX_EXACT} "
+                               "(2**53, uiofmu.signals.MAX_EXACT); give a lower frequency or a shorter run")
+
     def __call__(self, t: float) -> float:
         p = self._p
+        self.check_run(abs(t))
         if self.kind == "constant":
             return p["value"]
         if self.kind == "sine":
@@ -55,6 +90,8 @@ class Term:
         (the same IEEE operations elementwise; ``sin`` from :mod:`math`; one draw per hold interval)."""
         times = np.asarray(times, dtype=float)
         p = self._p
+        if times.size:
+            self.check_run(float(np.abs(times).max()))
         if self.kind == "constant":
             return np.full(times.shape, p["value"], dtype=float)
         if self.kind == "sine":
@@ -109,12 +146,12 @@ def parse_term(table, name: str) -> Term:
         raise ProblemError(f"{name}: unknown field(s) {sorted(unknown)} for kind {kind!r} "
                            f"(allowed: {sorted(_FIELDS[kind])})")
 
-    def get(key, default=None, **bounds):
+    def get(key, default=None, low=-MAX_MAGNITUDE, **bounds):
         if key not in table:
             if default is None:
                 raise ProblemError(f"{name}.{key}: required for kind {kind!r}")
             return default
-        return as_scalar(table[key], f"{name}.{key}", **bounds)
+        return as_scalar(table[key], f"{name}.{key}", low=low, high=MAX_MAGNITUDE, **bounds)
 
     if kind == "constant":
         params = {"value": get("value")}
@@ -128,11 +165,12 @@ def parse_term(table, name: str) -> Term:
         params = {"time": get("time"), "value": get("value"), "initial": get("initial", 0.0)}
     else:
         seed = table.get("seed")
-        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise ProblemError(f"{name}.seed: expected a non-negative integer, found {seed!r}")
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_EXACT:
+            raise ProblemError(f"{name}.seed: expected a non-negative integer of at most {MAX_EXACT} (2**53), "
+                               f"found {repr(seed)[:40]}")
         params = {"seed": float(seed), "std": get("std", low=0.0), "mean": get("mean", 0.0),
                   "hold": get("hold", low=0.0, open_low=True)}
-    return Term(kind, tuple(sorted(params.items())))
+    return Term(kind, tuple(sorted(params.items())), name)
 
 
 def parse_signals(value, name: str, channels: int) -> tuple[Signal, ...]:

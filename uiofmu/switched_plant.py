@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .plant import Plant
+from .plant import Plant, period
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_matrix, as_vector
 from .runtime.switching import INT_MAX, INT_MIN, RULES
@@ -124,7 +124,10 @@ def parse_switched(table) -> SwitchedPlant:
         found = f"{len(modes)} modes" if isinstance(modes, list) else type(modes).__name__
         raise ProblemError(f"{table.key('modes')}: expected 1 to {MAX_MODES} [[plant.modes]] tables, found {found}")
     common = {key: table.get(key, None) for key in MODE_KEYS}
-    C, dt, x0 = table.get("C"), table.get("dt"), table.get("x0", None)
+    C, x0 = table.get("C"), table.get("x0", None)
+    if not table.has("dt"):
+        raise ProblemError(f"{table.key('dt')}: required for a discrete plant (seconds per step)")
+    dt = period(table.get("dt"), table.key("dt"))             # common: named at plant level
     plants = []
     for i, raw in enumerate(modes):
         mt = Table(raw, f"{table.key('modes')}[{i}]")

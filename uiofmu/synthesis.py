@@ -10,10 +10,11 @@ import numpy as np
 
 from . import __version__
 from .runtime.card import FORMAT, VERSION, Card, card_from_data, declared_ports, to_lists
-from .runtime.errors import CardError, InfeasibleError, NumericalError
+from .runtime.errors import CardError, InfeasibleError, NumericalError, ProblemError
 from .existence import Existence
 from .families import DesignResult, available_family
-from .problem import Problem
+from .consistency import DETERMINED, consistency_checks, plant_record
+from .problem import Problem, problem_from_data
 from .runtime.tolerances import LMI_MARGIN
 from .threads import single_blas_thread
 
@@ -97,7 +98,15 @@ def verify(card: Card) -> list:
     list of Check
         Every check with its value and bound; the card is certified when all hold.
     """
-    return available_family(card.family, "design card family").verify(card)
+    family = available_family(card.family, "design card family")
+    try:
+        problem = problem_from_data(card.data["problem"], default_name=card.name)
+    except ProblemError as exc:
+        raise CardError(f"design card problem: {exc}") from None
+    consistency = consistency_checks(card.data, {**plant_record(problem), **family.determined(problem, card.data)})
+    if not all(c.holds for c in consistency):
+        return consistency               # a certificate of another problem's matrices proves nothing here
+    return consistency + family.verify(card)
 
 
 def recheck(card: Card) -> list:
@@ -130,6 +139,11 @@ def recheck(card: Card) -> list:
                         f"family result {exc.args[0]!r} is missing") from None
     except (TypeError, ValueError, np.linalg.LinAlgError) as exc:
         raise CardError(f"design card: its certificate cannot be re-checked ({exc})") from None
+    if failed and failed[0].name.endswith(DETERMINED):
+        c = failed[0]
+        how = "" if not c.bound else f" (relative difference {c.value:.3g}, allowed {c.bound:.0e})"
+        raise CardError(f"design card: {c.name[:-len(DETERMINED)]} is not what the card's problem determines{how}: "
+                        "the card was changed after its design, or designed for another problem")
     if failed:
         c = failed[0]
         raise CardError(f"design card: the certificate does not hold at the stored matrices: {c.name} = {c.value:.6g}, "

@@ -18,8 +18,16 @@ in a test module or in the project's top-level ``conftest.py``::
 
 ``uiofmu_seed`` is 0 unless a test parametrises it (``@pytest.mark.parametrize("uiofmu_seed",
 [0, 1, 2])``); a test that does not is run once per seed of the environment variable
-``UIOFMU_SEEDS`` (``"0,1,2"`` or ``"0-9"``) when it is set. ``uiofmu_fmus(problem)`` designs a
-problem file and builds its observer and plant FMUs once per session, in a temporary folder.
+``UIOFMU_SEEDS`` (``"0,1,2"`` or ``"0-9"``) when it is set; a value that names no seed (``"5-1"``), is
+malformed or names more than :data:`MAX_SEEDS` seeds is an error collecting the test, never a skip.
+``uiofmu_fmus(problem)`` designs a problem file and builds its observer and plant FMUs once per
+session, in a temporary folder.
+
+No assertion passes for want of something to check: arguments that leave nothing to compare (no
+steps, a ``within`` longer than the run, a run that ends before a functional observer's first full
+window, a tolerance that is not finite and > 0, a run whose error is 0 throughout) are a
+:class:`ValueError` naming the parameter and its value, and an error or a bound that is NaN or
+infinite anywhere fails the assertion (a NaN compares False with every tolerance).
 
 A stale card: an observer FMU whose packed design card no longer passes its certificate
 re-check (its gain edited after the design, say) is refused by the master. So that such an
@@ -37,7 +45,9 @@ test module imports the helpers before naming the plugin.
 from __future__ import annotations
 
 import math
+import numbers
 import os
+import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from .runtime.card import Card, card_from_data, read_card
-from .runtime.errors import CardError, FmuError
+from .runtime.errors import CardError, FmuError, ProblemError
 
 try:  # the assertions work without pytest; the fixtures need it
     import pytest
@@ -54,6 +64,43 @@ except ImportError:  # pragma: no cover - pytest is in the test extra
 
 #: The default convergence tolerance: a fraction of the initial error norm.
 CONVERGENCE_TOL = 0.01
+
+#: Most seeds ``UIOFMU_SEEDS`` may name. Each seed costs every test that takes ``uiofmu_seed`` one pytest item,
+#: about 5 KB of memory (measured: 2.7 KB per item collected, 5.2 KB per item run; ``0-3000000`` took 8.5 GB
+#: before a test ran), and at least one co-simulation or validation (0.03 to 0.08 s with C FMUs, 0.08 to 0.15 s
+#: with Python ones, for the 695 steps of Example 1): 10 000 seeds are some 50 MB and 5 to 25 minutes of one core
+#: per test, more than a validation suite runs.
+MAX_SEEDS = 10_000
+#: The largest seed (32 bits).
+MAX_SEED = 2**32 - 1
+
+
+def _real(value, name: str, low: float = 0.0, strict: bool = True, high: float | None = None) -> float:
+    """``value`` as a float: a finite number above ``low`` (at least ``low`` if not ``strict``), at most ``high``.
+
+    A NaN, an infinity, a bool or anything not a real number is a ValueError naming ``name`` and the value.
+    """
+    want = f"a finite number {'>' if strict else '>='} {low:g}" + ("" if high is None else f" and <= {high:g}")
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name}: expected {want}, found {value!r}")
+    v = float(value)
+    if not (math.isfinite(v) and (v > low if strict else v >= low) and (high is None or v <= high)):
+        raise ValueError(f"{name}: expected {want}, found {value!r}")
+    return v
+
+
+def _count(value, name: str, low: int = 1) -> int:
+    """``value`` as an int of at least ``low`` (a bool or a float is a ValueError naming ``name``)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
+        raise ValueError(f"{name}: expected an integer >= {low}, found {value!r}")
+    return int(value)
+
+
+def _seed(value, name: str = "seed") -> int:
+    """``value`` as a seed: an integer from 0 to :data:`MAX_SEED`."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 0 <= value <= MAX_SEED:
+        raise ValueError(f"{name}: expected an integer from 0 to {MAX_SEED}, found {value!r}")
+    return int(value)
 
 
 @dataclass
@@ -184,22 +231,60 @@ def _as_card(card) -> Card:
 
 
 def _steps(card: Card, steps, t_end, seed: int) -> tuple[np.ndarray, str]:
+    """The step lengths of a run and how they were given; a ValueError naming ``steps`` or ``t_end`` for steps
+    that make no run (none, a number, a length that is not finite and > 0) and for ``t_end`` with given lengths."""
     from .cosim.master import default_steps, default_t_end
-    from .cosim.steps import step_sequence
+    from .cosim.steps import MAX_STEPS, step_sequence
 
     if steps is None or isinstance(steps, str):
         spec = default_steps(card) if steps is None else steps
         horizon = default_t_end(card) if t_end is None else t_end
-        return step_sequence(spec, horizon, seed), spec
-    return np.asarray(steps, dtype=float), "given"
+        try:
+            return step_sequence(spec, horizon, seed), spec
+        except ProblemError as exc:
+            raise ValueError(f"steps={spec!r} (t_end {horizon:g} s): {exc}") from None
+    want = "a step SPEC such as 'fixed:0.1', or a 1-D sequence of at least one step length > 0"
+    if t_end is not None:
+        raise ValueError(f"t_end: applies to a step SPEC only; found t_end={t_end!r} with the step lengths given "
+                         "(the run ends at their sum: leave t_end out)")
+    if isinstance(steps, numbers.Number):
+        raise ValueError(f"steps: expected {want}; found the number {steps!r}")
+    try:
+        seq = np.asarray(steps, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"steps: expected {want}; found {type(steps).__name__} {steps!r:.80}") from None
+    if seq.ndim != 1 or not seq.size:
+        raise ValueError(f"steps: expected {want}; found an array of shape {seq.shape}")
+    if seq.size > MAX_STEPS:
+        raise ValueError(f"steps: {seq.size} step lengths, more than the {MAX_STEPS} of one run")
+    bad = np.flatnonzero(~(np.isfinite(seq) & (seq > 0)))
+    if bad.size:
+        k = int(bad[0])
+        raise ValueError(f"steps: every step length must be finite and > 0; step {k} is {float(seq[k])!r} "
+                         f"({bad.size} of {seq.size} are not)")
+    return seq, "given"
 
 
 def _xhat0(card: Card, xhat0_error: float, seed: int):
     """The card's initial estimate plus a random offset of standard deviation ``xhat0_error`` (None for none)."""
-    if not xhat0_error or card.kernel == "window":
+    if not xhat0_error:
         return None
     base = np.asarray(card.data["initial"].get("xhat0", [0.0] * card.dims["n"]), dtype=float)
     return base + xhat0_error * np.random.default_rng([seed, 1]).standard_normal(base.size)
+
+
+def _prepare(observer_fmu, steps, t_end, seed, xhat0_error):
+    """The checked arguments of a run: the packed card, the steps, their SPEC and the initial estimate (or None)."""
+    seed = _seed(seed)
+    xhat0_error = _real(xhat0_error, "xhat0_error", strict=False)
+    if t_end is not None:
+        t_end = _real(t_end, "t_end")
+    card = packed_card(observer_fmu)
+    if xhat0_error and card.kernel == "window":
+        raise ValueError(f"xhat0_error: {_name(observer_fmu)} is a functional observer (kernel window), which has no "
+                         f"initial estimate to offset; found xhat0_error={xhat0_error:g} (leave it 0)")
+    seq, spec = _steps(card, steps, t_end, seed)
+    return card, seq, spec, seed, _xhat0(card, xhat0_error, seed)
 
 
 def run_observer(observer_fmu, plant_fmu, steps=None, t_end: float | None = None, seed: int = 0,
@@ -212,14 +297,16 @@ def run_observer(observer_fmu, plant_fmu, steps=None, t_end: float | None = None
         The FMUs (the observer built by uiofmu; its card gives the inputs and the bound).
     steps : str or array_like, optional
         A step SPEC of :mod:`uiofmu.cosim.steps` (``"fixed:0.1"``, ``"dropout:600:0.3:11"``, ...)
-        or the step lengths themselves; default: the steps the observer is designed for.
+        or the step lengths themselves (at least one, each finite and > 0); default: the steps the
+        observer is designed for.
     t_end : float, optional
-        End time for a SPEC (default: the card's horizon, :func:`uiofmu.runtime.observer.default_horizon`).
+        End time for a SPEC, finite and > 0 (default: the card's horizon,
+        :func:`uiofmu.runtime.observer.default_horizon`); not with step lengths.
     seed : int
-        Seed of a random SPEC and of the initial error.
+        Seed of a random SPEC and of the initial error, from 0 to :data:`MAX_SEED`.
     xhat0_error : float
-        Standard deviation of a random offset (drawn from ``seed``) added to the observer's initial
-        estimate; 0 keeps the card's.
+        Standard deviation (finite, >= 0) of a random offset (drawn from ``seed``) added to the
+        observer's initial estimate; 0 keeps the card's. Not for a functional observer (kernel window).
 
     Returns
     -------
@@ -227,15 +314,23 @@ def run_observer(observer_fmu, plant_fmu, steps=None, t_end: float | None = None
 
     Raises
     ------
+    ValueError
+        For arguments that make no run, naming the parameter and its value: ``steps`` that are a
+        number, empty, or a length that is not finite and > 0, or a malformed SPEC; ``t_end`` not
+        finite and > 0, or given with step lengths; ``seed`` not an integer from 0 to
+        :data:`MAX_SEED`; ``xhat0_error`` negative or not finite, or not 0 for a functional observer.
     AssertionError
         When an FMU refuses a call during the run (the master's message), or the observer FMU is not
         an observer built by uiofmu.
     """
+    card, seq, spec, seed, xhat0 = _prepare(observer_fmu, steps, t_end, seed, xhat0_error)
+    return _execute(observer_fmu, plant_fmu, card, seq, spec, seed, xhat0)
+
+
+def _execute(observer_fmu, plant_fmu, card: Card, seq: np.ndarray, spec: str, seed: int, xhat0) -> Run:
+    """The run of :func:`run_observer` on checked arguments."""
     from .cosim.master import cosimulate
 
-    card = packed_card(observer_fmu)
-    seq, spec = _steps(card, steps, t_end, seed)
-    xhat0 = _xhat0(card, xhat0_error, seed)
     problem = certificate_problem(card)
     try:
         if problem is None:
@@ -306,16 +401,19 @@ def _stale_run(plant_path, observer_path, card: Card, steps: np.ndarray, xhat0):
     return result
 
 
-def _limit(within, K: int) -> int:
-    """``within`` as a number of steps: an int is one, a float in (0, 1] a fraction of ``K``."""
-    if isinstance(within, bool) or not isinstance(within, (int, float)) or not within > 0:
+def _limit(within, K: int, spec: str) -> int:
+    """``within`` as a number of steps: an int is one (at most ``K``), a float in (0, 1] a fraction of ``K``."""
+    if isinstance(within, bool) or not isinstance(within, numbers.Real) or not within > 0:
         raise ValueError(f"within: expected a number of steps (int >= 1) or a fraction of the run in (0, 1], "
                          f"found {within!r}")
-    if isinstance(within, float):
-        if within > 1:
-            raise ValueError(f"within: a fraction of the run must be in (0, 1], found {within!r}")
-        return math.ceil(within * K)
-    return int(within)
+    if isinstance(within, numbers.Integral):
+        if within > K:
+            raise ValueError(f"within: {int(within)} steps, more than the {K} steps of the run ({spec}), so no point "
+                             f"would be checked; give at most {K} steps, a fraction of the run, or a longer run")
+        return int(within)
+    if within > 1:
+        raise ValueError(f"within: a fraction of the run must be in (0, 1], found {within!r}")
+    return math.ceil(within * K)
 
 
 def _error_norms(run: Run) -> np.ndarray:
@@ -327,13 +425,43 @@ def _error_norms(run: Run) -> np.ndarray:
     return np.linalg.norm(r.x - r.xhat, axis=1)
 
 
+def _not_finite(run: Run, values: dict, where: np.ndarray | None = None) -> str:
+    """Where the first of ``values`` (name: array over the points) is NaN or infinite (at the points of ``where``),
+    with the values there, or ``""`` when all are finite. A NaN compares False with every tolerance, so an
+    assertion would let it through unless it is caught here."""
+    bad = np.zeros(len(run.result.times), dtype=bool)
+    for v in values.values():
+        bad |= ~np.isfinite(v)
+    if where is not None:
+        bad &= where
+    at = np.flatnonzero(bad)
+    if not at.size:
+        return ""
+    k = int(at[0])
+    shown = ", ".join(f"{name} = {float(v[k]):.6g}" for name, v in values.items())
+    r = run.result
+    state = "" if r.functional is not None else (f" (x = {np.array2string(r.x[k], precision=6)}, xhat = "
+                                                 f"{np.array2string(r.xhat[k], precision=6)})")
+    return f"not finite from {run.where(k)} on: {shown}{state}; {at.size} such point(s)"
+
+
+def _require_error(run: Run, norms: np.ndarray, what: str) -> None:
+    """A ValueError when the estimation error is 0 at every point: then the run cannot show what ``what`` says
+    (a diverging observer stays at 0 too), whatever the observer."""
+    if not np.any(norms):
+        raise ValueError(f"xhat0_error: the estimation error ||x - xhat|| is 0 at every one of the {len(norms)} points "
+                         f"(the observer starts at the plant's state and nothing drives the error), so the run cannot "
+                         f"show {what}; give xhat0_error > 0 for a random initial error {run.context()}")
+
+
 def assert_converges(observer_fmu, plant_fmu, steps=None, t_end: float | None = None, within=1.0,
                      tol: float = CONVERGENCE_TOL, seed: int = 0, xhat0_error: float = 0.0) -> Run:
     """Assert that the estimation error falls to ``tol`` of its initial norm within a number of steps.
 
-    The error ``||x_k - xhat_k||`` must be at most ``tol * ||x_0 - xhat_0||`` at every communication
-    point from step ``within`` on (for a functional observer: ``gx`` valid and within ``tol`` of
-    ``G x``, absolutely).
+    The error ``||x_k - xhat_k||`` must be finite at every communication point and at most
+    ``tol * ||x_0 - xhat_0||`` at every point from step ``within`` on (for a functional observer:
+    ``gx`` finite where valid, and valid and within ``tol`` of ``G x``, absolutely, from step
+    ``within`` on).
 
     Parameters
     ----------
@@ -344,9 +472,10 @@ def assert_converges(observer_fmu, plant_fmu, steps=None, t_end: float | None = 
     t_end : float, optional
         End time for a SPEC.
     within : int or float
-        A number of steps (int), or a fraction of the run's steps in (0, 1] (float; 1.0: by its end).
+        A number of steps (int, 1 to the run's number of steps), or a fraction of the run's steps
+        in (0, 1] (float; 1.0: by its end).
     tol : float
-        The fraction of the initial error norm to fall to.
+        The fraction of the initial error norm to fall to (finite, > 0).
     seed : int
         Seed of a random SPEC and of the initial error.
     xhat0_error : float
@@ -359,19 +488,35 @@ def assert_converges(observer_fmu, plant_fmu, steps=None, t_end: float | None = 
 
     Raises
     ------
+    ValueError
+        For arguments that cannot test convergence, naming the parameter and its value: those of
+        :func:`run_observer`; ``within`` not a positive number of steps or a fraction in (0, 1], or
+        more steps than the run has (no point would be checked); ``tol`` not finite and > 0; and a
+        run whose error is 0 at every point (nothing to converge from: give ``xhat0_error``).
     AssertionError
-        When the error is above the tolerance at some point after the limit: the limit, the
-        tolerance, the last step above it and its error, and the largest error.
+        When the error is not finite at some point (the first such point and the values there), or
+        above the tolerance at some point after the limit: the limit, the tolerance, the last step
+        above it and its error, and the largest error.
     """
-    run = run_observer(observer_fmu, plant_fmu, steps, t_end, seed, xhat0_error)
-    K = len(run.steps)
-    limit = _limit(within, K)
+    tol = _real(tol, "tol")
+    card, seq, spec, seed, xhat0 = _prepare(observer_fmu, steps, t_end, seed, xhat0_error)
+    K = len(seq)
+    limit = _limit(within, K, spec)
+    run = _execute(observer_fmu, plant_fmu, card, seq, spec, seed, xhat0)
     norms = _error_norms(run)
     if run.result.functional is not None:
         allowed, what = tol, f"|gx - G x| <= {tol:.3g}"
+        label, where = "|gx - G x|", run.result.functional["valid"] > 0.5
     else:
         allowed = tol * norms[0]
         what = f"||x - xhat|| <= {tol:.3g} x {norms[0]:.6g} = {allowed:.6g}"
+        label, where = "||x - xhat||", None
+    nonfinite = _not_finite(run, {label: norms}, where)
+    if nonfinite:
+        raise AssertionError(f"{_name(observer_fmu)}: expected a finite estimation error at every point; it is "
+                             f"{nonfinite} {run.context()}")
+    if run.result.functional is None:
+        _require_error(run, norms, "convergence")
     bad = np.flatnonzero(~(norms <= allowed))
     late = bad[bad >= limit]
     if late.size:
@@ -394,7 +539,9 @@ def assert_bound_respected(observer_fmu, plant_fmu, steps=None, t_end: float | N
     """Assert that the error stays inside the certified bound of the card packed in the observer FMU.
 
     The comparison is the master's (``bound_respected``, ``max_bound_ratio`` and
-    ``first_bound_violation`` of :func:`uiofmu.cosim.metrics.error_metrics`, with its round-off slack).
+    ``first_bound_violation`` of :func:`uiofmu.cosim.metrics.error_metrics`, with its round-off slack),
+    after the error and the bound are checked to be finite at every point (a NaN compares False
+    with the bound).
 
     Parameters
     ----------
@@ -409,7 +556,7 @@ def assert_bound_respected(observer_fmu, plant_fmu, steps=None, t_end: float | N
     xhat0_error : float
         Standard deviation of a random offset added to the observer's initial estimate.
     max_ratio : float
-        The largest accepted ratio of the error to the bound (below 1 to demand a margin).
+        The largest accepted ratio of the error to the bound, in (0, 1] (below 1 to demand a margin).
 
     Returns
     -------
@@ -417,12 +564,18 @@ def assert_bound_respected(observer_fmu, plant_fmu, steps=None, t_end: float | N
 
     Raises
     ------
+    ValueError
+        For arguments that cannot test the bound, naming the parameter and its value: those of
+        :func:`run_observer`; ``max_ratio`` not in (0, 1]; and a run whose error is 0 at every point
+        (any observer stays inside a bound there: give ``xhat0_error``).
     AssertionError
-        When the error leaves the bound (the first step out, the error and the bound there, the largest
-        ratio), when the card certifies no bound (a delayed or functional observer), or when the card's
-        certificate does not hold (its bound is then not certified; where the run leaves the claimed bound
-        is said too).
+        When the error or the bound is not finite at some point (the first such point and the values
+        there), when the error leaves the bound (the first step out, the error and the bound there, the
+        largest ratio), when the card certifies no bound (a delayed or functional observer), or when the
+        card's certificate does not hold (its bound is then not certified; where the run leaves the claimed
+        bound is said too).
     """
+    max_ratio = _real(max_ratio, "max_ratio", high=1.0)
     run = run_observer(observer_fmu, plant_fmu, steps, t_end, seed, xhat0_error)
     m, name = run.result.metrics, _name(observer_fmu)
     if run.result.bound is None or "bound_respected" not in m:
@@ -430,14 +583,15 @@ def assert_bound_respected(observer_fmu, plant_fmu, steps=None, t_end: float | N
                              f"(kernel {run.card.kernel}) certifies none to compare the run with"
                              + (" (use assert_exact_functional)" if run.card.kernel == "window" else ""))
     formula = run.card.data.get("bound", "the bound")
-    measured = ""
-    if not m["bound_respected"]:
+    norms = np.linalg.norm(run.result.x - run.result.xhat, axis=1)
+    nonfinite = _not_finite(run, {"||x - xhat||": norms, "bound": np.asarray(run.result.bound, dtype=float)})
+    measured = f"the error or the bound is {nonfinite}" if nonfinite else ""
+    if not measured and not m["bound_respected"]:
         k = int(m["first_bound_violation"])
         measured = (f"the error leaves it at {run.where(k)}: ||x - xhat|| = {m['error_at_first_violation']:.6g} > "
                     f"bound {m['bound_at_first_violation']:.6g}; largest ratio error/bound {m['max_bound_ratio']:.6g}")
-    elif m["max_bound_ratio"] > max_ratio:
-        k = int(np.argmax(np.linalg.norm(run.result.x - run.result.xhat, axis=1)
-                          / np.maximum(run.result.bound, 1e-300)))
+    elif not measured and not m["max_bound_ratio"] <= max_ratio:
+        k = int(np.argmax(norms / np.maximum(run.result.bound, 1e-300)))
         measured = (f"the error reaches {m['max_bound_ratio']:.6g} of the bound (at most {max_ratio:g} accepted), "
                     f"near {run.where(k)}")
     if run.certificate_problem:
@@ -448,6 +602,7 @@ def assert_bound_respected(observer_fmu, plant_fmu, steps=None, t_end: float | N
     if measured:
         raise AssertionError(f"{name}: expected ||x - xhat|| inside the certified bound ({formula}) at every step; "
                              f"{measured} {run.context()}")
+    _require_error(run, norms, "that the error stays inside a bound")
     return run
 
 
@@ -455,18 +610,23 @@ def assert_exact_functional(observer_fmu, plant_fmu, steps=None, t_end: float | 
                             rtol: float = 1e-9) -> Run:
     """Assert that a dead-beat functional observer's ``gx`` equals ``G x`` from its first full window on.
 
+    The first full window of ``L`` samples (the card's ``schedule.length``) is at step ``L - 1``:
+    from there on ``gx_valid`` must be 1 and ``gx`` exact at every point, and so must ``gx`` be
+    wherever the observer says it is valid before.
+
     Parameters
     ----------
     observer_fmu, plant_fmu : str or Path
         The FMUs (the observer of kernel ``window``, seed 003).
     steps : str or array_like, optional
-        A step SPEC or the step lengths (default: the observer's ``dt``).
+        A step SPEC or the step lengths (default: the observer's ``dt``); the run must reach the first
+        full window.
     t_end : float, optional
         End time for a SPEC.
     seed : int
         Seed of a random SPEC.
     rtol : float
-        ``gx`` is exact at a point when ``|gx - G x| <= rtol * max(1, |G x|)``.
+        ``gx`` is exact at a point when ``|gx - G x| <= rtol * max(1, |G x|)`` (finite, > 0).
 
     Returns
     -------
@@ -474,32 +634,45 @@ def assert_exact_functional(observer_fmu, plant_fmu, steps=None, t_end: float | 
 
     Raises
     ------
+    ValueError
+        For arguments that cannot test the observer, naming the parameter and its value: those of
+        :func:`run_observer`; ``rtol`` not finite and > 0; and steps of a run that ends before the
+        first full window (no point would be checked).
     AssertionError
-        When the observer is not functional, ``gx_valid`` never rises, or ``gx`` differs from ``G x`` at a
-        point from the first full window on (the point, both values, the difference and its allowance).
+        When the observer is not functional, ``gx_valid`` never rises or is 0 at a point from the first
+        full window on, or ``gx`` differs from ``G x`` (or is not finite) at such a point or at a point
+        where ``gx_valid`` is 1 (the point, both values, the difference and its allowance).
     """
-    run = run_observer(observer_fmu, plant_fmu, steps, t_end, seed)
-    name, f = _name(observer_fmu), run.result.functional
-    if f is None:
-        raise AssertionError(f"{name}: expected a functional observer (kernel window), found a {run.card.family} "
-                             f"observer of kernel {run.card.kernel} (use assert_converges)")
+    rtol = _real(rtol, "rtol")
+    card, seq, spec, seed, _ = _prepare(observer_fmu, steps, t_end, seed, 0.0)
+    name = _name(observer_fmu)
+    if card.kernel != "window":
+        raise AssertionError(f"{name}: expected a functional observer (kernel window), found a {card.family} "
+                             f"observer of kernel {card.kernel} (use assert_converges)")
+    window = int(card.schedule["length"])
+    first = window - 1
+    if len(seq) < first:
+        raise ValueError(f"steps: the run has {len(seq)} steps ({spec}, to t = {seq.sum():g} s), but the first full "
+                         f"window of {window} samples is at step {first}, so no point would be checked; give a "
+                         f"longer t_end or more steps")
+    run = _execute(observer_fmu, plant_fmu, card, seq, spec, seed, None)
+    f = run.result.functional
     valid = f["valid"] > 0.5
-    on = np.flatnonzero(valid)
-    window = int(run.card.schedule["length"])
-    if not on.size:
+    if not valid.any():
         raise AssertionError(f"{name}: expected gx_valid = 1 from the first full window ({window} samples) on; "
                              f"gx_valid is 0 at every one of the {len(valid)} points {run.context()}")
     err = np.linalg.norm(f["gx"] - f["true"], axis=1)
     scale = np.maximum(1.0, np.linalg.norm(np.nan_to_num(f["true"]), axis=1))
     ok = valid & (err <= rtol * scale)
-    bad = np.flatnonzero(~ok[on[0]:]) + on[0]
+    checked = valid | (np.arange(len(valid)) >= first)
+    bad = np.flatnonzero(checked & ~ok)
     if bad.size:
         k = int(bad[0])
-        reason = ("gx_valid falls back to 0" if not valid[k] else
+        reason = ("gx_valid is 0" if not valid[k] else
                   f"gx = {np.array2string(f['gx'][k], precision=10)} but G x = "
                   f"{np.array2string(f['true'][k], precision=10)} (|gx - G x| = {err[k]:.3g}, allowed "
                   f"{rtol * scale[k]:.3g})")
-        raise AssertionError(f"{name}: expected gx = G x exactly from the first full window ({run.where(int(on[0]))}) "
+        raise AssertionError(f"{name}: expected gx = G x exactly from the first full window ({run.where(first)}) "
                              f"on; at {run.where(k)} {reason}; {bad.size} such point(s) {run.context()}")
     return run
 
@@ -565,20 +738,25 @@ def assert_matches_runtime(observer_fmu, card=None, steps: int = 200, rtol: floa
         The design card the FMU should run (say, the one your project keeps under version control);
         default: the card packed in the FMU.
     steps : int
-        Number of random steps.
+        Number of random steps (>= 1).
     rtol : float
-        Largest accepted difference relative to ``max(1, largest |reference output|)`` over the run.
+        Largest accepted difference relative to ``max(1, largest |reference output|)`` over the run
+        (finite, > 0); a NaN output counts as an infinite difference.
     seed : int
-        Seed of the random inputs and steps.
+        Seed of the random inputs and steps, from 0 to :data:`MAX_SEED`.
 
     Raises
     ------
+    ValueError
+        Naming the parameter and its value: ``steps`` not an integer >= 1 (no step would be compared),
+        ``rtol`` not finite and > 0, or ``seed`` not an integer from 0 to :data:`MAX_SEED`.
     AssertionError
         Naming what differs: fmpy's findings, the matrices that are not the card's, the first step
         where the outputs part and by how much, or the reference card's failed certificate check.
     """
     from .cosim.validate import validate
 
+    steps, rtol, seed = _count(steps, "steps"), _real(rtol, "rtol"), _seed(seed)
     name = _name(observer_fmu)
     packed = packed_card(observer_fmu)
     ref = packed if card is None else _as_card(card)
@@ -663,32 +841,69 @@ def build_fmus(problem, out_dir, backend: str | None = None) -> Fmus:
     return Fmus(problem, card, Path(card_path), Path(observer), Path(plant))
 
 
+#: One item of ``UIOFMU_SEEDS``: a seed or an inclusive range ``LO-HI`` of ASCII digits.
+_SEED_ITEM = re.compile(r"\s*([0-9]+)\s*(?:-\s*([0-9]+)\s*)?", re.ASCII)
+
+
 def seeds_from_environment(default: str = "0") -> list[int]:
     """The seeds named by ``UIOFMU_SEEDS`` (``"0,1,2"``, ``"0-9"`` or a mix), else ``default``.
+
+    The items are separated by commas; each is a seed or an inclusive range ``LO-HI`` with
+    ``LO <= HI``, of integers from 0 to :data:`MAX_SEED`, no seed named twice, and at most
+    :data:`MAX_SEEDS` seeds in all. The count is taken from the ranges before any list is made, so
+    a range of millions is refused at once.
 
     Parameters
     ----------
     default : str
-        Used when the variable is unset or empty.
+        Used when the variable is unset, empty or blank.
 
     Returns
     -------
     list of int
+        The seeds in the order named.
 
     Raises
     ------
     ValueError
-        For a malformed list, quoting it.
+        For a list that names no seed or is malformed: an empty item, an item that is not a seed or a
+        range (a sign, a float, a letter), a range that runs backwards (``5-1``), a seed above
+        :data:`MAX_SEED`, a seed named twice, or more than :data:`MAX_SEEDS` seeds; the message names
+        ``UIOFMU_SEEDS``, quotes its value, says what is wrong and what is accepted.
     """
-    text = os.environ.get("UIOFMU_SEEDS", "").strip() or default
-    out = []
-    try:
-        for part in text.split(","):
-            lo, dash, hi = part.strip().partition("-")
-            out.extend(range(int(lo), int(hi) + 1) if dash else [int(lo)])
-    except ValueError:
-        raise ValueError(f"UIOFMU_SEEDS: expected seeds like '0,1,2' or '0-9', found {text!r}") from None
-    return out
+    raw = os.environ.get("UIOFMU_SEEDS", "")
+    text, name = (raw.strip(), "UIOFMU_SEEDS") if raw.strip() else (default, "seeds_from_environment(default)")
+
+    def error(problem: str) -> ValueError:
+        shown = text if len(text) <= 80 else text[:77] + "..."
+        return ValueError(f"{name}={shown!r}: {problem}; expected seeds and inclusive ranges LO-HI with LO <= HI, "
+                          f"separated by commas (such as '0,1,2' or '0-9,20'), of integers from 0 to {MAX_SEED}, "
+                          f"each seed once, at most {MAX_SEEDS} seeds in all (MAX_SEEDS)")
+
+    if text.count(",") >= MAX_SEEDS:
+        raise error(f"{text.count(',') + 1} items, more than {MAX_SEEDS} seeds")
+    ranges = []
+    for part in text.split(","):
+        match = _SEED_ITEM.fullmatch(part)
+        if match is None:
+            raise error(f"{part.strip()[:40]!r} is not a seed or a range LO-HI" if part.strip() else "an empty item")
+        for digits in match.groups():
+            if digits is not None and (len(digits) > len(str(MAX_SEED)) or int(digits) > MAX_SEED):
+                raise error(f"{digits[:24]}{'...' if len(digits) > 24 else ''} is above the largest seed {MAX_SEED}")
+        lo = int(match[1])
+        hi = lo if match[2] is None else int(match[2])
+        if lo > hi:
+            raise error(f"the range {lo}-{hi} names no seed (it runs backwards)")
+        ranges.append(range(lo, hi + 1))
+    count = sum(len(r) for r in ranges)
+    if count > MAX_SEEDS:
+        raise error(f"{count} seeds, more than {MAX_SEEDS} (each costs every test taking uiofmu_seed a run and about "
+                    f"5 KB of pytest's memory)")
+    spans = sorted(ranges, key=lambda r: r.start)
+    for a, b in zip(spans, spans[1:]):
+        if b.start < a.stop:
+            raise error(f"seed {b.start} is named twice")
+    return [s for r in ranges for s in r]
 
 
 if pytest is not None:
@@ -698,6 +913,12 @@ if pytest is not None:
         Parameters
         ----------
         metafunc : pytest.Metafunc
+
+        Raises
+        ------
+        ValueError
+            For a ``UIOFMU_SEEDS`` that names no seed or is malformed (:func:`seeds_from_environment`):
+            an error collecting the test, so that pytest fails instead of skipping it.
         """
         if "uiofmu_seed" not in metafunc.fixturenames or "UIOFMU_SEEDS" not in os.environ:
             return
@@ -719,8 +940,13 @@ if pytest is not None:
         Returns
         -------
         int
+
+        Raises
+        ------
+        ValueError
+            When it is parametrised with a value that is not an integer from 0 to :data:`MAX_SEED`.
         """
-        return int(getattr(request, "param", 0))
+        return _seed(getattr(request, "param", 0), "uiofmu_seed")
 
     @pytest.fixture(scope="session")
     def uiofmu_fmus(tmp_path_factory):
@@ -746,6 +972,6 @@ if pytest is not None:
         return build
 
 
-__all__ = ["CONVERGENCE_TOL", "Fmus", "Run", "assert_bound_respected", "assert_converges", "assert_exact_functional",
-           "assert_matches_runtime", "build_fmus", "certificate_problem", "packed_card", "run_observer",
-           "seeds_from_environment"]
+__all__ = ["CONVERGENCE_TOL", "MAX_SEED", "MAX_SEEDS", "Fmus", "Run", "assert_bound_respected", "assert_converges",
+           "assert_exact_functional", "assert_matches_runtime", "build_fmus", "certificate_problem", "packed_card",
+           "run_observer", "seeds_from_environment"]

@@ -3,13 +3,19 @@
 A campaign file (TOML, data only) names the FMUs (or a problem that gives them) and the axes a
 run's scenario is drawn along: the step SPEC and its seed, an initial estimation error, a scale of
 the unknown input, plant parameters. Every scenario is a function of the campaign's seed and the
-row index only (:func:`scenario`), so one row can be re-run alone and gives the same numbers bit
-for bit (:func:`replay`). The runs go to a ``dask.distributed`` cluster (a ``LocalCluster`` of
-worker processes, or an existing scheduler): each worker receives the FMUs once (their bytes, so
-a worker on another machine needs no shared folder), keeps them with the observer's default
-inputs in a per-process cache, and runs batches of rows through
-:func:`uiofmu.cosim.master.cosimulate`. Results come back as batches finish; a run an FMU refuses
-is recorded with its reason; an interrupted campaign writes the rows that finished.
+row index only (:func:`scenario`), made when its batch is submitted (:func:`batches`), so one row
+can be re-run alone and gives the same numbers bit for bit (:func:`replay`). The runs go to a
+``dask.distributed`` cluster (a ``LocalCluster`` of worker processes, or an existing scheduler,
+checked with a deadline first: :func:`probe_scheduler`): each worker receives the FMUs once (their
+bytes, so a worker on another machine needs no shared folder), keeps them with the observer's
+default inputs in a per-process cache, and runs batches of rows through
+:func:`uiofmu.cosim.master.cosimulate`. A bounded window of batches is in flight
+(:data:`BATCHES_PER_WORKER`); finished rows go to a file in row order (:class:`RowFile`) and into
+compact counters and arrays for the summary (:class:`Tally`), so the memory of the command's process
+does not grow with the runs beyond 8 bytes per run and quantile figure. Every output is written
+into a staging folder next to the outputs and moved into place only when all of them are complete
+(:class:`Staging`). A run an FMU refuses is recorded with its reason; an interrupted campaign writes
+the rows that finished.
 
 File format (every key is checked; an unknown key is an error naming it)::
 
@@ -31,7 +37,9 @@ File format (every key is checked; an unknown key is an error naming it)::
 An axis value is a number (constant), a list (one entry drawn per run; with ``grid = true`` each
 entry is a grid point; for a vector an entry may be a list of its size), or a table with ``kind``:
 ``normal`` (``std``, ``mean`` = 0), ``uniform`` (``low``, ``high``), ``choice`` (``values``) or
-``constant`` (``value``). The random kinds draw every component of a vector independently.
+``constant`` (``value``). The random kinds draw every component of a vector independently. Every
+number of an axis is at most :data:`AXIS_LIMIT` in magnitude; a plant parameter of type Integer
+takes fmi2Integers only (:data:`uiofmu.cosim.fmi.FMI2_INTEGER`; a number or a list, no random draw).
 """
 
 from __future__ import annotations
@@ -39,25 +47,42 @@ from __future__ import annotations
 import atexit
 import csv
 import hashlib
-import io
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
+import threading
 import time
+from array import array
 from dataclasses import dataclass, field, replace
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
 
 from ..runtime.errors import FmuError, ProblemError, UserError
-from ..runtime.files import atomic_output, check_output_dir, parse_json, parse_toml, read_bytes, read_text, \
-    write_atomic
+from ..runtime.files import OutputError, atomic_output, check_output_dir, check_output_file, parse_json, \
+    parse_toml, read_bytes, read_text, write_atomic
 from ..threads import single_blas_thread
 
-#: Most runs of one campaign.
+#: Most runs of one campaign. What grows with the runs in the command's process is 8 bytes per
+#: finished run for each of the :data:`QUANTILE_KEYS` (at most 480 MB at this limit): the rows go
+#: to a file as they finish (twice its size on disk until the table is written).
 MAX_RUNS = 10_000_000
+#: Largest magnitude of a number of an axis (a value, mean, std, low, high): draws, their squares
+#: and sums of squares (the error norms) stay far from overflow.
+AXIS_LIMIT = 1e100
+#: Batches in flight per worker: submitted, running, or finished and waiting for an earlier batch
+#: to be written (the client holds at most this many batches per worker).
+BATCHES_PER_WORKER = 8
+#: Seconds to reach a Dask scheduler, hear its handshake and see a worker.
+SCHEDULER_TIMEOUT_S = 10.0
+#: Distinct failure reasons counted one by one in the summary (the others are counted together).
+MAX_REASONS = 1000
+#: The outputs of a campaign, replaced together.
+OUTPUTS = ("campaign.csv", "summary.json", "campaign.png")
 #: Distribution kinds of an axis.
 KINDS = ("constant", "choice", "normal", "uniform")
 #: Columns of every campaign table, before the axes.
@@ -102,13 +127,36 @@ class Axis:
         """Whether the axis lists its values (a grid enumerates them)."""
         return self.kind == "choice"
 
+    def entries(self) -> list:
+        """``(key, entry)`` of the values the axis lists (a choice's, a constant's; none for a draw)."""
+        if self.kind == "choice":
+            return [(f"{self.key}[{i}]", v) for i, v in enumerate(self.params["values"])]
+        return [(self.key, self.params["value"])] if self.kind == "constant" else []
+
     def check_size(self, size: int) -> None:
         """Raise unless every listed vector has ``size`` components."""
-        entries = self.params["values"] if self.kind == "choice" else (self.params.get("value"),)
-        for i, v in enumerate(entries):
+        for where, v in self.entries():
             if isinstance(v, tuple) and len(v) != size:
-                where = f"{self.key}[{i}]" if self.kind == "choice" else self.key
                 raise ProblemError(f"{where}: expected {size} value(s) (one per component), found {len(v)}")
+
+    def check_integers(self, what: str, low: int, high: int) -> None:
+        """Raise unless every value the axis can give is an integer in ``[low, high]``.
+
+        Parameters
+        ----------
+        what : str
+            What takes the values, for messages (``"the plant FMU's seed, an Integer parameter,"``).
+        low, high : int
+            The accepted range.
+        """
+        if self.kind in ("normal", "uniform"):
+            raise ProblemError(f"{self.key}: {what} takes integers in [{low}, {high}], and a {self.kind} draw "
+                               "is not one; give a number or a list of integers")
+        for where, v in self.entries():
+            for x in v if isinstance(v, tuple) else (v,):
+                if not (x.is_integer() and low <= x <= high):
+                    shown = int(x) if x.is_integer() and abs(x) < 1e18 else repr(x)
+                    raise ProblemError(f"{where}: {what} takes integers in [{low}, {high}], found {shown}")
 
     def value(self, entry, size: int) -> np.ndarray:
         """A listed entry as a vector of ``size`` components (a number is repeated)."""
@@ -207,12 +255,13 @@ def _integer(table, key: str, default, low: int, high: int) -> int:
     return value
 
 
-def _number(value, key: str) -> float:
+def _number(value, key: str, low: float = -AXIS_LIMIT) -> float:
+    """A finite number of an axis, in ``[low, AXIS_LIMIT]``."""
     from ..runtime.matrices import as_scalar
 
     if isinstance(value, bool):
         raise ProblemError(f"{key}: expected a number, found {value!r}")
-    return as_scalar(value, key)
+    return as_scalar(value, key, low=low, high=AXIS_LIMIT)
 
 
 def _entry(value, key: str):
@@ -264,9 +313,11 @@ def parse_axis(value, key: str) -> Axis:
             raise ProblemError(f"{table.key('values')}: expected a non-empty list of values, found {listed!r}"[:300])
         params = {"values": tuple(_entry(v, f"{table.key('values')}[{i}]") for i, v in enumerate(listed))}
     elif kind == "normal":
-        params = {"mean": table.scalar("mean", 0.0), "std": table.scalar("std", low=0.0)}
+        params = {"mean": _number(table.get("mean", 0.0), table.key("mean")),
+                  "std": _number(table.get("std"), table.key("std"), low=0.0)}
     else:
-        params = {"low": table.scalar("low"), "high": table.scalar("high")}
+        params = {"low": _number(table.get("low"), table.key("low")),
+                  "high": _number(table.get("high"), table.key("high"))}
         if params["low"] > params["high"]:
             raise ProblemError(f"{key}: low = {params['low']:g} > high = {params['high']:g}")
     table.done()
@@ -352,6 +403,7 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
         if spec.startswith("file:"):
             spec = "file:" + str(folder / spec[5:])
             steps[i] = spec
+            _not_a_folder(Path(spec[5:]), f"axes.steps[{i}]", "a step file")
         try:
             step_sequence(spec, 1e-300, 0)      # the SPEC's syntax (one step suffices)
         except ProblemError as exc:
@@ -385,6 +437,13 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
     return replace(campaign, runs=runs)
 
 
+def _not_a_folder(path: Path, key: str, what: str) -> None:
+    """Refuse a folder where a file is expected, naming ``key`` and the path."""
+    if path.is_dir():
+        where = key if key == str(path) else f"{key}: {path}"
+        raise ProblemError(f"{where}: a folder, not {what}; give a regular file"[:500])
+
+
 def load_campaign(path) -> Campaign:
     """Read and check a campaign file.
 
@@ -404,6 +463,7 @@ def load_campaign(path) -> Campaign:
         For an unreadable file, TOML syntax errors and every malformed key.
     """
     path = Path(path)
+    _not_a_folder(path, str(path), "a campaign file")
     text = read_text(path, "campaign file", error=ProblemError)
     data = parse_toml(text, str(path), error=ProblemError)
     return campaign_from_data(data, path, text)
@@ -429,6 +489,10 @@ class Setup:
     default_steps : str
     name : str
         The observer's problem name.
+    has_xhat0 : bool
+        Whether the observer has an initial estimate ``xhat0``.
+    integers : tuple of str
+        The plant parameters of the axes that are FMI Integers (their drawn values are ints).
     plant_path, observer_path : Path
         Where the FMUs are on the machine that prepared them.
     """
@@ -442,6 +506,7 @@ class Setup:
     default_steps: str
     name: str
     has_xhat0: bool
+    integers: tuple = ()
     plant_path: Path = field(default=None, repr=False)
     observer_path: Path = field(default=None, repr=False)
 
@@ -506,9 +571,7 @@ def prepare(campaign: Campaign, out=None, say=None) -> Setup:
         For an axis the FMUs have no use for (a plant parameter the plant lacks, a vector of the
         wrong size), naming its key.
     """
-    from fmpy import read_model_description
-
-    from .fmi import vector_sizes
+    from .fmi import read_description, vector_sizes
     from .master import default_steps, default_t_end, observer_card
 
     if campaign.problem is not None:
@@ -517,11 +580,10 @@ def prepare(campaign: Campaign, out=None, say=None) -> Setup:
         plant, observer = build_fmus(campaign, Path(out) / "fmus", say)
     else:
         plant, observer = campaign.plant, campaign.observer
+        for key, path in (("campaign.observer", observer), ("campaign.plant", plant)):
+            _not_a_folder(path, key, "an FMU file")
     card = observer_card(observer)
-    try:
-        variables = read_model_description(str(plant)).modelVariables
-    except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for broken archives
-        raise FmuError(f"{plant}: not a readable FMU ({exc})"[:500]) from None
+    variables = read_description(plant).modelVariables
     parameters = vector_sizes(variables, "parameter")
     initial = card.data.get("initial", {})
     has_xhat0 = "xhat0" in initial
@@ -530,18 +592,47 @@ def prepare(campaign: Campaign, out=None, say=None) -> Setup:
         if not has_xhat0:
             raise ProblemError(f"axes.xhat0_error: the observer ({card.kernel} kernel) has no xhat0")
         campaign.xhat0_error.check_size(n)
-    for name, axis in campaign.plant_parameters:
-        if name not in parameters:
-            known = ", ".join(parameters) or "none"
-            raise ProblemError(f"axes.plant_parameters.{name}: the plant FMU has no parameter {name} (it has {known})")
-        axis.check_size(parameters[name])
+    integers = _check_plant_axes(campaign, parameters, _vector_types(variables, "parameter"))
     if campaign.d_scale is not None:
         campaign.d_scale.check_size(1)
     plant_bytes = read_bytes(plant, "plant FMU", error=FmuError)
     observer_bytes = read_bytes(observer, "observer FMU", error=FmuError)
     t_end = campaign.t_end if campaign.t_end is not None else default_t_end(card)
     return Setup(plant_bytes, observer_bytes, _digest(plant_bytes, observer_bytes), t_end, n, parameters,
-                 default_steps(card), card.name, has_xhat0, Path(plant), Path(observer))
+                 default_steps(card), card.name, has_xhat0, integers=integers, plant_path=Path(plant),
+                 observer_path=Path(observer))
+
+
+def _vector_types(variables, causality: str) -> dict:
+    """The FMI type (``Real``, ``Integer``, ...) of each vector ``name[1..k]`` of one causality."""
+    return {v.name[:v.name.index("[")]: v.type for v in variables
+            if v.causality == causality and v.name.endswith("]") and "[" in v.name}
+
+
+def _check_plant_axes(campaign: Campaign, sizes: dict, types: dict) -> tuple:
+    """Check the plant-parameter axes against the plant FMU's parameters; the names of the Integer ones.
+
+    Raises
+    ------
+    ProblemError
+        For a parameter the plant lacks, a vector of the wrong size, a non-integer (or out of range)
+        value of an Integer parameter, or a parameter neither Real nor Integer.
+    """
+    from .fmi import FMI2_INTEGER
+
+    integers = []
+    for name, axis in campaign.plant_parameters:
+        if name not in sizes:
+            known = ", ".join(sizes) or "none"
+            raise ProblemError(f"axes.plant_parameters.{name}: the plant FMU has no parameter {name} (it has {known})")
+        axis.check_size(sizes[name])
+        if types[name] == "Integer":
+            axis.check_integers(f"the plant FMU's {name}, an Integer parameter,", *FMI2_INTEGER)
+            integers.append(name)
+        elif types[name] != "Real":
+            raise ProblemError(f"axes.plant_parameters.{name}: the plant FMU's {name} is a {types[name]} parameter; "
+                               "an axis sets Real and Integer ones")
+    return tuple(integers)
 
 
 # --------------------------------------------------------------------------------------------
@@ -576,11 +667,45 @@ def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
     spec = specs[picks["steps"]] if "steps" in picks else specs[int(rng.integers(len(specs)))]
     out = {"row": row, "steps": spec, "steps_seed": int(rng.integers(2**32))}
     sizes = {"xhat0_error": setup.n, "d_scale": 1, **{f"plant.{k}": v for k, v in setup.parameters.items()}}
+    integers = {f"plant.{k}" for k in setup.integers}
     for name, axis in campaign.named_axes():
         size = sizes[name]
         value = axis.value(axis.params["values"][picks[name]], size) if name in picks else axis.draw(rng, size)
-        out[name] = float(value[0]) if name == "d_scale" else [float(v) for v in value]
+        kind = int if name in integers else float
+        out[name] = float(value[0]) if name == "d_scale" else [kind(v) for v in value]
     return out
+
+
+def scenarios(campaign: Campaign, setup: Setup, start: int = 0):
+    """The scenarios of the rows from ``start`` on, each made when it is asked for (:func:`scenario`).
+
+    Parameters
+    ----------
+    campaign : Campaign
+    setup : Setup
+    start : int
+        The first row.
+
+    Yields
+    ------
+    dict
+        The scenario of row ``start``, then of the next rows up to ``campaign.runs - 1``.
+    """
+    for row in range(start, campaign.runs):
+        yield scenario(campaign, setup, row)
+
+
+def batches(campaign: Campaign, setup: Setup, size: int):
+    """The scenarios of every row in row order, in lists of ``size`` (the last may be shorter), each
+    made when it is asked for: a campaign of any number of runs starts at once.
+
+    Yields
+    ------
+    list of dict
+    """
+    rows = scenarios(campaign, setup)
+    while batch := list(islice(rows, size)):
+        yield batch
 
 
 def scaled_inputs(inputs, scale: float):
@@ -732,21 +857,187 @@ def run_batch(setup: Setup, scenarios: list) -> list:
 # --------------------------------------------------------------------------------------------
 # running a campaign
 # --------------------------------------------------------------------------------------------
-def _client(workers: int | None, scheduler: str | None):
-    """A Dask client: on an existing scheduler, or on a new LocalCluster of worker processes."""
+def _client(workers: int | None, address: str | None):
+    """A Dask client: on the scheduler at ``address`` (that :func:`probe_scheduler` has heard), or on
+    a new LocalCluster of worker processes."""
     import logging
 
     from distributed import Client, LocalCluster
 
-    if scheduler:
+    if address is not None:
         try:
-            return Client(scheduler, timeout="10s"), None
-        except (OSError, TimeoutError) as exc:
-            raise FmuError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc})"[:500]) from None
+            client = Client(address, timeout=f"{SCHEDULER_TIMEOUT_S}s")
+        except Exception as exc:  # noqa: BLE001 - whatever the service did, it is not a usable scheduler
+            raise SchedulerError(f"--scheduler {address}: {_failure_text(exc)}") from None
+        try:
+            client.wait_for_workers(1, timeout=SCHEDULER_TIMEOUT_S)
+        except Exception:  # noqa: BLE001 - a TimeoutError, or the connection lost meanwhile
+            client.close()
+            raise SchedulerError(f"--scheduler {address}: no worker joined the scheduler within "
+                                 f"{SCHEDULER_TIMEOUT_S:g} s") from None
+        return client, None
     n = workers or os.cpu_count() or 1
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                            silence_logs=logging.ERROR)
     return Client(cluster), cluster
+
+
+class SchedulerError(UserError):
+    """A ``--scheduler`` address that is malformed, or where no Dask scheduler answers in time."""
+
+
+_HOST_LABEL = re.compile(r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?\Z")
+
+
+def _host_problem(host: str) -> str | None:
+    """What is wrong with a host name or IP address (None when nothing is)."""
+    import ipaddress
+
+    if host.startswith("[") and host.endswith("]"):
+        try:
+            ipaddress.IPv6Address(host[1:-1])
+        except ValueError:
+            return "not an IPv6 address in brackets"
+        return None
+    if not host:
+        return "no host"
+    if len(host) > 253:
+        return f"a host of {len(host)} characters, more than 253"
+    if not all(_HOST_LABEL.match(label) for label in host.removesuffix(".").split(".")):
+        return "not a host name (letters, digits and hyphens, in dot-separated labels of 1 to 63) or IP address"
+    return None
+
+
+def _split_address(value: str) -> tuple:
+    """``(scheme, host, port)`` of an address (scheme tcp when none is given, port None without one)."""
+    scheme, sep, rest = value.partition("://")
+    if not sep:
+        scheme, rest = "tcp", value
+    host, colon, port = rest.rpartition(":")
+    return (scheme, host, port) if colon else (scheme, rest, None)
+
+
+def _address_problem(value) -> str | None:
+    """What is wrong with a ``--scheduler`` value (None when nothing is)."""
+    if not isinstance(value, str) or not value.strip():
+        return "an empty address" if isinstance(value, str) else "not a string"
+    scheme, host, port = _split_address(value)
+    if scheme != "tcp":
+        return f"the protocol {scheme[:20]!r} is not supported"
+    if port is None:
+        return "no port"
+    if not (port.isascii() and port.isdigit() and len(port) <= 5 and 1 <= int(port) <= 65535):
+        return f"the port {port[:20]!r} is not a number from 1 to 65535"
+    return _host_problem(host)
+
+
+def scheduler_address(value: str) -> str:
+    """The address of ``--scheduler``: ``tcp://HOST:PORT``, or ``HOST:PORT`` (meaning tcp).
+
+    Parameters
+    ----------
+    value : str
+        As given.
+
+    Returns
+    -------
+    str
+        ``tcp://HOST:PORT``.
+
+    Raises
+    ------
+    SchedulerError
+        Naming the value, what is wrong with it and what is accepted.
+    """
+    problem = _address_problem(value)
+    if problem:
+        shown = repr(value[:80]) + ("..." if len(value) > 80 else "") if isinstance(value, str) else repr(value)[:80]
+        raise SchedulerError(f"--scheduler {shown}: {problem}; expected tcp://HOST:PORT or HOST:PORT (a host "
+                             "name or IP address, a port from 1 to 65535)")
+    _, host, port = _split_address(value)
+    return f"tcp://{host}:{int(port)}"
+
+
+def _failure_text(exc: BaseException) -> str:
+    """An exception in a few words, on one line."""
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}"[:300] if text else type(exc).__name__
+
+
+async def _identity(address: str, timeout: float):
+    """The scheduler's answer to ``identity`` (after the comm handshake), within ``timeout`` seconds."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    async def ask():
+        comm = await connect(address, timeout=timeout / 2)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    return await asyncio.wait_for(ask(), timeout)
+
+
+def probe_scheduler(address: str, timeout: float | None = None) -> dict:
+    """Check that a Dask scheduler answers at ``address``, all within ``timeout`` seconds.
+
+    Connecting, the protocol's handshake and an ``identity`` request run on their own event loop in
+    a daemon thread that is given up after the deadline: a service that accepts connections and then
+    says nothing, or answers in another protocol (HTTP, whose first bytes read as a frame length
+    of exabytes), is refused in bounded time.
+
+    Parameters
+    ----------
+    address : str
+        ``tcp://HOST:PORT`` (:func:`scheduler_address`).
+    timeout : float, optional
+        Seconds (default :data:`SCHEDULER_TIMEOUT_S`).
+
+    Returns
+    -------
+    dict
+        The scheduler's identity (``type``, ``address``, ``workers``, ...).
+
+    Raises
+    ------
+    SchedulerError
+        One line naming the address and what happened.
+    """
+    import asyncio
+
+    timeout = SCHEDULER_TIMEOUT_S if timeout is None else timeout
+    box: dict = {}
+
+    def work() -> None:
+        try:
+            box["reply"] = asyncio.run(_identity(address, timeout))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+            box["error"] = exc
+
+    thread = threading.Thread(target=work, name="uiofmu-scheduler-probe", daemon=True)
+    thread.start()
+    thread.join(timeout + 1.0)
+    error = box.get("error")
+    if thread.is_alive() or isinstance(error, TimeoutError):
+        raise SchedulerError(f"--scheduler {address}: no answer of a Dask scheduler within {timeout:g} s (the "
+                             "service there accepts connections but does not speak Dask's protocol?)")
+    if isinstance(error, OSError):
+        raise SchedulerError(f"--scheduler {address}: no Dask scheduler reachable there ({_failure_text(error)})")
+    if isinstance(error, MemoryError):    # a length prefix of exabytes: the first bytes of another protocol
+        raise SchedulerError(f"--scheduler {address}: the service there answers in another protocol than Dask's "
+                             "(its first bytes announce a message too large to hold)")
+    if error is not None:
+        raise SchedulerError(f"--scheduler {address}: the service there does not answer as a Dask scheduler "
+                             f"({_failure_text(error)})")
+    reply = box["reply"]
+    if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
+        kind = reply.get("type") if isinstance(reply, dict) else type(reply).__name__
+        raise SchedulerError(f"--scheduler {address}: the service there answers, but as a {str(kind)[:40]}, "
+                             "not as a Dask scheduler")
+    return reply
 
 
 def _cell(value) -> str:
@@ -778,69 +1069,156 @@ def _flat(sc: dict) -> dict:
     return out
 
 
-def table_text(campaign: Campaign, setup: Setup, scenarios: dict, rows: dict) -> str:
-    """The campaign table (CSV) of the finished rows, in row order."""
-    metric_cols = [k for k in PREFERRED if any(k in r for r in rows.values())]
-    for r in rows.values():
-        metric_cols += [k for k in r if k not in metric_cols and k not in ("status", "reason", "wall_s")]
-    cols = HEAD + axis_columns(campaign, setup) + ["status", "reason"] + metric_cols + ["wall_s"]
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(cols)
-    for row in sorted(rows):
-        values = {**_flat(scenarios[row]), **rows[row]}
-        w.writerow([_cell(values.get(c)) for c in cols])
-    return buf.getvalue()
-
-
 def read_table(path) -> list:
     """A campaign table as a list of dicts of strings (the CSV cells)."""
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
 
 
-def summary(campaign: Campaign, setup: Setup, scenarios: dict, rows: dict, cancelled: bool = False,
+#: Cells of a row that are not metrics.
+_NOT_METRICS = ("status", "reason", "wall_s")
+
+
+class RowFile:
+    """The rows of a campaign as they finish, in row order, in a file (one CSV line a row): the row and
+    axis cells, ``status``, ``reason``, ``wall_s``, then the metric cells in the order their keys first
+    appeared (a later key adds a cell at the end). :meth:`write_table` writes the table from it.
+
+    Parameters
+    ----------
+    path : Path
+        The file (in the staging folder).
+    campaign : Campaign
+    setup : Setup
+    """
+
+    def __init__(self, path: Path, campaign: Campaign, setup: Setup):
+        self.path = path
+        self.head = HEAD + axis_columns(campaign, setup) + ["status", "reason"]
+        self.keys: dict = {}
+        self.file = open(path, "w", newline="", encoding="utf-8")
+        self.writer = csv.writer(self.file, lineterminator="\n")
+
+    def add(self, sc: dict, result: dict) -> None:
+        """Append the row of scenario ``sc`` and its ``result`` (status, reason, metrics)."""
+        values = {**_flat(sc), **result}
+        metrics = [k for k in result if k not in _NOT_METRICS]
+        for key in metrics:
+            self.keys.setdefault(key, len(self.keys))
+        cells = [""] * len(self.keys)
+        for key in metrics:
+            cells[self.keys[key]] = _cell(result[key])
+        self.writer.writerow([_cell(values.get(c)) for c in self.head] + [_cell(result.get("wall_s"))] + cells)
+
+    def columns(self) -> list:
+        """The table's columns: the head, the metrics (:data:`PREFERRED` first) and ``wall_s``."""
+        metrics = [k for k in PREFERRED if k in self.keys] + [k for k in self.keys if k not in PREFERRED]
+        return self.head + metrics + ["wall_s"]
+
+    def write_table(self, path: Path) -> Path:
+        """Write ``campaign.csv`` of the rows so far to ``path``, atomically, reading the file once."""
+        self.file.flush()
+        n = len(self.head)
+        where = [n + 1 + self.keys[k] for k in self.columns()[n:-1]]
+        with atomic_output(path, "campaign table") as part, open(self.path, newline="", encoding="utf-8") as src, \
+                open(part, "w", newline="", encoding="utf-8") as dst:
+            writer = csv.writer(dst, lineterminator="\n")
+            writer.writerow(self.columns())
+            for cells in csv.reader(src):
+                writer.writerow(cells[:n] + [cells[i] if i < len(cells) else "" for i in where] + [cells[n]])
+            dst.flush()
+            os.fsync(dst.fileno())
+        return path
+
+    def close(self) -> None:
+        """Close the file."""
+        self.file.close()
+
+
+class Tally:
+    """What the summary and the figure need of the finished rows, kept compact: counters, the failure
+    reasons (at most :data:`MAX_REASONS` distinct ones), the worst bound ratio and its row, and per
+    :data:`QUANTILE_KEYS` figure an array of doubles of its values. Rows must come in row order (the
+    worst ratio's row is then the first of equal ratios)."""
+
+    def __init__(self):
+        self.finished = self.ok = self.violations = self.other_reasons = 0
+        self.reasons: dict = {}
+        self.worst: tuple | None = None
+        self.values = {key: array("d") for key in QUANTILE_KEYS}
+        self.present = dict.fromkeys(QUANTILE_KEYS, 0)
+
+    def add(self, row: int, result: dict) -> None:
+        """Count the ``result`` of ``row``."""
+        self.finished += 1
+        if result["status"] != "ok":
+            self._failure(row, result)
+            return
+        self.ok += 1
+        for key in QUANTILE_KEYS:
+            if key in result:
+                self.present[key] += 1
+                if result[key] is not None:
+                    self.values[key].append(result[key])
+        ratio = result.get("max_bound_ratio")
+        if ratio is not None and not math.isnan(ratio) and (self.worst is None or ratio > self.worst[0]):
+            self.worst = (ratio, row, result.get("bound_respected"))
+        self.violations += result.get("bound_respected") is False
+
+    def _failure(self, row: int, result: dict) -> None:
+        entry = self.reasons.get(result["reason"])
+        if entry is None:
+            if len(self.reasons) >= MAX_REASONS:
+                self.other_reasons += 1
+                return
+            entry = self.reasons[result["reason"]] = {"reason": result["reason"], "status": result["status"],
+                                                      "count": 0, "rows": []}
+        entry["count"] += 1
+        if len(entry["rows"]) < 20:
+            entry["rows"].append(row)
+
+    def quantiles(self) -> dict:
+        """Per figure: its count, the runs without it (``never`` reached 1 %, or ``missing``), and the
+        quantiles and mean of its finite values (``non_finite`` counts the others, when there are)."""
+        out = {}
+        for key in QUANTILE_KEYS:
+            if not self.present[key]:
+                continue
+            values = np.frombuffer(self.values[key], dtype=float)
+            finite = values[np.isfinite(values)]
+            entry = {"count": len(values), "never" if key in ("steps_to_1pct", "time_to_1pct") else "missing":
+                     self.present[key] - len(values)}
+            if len(finite) < len(values):
+                entry["non_finite"] = len(values) - len(finite)
+            if finite.size:
+                entry.update({f"q{int(round(q * 100)):02d}": float(np.quantile(finite, q)) for q in QUANTILES})
+                entry["mean"] = float(np.mean(finite))
+            out[key] = entry
+        return out
+
+
+def summary(campaign: Campaign, setup: Setup, tally: Tally, cancelled: bool = False,
             elapsed: float | None = None, workers: int | None = None, startup_s: float | None = None) -> dict:
     """``summary.json``: runs, failures and their reasons, the worst bound ratio with its row and
     scenario, quantiles of the convergence figures; ``elapsed_s`` and ``runs_per_s`` count from the
     cluster's start (``cluster_startup_s`` before it) to the last row."""
-    ok = {r: m for r, m in rows.items() if m["status"] == "ok"}
-    failed = {r: m for r, m in rows.items() if m["status"] != "ok"}
-    reasons: dict = {}
-    for r in sorted(failed):
-        entry = reasons.setdefault(failed[r]["reason"], {"reason": failed[r]["reason"], "status": failed[r]["status"],
-                                                         "count": 0, "rows": []})
-        entry["count"] += 1
-        if len(entry["rows"]) < 20:
-            entry["rows"].append(r)
-    ranked = sorted(reasons.values(), key=lambda e: -e["count"])
-    out = {"campaign": str(campaign.path), "observer": setup.name, "runs": campaign.runs, "finished": len(rows),
-           "ok": len(ok), "failures": len(failed), "failure_reasons": ranked[:50],
-           "cancelled": cancelled, "seed": campaign.seed, "t_end": setup.t_end}
-    ratios = {r: m["max_bound_ratio"] for r, m in ok.items() if m.get("max_bound_ratio") is not None}
-    if ratios:
-        worst = max(sorted(ratios), key=lambda r: ratios[r])
-        out["worst_max_bound_ratio"] = {"value": ratios[worst], "row": worst, "scenario": scenarios[worst],
-                                        "bound_respected": ok[worst].get("bound_respected")}
-        out["bound_violations"] = sum(1 for m in ok.values() if m.get("bound_respected") is False)
+    ranked = sorted(tally.reasons.values(), key=lambda e: -e["count"])
+    out = {"campaign": str(campaign.path), "observer": setup.name, "runs": campaign.runs,
+           "finished": tally.finished, "ok": tally.ok, "failures": tally.finished - tally.ok,
+           "failure_reasons": ranked[:50], "cancelled": cancelled, "seed": campaign.seed, "t_end": setup.t_end}
+    if tally.other_reasons:
+        out["failures_of_other_reasons"] = tally.other_reasons
+    if tally.worst is not None:
+        value, row, respected = tally.worst
+        out["worst_max_bound_ratio"] = {"value": value, "row": row, "scenario": scenario(campaign, setup, row),
+                                        "bound_respected": respected}
+        out["bound_violations"] = tally.violations
     else:
         out["worst_max_bound_ratio"] = None
-    quant = {}
-    for key in QUANTILE_KEYS:
-        values = [m.get(key) for m in ok.values() if key in m]
-        if not values:
-            continue
-        finite = np.array([v for v in values if v is not None], dtype=float)
-        entry = {"count": len(finite), "never" if key in ("steps_to_1pct", "time_to_1pct") else "missing":
-                 len(values) - len(finite)}
-        if finite.size:
-            entry.update({f"q{int(round(q * 100)):02d}": float(np.quantile(finite, q)) for q in QUANTILES})
-            entry["mean"] = float(np.mean(finite))
-        quant[key] = entry
-    out["quantiles"] = quant
+    out["quantiles"] = tally.quantiles()
     if elapsed is not None:
         out["elapsed_s"] = elapsed
-        out["runs_per_s"] = len(rows) / elapsed if elapsed > 0 else None
+        out["runs_per_s"] = tally.finished / elapsed if elapsed > 0 else None
     if startup_s is not None:
         out["cluster_startup_s"] = startup_s
     if workers is not None:
@@ -850,23 +1228,167 @@ def summary(campaign: Campaign, setup: Setup, scenarios: dict, rows: dict, cance
     return out
 
 
+class Staging:
+    """A folder ``campaign.partial-*`` in the output folder that receives every output of a campaign
+    (and its checkpoints); :meth:`install` moves them into place together, so the outputs of the
+    folder are all of one campaign. On failure the folder is removed, unless it holds a checkpoint
+    (the rows of a campaign that did not finish).
+
+    Parameters
+    ----------
+    out : Path
+        The output folder (created).
+    """
+
+    def __init__(self, out: Path):
+        for name in OUTPUTS:
+            check_output_file(out / name, "campaign output")
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            self.folder = Path(tempfile.mkdtemp(prefix="campaign.partial-", dir=out))
+        except OSError as exc:
+            raise OutputError(f"{out}: cannot write the campaign outputs there ({exc.strerror or exc})") from None
+        self.out = out
+        self.checkpointed = False
+
+    def path(self, name: str) -> Path:
+        """Where the output ``name`` is written before it is installed."""
+        return self.folder / name
+
+    def install(self) -> None:
+        """Move every output into the output folder (each rename atomic), then remove the staging folder."""
+        try:
+            for name in OUTPUTS:
+                os.replace(self.folder / name, self.out / name)
+        except OSError as exc:
+            raise OutputError(f"{self.out}: cannot put the campaign outputs in place ({exc.strerror or exc})") \
+                from None
+        self.checkpointed = False
+
+    def close(self) -> None:
+        """Remove the staging folder (kept when it holds the checkpoint of a campaign that failed)."""
+        if not self.checkpointed:
+            shutil.rmtree(self.folder, ignore_errors=True)
+
+
 def _batch_size(campaign: Campaign, workers: int) -> int:
     if campaign.batch:
         return campaign.batch
     return int(min(64, max(1, campaign.runs // (8 * max(1, workers)))))
 
 
-def write_results(out: Path, campaign: Campaign, setup: Setup, scenarios: dict, rows: dict, **info) -> dict:
-    """Write ``campaign.csv`` and ``summary.json`` atomically; returns the summary."""
-    write_atomic(out / "campaign.csv", table_text(campaign, setup, scenarios, rows), "campaign table")
-    data = summary(campaign, setup, scenarios, rows, **info)
-    write_atomic(out / "summary.json", json.dumps(data, indent=2) + "\n", "campaign summary")
-    return data
+class _Run:
+    """One campaign on a Dask client: a bounded window of batches in flight, their rows written in
+    row order to a :class:`RowFile` and counted in a :class:`Tally`, checkpoints and outputs in a
+    :class:`Staging` folder."""
+
+    def __init__(self, campaign: Campaign, setup: Setup, client, stage: Staging, workers: int,
+                 checkpoint_s: float):
+        self.campaign, self.setup, self.client, self.stage, self.workers = campaign, setup, client, stage, workers
+        self.rows = RowFile(stage.path("rows.part"), campaign, setup)
+        self.tally = Tally()
+        self.inflight: dict = {}      # future key -> (batch index, future, scenarios)
+        self.waiting: dict = {}       # batch index -> (scenarios, results), finished before an earlier batch
+        self.next = 0                 # the next batch to write
+        self.t0 = time.perf_counter()
+        self.checkpoint_s, self.last_checkpoint = checkpoint_s, time.perf_counter()
+
+    def drive(self, bar) -> None:
+        """Submit the batches, at most :data:`BATCHES_PER_WORKER` per worker in flight, and take their
+        rows as they finish."""
+        from distributed import as_completed
+
+        shared = self.client.scatter(self.setup, broadcast=True)
+        source = enumerate(batches(self.campaign, self.setup, _batch_size(self.campaign, self.workers)))
+        window = BATCHES_PER_WORKER * max(1, self.workers)
+        finished = as_completed()
+        self._fill(source, window, shared, finished)
+        for fut in finished:
+            index, _, scs = self.inflight.pop(fut.key)
+            self.waiting[index] = (scs, self._results(fut, scs))
+            fut.release()
+            bar.update(len(scs))
+            self._write_ready()
+            self._checkpoint()
+            self._fill(source, window, shared, finished)
+
+    def _fill(self, source, window: int, shared, finished) -> None:
+        while len(self.inflight) + len(self.waiting) < window:
+            item = next(source, None)
+            if item is None:
+                return
+            index, scs = item
+            fut = self.client.submit(run_batch, shared, scs, pure=False)
+            self.inflight[fut.key] = (index, fut, scs)
+            finished.add(fut)
+
+    @staticmethod
+    def _results(fut, scs: list) -> list:
+        try:
+            return fut.result()
+        except Exception as exc:  # noqa: BLE001 - a worker died (a crash inside an FMU) or was lost
+            reason = f"worker lost: {type(exc).__name__}: {' '.join(str(exc).split())}"[:500]
+            return [(sc["row"], {"status": "crashed", "reason": reason}) for sc in scs]
+
+    def _write_ready(self, everything: bool = False) -> None:
+        """Write the finished batches that follow the rows written (``everything``: all of them, in order)."""
+        for index in sorted(self.waiting) if everything else ():
+            self._write(self.waiting.pop(index))
+        while self.next in self.waiting:
+            self._write(self.waiting.pop(self.next))
+            self.next += 1
+
+    def _write(self, batch) -> None:
+        scs, results = batch
+        for sc, (row, result) in zip(scs, results):
+            self.rows.add(sc, result)
+            self.tally.add(row, result)
+
+    def _checkpoint(self) -> None:
+        """Rewrite the table and summary in the staging folder, at most every ``checkpoint_s`` and at
+        most a tenth of the time (the table is rewritten whole)."""
+        if time.perf_counter() - self.last_checkpoint <= self.checkpoint_s:
+            return
+        t = time.perf_counter()
+        self.write(cancelled=True)
+        self.stage.checkpointed = True
+        took = time.perf_counter() - t
+        self.checkpoint_s = max(self.checkpoint_s, 10 * took)
+        self.last_checkpoint = time.perf_counter()
+
+    def cancel(self) -> None:
+        """Cancel what is in flight and take the rows that finished."""
+        self.client.cancel([fut for _, fut, _ in self.inflight.values()])
+        self.inflight.clear()
+        self._write_ready(everything=True)
+
+    def write(self, cancelled: bool, **info) -> dict:
+        """Write ``campaign.csv`` and ``summary.json`` of the rows so far into the staging folder."""
+        self.rows.write_table(self.stage.path("campaign.csv"))
+        data = summary(self.campaign, self.setup, self.tally, cancelled=cancelled, workers=self.workers,
+                       elapsed=time.perf_counter() - self.t0, **info)
+        write_atomic(self.stage.path("summary.json"), json.dumps(data, indent=2) + "\n", "campaign summary")
+        return data
+
+    def finish(self, cancelled: bool, **info) -> dict:
+        """Write every output into the staging folder (the figure re-runs the worst row), then install them."""
+        data = self.write(cancelled, **info)
+        worst = data.get("worst_max_bound_ratio")
+        result = run_scenario(self.setup, worst["scenario"]) if worst is not None else None
+        plot_campaign(self.tally, result, worst, self.stage.path("campaign.png"),
+                      f"{self.setup.name}: {self.campaign.runs} runs")
+        self.rows.close()
+        self.stage.install()
+        return data
 
 
 def run_campaign(campaign: Campaign, out, workers: int | None = None, scheduler: str | None = None,
                  show_progress: bool | None = None, say=None, checkpoint_s: float = 30.0) -> dict:
     """Run every row of a campaign on Dask and write ``campaign.csv``, ``summary.json``, ``campaign.png``.
+
+    The outputs are replaced together (:class:`Staging`): a campaign that fails leaves the old ones
+    as they were; while it runs, ``out/campaign.partial-*/`` holds a checkpoint of the table and
+    summary (kept if the campaign fails after writing one).
 
     Parameters
     ----------
@@ -876,13 +1398,14 @@ def run_campaign(campaign: Campaign, out, workers: int | None = None, scheduler:
     workers : int, optional
         Worker processes of the LocalCluster (default: ``os.cpu_count()``).
     scheduler : str, optional
-        Address of an existing Dask scheduler instead (``tcp://host:8786``).
+        Address of an existing Dask scheduler instead (``tcp://host:8786``, :func:`scheduler_address`).
     show_progress : bool, optional
         Progress bar (default: when stderr is a terminal).
     say : callable, optional
         Where progress lines go.
     checkpoint_s : float
-        The table is rewritten (atomically) at most this often while rows come in.
+        The checkpoint is rewritten (atomically) at most this often while rows come in (and at most
+        a tenth of the time).
 
     Returns
     -------
@@ -891,67 +1414,46 @@ def run_campaign(campaign: Campaign, out, workers: int | None = None, scheduler:
 
     Raises
     ------
+    SchedulerError
+        For a malformed scheduler address, or none that answers within :data:`SCHEDULER_TIMEOUT_S`.
     KeyboardInterrupt
-        After writing the rows that finished (``summary["cancelled"]`` is true).
+        After writing the outputs of the rows that finished (``summary["cancelled"]`` is true).
     """
-    from distributed import as_completed
-
     from ..progress import progress
 
     out = check_output_dir(out, "--out folder")
-    setup = prepare(campaign, out, say)
-    scenarios = {row: scenario(campaign, setup, row) for row in range(campaign.runs)}
-    rows: dict = {}
-    t_start = time.perf_counter()
-    client, cluster = _client(workers, scheduler)
-    t0 = time.perf_counter()
-    futures = []
+    address = scheduler_address(scheduler) if scheduler is not None else None
+    if address is not None:
+        probe_scheduler(address)
+    stage = Staging(out)
+    client = cluster = None
     try:
+        setup = prepare(campaign, out, say)
+        t_start = time.perf_counter()
+        client, cluster = _client(workers, address)
         n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) or (workers or 1)
         if say:
-            where = f"scheduler {scheduler}" if scheduler else "a LocalCluster"
+            where = f"scheduler {address}" if address else "a LocalCluster"
             say(f"  runs                 {campaign.runs} on {n_workers} worker(s) of {where}")
-        shared = client.scatter(setup, broadcast=True)
-        size = _batch_size(campaign, n_workers)
-        order = list(range(campaign.runs))
-        futures = [client.submit(run_batch, shared, [scenarios[r] for r in order[i:i + size]], pure=False)
-                   for i in range(0, len(order), size)]
-        batches = {f.key: order[i * size:(i + 1) * size] for i, f in enumerate(futures)}
-        last = time.perf_counter()
-        with progress(total=campaign.runs, desc="campaign", unit="run", enabled=show_progress) as bar:
-            for fut in as_completed(futures):
-                try:
-                    results = fut.result()
-                except Exception as exc:  # noqa: BLE001 - a worker died (a crash inside an FMU) or was lost
-                    reason = f"worker lost: {type(exc).__name__}: {' '.join(str(exc).split())}"[:500]
-                    results = [(r, {"status": "crashed", "reason": reason}) for r in batches[fut.key]]
-                rows.update(results)
-                bar.update(len(results))
-                fut.release()
-                if time.perf_counter() - last > checkpoint_s:
-                    write_results(out, campaign, setup, scenarios, rows, cancelled=True, workers=n_workers,
-                                  elapsed=time.perf_counter() - t0)
-                    last = time.perf_counter()
-    except KeyboardInterrupt:
-        client.cancel(futures)
-        write_results(out, campaign, setup, scenarios, rows, cancelled=True, elapsed=time.perf_counter() - t0)
-        if say:
-            say(f"  interrupted          {len(rows)} of {campaign.runs} runs kept in {out / 'campaign.csv'}")
-        raise
+        run = _Run(campaign, setup, client, stage, n_workers, checkpoint_s)
+        startup_s = run.t0 - t_start
+        try:
+            with progress(total=campaign.runs, desc="campaign", unit="run", enabled=show_progress) as bar:
+                run.drive(bar)
+        except KeyboardInterrupt:
+            run.cancel()
+            run.finish(cancelled=True, startup_s=startup_s)
+            if say:
+                say(f"  interrupted          {run.tally.finished} of {campaign.runs} runs kept in "
+                    f"{out / 'campaign.csv'}")
+            raise
+        return run.finish(cancelled=False, startup_s=startup_s)
     finally:
-        client.close()
+        stage.close()
+        if client is not None:
+            client.close()
         if cluster is not None:
             cluster.close()
-    elapsed = time.perf_counter() - t0
-    data = write_results(out, campaign, setup, scenarios, rows, elapsed=elapsed, workers=n_workers,
-                         startup_s=t0 - t_start)
-    worst = data.get("worst_max_bound_ratio")
-    if worst is not None:
-        result = run_scenario(setup, scenarios[worst["row"]])
-        plot_campaign(rows, result, worst, out / "campaign.png", f"{setup.name}: {campaign.runs} runs")
-    else:
-        plot_campaign(rows, None, None, out / "campaign.png", f"{setup.name}: {campaign.runs} runs")
-    return data
 
 
 @single_blas_thread
@@ -997,43 +1499,60 @@ def replay(campaign: Campaign, out, row: int) -> dict:
 # --------------------------------------------------------------------------------------------
 # the figure
 # --------------------------------------------------------------------------------------------
-def _hist(ax, values, color) -> None:
-    """A histogram that copes with values all (nearly) equal."""
+def _hist(ax, values, color) -> int:
+    """A histogram of the finite values that copes with values all (nearly) equal; how many it drew."""
     values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    if not values.size:
+        return 0
     lo, hi = float(values.min()), float(values.max())
     pad = max(abs(hi) * 1e-6, 1e-12)
     if hi - lo < pad:
         ax.hist(values, bins=1, range=(lo - pad, hi + pad), color=color)
-        return
-    ax.hist(values, bins=min(40, max(5, len(values) // 5)), range=(lo, hi), color=color)
+    else:
+        ax.hist(values, bins=min(40, max(5, len(values) // 5)), range=(lo, hi), color=color)
+    return values.size
 
 
-def plot_campaign(rows: dict, worst_result, worst: dict | None, path, title: str = "") -> Path:
-    """``campaign.png``: distributions of the convergence time and of the bound ratio, and the worst
-    run's error against its certified bound."""
+def plot_campaign(tally: Tally, worst_result, worst: dict | None, path, title: str = "") -> Path:
+    """``campaign.png``: distributions of the convergence time and of the bound ratio (their finite
+    values), and the worst run's error against its certified bound.
+
+    Parameters
+    ----------
+    tally : Tally
+        The finished rows.
+    worst_result : uiofmu.cosim.master.CosimResult or None
+        The worst run, re-run.
+    worst : dict or None
+        The summary's ``worst_max_bound_ratio``.
+    path : str or Path
+        The PNG file (written atomically).
+    title : str
+
+    Returns
+    -------
+    Path
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ok = [m for m in rows.values() if m["status"] == "ok"]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
-    conv = [m["time_to_1pct"] for m in ok if m.get("time_to_1pct") is not None]
-    never = sum(1 for m in ok if "time_to_1pct" in m and m["time_to_1pct"] is None)
+    conv = tally.values["time_to_1pct"]
+    never = tally.present["time_to_1pct"] - len(conv)
     ax = axes[0]
-    if conv:
-        _hist(ax, conv, "tab:blue")
+    drawn = _hist(ax, conv, "tab:blue")
     ax.set_xlabel("time to 1 % of the initial error [s]")
     ax.set_ylabel("runs")
-    ax.set_title(f"convergence ({len(conv)} runs" + (f", {never} never" if never else "") + ")")
-    ratios = [m["max_bound_ratio"] for m in ok if m.get("max_bound_ratio") is not None]
+    ax.set_title(f"convergence ({drawn} runs" + (f", {never} never" if never else "") + ")")
     ax = axes[1]
-    if ratios:
-        _hist(ax, ratios, "tab:green")
+    if _hist(ax, tally.values["max_bound_ratio"], "tab:green"):
         ax.axvline(1.0, color="tab:red", linestyle="--", label="bound")
         ax.legend()
     ax.set_xlabel("max_k ||e_k|| / certified bound_k")
-    ax.set_title(f"bound ratio ({len(rows) - len(ok)} failed run(s))")
+    ax.set_title(f"bound ratio ({tally.finished - tally.ok} failed run(s))")
     ax = axes[2]
     if worst_result is not None:
         err = np.linalg.norm(worst_result.x - worst_result.xhat, axis=1)
@@ -1047,12 +1566,15 @@ def plot_campaign(rows: dict, worst_result, worst: dict | None, path, title: str
     ax.set_xlabel("time [s]")
     fig.suptitle(title)
     fig.tight_layout()
-    with atomic_output(path, "campaign figure") as part:
-        fig.savefig(part, format="png", dpi=90)
-    plt.close(fig)
+    try:
+        with atomic_output(path, "campaign figure") as part:
+            fig.savefig(part, format="png", dpi=90)
+    finally:
+        plt.close(fig)
     return Path(path)
 
 
-__all__ = ["Axis", "Campaign", "Setup", "campaign_from_data", "load_campaign", "parse_axis", "plot_campaign",
-           "prepare", "read_table", "replay", "run_campaign", "run_row", "run_scenario", "scaled_inputs",
-           "scenario", "summary"]
+__all__ = ["Axis", "Campaign", "RowFile", "SchedulerError", "Setup", "Staging", "Tally", "batches",
+           "campaign_from_data", "load_campaign", "parse_axis", "plot_campaign", "prepare",
+           "probe_scheduler", "read_table", "replay", "run_campaign", "run_row", "run_scenario", "scaled_inputs",
+           "scenario", "scenarios", "scheduler_address", "summary"]

@@ -4,6 +4,10 @@ Every FMI call goes through fmpy's ``FMU2Slave``; a call that returns fmi2Discar
 fmi2Error or fmi2Fatal raises :class:`FmuCallError` carrying the status and the log lines
 the FMU wrote, so a master can say exactly what went wrong and where.
 
+An FMU is checked against the limits below (entries, unpacked sizes, compression ratio; the model
+description's size, elements, variables and dependency lists) before fmpy reads or extracts it, and a value
+for an Integer input must be an fmi2Integer (:func:`first_non_integer`): fmpy would wrap it modulo 2**32.
+
 Log lines reach the right instance through one logger for the whole process: fmpy's native
 proxy (which formats the FMU's variadic message) holds a single Python callback, so each
 instance passes its own key as ``componentEnvironment`` and the logger files the line there.
@@ -12,7 +16,9 @@ instance passes its own key as ``componentEnvironment`` and the logger files the
 from __future__ import annotations
 
 import itertools
+import os
 import shutil
+import struct
 import tempfile
 import weakref
 import zipfile
@@ -20,13 +26,82 @@ import ctypes
 from ctypes import byref
 from functools import lru_cache
 from pathlib import Path
+from xml.parsers import expat
 
 import numpy as np
 
+from ..runtime.card import MAX_DIM
 from ..runtime.errors import FmuError
 from ..runtime.files import MAX_INPUT_BYTES, parse_json
 
 STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
+
+# -- what an FMU may hold -----------------------------------------------------------------------
+# An FMU is checked on its zip directory before anything is extracted or parsed (:func:`open_archive`,
+# :func:`check_archive`); an entry never unpacks to more than the size the directory declares (zipfile stops
+# there and fails the CRC). The FMUs uiofmu builds have 13 to 41 entries and unpack to less than 1 MiB
+# (``make fmus``); at the card schema's dimension bound (:data:`uiofmu.runtime.card.MAX_DIM`) their largest
+# files are ``resources/model.json``, which is read only up to :data:`~uiofmu.runtime.files.MAX_INPUT_BYTES`
+# (64 MiB), and the C source of the same numbers, about as large.
+
+#: Most entries in an FMU (a pythonfmu FMU carries about 40: its runtime package).
+MAX_ENTRIES = 10_000
+#: Largest unpacked entry (bytes): twice the largest ``model.json`` uiofmu reads.
+MAX_ENTRY_BYTES = 2 * MAX_INPUT_BYTES
+#: Largest unpacked FMU (bytes): the card, its C source, the binaries and the runtime, with room to spare.
+MAX_UNPACKED_BYTES = 4 * MAX_INPUT_BYTES
+#: Highest compression ratio (unpacked over packed size) of an entry of more than :data:`RATIO_FLOOR` bytes:
+#: binaries and numbers written as text deflate 1 to 5 times, the zeros of a zip bomb about 1000 times.
+MAX_RATIO = 100
+#: Entries up to this size (bytes) may deflate better than :data:`MAX_RATIO` (a small card of zeros does).
+RATIO_FLOOR = 16 * 2**20
+#: Largest ``modelDescription.xml`` (bytes): 100,000 variables of about 300 bytes with their dependencies.
+MAX_DESCRIPTION_BYTES = 32 * 2**20
+#: Most ScalarVariables in an FMU's model description. An FMU uiofmu builds has at most ten vectors (the
+#: observer's ``xhat0``, ``y``, ``u``, ``ydot``, ``theta``, ``mode``, ``xhat``, ``r``, ``dhat``; the plant's ``x0``,
+#: ``u``, ``d``, ``y``, ``x``, ...) of at most MAX_DIM = 1000 entries: 10,000 variables. A plant FMU from
+#: another tool may add its local variables: ten times that. fmpy builds an object of about 2 kB per variable
+#: (cosim took 2.5 GB and 25 s for 1,000,000).
+MAX_VARIABLES = 100_000
+#: Most ScalarVariables in an FMU that ``uiofmu validate`` checks (one uiofmu built: at most ten vectors of
+#: MAX_DIM entries). fmpy's ``validate_fmu`` parses each name with its grammar, about 1.2 ms a variable.
+MAX_OWN_VARIABLES = 16 * MAX_DIM
+#: Most XML elements in a model description: a variable brings its type element and a few ModelStructure
+#: entries.
+MAX_ELEMENTS = 10 * MAX_VARIABLES
+#: Most entries of all the ``dependencies`` and ``dependenciesKind`` lists of a model description together: an
+#: output of an FMU uiofmu builds (at most 3 MAX_DIM of them: ``xhat``, ``r``, ``dhat``) depends on at most the
+#: MAX_DIM measured outputs. fmpy spends about 1 us on an entry (15,000,000 in a 30 MB description took 16 s).
+MAX_DEPENDENCIES = 3 * MAX_DIM**2
+
+
+#: The range of an fmi2Integer (a C int of 32 bits).
+FMI2_INTEGER = (-2**31, 2**31 - 1)
+
+
+def first_non_integer(values) -> int:
+    """The flat index of the first value that is not an fmi2Integer, -1 when every value is one.
+
+    Parameters
+    ----------
+    values : array_like of float
+
+    Returns
+    -------
+    int
+        The index of the first value that is not finite, not integral or outside :data:`FMI2_INTEGER`
+        (fmpy would wrap it modulo 2**32, or fail), or -1.
+    """
+    v = np.asarray(values, dtype=float).ravel()
+    low, high = FMI2_INTEGER
+    good = np.isfinite(v) & (v == np.floor(v)) & (v >= low) & (v <= high)
+    return -1 if good.all() else int(np.argmin(good))
+
+
+def not_an_integer(where: str, value: float) -> str:
+    """The message for ``value`` at ``where`` that is not an fmi2Integer (see :func:`first_non_integer`)."""
+    low, high = FMI2_INTEGER
+    return f"{where}: {float(value)!r} is not an fmi2Integer (expected an integer from {low} to {high})"
 
 
 class FmuCallError(FmuError):
@@ -49,13 +124,220 @@ class FmuCallError(FmuError):
         super().__init__(f"{function} returned fmi2{label.capitalize()}{detail}")
 
 
+def _over(path, found: str, limit: int, name: str) -> FmuError:
+    """The refusal of an FMU beyond one of the limits above: what was found, the limit and its name."""
+    return FmuError(f"{path}: {found}, more than the limit of {limit} (uiofmu.cosim.fmi.{name})")
+
+
+#: The end record of a zip archive: signature, two disk numbers, entries on this disk, entries in all,
+#: directory size and offset, comment length.
+_END = struct.Struct("<4s4H2LH")
+
+
+def _declared_entries(path: Path) -> int:
+    """The number of entries the end record of a zip archive declares, read without its directory (which
+    zipfile loads whole, an object per entry); 0 when there is no end record (zipfile then refuses the file)."""
+    with open(path, "rb") as f:
+        size = f.seek(0, 2)
+        f.seek(max(0, size - _END.size - 0xFFFF))
+        tail = f.read()
+        at = tail.rfind(b"PK\x05\x06")
+        if at < 0 or len(tail) - at < _END.size:
+            return 0
+        entries = _END.unpack_from(tail, at)[4]
+        if entries == 0xFFFF and at >= 20 and tail[at - 20:at - 16] == b"PK\x06\x07":   # zip64: its own record
+            f.seek(struct.unpack_from("<Q", tail, at - 12)[0])
+            record = f.read(40)
+            if record[:4] == b"PK\x06\x06" and len(record) == 40:
+                entries = struct.unpack_from("<Q", record, 32)[0]
+    return entries
+
+
+def _check_entries(path: Path, infos: list) -> None:
+    """Refuse an archive beyond :data:`MAX_ENTRIES`, :data:`MAX_ENTRY_BYTES`, :data:`MAX_UNPACKED_BYTES` or
+    :data:`MAX_RATIO`, from the sizes its directory declares."""
+    if len(infos) > MAX_ENTRIES:
+        raise _over(path, f"the FMU has {len(infos)} entries", MAX_ENTRIES, "MAX_ENTRIES")
+    total = 0
+    for info in infos:
+        name = repr(info.filename[:80])
+        if info.file_size > MAX_ENTRY_BYTES:
+            raise _over(path, f"the FMU's entry {name} unpacks to {info.file_size} bytes", MAX_ENTRY_BYTES,
+                        "MAX_ENTRY_BYTES")
+        ratio = info.file_size / max(info.compress_size, 1)
+        if info.file_size > RATIO_FLOOR and ratio > MAX_RATIO:
+            raise _over(path, f"the FMU's entry {name} unpacks to {info.file_size} bytes from {info.compress_size}, "
+                        f"a compression ratio of {ratio:.0f} for an entry of more than {RATIO_FLOOR} bytes",
+                        MAX_RATIO, "MAX_RATIO")
+        total += info.file_size
+    if total > MAX_UNPACKED_BYTES:
+        raise _over(path, f"the FMU unpacks to {total} bytes", MAX_UNPACKED_BYTES, "MAX_UNPACKED_BYTES")
+
+
+def open_archive(path) -> zipfile.ZipFile:
+    """An FMU's zip archive, opened after its entry count and declared sizes were checked against the limits.
+
+    Parameters
+    ----------
+    path : str or Path
+        A regular file.
+
+    Returns
+    -------
+    zipfile.ZipFile
+        Open (the caller closes it).
+
+    Raises
+    ------
+    FmuError
+        For a missing or non-regular file, and for an archive beyond :data:`MAX_ENTRIES`,
+        :data:`MAX_ENTRY_BYTES`, :data:`MAX_UNPACKED_BYTES` or :data:`MAX_RATIO`, naming the limit and the numbers.
+    OSError, zipfile.BadZipFile
+        For a file that is not a zip archive.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FmuError(f"{path}: no such FMU" if not path.exists() else f"{path}: an FMU is a regular file")
+    declared = _declared_entries(path)
+    if declared > MAX_ENTRIES:
+        raise _over(path, f"the FMU declares {declared} entries", MAX_ENTRIES, "MAX_ENTRIES")
+    archive = zipfile.ZipFile(path)
+    try:
+        _check_entries(path, archive.infolist())
+    except FmuError:
+        archive.close()
+        raise
+    return archive
+
+
+class _DescriptionCounter:
+    """Counts a model description's elements, ScalarVariables and dependency entries as expat reads it,
+    raising :class:`FmuError` as soon as one passes its limit (nothing is kept: no tree is built)."""
+
+    def __init__(self, path: Path, own: bool):
+        self.path = path
+        self.limit = ("MAX_OWN_VARIABLES", MAX_OWN_VARIABLES) if own else ("MAX_VARIABLES", MAX_VARIABLES)
+        self.elements = self.variables = self.dependencies = 0
+
+    def start(self, tag: str, attributes: dict) -> None:
+        """expat's start-element handler."""
+        self.elements += 1
+        if self.elements > MAX_ELEMENTS:
+            raise _over(self.path, f"modelDescription.xml has {self.elements} elements", MAX_ELEMENTS, "MAX_ELEMENTS")
+        if tag == "ScalarVariable":
+            self.variables += 1
+            if self.variables > self.limit[1]:
+                raise self.too_many(f"modelDescription.xml has {self.variables} ScalarVariables")
+        for key in ("dependencies", "dependenciesKind"):
+            # fmpy splits the list at once: at most one entry per variable (counted as fmpy counts them)
+            entries = attributes[key].strip().count(" ") + 1 if key in attributes else 0
+            if entries > self.limit[1]:
+                raise self.too_many(f"a {key} list of modelDescription.xml has {entries} entries")
+            self.dependencies += entries
+            if self.dependencies > MAX_DEPENDENCIES:
+                raise _over(self.path, f"the dependency lists of modelDescription.xml have at least "
+                            f"{self.dependencies} entries", MAX_DEPENDENCIES, "MAX_DEPENDENCIES")
+
+    def too_many(self, found: str) -> FmuError:
+        """The refusal of a count beyond the variable limit."""
+        return _over(self.path, found, self.limit[1], self.limit[0])
+
+
+def check_description(path, archive: zipfile.ZipFile, own: bool = False) -> None:
+    """Refuse a model description larger than uiofmu needs, before fmpy parses it.
+
+    The ``modelDescription.xml`` of ``archive`` must have at most :data:`MAX_DESCRIPTION_BYTES` bytes,
+    :data:`MAX_ELEMENTS` elements and :data:`MAX_VARIABLES` (``own``: :data:`MAX_OWN_VARIABLES`) ScalarVariables,
+    no dependency list longer than that and at most :data:`MAX_DEPENDENCIES` dependency entries in all (a
+    streaming count with expat, stopped at the first limit passed).
+
+    Parameters
+    ----------
+    path : str or Path
+        The FMU, for the messages.
+    archive : zipfile.ZipFile
+        Its archive (:func:`open_archive`).
+    own : bool
+        An FMU that uiofmu built (``uiofmu validate``): the tighter :data:`MAX_OWN_VARIABLES`.
+
+    Raises
+    ------
+    FmuError
+        Naming the limit and the numbers, or the line where the XML is not well-formed.
+    """
+    try:
+        info = archive.getinfo("modelDescription.xml")
+    except KeyError:
+        return                          # fmpy's message says the file is missing
+    if info.file_size > MAX_DESCRIPTION_BYTES:
+        raise _over(path, f"modelDescription.xml has {info.file_size} bytes", MAX_DESCRIPTION_BYTES,
+                    "MAX_DESCRIPTION_BYTES")
+    counter = _DescriptionCounter(Path(path), own)
+    parser = expat.ParserCreate()
+    parser.StartElementHandler = counter.start
+    try:
+        with archive.open(info) as f:
+            parser.ParseFile(f)
+    except expat.ExpatError as exc:
+        raise FmuError(f"{path}: modelDescription.xml is not well-formed XML ({exc})") from None
+
+
+def check_archive(path, own: bool = False) -> None:
+    """Refuse an FMU larger than uiofmu needs (:func:`open_archive`, :func:`check_description`) before
+    anything of it is extracted or parsed.
+
+    Parameters
+    ----------
+    path : str or Path
+        The FMU.
+    own : bool
+        An FMU that uiofmu built (:func:`check_description`).
+
+    Raises
+    ------
+    FmuError
+        For an FMU beyond a limit, naming it and the numbers, and for a file that is not a zip archive.
+    """
+    try:
+        with open_archive(path) as archive:
+            check_description(path, archive, own)
+    except (OSError, zipfile.BadZipFile, RuntimeError, NotImplementedError) as exc:
+        raise FmuError(f"{path}: not a readable FMU ({_first_line(exc)})") from None
+
+
+def read_description(path):
+    """fmpy's model description of an FMU that passed :func:`check_archive`.
+
+    Parameters
+    ----------
+    path : str or Path
+        The FMU.
+
+    Returns
+    -------
+    fmpy.model_description.ModelDescription
+
+    Raises
+    ------
+    FmuError
+        For an FMU beyond a limit of :func:`check_archive`, or one fmpy cannot read.
+    """
+    from fmpy import read_model_description
+
+    check_archive(path)
+    try:
+        return read_model_description(str(path))
+    except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for broken archives
+        raise FmuError(f"{path}: not a readable FMU ({_first_line(exc)})") from None
+
+
 def read_model_json(path) -> dict:
     """The uiofmu model (``resources/model.json``) packed in an FMU built by uiofmu.
 
     Parameters
     ----------
     path : str or Path
-        A regular file; its ``resources/model.json`` is read only up to
+        A regular file within the limits of :func:`open_archive`; its ``resources/model.json`` is read only up to
         :data:`uiofmu.runtime.files.MAX_INPUT_BYTES` and nested at most :data:`uiofmu.runtime.files.MAX_DEPTH` deep.
 
     Returns
@@ -63,10 +345,8 @@ def read_model_json(path) -> dict:
     dict
     """
     path = Path(path)
-    if not path.is_file():
-        raise FmuError(f"{path}: no such FMU" if not path.exists() else f"{path}: an FMU is a regular file")
     try:
-        with zipfile.ZipFile(path) as z:
+        with open_archive(path) as z:
             info = z.getinfo("resources/model.json")
             if info.file_size > MAX_INPUT_BYTES:
                 raise FmuError(f"{path}: resources/model.json has {info.file_size} bytes, more than {MAX_INPUT_BYTES}")
@@ -156,7 +436,7 @@ class Fmu:
     """
 
     def __init__(self, path, instance_name: str):
-        from fmpy import calloc, extract, free, read_model_description
+        from fmpy import calloc, extract, free
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                                fmi2CallbackFunctions)
         from fmpy.fmi1 import FMICallException
@@ -165,12 +445,7 @@ class Fmu:
         _FMPY_ERROR[0] = FMICallException
 
         self.path = Path(path)
-        if not self.path.is_file():
-            raise FmuError(f"{self.path}: no such FMU")
-        try:
-            self.description = read_model_description(str(self.path))
-        except Exception as exc:  # fmpy raises plain exceptions for broken archives
-            raise FmuError(f"{self.path}: not a readable FMU ({exc})") from None
+        self.description = read_description(self.path)      # checked against the limits before it is extracted
         if self.description.coSimulation is None:
             raise FmuError(f"{self.path}: not a Co-Simulation FMU")
         self.messages: list[str] = []
@@ -192,11 +467,13 @@ class Fmu:
         self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         addLoggerProxy(byref(self._callbacks))
+        cwd = os.getcwd()
         try:
             self.slave = FMU2Slave(guid=self.description.guid, unzipDirectory=self._unzipdir,
                                    modelIdentifier=self.description.coSimulation.modelIdentifier,
                                    instanceName=instance_name)
         except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for a missing binary
+            os.chdir(cwd)             # fmpy enters the binary's folder to load it, and stays there when that fails
             shutil.rmtree(self._unzipdir, ignore_errors=True)
             _INSTANCES.pop(self._key, None)
             raise FmuError(f"{self.path}: its binary for this platform cannot be loaded ({_first_line(exc)})") from None
@@ -270,10 +547,18 @@ class Fmu:
         return self._types.get(f"{name}[1]") == "Integer"
 
     def set(self, name: str, values) -> None:
-        """Set the vector ``name`` (Real, or Integer: values are rounded to the nearest integer)."""
+        """Set the vector ``name`` (Real, or Integer: each value must be an fmi2Integer, see
+        :func:`first_non_integer`; another raises :class:`~uiofmu.runtime.errors.FmuError` naming it)."""
         refs = self.refs(name)
         if refs and self.integer(name):
-            self._call("setInteger", refs, [int(round(float(v))) for v in np.ravel(values)])
+            try:
+                values = np.asarray(values, dtype=float).ravel()
+            except OverflowError:
+                raise FmuError(f"{self.path}: the Integer input {name}: a value too large for a float") from None
+            bad = first_non_integer(values)
+            if bad >= 0:
+                raise FmuError(not_an_integer(f"{self.path}: the Integer input {name}[{bad + 1}]", values[bad]))
+            self._call("setInteger", refs, [int(v) for v in values])
         elif refs:
             self._call("setReal", refs, [float(v) for v in np.ravel(values)])
 

@@ -1,7 +1,9 @@
 """Co-simulation inputs: the problem's ``[signals]`` or a CSV file, held between rows (ZOH).
 
 An input source offers named vectors (``sizes``: ``{"u": m, "d": q, ...}``) and their values at
-a time (``values(t)``); the master routes each to the FMU inputs of the same name. A CSV has a
+a time (``values(t)``), and names element i of a vector as its user wrote it (``key(name, i)``); the master
+routes each to the FMU inputs of the same name. A value for an Integer input (``mode``) must be an
+fmi2Integer: integral, from -2**31 to 2**31 - 1 (:func:`uiofmu.cosim.fmi.first_non_integer`). A CSV has a
 header ``time,u[1],...,d[1],...`` with one column for every element of every input the master
 asks the table for (the plant's inputs and the observer's that no plant output feeds: ``u``,
 ``d``, ``mode``, ``theta``, ...), no other, and one row per change; each row holds from its time
@@ -21,17 +23,22 @@ import numpy as np
 from ..runtime.errors import ProblemError
 from ..runtime.files import read_text
 from ..signals import Signal
+from .fmi import first_non_integer, not_an_integer
 
 
 class SignalInputs:
     """Inputs from signal definitions (sums of terms per channel): the vectors ``u`` and ``d``, and
-    ``mode`` (a switched plant driven by its input; rounded to an integer by the master) and ``theta``
-    (an LPV plant's scheduling input) when given."""
+    ``mode`` (a switched plant driven by its input; each value must be an integer, the master refuses
+    another) and ``theta`` (an LPV plant's scheduling input) when given."""
 
     def __init__(self, u: tuple[Signal, ...], d: tuple[Signal, ...], mode: tuple[Signal, ...] = (),
                  theta: tuple[Signal, ...] = ()):
         self.signals = {"u": u, "d": d, **({"mode": mode} if mode else {}), **({"theta": theta} if theta else {})}
         self.sizes = {name: len(s) for name, s in self.signals.items()}
+
+    def key(self, name: str, i: int) -> str:
+        """The problem file's key of channel ``i`` (from 0) of the vector ``name``: ``signals.mode[0]``."""
+        return f"signals.{name}[{i}]"
 
     def values(self, t: float) -> dict:
         """``{"u": u(t), "d": d(t)}`` (and ``"mode"``)."""
@@ -57,10 +64,14 @@ class CsvInputs:
         the table is one of them, and every one of them has its column.
     owners : dict of str to str, optional
         Which FMU takes each vector (``"plant"``, ``"observer"``), for the messages.
+    integers : collection of str, optional
+        The vectors an FMU takes as Integer (``mode``): their every value must be an fmi2Integer
+        (:func:`~uiofmu.cosim.fmi.first_non_integer`), else the line, column, time and value are named.
     """
 
-    def __init__(self, path, sizes: dict, owners: dict | None = None):
+    def __init__(self, path, sizes: dict, owners: dict | None = None, integers=()):
         path = Path(path)
+        self.path = path
         self.sizes = {k: int(v) for k, v in sizes.items() if v}
         owners = owners or {}
         text = read_text(path, "input table", error=ProblemError)
@@ -88,7 +99,7 @@ class CsvInputs:
         if missing:
             raise ProblemError(f"--inputs {path}: missing column(s) {', '.join(missing[:8])}"
                                f"{' ...' if len(missing) > 8 else ''} (the FMUs take {expected})")
-        data = []
+        data, lines = [], []
         for i, row in enumerate(rows[1:], start=2):
             if not row or all(not c.strip() for c in row):
                 continue
@@ -101,6 +112,7 @@ class CsvInputs:
             if not all(math.isfinite(v) for v in vals):
                 raise ProblemError(f"--inputs {path}: line {i} has a non-finite value")
             data.append(vals)
+            lines.append(i)
         if not data:
             raise ProblemError(f"--inputs {path}: no data rows")
         table = np.array(data)
@@ -110,6 +122,16 @@ class CsvInputs:
         self.tables = {k: np.zeros((len(table), v)) for k, v in self.sizes.items()}
         for (kind, idx), j in cols.items():
             self.tables[kind][:, idx - 1] = table[:, j]
+        for kind in sorted(set(integers) & set(self.tables)):
+            bad = first_non_integer(self.tables[kind])
+            if bad >= 0:
+                row, i = divmod(bad, self.sizes[kind])
+                raise ProblemError(not_an_integer(f"--inputs {path}: line {lines[row]}, column {kind}[{i + 1}] "
+                                                  f"(t = {self.times[row]:g} s)", self.tables[kind][row, i]))
+
+    def key(self, name: str, i: int) -> str:
+        """The column of element ``i`` (from 0) of the vector ``name``: ``--inputs PATH: column mode[1]``."""
+        return f"--inputs {self.path}: column {name}[{i + 1}]"
 
     def _row(self, t: float) -> int:
         return max(int(np.searchsorted(self.times, t + 1e-12 * max(1.0, abs(t)), side="right")) - 1, 0)

@@ -23,10 +23,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..runtime.card import Card, card_from_data
-from ..runtime.errors import FmuError
+from ..runtime.errors import FmuError, ProblemError
 from ..runtime.files import atomic_output, check_output_dir, write_atomic
 from ..families import certified_bound
-from .fmi import Fmu, FmuCallError, read_model_json, vector_sizes
+from .fmi import Fmu, FmuCallError, first_non_integer, not_an_integer, read_description, read_model_json, vector_sizes
 from .inputs import CsvInputs, SignalInputs, values_at
 from .metrics import delayed_metrics, error_metrics, functional_metrics
 from ..progress import progress
@@ -190,6 +190,8 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         T = communication_points(steps)
         plant_inputs = list(plant.ports("input"))
         source = values_at(inputs, T)
+        check_integers(inputs, source, T, [n for n in plant_inputs if plant.integer(n)]
+                       + [n for n in sourced if obs.integer(n)])
         loop = _Loop(plant, obs, plant_inputs, fed, sourced, ["y", "x"], list(obs.ports("output")), source, K)
         cpu2 = time.process_time()
         with progress(total=K, desc="co-simulation", unit="step", enabled=show_progress) as bar:
@@ -287,7 +289,7 @@ class _Loop:
 
     def __init__(self, plant: Fmu, obs: Fmu, plant_inputs: list, fed: list, sourced: list, recorded: list,
                  obs_outputs: list, source: dict, K: int):
-        self.K, self.keep = K, []
+        self.K, self.keep, self.times = K, [], []
         kind = {}
         for fmu, who, names in ((plant, "plant", [*plant_inputs, *fed, *recorded]),
                                 (obs, "obs", [*fed, *sourced, *obs_outputs])):
@@ -330,7 +332,7 @@ class _Loop:
             for what, (fmu, names, buffer, first) in spans.items():
                 calls[what, t] = _call_entry(fmu, f"fmi2{'Set' if 'set' in what else 'Get'}{t}", names, buffer,
                                              first, self.keep)
-        self.conversions = [(self.plant_cols[n], convert_into[n]) for n in converted]
+        self.conversions = [(n, self.plant_cols[n], convert_into[n]) for n in converted]
         if converted:     # called with the point's index as its "address" (base 0, stride 1)
             calls["convert", "Real"] = (self._convert, None, None, None, 0, 1, [], "")
         order = ["plant set", "plant get", "convert", "observer set", "observer get"]
@@ -340,17 +342,20 @@ class _Loop:
         self.calls_per_step = sum(1 for c in self.calls if c[1] is not None) + len(self.steps)
 
     def _convert(self, component, refs, count, k) -> int:
-        """Copy the differently typed fed vectors of point ``k`` into the observer's columns."""
-        for (ts, a, width), (td, b, _) in self.conversions:
+        """Copy the differently typed fed vectors of point ``k`` into the observer's columns (a plant's
+        Real output that is not an fmi2Integer raises :class:`FmuError` naming it)."""
+        for name, (ts, a, width), (td, b, _) in self.conversions:
             src, dst = self.buffers[ts][0][k], self.buffers[td][0][k]
-            for i in range(width):
-                v = float(src[a + i])
-                dst[b + i] = int(round(v)) if td == "Integer" else v
+            bad = first_non_integer(src[a:a + width]) if td == "Integer" else -1
+            if bad >= 0:
+                raise FmuError(not_an_integer(f"the plant's output {name}[{bad + 1}], an Integer input of the "
+                                              f"observer, at t = {self.times[k]:g} s", src[a + bad]))
+            dst[b:b + width] = src[a:a + width]
         return 0
 
     def run(self, times: list, steps: list, bar) -> None:
         """Every communication point, :data:`CHUNK` steps between progress updates."""
-        K = self.K
+        K, self.times = self.K, times
         run = _chunk4 if len(self.calls) == 4 and all(c[1] is not None for c in self.calls) else _chunk
         for k0 in range(0, K + 1, CHUNK):
             count = min(CHUNK, K + 1 - k0)
@@ -370,10 +375,37 @@ class _Loop:
         return self.buffers[t][1][:, a:a + width].astype(float)
 
 
+def check_integers(inputs, source: dict, times: np.ndarray, names) -> None:
+    """Refuse a source value for an Integer input that is not an fmi2Integer (:func:`~.fmi.first_non_integer`).
+
+    Parameters
+    ----------
+    inputs : object
+        The input source; its ``key(name, i)``, when it has one, names the element in messages.
+    source : dict of str to numpy.ndarray
+        Its values at every communication point (:func:`~uiofmu.cosim.inputs.values_at`).
+    times : numpy.ndarray
+        The communication points.
+    names : list of str
+        The vectors an FMU takes as Integer.
+
+    Raises
+    ------
+    ProblemError
+        Naming the input, the time and the value.
+    """
+    for name in names:
+        values = np.asarray(source[name], dtype=float).reshape(len(times), -1)
+        bad = first_non_integer(values)
+        if bad >= 0:
+            k, i = divmod(bad, values.shape[1])
+            where = inputs.key(name, i) if hasattr(inputs, "key") else f"the input {name}[{i + 1}]"
+            raise ProblemError(not_an_integer(f"{where} at t = {times[k]:g} s", values[k, i]))
+
+
 def _integers(values: np.ndarray) -> np.ndarray:
-    """Source values as fmi2Integer, rounded as :meth:`Fmu.set` rounds them (``int(round(v))``)."""
-    ints = [int(round(float(v))) for v in np.ravel(values)]
-    return np.array(ints, dtype=np.int64).astype(np.intc).reshape(np.shape(values))
+    """Source values as fmi2Integer (exactly: :func:`check_integers` passed them)."""
+    return np.asarray(values, dtype=float).astype(np.intc)
 
 
 def _call_entry(fmu: Fmu, function: str, names: list, buffer: np.ndarray, first: int, keep: list):
@@ -550,23 +582,24 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, rep
 
 def load_inputs(csv_path, plant_path, observer_path=None):
     """Inputs from a CSV with a column for every input the FMUs take that no plant output feeds
-    (the plant's ``u[i]``, ``d[i]``, ..., and the observer's others), and no other column."""
-    from fmpy import read_model_description
+    (the plant's ``u[i]``, ``d[i]``, ..., and the observer's others), and no other column; the FMUs'
+    Integer inputs (``mode``) take fmi2Integer values only."""
 
-    def inputs_and_outputs(path):
-        try:
-            variables = read_model_description(str(path)).modelVariables
-        except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for broken archives
-            raise FmuError(f"{path}: not a readable FMU ({exc})") from None
-        return vector_sizes(variables, "input"), vector_sizes(variables, "output")
+    def ports(path):
+        variables = read_description(path).modelVariables
+        integers = {v.name[:v.name.index("[")] for v in variables
+                    if v.causality == "input" and v.type == "Integer" and "[" in v.name}
+        return vector_sizes(variables, "input"), vector_sizes(variables, "output"), integers
 
-    sizes, outputs = inputs_and_outputs(plant_path)
+    sizes, outputs, integers = ports(plant_path)
     owners = dict.fromkeys(sizes, "plant")
     if observer_path is not None:
-        for name, size in inputs_and_outputs(observer_path)[0].items():
+        observer_inputs, _, observer_integers = ports(observer_path)
+        for name, size in observer_inputs.items():
             if name not in outputs and name not in sizes:
                 sizes[name], owners[name] = size, "observer"
-    return CsvInputs(csv_path, sizes, owners)
+        integers |= observer_integers
+    return CsvInputs(csv_path, sizes, owners, integers)
 
 
 __all__ = ["CosimResult", "cosimulate", "default_inputs", "default_steps", "default_t_end", "load_inputs",

@@ -7,6 +7,9 @@
                         in a row, so h = H (1 + successive losses) (``--seed``)
 ``file:PATH``           one step per line (blank lines and ``#`` comments skipped)
 
+A message about a step file names the path and the line, never the line's text: the path may name a
+file that is no step file (``file:../../etc/passwd``), and what it holds is not shown.
+
 The sequence is drawn once, independently of the run, so a seed gives the same steps for
 every observer that is compared on it.
 """
@@ -25,13 +28,26 @@ from ..runtime.files import read_text
 MAX_STEPS = 10_000_000
 
 
-def _positive(text: str, what: str) -> float:
+def _positive(text: str, what: str, quote: bool = True) -> float:
+    """``text`` as a finite step > 0; a message names ``what`` and (``quote``) shows the text.
+
+    Parameters
+    ----------
+    text : str
+        A part of the SPEC, or a line of a step file.
+    what : str
+        What it is, for messages (``"HMIN"``, ``"line 3 of steps.txt"``).
+    quote : bool
+        Show the text in a message: a part of the SPEC the user typed, not a line of a file (whose
+        content is never shown).
+    """
+    found = f", found {text!r}" if quote else ""
     try:
         value = float(text)
     except ValueError:
-        raise ProblemError(f"--steps: {what} must be a number, found {text!r}") from None
+        raise ProblemError(f"--steps: {what} must be a number{found}") from None
     if not (math.isfinite(value) and value > 0):
-        raise ProblemError(f"--steps: {what} must be > 0, found {text!r}")
+        raise ProblemError(f"--steps: {what} must be > 0{found}")
     return value
 
 
@@ -71,7 +87,8 @@ def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
         lines = read_text(Path(rest), "step file", error=ProblemError).splitlines()
         if len(lines) > MAX_STEPS:
             raise ProblemError(f"--steps file:{rest}: {len(lines)} lines, more than {MAX_STEPS} steps")
-        steps = [_positive(line.split("#")[0].strip(), f"line {i + 1} of {rest}")
+        steps = [_positive(line.split("#")[0].strip(), f"line {i + 1} of {rest} (one step in seconds a line, "
+                           "# comments and blank lines aside)", quote=False)
                  for i, line in enumerate(lines) if line.split("#")[0].strip()]
         if not steps:
             raise ProblemError(f"--steps file:{rest}: no steps in the file")

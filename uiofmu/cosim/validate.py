@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..runtime.card import card_from_data
-from ..runtime.errors import FmuError
-from .fmi import Fmu, FmuCallError, read_model_json
+from ..runtime.errors import CardError, FmuError
+from .fmi import Fmu, FmuCallError, check_archive, read_model_json
 from ..plant import Plant
 from ..runtime.observer import Runtime
 
@@ -174,7 +174,13 @@ def _delayed_observer(fmu: Fmu, card, report: Validation, steps: int, rng) -> No
 
 
 def _observer(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
+    from ..synthesis import recheck
+
     card = card_from_data(spec["card"])
+    try:
+        recheck(card)                       # an FMU from someone else: does its card prove what it claims?
+    except CardError as exc:
+        report.problems.append(f"its design card does not re-check: {exc}")
     if card.kernel == "window":
         return _window_observer(fmu, card, report, steps, rng)
     if card.kernel == "delayed":
@@ -415,6 +421,7 @@ def validate(path, steps: int = 200, seed: int = 0) -> Validation:
         raise FmuError(f"{path}: resources/model.json is not a uiofmu model (kind {repr(kind)[:40]}; expected one of "
                        f"{', '.join(kinds)} with its {'/'.join(k for k, _ in kinds.values())} entry)")
     report = Validation(str(path), kind)
+    check_archive(path, own=True)            # fmpy parses every name with a grammar: bounded first
     report.problems = list(validate_fmu(str(path)))
     if report.problems:
         return report

@@ -13,6 +13,11 @@ A family module (named in :data:`uiofmu.runtime.registry.FAMILIES`) provides:
 ``design(problem, analysis) -> DesignResult``
     Solve and certify (``analysis.existence`` holds); :func:`uiofmu.synthesis.design` times
     it, fills in the defaults and assembles the card.
+``determined(problem, card_data) -> dict``
+    What the card's problem (and its certified variables, e.g. a gain) determine of the card:
+    dotted card paths to values (the plant's matrices the FMU runs, the schedule, the figures
+    derived from the certificate), compared with the card by
+    :func:`uiofmu.consistency.consistency_checks` before :func:`verify` runs.
 ``verify(card) -> list of Check``
     The certificate's checks at a card's stored matrices, without any solver.
 ``certified_bound(card, e0, d)`` (optional)

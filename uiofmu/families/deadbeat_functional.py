@@ -28,6 +28,13 @@ The runtime (:mod:`uiofmu.runtime.window`) evaluates that finite window at every
 recursion (3) (``P`` may be unstable: ``P_1`` of the paper's example has the eigenvalue -1). The
 certificate is the identity itself, re-checked on simulations of the plant's own matrices with
 random states, unknown inputs and theta sequences (:func:`checks`).
+
+The exact arithmetic grows combinatorially: over a window of ``L`` steps the matrices are polynomials
+in ``s L`` variables (``s`` scheduling components), with up to ``C(s L + d, d)`` monomials of degree at
+most ``d`` (a product of ``L`` affine factors alone has up to ``(s + 1)^L``). The analysis and the design
+each run inside one :func:`uiofmu.polynomials.work_limit`: a plant that would pass it is refused (a
+:class:`~uiofmu.runtime.errors.ProblemError` naming the states, the components, the window and the
+monomials) before the memory or the time it would take are spent.
 """
 
 from __future__ import annotations
@@ -39,7 +46,7 @@ import numpy as np
 from ..certificate import Check
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lpv_plant import LpvPlant
-from ..polynomials import PolyMatrix, hstack, shifted, stack
+from ..polynomials import PolyMatrix, TooLarge, hstack, shifted, stack, work_limit
 from ..runtime.card import MAX_POWER
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..runtime.matrices import as_matrix
@@ -50,6 +57,8 @@ from . import Analysis, DesignResult
 NAME = "deadbeat-functional"
 #: The family designs for LPV plants (``[[plant.scheduling]]``).
 LPV = True
+#: Most matrices (P_i, Phat_i) a condition's text lists one by one; its values hold them all.
+MAX_LISTED = 8
 
 
 @dataclass(frozen=True)
@@ -98,24 +107,94 @@ def window_matrix(plant: LpvPlant, name: str, lag: int) -> PolyMatrix:
     return PolyMatrix.affine(getattr(plant, name), {(lag, i): part[name] for i, part in enumerate(plant.parts)})
 
 
+class Windows:
+    """``O(theta_{k:k+r})``, ``M(theta_{k:k+r})`` and ``M(theta_{k+1:k+r})`` for r = 0, 1, ..., each from
+    those of ``r - 1``: the plant's matrices do not depend on k, so ``O(theta_{k+1:k+r})`` is
+    ``O(theta_{k:k+r-1})`` with every lag moved by one (:func:`~uiofmu.polynomials.shifted`), and
+
+    ``O(theta_{k:k+r}) = [C(theta_k); O(theta_{k+1:k+r}) A(theta_k)]``,
+    ``M(theta_{k:k+r}) = [[D(theta_k), 0], [O(theta_{k+1:k+r}) E(theta_k), M(theta_{k+1:k+r})]]``
+
+    (the recursion of the paper, lower-left block corrected): two products a step, no recursion.
+
+    Parameters
+    ----------
+    plant : LpvPlant
+
+    Attributes
+    ----------
+    r : int
+        The delay reached (-1 before :meth:`advance`).
+    O, M, M_next : PolyMatrix
+        ``O(theta_{k:k+r})``, ``M(theta_{k:k+r})``, ``M(theta_{k+1:k+r})`` (None for r = 0).
+    """
+
+    def __init__(self, plant: LpvPlant):
+        self.plant = plant
+        self.r = -1
+        self.O = self.M = self.M_next = None
+
+    def advance(self) -> "Windows":
+        """From delay ``r`` to ``r + 1``."""
+        plant = self.plant
+        C, D = window_matrix(plant, "C", 0), window_matrix(plant, "D", 0)
+        if self.r < 0:
+            self.O, self.M = C, D
+        else:
+            O_next, self.M_next = shifted(self.O, 1), shifted(self.M, 1)
+            top = hstack([D, PolyMatrix.constant(np.zeros((plant.p, self.M_next.shape[1])))])
+            self.M = stack([top, hstack([O_next @ window_matrix(plant, "E", 0), self.M_next])])
+            self.O = stack([C, O_next @ window_matrix(plant, "A", 0)])
+        self.r += 1
+        return self
+
+    def at(self, r: int) -> "Windows":
+        """Advanced to delay ``r`` (from where it is, ``r`` not below it)."""
+        while self.r < r:
+            self.advance()
+        return self
+
+
 def observability(plant: LpvPlant, first: int, last: int) -> PolyMatrix:
-    """``O(theta_{first:last})``: ``C(theta_first)``, ``C(theta_{first+1}) A(theta_first)``, ..."""
-    blocks, prod = [], PolyMatrix.constant(np.eye(plant.n))
-    for lag in range(first, last + 1):
-        blocks.append(window_matrix(plant, "C", lag) @ prod)
-        prod = window_matrix(plant, "A", lag) @ prod
-    return stack(blocks)
+    """``O(theta_{first:last})``: ``C(theta_first)``, ``C(theta_{first+1}) A(theta_first)``, ... (:class:`Windows`)."""
+    return shifted(Windows(plant).at(last - first).O, first)
 
 
 def toeplitz(plant: LpvPlant, first: int, last: int) -> PolyMatrix:
-    """``M(theta_{first:last})`` (the recursion of the paper, lower-left block corrected)."""
-    D = window_matrix(plant, "D", first)
-    if last == first:
-        return D
-    rest = toeplitz(plant, first + 1, last)
-    top = hstack([D, PolyMatrix.constant(np.zeros((plant.p, rest.shape[1])))])
-    bottom = hstack([observability(plant, first + 1, last) @ window_matrix(plant, "E", first), rest])
-    return stack([top, bottom])
+    """``M(theta_{first:last})`` (:class:`Windows`)."""
+    return shifted(Windows(plant).at(last - first).M, first)
+
+
+def too_large(plant: LpvPlant, exc: TooLarge, stage: str, window: int) -> ProblemError:
+    """The refusal of a plant whose exact arithmetic passes the limits of :mod:`uiofmu.polynomials`.
+
+    Parameters
+    ----------
+    plant : LpvPlant
+    exc : TooLarge
+        What passed which limit, with its numbers.
+    stage : str
+        What was being computed (``"the inverse system of delay r = 5"``).
+    window : int
+        The steps of theta it spans.
+
+    Returns
+    -------
+    ProblemError
+    """
+    s, L = plant.s, window
+    return ProblemError(
+        f"plant.scheduling: {stage} is too large to compute exactly (n = {plant.n} states, s = {s} scheduling "
+        f"component(s), a window of L = {L} steps: its matrices are polynomials in s L = {s * L} variables, with "
+        f"up to C(s L + d, d) monomials of degree d): {exc}; fewer scheduling components (or parts that are "
+        "zero), a smaller plant or a smaller observer.max_delay would help")
+
+
+def _finite(M, what: str) -> None:
+    if not np.all(np.isfinite(M)):
+        raise ProblemError(f"{what} overflows (the plant's matrices multiplied over the window exceed the double "
+                           f"range; largest finite entry {float(np.abs(M[np.isfinite(M)]).max(initial=0.0)):.3g}): "
+                           "rescale the plant (states, outputs or unknown input)")
 
 
 def _constant(P: PolyMatrix, what: str) -> np.ndarray:
@@ -137,20 +216,41 @@ class Inverse:
 
 
 def inverse_system(plant: LpvPlant, max_delay: int) -> tuple[Inverse | None, list]:
-    """The smallest delay r with rank condition (2) and the matrices (4); the ranks tried."""
+    """The smallest delay r with rank condition (2) and the matrices (4); the ranks tried.
+
+    Raises
+    ------
+    ProblemError
+        When ``M`` depends on theta, overflows, or the polynomials of a delay pass the limits of
+        :mod:`uiofmu.polynomials` (:func:`too_large`).
+    """
     target = rank(np.vstack([plant.E, plant.D]))
-    tried = []
+    tried, windows = [], Windows(plant)
     for r in range(max_delay + 1):
-        M = _constant(toeplitz(plant, 0, r), f"M(theta_k:k+{r})")
-        M1 = _constant(toeplitz(plant, 1, r), f"M(theta_k+1:k+{r})") if r else np.zeros((0, 0))
-        got = rank(M) - (rank(M1) if r else 0)
-        tried.append({"r": r, "rank_M": rank(M), "rank_M_next": rank(M1) if r else 0, "rank_ED": target})
+        try:
+            windows.advance()
+            M = _constant(windows.M, f"M(theta_k:k+{r})")
+            M1 = _constant(windows.M_next, f"M(theta_k+1:k+{r})") if r else np.zeros((0, 0))
+            _finite(M, f"M(theta_k:k+{r})")
+            got = rank(M) - (rank(M1) if r else 0)
+            tried.append({"r": r, "rank_M": rank(M), "rank_M_next": rank(M1) if r else 0, "rank_ED": target})
+            if got == target:
+                Ibar = np.hstack([np.eye(plant.q), np.zeros((plant.q, plant.q * r))])
+                Q = window_matrix(plant, "E", 0) @ (Ibar @ np.linalg.pinv(M, rcond=RANK_RTOL))
+                P = window_matrix(plant, "A", 0) - Q @ windows.O
+        except TooLarge as exc:
+            raise too_large(plant, exc, f"the inverse system of delay r = {r}", r + 1) from None
         if got == target:
-            Ibar = np.hstack([np.eye(plant.q), np.zeros((plant.q, plant.q * r))])
-            Q = window_matrix(plant, "E", 0) @ (Ibar @ np.linalg.pinv(M, rcond=RANK_RTOL))
-            P = (window_matrix(plant, "A", 0) - Q @ observability(plant, 0, r)).pruned(1e-15)
-            return Inverse(r, P, Q.pruned(1e-15), tried), tried
+            for name, X in (("P", P), ("Q", Q)):
+                for c in X.coeffs.values():
+                    _finite(c, f"the inverse system's {name} (delay r = {r})")
+            return Inverse(r, _nonempty(P.pruned(1e-15)), _nonempty(Q.pruned(1e-15)), tried), tried
     return None, tried
+
+
+def _nonempty(P: PolyMatrix) -> PolyMatrix:
+    """``P``, with an explicit zero constant term when every coefficient is zero."""
+    return P if P.coeffs else PolyMatrix.constant(np.zeros(P.shape))
 
 
 # -- subspaces --------------------------------------------------------------------------------
@@ -158,7 +258,9 @@ def null_space(M: np.ndarray) -> np.ndarray:
     """An orthonormal basis of ``ker M`` (columns), rank by :data:`RANK_RTOL`."""
     if M.shape[0] == 0:
         return np.eye(M.shape[1])
-    u, s, vt = np.linalg.svd(M)
+    # a tall M (the stacked matrices of Algorithm 1) needs no left singular vectors: without them the
+    # SVD holds (cols, cols) numbers, not (rows, rows)
+    _, s, vt = np.linalg.svd(M, full_matrices=M.shape[0] < M.shape[1])
     k = int(np.sum(s > RANK_RTOL * max(1.0, float(s[0]) if s.size else 0.0)))
     return vt[k:].T
 
@@ -219,10 +321,17 @@ def _monomial_text(m: tuple) -> str:
     return "1" if not m else "·".join(f"θ_k+{lag}[{i + 1}]" + (f"^{p}" if p > 1 else "") for (lag, i), p in m)
 
 
+def _listed(items: list, show, sep: str = "; ") -> str:
+    """``show(i, item)`` of at most :data:`MAX_LISTED` items joined by ``sep`` (then how many in all)."""
+    shown = sep.join(show(i, x) for i, x in enumerate(items[:MAX_LISTED]))
+    return shown if len(items) <= MAX_LISTED else f"{shown}{sep}... ({len(items)} in all)"
+
+
 def _analysis(problem):
     plant, opts = problem.plant, problem.options
     conds = []
-    inv, tried = inverse_system(plant, opts.max_delay)
+    with work_limit():
+        inv, tried = inverse_system(plant, opts.max_delay)
     ranks = "; ".join(f"r = {t['r']}: {t['rank_M']} - {t['rank_M_next']}" for t in tried)
     if inv is None:
         conds.append(Condition("inherent delay", False, True,
@@ -236,9 +345,9 @@ def _analysis(problem):
     monomials = sorted(inv.P.coeffs, key=lambda m: (len(m), m))
     Pi = [inv.P.coeffs[m] for m in monomials]
     conds.append(Condition("P decomposition (8)", True, False,
-                           "P(theta) = " + " + ".join(f"{_monomial_text(m)}·P_{i + 1}" for i, m in enumerate(monomials))
-                           + "; eigenvalues of " + "; ".join(f"P_{i + 1}: {format_complex(np.linalg.eigvals(P))}"
-                                                            for i, P in enumerate(Pi)),
+                           "P(theta) = " + _listed(monomials, lambda i, m: f"{_monomial_text(m)}·P_{i + 1}", " + ")
+                           + "; eigenvalues of "
+                           + _listed(Pi, lambda i, P: f"P_{i + 1}: {format_complex(np.linalg.eigvals(P))}"),
                            {"monomials": [[[lag, i, p] for (lag, i), p in m] for m in monomials],
                             "P": [P.tolist() for P in Pi]}))
     G = opts.G
@@ -255,10 +364,9 @@ def _analysis(problem):
     if kernel_short:
         conds.append(Condition("Proposition 6", True, False, "G P_i = 0 for every i: K = 0", {"K": 0}))
     if t is None:
-        eig = [format_complex(np.linalg.eigvals(P)) for P in Phat]
         conds.append(Condition("nilpotent semigroup", False, True,
-                               "the matrices Phat_i (13) do not generate a nilpotent semigroup "
-                               + "(eigenvalues " + "; ".join(f"Phat_{i + 1}: {e}" for i, e in enumerate(eig))
+                               "the matrices Phat_i (13) do not generate a nilpotent semigroup (eigenvalues "
+                               + _listed(Phat, lambda i, P: f"Phat_{i + 1}: {format_complex(np.linalg.eigvals(P))}")
                                + "): no finite window gives G x whatever the unknown input",
                                {"Phat_eigenvalues": [complex_list(np.linalg.eigvals(P)) for P in Phat]}))
         return Existence(NAME, tuple(conds)), None
@@ -276,6 +384,11 @@ def analyse(problem) -> Analysis:
 
 
 # -- the formula ------------------------------------------------------------------------------
+def window_length(r: int, K: int) -> int:
+    """The outputs the formula reads: ``K + max(r, 1) + 1``."""
+    return K + max(r, 1) + 1
+
+
 def formula(G: np.ndarray, inv: Inverse, K: int, p: int) -> tuple[PolyMatrix, int, int]:
     """``G x_k`` as coefficients on the output window, polynomial in the window's theta values.
 
@@ -290,7 +403,7 @@ def formula(G: np.ndarray, inv: Inverse, K: int, p: int) -> tuple[PolyMatrix, in
         ``max(r - 1, 0)``: ``G x`` of the point that many steps before the newest output.
     """
     r = inv.r
-    L, delay = K + max(r, 1) + 1, max(r - 1, 0)
+    L, delay = window_length(r, K), max(r - 1, 0)
     newest = delay                       # lags relative to k (G x_k): the newest output is y_{k+delay}
     oldest = newest - L + 1
     d = G.shape[0]
@@ -374,20 +487,47 @@ def verify(card) -> list:
     return checks(card.data["matrices"], card.data["schedule"], seed=1)
 
 
+def _parts(plant) -> dict:
+    """The plant's matrices as the re-check simulates them: ``X_parts[0]`` the constant part, then
+    one per scheduling component."""
+    return {f"{k}_parts": np.array([getattr(plant, k)] + [part[k] for part in plant.parts]) for k in "AECD"}
+
+
+def _schedule(plant, length: int, delay: int, uses_theta: bool) -> dict:
+    return {"kind": "window", "dt": plant.dt, "length": length, "delay": delay, "theta": plant.s,
+            "uses_theta": uses_theta, "step_policy": "error"}
+
+
+def determined(problem, card_data) -> dict:
+    """What the card's problem and its formula determine: the plant's parts (the matrices the
+    re-check simulates), ``C``, ``G``, the schedule (its window and delay are the formula's), the
+    window and delay the card reports, and the formula's text."""
+    plant = problem.plant
+    mats = card_data["matrices"]
+    F, exps = np.asarray(mats["F"], dtype=float), np.asarray(mats["Fexp"], dtype=float)
+    length, delay = card_data["schedule"]["length"], card_data["schedule"]["delay"]
+    return {"dt": plant.dt, "schedule": _schedule(plant, length, delay, bool(exps.any())), "window": length,
+            "delay": delay, "formula": describe(F, exps, plant.p, int(length), int(delay)),
+            "decay_bound": None, "overshoot_bound": None, "matrices.C": plant.C, "matrices.G": problem.options.G,
+            **{f"matrices.{k}": v for k, v in _parts(plant).items()}}
+
+
 def design(problem, analysis: Analysis) -> DesignResult:
     """The window formula (Proposition 4), its arrays and its certificate."""
     plant, opts = problem.plant, problem.options
     inv, K = analysis.data["inverse"], analysis.data["K"]
-    F, L, delay = formula(opts.G, inv, K, plant.p)
+    try:
+        with work_limit():
+            F, L, delay = formula(opts.G, inv, K, plant.p)
+    except TooLarge as exc:
+        raise too_large(plant, exc, f"the window formula (Proposition 4, r = {inv.r}, K = {K})",
+                        window_length(inv.r, K)) from None
     Fm, exps = to_arrays(F, L, plant.s)
     if exps.max(initial=0) > MAX_POWER:
         raise InfeasibleError(f"{NAME}: the formula has theta powers up to {int(exps.max())} "
                               f"(at most {MAX_POWER} supported)")
-    parts = {name: np.array([getattr(plant, name)] + [part[name] for part in plant.parts]) for name in "AECD"}
-    matrices = {"F": Fm, "Fexp": exps, "G": opts.G, "P": np.array(analysis.data["P"]),
-                **{f"{k}_parts": v for k, v in parts.items()}, "C": plant.C}
-    schedule = {"kind": "window", "dt": plant.dt, "length": L, "delay": delay, "theta": plant.s,
-                "uses_theta": bool(exps.any()), "step_policy": "error"}
+    matrices = {"F": Fm, "Fexp": exps, "G": opts.G, **_parts(plant), "C": plant.C}
+    schedule = _schedule(plant, L, delay, bool(exps.any()))
     results_checks = checks(matrices, schedule)
     failed = [c for c in results_checks if not c.holds]
     if failed:

@@ -26,6 +26,8 @@ certificate, in the notation of :mod:`uiofmu.runtime.delayed` (the kernel this f
 
 from __future__ import annotations
 
+import functools
+import json
 import math
 import time
 from dataclasses import dataclass
@@ -33,11 +35,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import Check, certificate, definite_check, positive_check
+from ..consistency import consistency_checks
 from ..existence import Condition, Existence
 from ..lmi import Lmi, LmiSystem
 from ..progress import progress
 from ..parametric_plant import ParametricPlant
-from ..runtime.delayed import augmented, decoupling, gamma, hermite, stacked
+from ..plant import period
+from ..runtime.delayed import MAX_SUBSTEPS, augmented, decoupling, gamma, hermite, stacked
+from ..runtime.stepping import substeps
+from ..runtime.schedules import StepRejected
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..runtime.matrices import as_vector
 from ..runtime.parametric_plant import ParametricPlantRuntime
@@ -97,6 +103,43 @@ class Options:
     step: float
 
 
+#: Most premise points (``count x samples``): each costs a Hermite evaluation and a rank-revealing
+#: decomposition (about 1.5 ms), so this is about 30 s of grid; the example uses 1,800.
+MAX_PREMISE_POINTS = 20_000
+#: Most RK4 substeps of the premise family's simulation (all trajectories at once, about 20 us
+#: each: 20 s), and most bytes of its stored signals (three arrays of steps x count x outputs).
+MAX_PREMISE_SUBSTEPS, MAX_PREMISE_BYTES = 1_000_000, 512 * 2 ** 20
+
+
+def simulation_steps(plant: ParametricPlant, duration: float, shortest: float) -> tuple:
+    """The premise simulation's step ``delta`` (the input held over it), its steps and RK4 substeps per step."""
+    rt = ParametricPlantRuntime(plant.to_data())
+    delta = min(rt.substep * 4, shortest / 20, duration / 2000)
+    return delta, int(math.ceil(duration / delta)), max(1, int(math.ceil(delta / rt.substep)))
+
+
+def _premise_cost(plant: ParametricPlant, delays: np.ndarray, premise: "Premise", key: str) -> None:
+    """Refuse a premise family whose grid or simulation exceeds the limits above, before any work."""
+    points = premise.count * premise.samples
+    if points > MAX_PREMISE_POINTS:
+        raise ProblemError(f"{key}: count x samples = {premise.count} x {premise.samples} = {points} premise points, "
+                           f"more than the {MAX_PREMISE_POINTS} a design evaluates (about 1.5 ms each): lower "
+                           "premise.count or premise.samples")
+    total = premise.duration / min(premise.duration / 2000, float(delays.min()) / 20)   # before any allocation
+    if total > MAX_PREMISE_SUBSTEPS:
+        raise ProblemError(f"{key}: premise.duration = {premise.duration:g} s with the shortest delay "
+                           f"{float(delays.min()):g} s needs {total:.3g} simulation steps (the step is at most a "
+                           f"twentieth of the shortest delay), more than {MAX_PREMISE_SUBSTEPS}: shorten the "
+                           "premise or lengthen the delays")
+    _, steps, sub = simulation_steps(plant, premise.duration, float(delays.min()))
+    size = 3 * 8 * (steps + 1) * premise.count * plant.p
+    if steps * sub > MAX_PREMISE_SUBSTEPS or size > MAX_PREMISE_BYTES:
+        raise ProblemError(f"{key}: simulating the premise family takes {steps} steps x {sub} RK4 substeps "
+                           f"({size / 2 ** 20:.0f} MiB of signals); at most {MAX_PREMISE_SUBSTEPS} substeps and "
+                           f"{MAX_PREMISE_BYTES // 2 ** 20} MiB: shorten premise.duration, lower premise.count, or "
+                           "slow the plant (its fastest mode sets the substep)")
+
+
 def parse_options(table, plant) -> Options:
     """Read ``[observer]``: ``delays``, ``decay``, ``premise``, ``gain_cap``, ``xhat0``, ``dt``."""
     from ..problem import Table
@@ -127,9 +170,10 @@ def parse_options(table, plant) -> Options:
     pt.done()
     premise = Premise(signals, ints["count"], ints["samples"], ints["seed"], duration, tuple(scale.tolist()),
                       shift, theta, floor)
+    _premise_cost(plant, delays, premise, pt.name)
     gain_cap = table.scalar("gain_cap", 1e4, low=0.0, open_low=True)
     xhat0 = table.vector("xhat0", plant.n, None)
-    step = table.scalar("dt", 1e-3, low=0.0, open_low=True)
+    step = period(table.get("dt", 1e-3), table.key("dt"))
     return Options(tuple(delays.tolist()), decay, premise, gain_cap, xhat0, step)
 
 
@@ -186,9 +230,7 @@ def simulate_family(plant: ParametricPlant, signals, theta: np.ndarray, draws, d
     """The plant from ``x0`` for every ``(scale, shift)`` of ``draws`` at once (RK4, the input held over
     each step of ``delta``, as the plant FMU holds it): times, outputs, their derivatives with the new
     input (right limits) and with the previous one (left limits), shapes (K+1,) and (K+1, runs, p)."""
-    rt = ParametricPlantRuntime(plant.to_data())
-    delta = min(rt.substep * 4, shortest / 20, duration / 2000)
-    steps = int(math.ceil(duration / delta))
+    delta, steps, sub = simulation_steps(plant, duration, shortest)
     runs = len(draws)
     scale = np.array([s for s, _ in draws])[:, None]
     shift = np.array([h for _, h in draws])
@@ -202,7 +244,6 @@ def simulate_family(plant: ParametricPlant, signals, theta: np.ndarray, draws, d
     x = np.tile(plant.x0, (runs, 1))
     T = np.arange(steps + 1) * delta
     Ys, Yd, Yl = (np.zeros((steps + 1, runs, plant.p)) for _ in range(3))
-    sub = max(1, int(math.ceil(delta / rt.substep)))
     dt = delta / sub
     u = None
     for k in range(steps + 1):
@@ -356,15 +397,60 @@ def checks(matrices: dict, gammas: np.ndarray, beta: float) -> list:
             Check("decay rate beta > 0", beta, float(np.finfo(float).tiny), at_most=False)]
 
 
-def verify(card) -> list:
-    """Re-check the card: the premise grid rebuilt from the card's problem (deterministic), the LMI at
-    the stored Q and K on every point."""
+def determined(problem, card_data) -> dict:
+    """What the card's problem determines: the plant's matrices the FMU integrates (``Abar``,
+    ``Bbar``, ``Cbar``, ``D0``, ``Dy``), the augmented ``Ca`` (8), the delays, the step, and the
+    schedule's keys other than the substep and the rank-margin bound (:func:`verify` derives those
+    from the premise grid)."""
+    plant, opts = problem.plant, problem.options
+    schedule = card_data["schedule"]
+    return {"schedule": {"kind": "continuous", "delays": list(opts.delays), "step": opts.step, "step_policy": "error",
+                         "max_substep": schedule.get("max_substep"), "sigma_bound": schedule.get("sigma_bound")},
+            **{f"premise.{k}": v for k, v in opts.premise.to_data().items()},
+            "delays": list(opts.delays), "m": len(opts.delays), "dims.nz": plant.n * (len(opts.delays) + 1),
+            "matrices.Abar": plant.A, "matrices.Bbar": plant.B, "matrices.Cbar": plant.C, "matrices.D0": plant.D0,
+            "matrices.Dy": plant.Dy, "matrices.Ca": augmented(plant.C, len(opts.delays) + 1)}
+
+
+def substep(gamma_max: float, K: np.ndarray, Ca: np.ndarray) -> float:
+    """The FMU's largest RK4 substep: ``h ||Gamma - K Ca|| <= 1`` (inside RK4's stability region),
+    with ``||Gamma|| <= gamma_max`` on the premise grid."""
+    return 1.0 / max(gamma_max + float(np.linalg.norm(K, 2) * np.linalg.norm(Ca, 2)), 1e-9)
+
+
+def derived(grid: Grid, K: np.ndarray, Ca: np.ndarray, Q: np.ndarray) -> dict:
+    """The card's figures the premise grid (the points the design uses) and the certified ``Q``, ``K``
+    determine: the substep, the run-time rank-margin bound, the premise's extremes, ``||K||`` and the
+    overshoot ``sqrt(eig_max(Q) / eig_min(Q))``."""
+    gmax = float(max(np.linalg.norm(G, 2) for G in grid.gammas))
+    eig = np.linalg.eigvalsh(0.5 * (Q + Q.T))
+    return {"schedule.max_substep": substep(gmax, K, Ca), "schedule.sigma_bound": float(grid.sigmas.min()),
+            "premise.sigma_min": float(grid.sigmas.min()), "premise.gamma_max": gmax,
+            "premise.points": int(len(grid.gammas)), "gain_norm": float(np.linalg.norm(K, 2)),
+            "overshoot": float(np.sqrt(eig[-1] / eig[0]))}
+
+
+@functools.lru_cache(maxsize=4)
+def _used_grid(problem_json: str) -> Grid:
+    """The premise grid's points the design uses, of a card's problem (its canonical JSON: the grid is
+    deterministic, so ``build`` after ``verify`` in one process rebuilds it once)."""
     from ..problem import problem_from_data
 
-    problem = problem_from_data(card.data["problem"], default_name=card.name)
+    problem = problem_from_data(json.loads(problem_json))
     grid = premise_grid(problem, problem.options.delays, problem.options.premise)
-    used = grid.gammas[grid.sigmas >= sigma_floor(grid, problem.options.premise)]
-    return checks(card.data["matrices"], used, card.data["decay_rate"])
+    used = grid.sigmas >= sigma_floor(grid, problem.options.premise)
+    return Grid(grid.gammas[used], grid.sigmas[used], grid.decoupling[used], grid.times[used])
+
+
+def verify(card) -> list:
+    """Re-check the card: the premise grid rebuilt from the card's problem (deterministic), the LMI at
+    the stored Q and K on every point, and the figures the grid and the gain determine (:func:`derived`)."""
+
+    grid = _used_grid(json.dumps(card.data["problem"], sort_keys=True))
+    m = card.data["matrices"]
+    Q, K, Ca = (np.asarray(m[k], dtype=float) for k in ("Q", "K", "Ca"))
+    figures = derived(grid, K, Ca, Q) if len(grid.gammas) else {}
+    return (consistency_checks(card.data, figures) + checks(m, grid.gammas, card.data["decay_rate"]))
 
 
 #: Premise points of the first solve of the cutting-plane design, and most points added per round.
@@ -463,28 +549,27 @@ def design(problem, analysis: Analysis) -> DesignResult:
     grid = analysis.data["grid"]
     copies = len(opts.delays) + 1
     Ca = augmented(plant.C, copies)
-    gmax = float(max(np.linalg.norm(G, 2) for G in grid.gammas))
     beta, sol, system, searched = _certified(grid.gammas, Ca, opts, f"{NAME} design of {problem.name}")
     Q = 0.5 * (sol.values["Q"] + sol.values["Q"].T)
     K = np.linalg.solve(Q, sol.values["R"])
     matrices = {"Q": Q, "K": K, "Ca": Ca, "Abar": plant.A, "Bbar": plant.B, "Cbar": plant.C, "D0": plant.D0,
                 "Dy": plant.Dy}
     cert = certificate(sol, checks(matrices, grid.gammas, beta), f"{NAME} design of {problem.name}")
-    norm_N = gmax + float(np.linalg.norm(K, 2) * np.linalg.norm(Ca, 2))
-    max_substep = 1.0 / max(norm_N, 1e-9)               # h |lambda| <= 1: inside RK4's stability region
-    eig = np.linalg.eigvalsh(Q)
-    floor = float(grid.sigmas.min())
-    schedule = {"kind": "continuous", "delays": list(opts.delays), "max_substep": max_substep,
-                "sigma_bound": floor, "step": opts.step, "step_policy": "error"}
+    fig = derived(grid, K, Ca, Q)
+    try:
+        substeps(opts.step, fig["schedule.max_substep"], MAX_SUBSTEPS, "RK4 substeps of the observer")
+    except StepRejected as exc:
+        raise ProblemError(f"observer.dt: {exc}") from None
+    schedule = {"kind": "continuous", "delays": list(opts.delays), "max_substep": fig["schedule.max_substep"],
+                "sigma_bound": fig["schedule.sigma_bound"], "step": opts.step, "step_policy": "error"}
     results = {
         "decay_rate": beta,
         "decay_bound": None, "overshoot_bound": None,
-        "overshoot": float(np.sqrt(eig[-1] / eig[0])),
-        "bound": (f"on the premise set only: ||e(t)|| <= {np.sqrt(eig[-1] / eig[0]):.4g} exp(-{beta:.4g} t) ||e(0)|| "
+        "overshoot": fig["overshoot"],
+        "bound": (f"on the premise set only: ||e(t)|| <= {fig['overshoot']:.4g} exp(-{beta:.4g} t) ||e(0)|| "
                   "for trajectories whose Gamma stays in the premise grid's set; not a global certificate"),
-        "premise": {**opts.premise.to_data(), "sigma_min": floor, "gamma_max": gmax,
-                    "points": int(len(grid.gammas))},
-        "delays": list(opts.delays), "m": len(opts.delays), "gain_norm": float(np.linalg.norm(K, 2)),
+        "premise": {**opts.premise.to_data(), **{k.split(".")[1]: fig[k] for k in fig if k.startswith("premise.")}},
+        "delays": list(opts.delays), "m": len(opts.delays), "gain_norm": fig["gain_norm"],
         "search": searched,
         "design_method": "lmi (29) gridded on the premise family",
     }

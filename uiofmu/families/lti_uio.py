@@ -49,6 +49,7 @@ from ..certificate import (
 from ..decoupling import (
     decoupling_gain,
     detectable,
+    identifiability_condition,
     parse_period,
     sampled_decoupling_conditions,
 )
@@ -162,8 +163,9 @@ def checks(matrices: dict, rho: float) -> list:
     """The certificate's checks at the stored matrices (used by the design and by :func:`verify`).
 
     Decoupling ``(I+MC)E = 0``, the observer identities ``PA - NP - LC = 0``, ``PB = G`` and
-    ``c = P w``, the output ``xhat = z - M y`` (``Xz = I``, ``Xy = -M``), ``X > 0`` and the decay
-    ``rho^2 X - N'XN > 0``: every matrix the runtime uses is checked.
+    ``c = P w``, the output ``xhat = z - M y`` (``Xz = I``, ``Xy = -M``), the reported gain
+    ``K = L + N M``, ``X > 0`` and the decay ``rho^2 X - N'XN > 0``: every matrix the runtime uses
+    is checked.
     """
     g = {k: np.asarray(v, dtype=float) for k, v in matrices.items()}
     P, A, B, E, C = g["P"], g["A_sampled"], g["B_sampled"], g["E_sampled"], g["C"]
@@ -173,6 +175,8 @@ def checks(matrices: dict, rho: float) -> list:
         identity_check("||PA - NP - LC||", P @ A - N @ P - L @ C, magnitude([P, A], [N, P], [L, C])),
         identity_check("||PB - G||", P @ B - G, magnitude([P, B], [G]) if B.size else 0.0),
         identity_check("||P - (I + MC)||", P - np.eye(len(P)) - g["M"] @ C, magnitude([g["M"], C])),
+        identity_check("||K - (L + NM)|| (the gain the card reports)", g["K"] - L - N @ g["M"],
+                       magnitude([L], [N, g["M"]])),
         identity_check("||Xy + M||", g["Xy"] + g["M"], magnitude([g["M"]])),
         identity_check("||Xz - I||", g["Xz"] - np.eye(len(P)), 1.0),
         identity_check("||c - P w||", g["c"] - P @ g["w_sampled"], magnitude([P, g["w_sampled"][:, None]])),
@@ -186,6 +190,26 @@ def verify(card) -> list:
     """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims."""
     d = card.data
     return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
+
+
+def _dhat(s, C) -> dict:
+    """dhat's matrices (``rank(CE) = q``): ``dhat_k = Dy (y_k+1 - Yx xhat_k - Yu u_k - Yc)``."""
+    return {"Dy": np.linalg.pinv(C @ s.E), "Yx": C @ s.A, "Yu": C @ s.B, "Yc": C @ s.w}
+
+
+def _schedule(opts: Options) -> dict:
+    return {"kind": "constant", "dt": opts.dt, "step_policy": "error"}
+
+
+def determined(problem, card_data) -> dict:
+    """What the card's problem determines: the sampled plant, ``M = -E (CE)^+``, dhat's matrices
+    (absent unless ``rank(CE) = q``), the step and the schedule."""
+    plant, opts = problem.plant, problem.options
+    s, C = plant.sampled(opts.dt), plant.C
+    dhat = _dhat(s, C) if identifiability_condition(C, s.E).holds else dict.fromkeys(("Dy", "Yx", "Yu", "Yc"))
+    mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
+            "M": decoupling_gain(C, s.E), **dhat}
+    return {"dt": opts.dt, "schedule": _schedule(opts), **{f"matrices.{k}": v for k, v in mats.items()}}
 
 
 def _riccati(PA, C, rho: float) -> Tuned:
@@ -284,7 +308,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}",
                        solver="CLARABEL" if method == "lmi" else "none")
     if existence.holds("rank(CE) = q"):
-        matrices.update({"Dy": np.linalg.pinv(C @ s.E), "Yx": C @ s.A, "Yu": C @ s.B, "Yc": C @ s.w})
+        matrices.update(_dhat(s, C))
     eigN = np.linalg.eigvals(N)
     results = {
         "decay": rho,
@@ -299,5 +323,4 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "design_method": method,
         "scaling": scaling_data(t if method == "lmi" else np.ones(plant.n), opts.scaling),
     }
-    schedule = {"kind": "constant", "dt": opts.dt, "step_policy": "error"}
-    return DesignResult(plant.n, opts.dt, schedule, matrices, cert, results, system, opts.xhat0)
+    return DesignResult(plant.n, opts.dt, _schedule(opts), matrices, cert, results, system, opts.xhat0)

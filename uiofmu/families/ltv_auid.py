@@ -52,9 +52,11 @@ from ..certificate import (
 from ..decoupling import (
     decoupling_gain,
     detectable,
+    identifiability_condition,
     parse_period,
     sampled_decoupling_conditions,
 )
+from ..consistency import Determined
 from ..runtime.errors import ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSystem, tune
@@ -263,6 +265,35 @@ def verify(card) -> list:
     return checks(d) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
 
 
+def _schedule(opts: Options) -> dict:
+    return {"kind": "geometric", "alpha": opts.alpha, "dt": opts.dt, "step_policy": opts.step_policy}
+
+
+def determined(problem, card_data) -> dict:
+    """What the card's problem and its certified gains ``T1``, ``T2`` determine: the sampled plant,
+    ``M``, the vertices ``A1``, ``A2``, ``S1``, every runtime polynomial (:func:`coefficients`; dhat's
+    absent unless ``rank(CE) = q``), ``alpha``, ``eta``, ``tau1 = eta (1 + mu)``, ``tau2 = eta``, the
+    decay bounds, the step and the schedule."""
+    plant, opts = problem.plant, problem.options
+    s, C = plant.sampled(opts.dt), plant.C
+    M, A1, A2, S1 = _vertices(s, C, opts.alpha)
+    T1, T2 = (np.asarray(card_data["matrices"][k], dtype=float) for k in ("T1", "T2"))
+    poly = coefficients(M, T1, T2, s, C, opts.alpha)
+    two = lambda x: float(np.linalg.norm(x, 2))                                 # noqa: E731
+    gains = two(T1) + two(T2)                  # N and L hold the gains: their rounding is relative to them
+    poly["N"] = Determined(poly["N"], (1 + two(M) * two(C)) * two(s.A) + gains * two(C))
+    poly["L"] = Determined(poly["L"], gains + two(poly["N"].value[0]) * (1 + two(M)) * (1 + two(C)))
+    if not identifiability_condition(C, s.E).holds:
+        poly.update(dict.fromkeys(("Dy", "Yx", "Yu", "Yc")))
+    mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C, "M": M, "A1": A1,
+            "A2": A2, "S1": S1, **poly}
+    mu = float(card_data["mu"])
+    tau1, tau2 = opts.eta * (1 + mu), opts.eta
+    return {"dt": opts.dt, "schedule": _schedule(opts), "alpha": opts.alpha, "eta": opts.eta, "tau1": tau1,
+            "tau2": tau2, "decay_bound": float(np.sqrt(1 - tau2)), "initial_decay_bound": float(np.sqrt(1 - tau1)),
+            **{f"matrices.{k}": v for k, v in mats.items()}}
+
+
 def certified_bound(card, e0, d) -> np.ndarray:
     """``||e_k|| <= b_k / sqrt(eig_min X)``, ``b_{k+1} = sqrt(1 - eta_k) b_k + ||S_k d_k||_X``."""
     g = card.data
@@ -335,5 +366,4 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "norm_MCE": float(np.linalg.norm(M @ C @ s.E, 2)),
         "search": searched,
     })
-    schedule = {"kind": "geometric", "alpha": opts.alpha, "dt": opts.dt, "step_policy": opts.step_policy}
-    return DesignResult(plant.n, opts.dt, schedule, matrices, cert, results, (system, least), opts.xhat0)
+    return DesignResult(plant.n, opts.dt, _schedule(opts), matrices, cert, results, (system, least), opts.xhat0)

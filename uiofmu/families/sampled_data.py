@@ -63,6 +63,7 @@ from ..decoupling import (
     weak_modes_condition,
     zeros_condition,
 )
+from ..consistency import Determined
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..structure import kernel_maps, product_radius
 from ..existence import Condition, Existence, complex_list
@@ -566,6 +567,30 @@ def verify(card) -> list:
     return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], d["matrices"]["Pl"])]
 
 
+def _schedule(opts: Options) -> dict:
+    return {"kind": "interval", "intervals": list(opts.intervals), "h_prev0": opts.h_prev0,
+            "step_policy": opts.step_policy, "step_rtol": STEP_RTOL}
+
+
+def determined(problem, card_data) -> dict:
+    """What the card's problem determines: the plant sampled at each interval, dhat's matrices
+    (absent unless ``rank(C E(h)) = q`` at every interval), the schedule, the intervals and
+    ``alpha = 1 - decay_bound^2``."""
+    plant, opts = problem.plant, problem.options
+    samples, C = [plant.sampled(h) for h in opts.intervals], plant.C
+    mats = {"A_sampled": np.array([s.A for s in samples]), "B_sampled": np.array([s.B for s in samples]),
+            "E_sampled": np.array([s.E for s in samples]), "C": C, "c": np.zeros((len(samples), plant.n))}
+    if all(identifiability_condition(C, s.E).holds for s in samples):
+        mats.update({"Dy": np.array([np.linalg.pinv(C @ s.E) for s in samples]),
+                     "Yx": np.array([C @ s.A for s in samples]), "Yu": np.array([C @ s.B for s in samples]),
+                     "Yc": np.zeros((len(samples), plant.p))})
+    else:
+        mats.update(dict.fromkeys(("Dy", "Yx", "Yu", "Yc")))
+    decay = float(card_data["decay_bound"])
+    return {"dt": None, "schedule": _schedule(opts), "intervals": list(opts.intervals),
+            "alpha": Determined(1.0 - decay * decay, 1.0), **{f"matrices.{k}": v for k, v in mats.items()}}
+
+
 def in_plant_coordinates(v: dict, t) -> dict:
     """The LMI variables of the scaled coordinates (:mod:`uiofmu.scaling`) in the plant's:
     ``Pl_i`` by congruence, ``S_i`` and ``Q_ij`` (products ``Pl K``) from the left."""
@@ -726,6 +751,4 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "spectral_radius_max": float(np.abs(np.linalg.eigvals(matrices["N"])).max()),
         "eigenvalues_L_constant": [complex_list(e) for e in np.linalg.eigvals(diagonal)],
     }
-    schedule = {"kind": "interval", "intervals": list(opts.intervals), "h_prev0": opts.h_prev0,
-                "step_policy": opts.step_policy, "step_rtol": STEP_RTOL}
-    return DesignResult(n, None, schedule, matrices, cert, results, system, opts.xhat0)
+    return DesignResult(n, None, _schedule(opts), matrices, cert, results, system, opts.xhat0)

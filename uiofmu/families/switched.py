@@ -332,6 +332,27 @@ def verify(card) -> list:
     return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], lyapunov)]
 
 
+def _schedule(plant, opts: Options) -> dict:
+    return {"kind": "mode", "dt": plant.dt, "modes": plant.N, "mode_prev0": opts.mode_prev0, "step_policy": "error"}
+
+
+def determined(problem, card_data) -> dict:
+    """What the card's problem determines: every mode's ``A_i, B_i, E_i, w_i``, ``C``, dhat's matrices
+    (absent unless ``rank(CE_i) = q`` in every mode), the step, the schedule, the number of modes
+    and ``decay = decay_bound``."""
+    plant, opts = as_switched(problem.plant), problem.options
+    C, modes = plant.C, plant.modes
+    mats = {f"{k}_modes": np.array([getattr(md, k) for md in modes]) for k in "ABEw"}
+    if all(rank(C @ md.E) == md.E.shape[1] for md in modes):
+        mats.update({"Dy": np.array([np.linalg.pinv(C @ md.E) for md in modes]), "Yx": C @ mats["A_modes"],
+                     "Yu": C @ mats["B_modes"], "Yc": mats["w_modes"] @ C.T})
+    else:
+        mats.update(dict.fromkeys(("Dy", "Yx", "Yu", "Yc")))
+    return {"dt": plant.dt, "schedule": _schedule(plant, opts), "modes": plant.N,
+            "decay": float(card_data["decay_bound"]), "matrices.C": C,
+            **{f"matrices.{k}": v for k, v in mats.items()}}
+
+
 def _lmi_runtime(modes, values: dict, C, has_dhat: bool) -> dict:
     """The card's matrices of an LMI point: :func:`_runtime` of its gains, and its Lyapunov matrices ``S``."""
     mats = _runtime(modes, _gains(modes, values), C, has_dhat)
@@ -395,9 +416,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "search": searched,
         "design_method": method,
     }
-    schedule = {"kind": "mode", "dt": plant.dt, "modes": plant.N, "mode_prev0": opts.mode_prev0,
-                "step_policy": "error"}
-    return DesignResult(plant.n, plant.dt, schedule, mats, cert, results, system, opts.xhat0)
+    return DesignResult(plant.n, plant.dt, _schedule(plant, opts), mats, cert, results, system, opts.xhat0)
 
 
-__all__ = ["NAME", "Options", "analyse", "checks", "design", "parse_options", "verify"]
+__all__ = ["NAME", "Options", "analyse", "checks", "design", "determined", "parse_options", "verify"]

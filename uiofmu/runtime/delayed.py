@@ -34,7 +34,12 @@ import numpy as np
 from .card import Card
 from .schedules import StepRejected
 from .state import StateReader
-from .stepping import check_step
+from .stepping import check_step, substeps
+
+
+#: Most RK4 substeps one communication step may take (observer or prediction): about 2 s of CPU at
+#: 0.2 ms a substep. A longer step is refused with the longest one accepted, never a hang.
+MAX_SUBSTEPS = 10_000
 
 
 def augmented(M: np.ndarray, copies: int) -> np.ndarray:
@@ -301,7 +306,8 @@ class DelayedRuntime:
     def _predict(self, xa: np.ndarray, theta: np.ndarray, h: float, hist) -> np.ndarray:
         """The model's prediction over the step, ``xa' = Aa xa + Ba ua + Da(ya) thetahat`` (RK4, the signals
         as for the observer): what the estimate does while it is not valid."""
-        steps = max(1, int(math.ceil(h * float(np.linalg.norm(self.Aa, 2)) - 1e-9)))
+        steps = substeps(h, 1.0 / max(float(np.linalg.norm(self.Aa, 2)), 1e-300), MAX_SUBSTEPS,
+                         "RK4 substeps of the model's prediction")
         dt = h / steps
 
         def f(s, x):
@@ -326,9 +332,23 @@ class DelayedRuntime:
         ------
         RuntimeInputError
             A non-finite input or a step h <= 0 (nothing changes).
+        StepRejected
+            A step needing more than :data:`MAX_SUBSTEPS` substeps, or inputs (or a restored buffer) so
+            large that the step's arithmetic overflows (nothing changes).
         """
         check_step(h, {"y": self.y, "ydot": self.ydot, "u": self.u}, self.k)
-        h = float(h)
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):      # judged by the finiteness of the result
+                self._advance(float(h))
+        except np.linalg.LinAlgError as exc:
+            raise StepRejected(self._overflow(f"LinAlgError: {str(exc)[:80]}")) from None
+
+    def _overflow(self, what: str) -> str:
+        return (f"step {self.k} at t = {self.t:.6g} s: the observer's arithmetic overflows on these inputs and its "
+                f"buffer of past outputs ({what}); nothing changed")
+
+    def _advance(self, h: float) -> None:
+        """:meth:`step` after its checks (assigns the new state only at its end)."""
         if not math.isfinite(self.t + h):
             raise StepRejected(f"t + h = {self.t + h!r} is not a time")
         valid = self.valid
@@ -338,7 +358,7 @@ class DelayedRuntime:
         t0 = self.t
         z = self.z
         hist = self._now()
-        steps = max(1, int(math.ceil(h / self.max_substep - 1e-9))) if valid else None
+        steps = substeps(h, self.max_substep, MAX_SUBSTEPS, "RK4 substeps of the observer") if valid else None
         if steps and not self.running:             # start, or restart from the predicted estimate
             ya, yad, _ = self._augmented_at(t0, hist)
             z = xa_now + self._matrices(ya, yad)[1] @ ya
@@ -371,6 +391,8 @@ class DelayedRuntime:
             self.notices.append(f"t = {t0:.6g} s: rank margin sigma_min(C D_y) = {self.margin():.3g} below the "
                                 f"premise bound {self.sigma_bound:.3g}: the estimates are not certified while it "
                                 "is, thetahat is held (noted once)")
+        if not all(np.all(np.isfinite(v)) for v in (xa_now, theta_now, z)):
+            raise StepRejected(self._overflow("the new estimate is not finite"))
         row = np.concatenate([[t0], current[0], current[1], current[2]])
         buf = np.vstack([self.buffer, row[None]])
         keep = np.flatnonzero(buf[:, 0] <= t0 + h - self.tau)

@@ -67,11 +67,12 @@ def read_bytes(path, what: str, limit: int = MAX_INPUT_BYTES, error=InputFileErr
         raise error(f"{path}: no such {what}") from None
     except OSError as exc:
         raise error(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode):             # before fdopen, which refuses a folder by its descriptor
+        os.close(fd)
+        kind = "a folder" if stat.S_ISDIR(info.st_mode) else "not a regular file"
+        raise error(f"{path}: the {what} is {kind}; give a regular file")
     with os.fdopen(fd, "rb") as f:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            kind = "a folder" if stat.S_ISDIR(info.st_mode) else "not a regular file"
-            raise error(f"{path}: the {what} is {kind}; give a regular file")
         if info.st_size > limit:
             raise error(f"{path}: the {what} has {info.st_size} bytes, more than the limit of {limit}")
         try:

@@ -13,8 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .stepping import check_step
+from .stepping import check_step, substeps
 from .state import StateReader
+
+#: Most MuJoCo steps of one communication step: a step of a small model costs 1-5 us, so about a
+#: second of CPU; a longer communication step is refused (fmi2Discard, nothing changed).
+MAX_SUBSTEPS = 200_000
 
 #: Model fields a plant's physical parameters may set (name -> the id kind it is indexed by).
 PARAMETER_FIELDS = {"body_mass": "body", "jnt_stiffness": "joint", "dof_damping": "joint",
@@ -125,6 +129,7 @@ class MujocoRuntime:
     def step(self, h: float) -> None:
         """Advance by ``h`` with ``u`` and ``d`` held (substeps of dt and one shorter last one)."""
         check_step(h, {"u": self.u, "d": self.d})
+        substeps(h, self.dt, MAX_SUBSTEPS, "MuJoCo steps")           # refuses a step of too many, nothing changed
         self.data.ctrl[self.uid] = self.u
         self.data.ctrl[self.did] = self.d
         t_end = self.data.time + h

@@ -1,7 +1,8 @@
 """Plants with unknown constant parameters at run time (numpy only): ``x' = A x + B u + D(C x) theta``.
 
 The plant FMU integrates it with classical RK4 substeps of at most ``substep`` seconds between
-communication points (inputs held), and outputs ``y = C x`` and its exact derivative
+communication points (inputs held), at most :data:`MAX_SUBSTEPS` of them per step (a longer step is
+refused, naming the longest one taken), and outputs ``y = C x`` and its exact derivative
 ``ydot = C (A x + B u + D(y) theta)`` at the current point with the current input. ``theta`` is a
 parameter of the FMU (campaigns vary it); an observer never reads it.
 """
@@ -13,7 +14,28 @@ import math
 import numpy as np
 
 from .state import StateReader
-from .stepping import check_step
+from .stepping import check_step, substeps
+
+#: Most RK4 substeps of one communication step: a substep (four evaluations of the vector field)
+#: takes 50-120 µs for a few states (measured on the seed 001 plant), so 20 000 are one to two
+#: seconds of CPU; a longer step is refused (:class:`~.schedules.StepRejected`: fmi2Discard and a log
+#: line, nothing changed) rather than left to run for hours.
+MAX_SUBSTEPS = 20_000
+#: Largest rate (1/s) of a plant (:func:`rate`): its substep is then 0.02 / rate = 2e-11 s and the
+#: longest communication step it takes (:data:`MAX_SUBSTEPS` substeps) 0.4 µs; a faster plant cannot
+#: be co-simulated at any practical step (rescale time).
+MAX_RATE = 1e9
+#: The substep as a fraction of the fastest time constant ``1 / rate``: 50 substeps per time constant.
+SUBSTEP_FRACTION = 0.02
+
+
+def rate(A, C, D0, Dy, theta) -> float:
+    """The rate of ``x' = A x + B u + D(C x) theta`` that sets the substep (1/s):
+    ``||A|| + sum |D_i| max |theta| ||C|| + sum |D0|`` (infinite when it overflows)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        value = float(np.linalg.norm(A, 2)) + float(np.abs(Dy).sum() * np.abs(theta).max(initial=0.0)
+                                                    * np.linalg.norm(C, 2) + np.abs(D0).sum())
+    return value if math.isfinite(value) else math.inf
 
 
 class ParametricPlantRuntime:
@@ -24,7 +46,7 @@ class ParametricPlantRuntime:
     data : dict
         :meth:`uiofmu.parametric_plant.ParametricPlant.to_data`.
     substep : float, optional
-        Longest RK4 substep (default ``0.02 / max(1, ||A|| + ||D|| |theta| ||C||)``, a few hundred
+        Longest RK4 substep (default ``SUBSTEP_FRACTION / max(1, rate)`` with :func:`rate`, fifty
         substeps per time constant of the fastest mode).
     """
 
@@ -44,9 +66,8 @@ class ParametricPlantRuntime:
         self.u, self.d = np.zeros(self.m), np.zeros(0)
         self.param_names = [f"theta[{i + 1}]" for i in range(self.theta0.size)]
         self.params = self.theta0.copy()
-        scale = float(np.linalg.norm(self.A, 2)) + float(np.abs(self.Dy).sum() * np.abs(self.theta0).max()
-                                                       * np.linalg.norm(self.C, 2) + np.abs(self.D0).sum())
-        self.substep = float(substep or 0.02 / max(1.0, scale))
+        scale = rate(self.A, self.C, self.D0, self.Dy, self.theta0)
+        self.substep = float(substep or SUBSTEP_FRACTION / max(1.0, scale))
         self.reset()
 
     @property
@@ -74,10 +95,25 @@ class ParametricPlantRuntime:
         """``C x'`` at the current point with the current input."""
         return self.C @ self.f(self.x)
 
+    @property
+    def max_step(self) -> float:
+        """The longest communication step taken: :data:`MAX_SUBSTEPS` substeps."""
+        return MAX_SUBSTEPS * self.substep
+
+    def substeps(self, h: float) -> int:
+        """The RK4 substeps of a step ``h`` (> 0): ``ceil(h / substep)``, at least 1.
+
+        Raises
+        ------
+        StepRejected
+            When that is more than :data:`MAX_SUBSTEPS` (naming ``h``, the substep and the longest step).
+        """
+        return substeps(h, self.substep, MAX_SUBSTEPS, "RK4 substeps of the plant")
+
     def step(self, h: float) -> None:
-        """Advance by ``h`` (RK4 substeps, ``u`` held)."""
+        """Advance by ``h`` (RK4 substeps, ``u`` held); see :meth:`substeps`."""
         check_step(h, {"u": self.u})
-        steps = max(1, int(math.ceil(h / self.substep - 1e-9)))
+        steps = self.substeps(h)
         dt, x = h / steps, self.x
         for _ in range(steps):
             k1 = self.f(x)

@@ -1,8 +1,10 @@
 """Stepping a linear plant exactly between communication points (numpy only).
 
 This is what runs inside a plant FMU: a continuous plant is advanced by the exact
-zero-order-hold solution for any step ``h`` (the exponential of the augmented matrix,
-inputs held over the step); a discrete plant takes steps of its own ``dt`` only.
+zero-order-hold solution for any step ``h`` whose exponential is finite (the exponential of the
+augmented matrix, inputs held over the step; one that overflows is refused); a discrete plant
+takes steps of its own ``dt`` only. There are no substeps: the exponential takes at most about
+1030 squarings (``log2`` of the largest double), whatever ``h``.
 """
 
 from __future__ import annotations
@@ -30,8 +32,11 @@ def expm(M: np.ndarray) -> np.ndarray:
     Returns
     -------
     (k, k) array
+        Not finite when ``M`` is not (or its exponential overflows).
     """
     norm = float(np.abs(M).sum(axis=0).max()) if M.size else 0.0
+    if not math.isfinite(norm):
+        return np.full(M.shape, math.nan)
     s = max(0, int(math.ceil(math.log2(norm / 0.5)))) if norm > 0.5 else 0
     X = M / (2.0 ** s)
     term = np.eye(M.shape[0])
@@ -82,7 +87,14 @@ class PlantRuntime:
         self.x = self.x0.copy()
 
     def matrices(self, h: float):
-        """``(Ad, Bd, Ed, wd)`` for one step of length ``h``."""
+        """``(Ad, Bd, Ed, wd)`` for one step of length ``h``.
+
+        Raises
+        ------
+        StepRejected
+            A discrete plant given another step than its ``dt``, a continuous plant whose
+            exponential over ``h`` overflows (naming ``h``).
+        """
         if not self.continuous:
             if abs(h - self.dt) > STEP_RTOL * self.dt:
                 raise StepRejected(f"this discrete plant steps at dt = {self.dt!r} s and received h = {h!r} s")
@@ -93,7 +105,12 @@ class PlantRuntime:
             aug = np.zeros((n + k, n + k))
             aug[:n, :n] = self.A
             aug[:n, n:] = np.hstack([self.B, self.E])
-            ex = expm(aug * h)
+            with np.errstate(over="ignore", invalid="ignore"):
+                ex = expm(aug * h)
+            if not np.all(np.isfinite(ex)):
+                raise StepRejected(f"communication step h = {h!r} s: the plant's exact step exp([A B E] h) "
+                                        f"overflows (|A| h up to {float(np.abs(self.A).max()) * h:.3g}); take "
+                                        "shorter steps")
             hit = (ex[:n, :n], ex[:n, n:n + self.m], ex[:n, n + self.m:], np.zeros(n))
             if len(self._cache) >= self._cache_size:
                 self._cache.pop(next(iter(self._cache)))

@@ -43,5 +43,40 @@ def check_step(h, inputs: dict, k: int | None = None) -> None:
         raise RuntimeInputError(f"input {name}[{i + 1}] = {vec[i]}{_at(k)} is not finite")
 
 
+def substeps(h: float, longest: float, limit: int, what: str) -> int:
+    """The substeps of at most ``longest`` seconds that cover a communication step ``h`` (> 0).
+
+    Parameters
+    ----------
+    h : float
+        The communication step.
+    longest : float
+        The longest substep.
+    limit : int
+        The most substeps a step may take (each runtime's ``MAX_SUBSTEPS``, from what one costs).
+    what : str
+        Whose substeps, for the message (``"RK4 substeps of the observer"``).
+
+    Returns
+    -------
+    int
+        ``ceil(h / longest)``, at least 1.
+
+    Raises
+    ------
+    StepRejected
+        When more than ``limit`` would be needed: naming ``h``, the substep and the longest step
+        accepted (nothing has changed; the caller may take shorter steps).
+    """
+    from .schedules import StepRejected
+
+    count = h / longest - 1e-9
+    if not count <= limit:
+        raise StepRejected(f"communication step h = {h:.6g} s needs {count + 1e-9:.3g} {what} (at most "
+                           f"{longest:.3g} s each), more than the {limit} a step may take: take steps of at most "
+                           f"{limit * longest:.6g} s")
+    return max(1, int(math.ceil(count)))
+
+
 def _at(k) -> str:
     return "" if k is None else f" at step k = {k}"

@@ -1,0 +1,130 @@
+"""Consistent forgeries: cards whose fields are each valid and jointly false.
+
+Every field a card's problem determines (the plant's matrices the FMU runs, the schedule, the
+step, the figures derived from the certificate), the problem's plant itself, a runtime matrix
+from another design and a bound from another card: each changed alone, on the tracked card of
+every family (the examples' designs), must be refused by the re-check that ``build``, ``cosim``
+and ``verify`` run, and by the command line with exit 2 and one line.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+from pathlib import Path
+
+import pytest
+
+import hostile
+import uiofmu
+from uiofmu.consistency import DETERMINED
+from uiofmu.problem import problem_from_data
+from uiofmu.runtime.registry import AVAILABLE
+from uiofmu.runtime.card import card_from_data
+from uiofmu.runtime.errors import CardError
+from uiofmu.synthesis import recheck
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+#: Two designs per family (for matrices and bounds taken from another card), one problem each.
+PROBLEMS = {"example1": EXAMPLES / "seed000_example1.toml", "example1-ltv": EXAMPLES / "seed000_example1_ltv.toml",
+            "example2": EXAMPLES / "seed000_example2_consistent.toml", "fouka": EXAMPLES / "seed001_example.toml",
+            "setup2": EXAMPLES / "seed002_setup2.toml", "three-modes": EXAMPLES / "seed002_three_modes.toml",
+            "deadbeat": EXAMPLES / "seed003_example.toml", "needs-theta": EXAMPLES / "seed003_needs_theta.toml",
+            "quarter-car": ROOT / "plants" / "quarter_car" / "problem.toml",
+            "building": ROOT / "plants" / "two_room_building" / "problem.toml"}
+
+
+@pytest.fixture(scope="module")
+def docs():
+    """Every problem designed, plus Example 1 at a fixed decay (a second lti-uio design of the same plant)."""
+    out = {name: uiofmu.design(uiofmu.load_problem(path)).data for name, path in PROBLEMS.items()}
+    slow = uiofmu.load_problem(PROBLEMS["example1"]).data
+    slow["observer"]["decay"] = 0.999
+    slow["name"] = "example1-slow"
+    out["example1-slow"] = uiofmu.design(problem_from_data(slow)).data
+    return out
+
+
+def _forgeries(docs, name):
+    return hostile.consistent_forgeries(docs[name], list(docs.values()), random.Random(name))
+
+
+def test_the_designs_cover_every_family_twice_and_verify(docs):
+    families = [d["family"] for d in docs.values()]
+    assert sorted(set(families)) == sorted(AVAILABLE) and all(families.count(f) >= 2 for f in families
+                                                              if f != "delayed-uio"), families
+    for name, doc in docs.items():
+        checks = recheck(card_from_data(doc))
+        assert any(c.name.endswith(DETERMINED) for c in checks), name
+
+
+@pytest.mark.parametrize("name", sorted([*PROBLEMS, "example1-slow"]))
+def test_every_consistent_forgery_is_refused(docs, name):
+    """Each forgery is refused by the card schema or fails the re-check, naming what was changed
+    where the change is a field the problem determines."""
+    forged = _forgeries(docs, name)
+    kinds = {label.split(" ")[0].split(".")[0] for label, _ in forged}
+    assert {"matrices", "schedule", "problem"} <= kinds, kinds          # the generator reaches them all
+    accepted = []
+    for label, doc in forged:
+        try:
+            card = card_from_data(doc)
+        except CardError:
+            continue                       # the card schema refuses it (a shape, a kind, a length)
+        try:
+            recheck(card)
+        except CardError as exc:
+            text = str(exc)
+            assert "\n" not in text
+            if label.endswith(" nudged"):          # named, or the field that must agree with it
+                assert label.split(" ")[0].split(".")[-1] in text, (label, text)
+            continue
+        accepted.append(label)
+    assert not accepted, accepted
+
+
+def test_a_card_for_another_plant_names_the_matrix(docs):
+    """The problem's A changed while the card's matrices stay: the certificate is for another plant."""
+    doc = json.loads(json.dumps(docs["example1"]))
+    doc["problem"]["plant"]["A"][0][0] += 0.01
+    with pytest.raises(CardError, match=r"matrices\.A_sampled is not what the card's problem determines"):
+        recheck(card_from_data(doc))
+
+
+def test_the_delayed_substep_and_rank_bound_are_derived(docs):
+    """The red team's 1e-300 substep (cosim would never return) and a raised rank-margin bound."""
+    for key, value in (("max_substep", 1e-300), ("sigma_bound", 0.0), ("max_substep", 1.0)):
+        doc = json.loads(json.dumps(docs["fouka"]))
+        doc["schedule"][key] = value
+        with pytest.raises(CardError, match=rf"schedule\.{key} is not what"):
+            recheck(card_from_data(doc))
+
+
+@pytest.mark.parametrize("family", sorted(AVAILABLE))
+def test_verify_and_build_refuse_a_forgery_from_the_command_line(docs, family, tmp_path, cli):
+    name = next(n for n, d in docs.items() if d["family"] == family)
+    label, doc = next((lab, d) for lab, d in _forgeries(docs, name) if lab.startswith("problem.plant"))
+    path = tmp_path / "forged.json"
+    path.write_text(json.dumps(doc))
+    res = cli("verify", path)
+    assert res.code == 2 and len(res.err.strip().splitlines()) == 1, (label, res)
+    assert "is not what the card's problem determines" in res.err, (label, res.err)
+    out = tmp_path / "forged.fmu"
+    res = cli("build", path, "-o", out)
+    assert res.code == 2 and not out.exists(), (label, res)
+
+
+def test_validate_names_an_fmu_whose_card_does_not_re_check(docs, tmp_path, cli):
+    """An FMU built from a forged card without the command line's re-check (``build_observer``
+    directly): ``uiofmu validate`` says its card proves nothing."""
+    from uiofmu.fmu.export import build_observer
+
+    doc = json.loads(json.dumps(docs["example1"]))
+    doc["problem"]["plant"]["A"][1][1] = 0.5
+    fmu = build_observer(card_from_data(doc), tmp_path / "forged.fmu")
+    res = cli("validate", fmu)
+    assert res.code == 2 and "its design card does not re-check" in res.err, res
+    assert "matrices.A_sampled is not what the card's problem determines" in res.err
+    good = build_observer(card_from_data(docs["example1"]), tmp_path / "good.fmu")
+    assert cli("validate", good).code == 0
