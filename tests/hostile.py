@@ -2618,6 +2618,16 @@ def consistent_forgeries(doc: dict, others: list, rng) -> list[tuple[str, dict]]
         parent[keys[-1]] = _nudge(before, rng)
         if parent[keys[-1]] != before:
             out.append((f"{path} nudged", new))
+    for key, value in (("decay_bound", 0.5), ("overshoot_bound", 1.0)):
+        if key in doc and doc[key] is None:                     # a bound the family does not certify
+            new = copy.deepcopy(doc)
+            new[key] = value
+            out.append((f"{key} {value} claimed where the family certifies none", new))
+    for key in ("r", "K"):                                      # the dead-beat figures its window follows from
+        if isinstance(doc.get(key), int):
+            new = copy.deepcopy(doc)
+            new[key] = doc[key] + 1
+            out.append((f"{key} changed", new))
     plant = doc["problem"]["plant"]
     for key in ("A", "E", "C", "D0"):
         if isinstance(plant.get(key), list) and plant[key]:

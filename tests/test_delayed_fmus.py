@@ -93,6 +93,7 @@ def _plant_runtime(toml_path, theta=None):
     rt = ParametricPlantRuntime(load_problem(toml_path).plant.to_data())
     if theta is not None:
         rt.params[:] = theta
+        rt.apply_parameters()
     return rt
 
 

@@ -35,6 +35,7 @@ def run(card, problem, h: float, t_end: float, u=None, theta=None):
     plant = ParametricPlantRuntime(data)
     if theta is not None:
         plant.params[:] = theta
+        plant.apply_parameters()
     rt = DelayedRuntime(card)
     signals = u or problem.u
     rows = []

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import platform
 import time
 
@@ -103,7 +104,9 @@ def verify(card: Card) -> list:
         problem = problem_from_data(card.data["problem"], default_name=card.name)
     except ProblemError as exc:
         raise CardError(f"design card problem: {exc}") from None
-    consistency = consistency_checks(card.data, {**plant_record(problem), **family.determined(problem, card.data)})
+    consistency = consistency_checks(card.data, plant_record(problem))
+    if all(c.holds for c in consistency):              # the family's record may assume the plant's sizes
+        consistency += consistency_checks(card.data, family.determined(problem, card.data))
     if not all(c.holds for c in consistency):
         return consistency               # a certificate of another problem's matrices proves nothing here
     return consistency + family.verify(card)
@@ -135,13 +138,16 @@ def recheck(card: Card) -> list:
         checks = verify(card)
         failed = [c for c in checks if not c.holds]
     except KeyError as exc:
-        raise CardError(f"design card: its certificate cannot be re-checked: matrices.{exc.args[0]} or the "
-                        f"family result {exc.args[0]!r} is missing") from None
-    except (TypeError, ValueError, np.linalg.LinAlgError) as exc:
-        raise CardError(f"design card: its certificate cannot be re-checked ({exc})") from None
+        raise CardError(f"design card: its certificate cannot be re-checked: the key {str(exc.args[0])[:60]!r} is "
+                        "missing (a matrix, or a figure of the card)") from None
+    except (TypeError, ValueError, IndexError, AttributeError, ZeroDivisionError, OverflowError,
+            np.linalg.LinAlgError) as exc:                 # a malformed card: its arrays do not fit together
+        raise CardError(f"design card: its certificate cannot be re-checked ({type(exc).__name__}: "
+                        f"{str(exc)[:200]})") from None
     if failed and failed[0].name.endswith(DETERMINED):
         c = failed[0]
-        how = "" if not c.bound else f" (relative difference {c.value:.3g}, allowed {c.bound:.0e})"
+        how = "" if not (c.bound and math.isfinite(c.value)) else \
+            f" (relative difference {c.value:.3g}, allowed {c.bound:.1g})"
         raise CardError(f"design card: {c.name[:-len(DETERMINED)]} is not what the card's problem determines{how}: "
                         "the card was changed after its design, or designed for another problem")
     if failed:

@@ -46,6 +46,9 @@ STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 
 #: Most entries in an FMU (a pythonfmu FMU carries about 40: its runtime package).
 MAX_ENTRIES = 10_000
+#: Largest central directory (bytes): an entry's record is 46 bytes plus its name and extra field (a few
+#: dozen bytes in an FMU; 512 on average leaves room for deep paths).
+MAX_DIRECTORY_BYTES = MAX_ENTRIES * 512
 #: Largest unpacked entry (bytes): twice the largest ``model.json`` uiofmu reads.
 MAX_ENTRY_BYTES = 2 * MAX_INPUT_BYTES
 #: Largest unpacked FMU (bytes): the card, its C source, the binaries and the runtime, with room to spare.
@@ -134,23 +137,24 @@ def _over(path, found: str, limit: int, name: str) -> FmuError:
 _END = struct.Struct("<4s4H2LH")
 
 
-def _declared_entries(path: Path) -> int:
-    """The number of entries the end record of a zip archive declares, read without its directory (which
-    zipfile loads whole, an object per entry); 0 when there is no end record (zipfile then refuses the file)."""
+def _declared_entries(path: Path) -> tuple[int, int]:
+    """The number of entries and the size in bytes of the central directory that the end record of a zip
+    archive declares, read without the directory (which zipfile loads whole, an object per entry);
+    (0, 0) when there is no end record (zipfile then refuses the file)."""
     with open(path, "rb") as f:
         size = f.seek(0, 2)
         f.seek(max(0, size - _END.size - 0xFFFF))
         tail = f.read()
         at = tail.rfind(b"PK\x05\x06")
         if at < 0 or len(tail) - at < _END.size:
-            return 0
-        entries = _END.unpack_from(tail, at)[4]
-        if entries == 0xFFFF and at >= 20 and tail[at - 20:at - 16] == b"PK\x06\x07":   # zip64: its own record
-            f.seek(struct.unpack_from("<Q", tail, at - 12)[0])
-            record = f.read(40)
-            if record[:4] == b"PK\x06\x06" and len(record) == 40:
-                entries = struct.unpack_from("<Q", record, 32)[0]
-    return entries
+            return 0, 0
+        entries, directory = _END.unpack_from(tail, at)[4:6]
+        if (entries == 0xFFFF or directory == 0xFFFFFFFF) and at >= 20 and tail[at - 20:at - 16] == b"PK\x06\x07":
+            f.seek(struct.unpack_from("<Q", tail, at - 12)[0])          # zip64: its own end record
+            record = f.read(56)
+            if record[:4] == b"PK\x06\x06" and len(record) == 56:
+                entries, directory = struct.unpack_from("<QQ", record, 32)
+    return entries, directory
 
 
 def _check_entries(path: Path, infos: list) -> None:
@@ -198,9 +202,12 @@ def open_archive(path) -> zipfile.ZipFile:
     path = Path(path)
     if not path.is_file():
         raise FmuError(f"{path}: no such FMU" if not path.exists() else f"{path}: an FMU is a regular file")
-    declared = _declared_entries(path)
+    declared, directory = _declared_entries(path)
     if declared > MAX_ENTRIES:
         raise _over(path, f"the FMU declares {declared} entries", MAX_ENTRIES, "MAX_ENTRIES")
+    if directory > MAX_DIRECTORY_BYTES:          # a directory whose end record understates its entries
+        raise _over(path, f"the FMU's central directory has {directory} bytes", MAX_DIRECTORY_BYTES,
+                    "MAX_DIRECTORY_BYTES")
     archive = zipfile.ZipFile(path)
     try:
         _check_entries(path, archive.infolist())

@@ -322,6 +322,7 @@ def _parametric_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng)
     ref = ParametricPlantRuntime(data)
     ref.x0 = 0.1 * rng.normal(size=ref.n)
     ref.params[:] = ref.theta0 * rng.uniform(0.5, 1.5, size=ref.params.size)
+    ref.apply_parameters()                  # the substep of these parameters, as the FMU takes them
     ref.reset()
     fmu.initialize(0.0, {"x0": ref.x0, "theta": ref.params})
     t = 0.0

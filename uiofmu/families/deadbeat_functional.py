@@ -47,7 +47,7 @@ from ..certificate import Check
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lpv_plant import LpvPlant
 from ..polynomials import PolyMatrix, TooLarge, hstack, shifted, stack, work_limit
-from ..runtime.card import MAX_POWER
+from ..runtime.card import MAX_POWER, MAX_WINDOW
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..runtime.matrices import as_matrix
 from ..runtime.tolerances import IDENTITY_RTOL, RANK_RTOL
@@ -153,16 +153,6 @@ class Windows:
         while self.r < r:
             self.advance()
         return self
-
-
-def observability(plant: LpvPlant, first: int, last: int) -> PolyMatrix:
-    """``O(theta_{first:last})``: ``C(theta_first)``, ``C(theta_{first+1}) A(theta_first)``, ... (:class:`Windows`)."""
-    return shifted(Windows(plant).at(last - first).O, first)
-
-
-def toeplitz(plant: LpvPlant, first: int, last: int) -> PolyMatrix:
-    """``M(theta_{first:last})`` (:class:`Windows`)."""
-    return shifted(Windows(plant).at(last - first).M, first)
 
 
 def too_large(plant: LpvPlant, exc: TooLarge, stage: str, window: int) -> ProblemError:
@@ -374,7 +364,7 @@ def _analysis(problem):
     conds.append(Condition("nilpotent semigroup", True, True,
                            f"Phat_i generate a nilpotent semigroup of class t = {t}: K = {K}, G x_k from "
                            f"y_k-{K + 1}..y_k+{inv.r - 1}", {"t": t, "K": K}))
-    return Existence(NAME, tuple(conds)), {"inverse": inv, "K": K, "t": t, "P": Pi, "monomials": monomials}
+    return Existence(NAME, tuple(conds)), {"inverse": inv, "K": K, "t": t, "monomials": monomials}
 
 
 def analyse(problem) -> Analysis:
@@ -498,17 +488,25 @@ def _schedule(plant, length: int, delay: int, uses_theta: bool) -> dict:
             "uses_theta": uses_theta, "step_policy": "error"}
 
 
+def _bound(length: int, delay: int) -> str:
+    return f"gx_k = G x_(k-{delay}) exactly from k = {length - 1} on (window of {length} outputs)"
+
+
 def determined(problem, card_data) -> dict:
-    """What the card's problem and its formula determine: the plant's parts (the matrices the
-    re-check simulates), ``C``, ``G``, the schedule (its window and delay are the formula's), the
-    window and delay the card reports, and the formula's text."""
+    """What the card's problem, its delay ``r`` and its ``K`` determine: the plant's parts (the
+    matrices the re-check simulates), ``C``, ``G``, the window ``K + max(r, 1) + 1`` and the delay
+    ``max(r - 1, 0)`` (in the schedule and as reported), the bound and the formula's text."""
     plant = problem.plant
     mats = card_data["matrices"]
     F, exps = np.asarray(mats["F"], dtype=float), np.asarray(mats["Fexp"], dtype=float)
-    length, delay = card_data["schedule"]["length"], card_data["schedule"]["delay"]
+    r, K = card_data["r"], card_data["K"]
+    if not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_WINDOW for v in (r, K)):
+        raise ValueError(f"r = {str(r)[:20]} and K = {str(K)[:20]} must be integers from 0 to {MAX_WINDOW}")
+    length, delay = window_length(r, K), max(r - 1, 0)
     return {"dt": plant.dt, "schedule": _schedule(plant, length, delay, bool(exps.any())), "window": length,
-            "delay": delay, "formula": describe(F, exps, plant.p, int(length), int(delay)),
-            "decay_bound": None, "overshoot_bound": None, "matrices.C": plant.C, "matrices.G": problem.options.G,
+            "delay": delay, "bound": _bound(length, delay),
+            "formula": describe(F, exps, plant.p, length, delay), "decay_bound": None, "overshoot_bound": None,
+            "matrices.C": plant.C, "matrices.G": problem.options.G,
             **{f"matrices.{k}": v for k, v in _parts(plant).items()}}
 
 
@@ -539,7 +537,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     results = {"r": inv.r, "K": K, "nilpotency_class": analysis.data["t"], "window": L, "delay": delay,
                "formula": describe(Fm, exps, plant.p, L, delay),
                "decay_bound": None, "overshoot_bound": None,
-               "bound": f"gx_k = G x_(k-{delay}) exactly from k = {L - 1} on (window of {L} outputs)"}
+               "bound": _bound(L, delay)}
     return DesignResult(0, plant.dt, schedule, matrices, cert, results, None, None, kernel="window")
 
 

@@ -53,6 +53,8 @@ from ..decoupling import (
     parse_period,
     sampled_decoupling_conditions,
 )
+from ..consistency import condition, conditioned, dhat_record, first
+from ..runtime.card import DHAT
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
@@ -193,12 +195,17 @@ def verify(card) -> list:
 
 
 def _dhat(s, C) -> dict:
-    """dhat's matrices (``rank(CE) = q``): ``dhat_k = Dy (y_k+1 - Yx xhat_k - Yu u_k - Yc)``."""
-    return {"Dy": np.linalg.pinv(C @ s.E), "Yx": C @ s.A, "Yu": C @ s.B, "Yc": C @ s.w}
+    """dhat's matrices (``rank(CE) = q``): ``dhat_k = Dy (y_k+1 - Yx xhat_k - Yu u_k - Yc)``, as
+    :func:`uiofmu.consistency.dhat_record` records them."""
+    return first(dhat_record(C, s.A[None], s.B[None], s.E[None], s.w[None]))
 
 
 def _schedule(opts: Options) -> dict:
     return {"kind": "constant", "dt": opts.dt, "step_policy": "error"}
+
+
+#: The bound the card states (and the master checks each run against).
+BOUND = "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0||"
 
 
 def determined(problem, card_data) -> dict:
@@ -206,10 +213,11 @@ def determined(problem, card_data) -> dict:
     (absent unless ``rank(CE) = q``), the step and the schedule."""
     plant, opts = problem.plant, problem.options
     s, C = plant.sampled(opts.dt), plant.C
-    dhat = _dhat(s, C) if identifiability_condition(C, s.E).holds else dict.fromkeys(("Dy", "Yx", "Yu", "Yc"))
+    dhat = _dhat(s, C) if identifiability_condition(C, s.E).holds else dict.fromkeys(DHAT)
     mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
-            "M": decoupling_gain(C, s.E), **dhat}
-    return {"dt": opts.dt, "schedule": _schedule(opts), **{f"matrices.{k}": v for k, v in mats.items()}}
+            "M": conditioned(decoupling_gain(C, s.E), condition(C @ s.E)), **dhat}
+    return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "decay": card_data["decay_bound"],
+            **{f"matrices.{k}": v for k, v in mats.items()}}
 
 
 def _riccati(PA, C, rho: float) -> Tuned:
@@ -308,13 +316,13 @@ def design(problem, analysis: Analysis) -> DesignResult:
     cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}",
                        solver="CLARABEL" if method == "lmi" else "none")
     if existence.holds("rank(CE) = q"):
-        matrices.update(_dhat(s, C))
+        matrices.update({k: v.value for k, v in _dhat(s, C).items()})
     eigN = np.linalg.eigvals(N)
     results = {
         "decay": rho,
         "decay_bound": rho,
         "overshoot_bound": overshoot(X),
-        "bound": "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0||",
+        "bound": BOUND,
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),
         "eigenvalues_N": complex_list(eigN),

@@ -56,7 +56,8 @@ from ..decoupling import (
     parse_period,
     sampled_decoupling_conditions,
 )
-from ..consistency import Determined
+from ..consistency import condition, conditioned, dhat_record
+from ..runtime.card import DHAT
 from ..runtime.errors import ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSystem, tune
@@ -269,6 +270,10 @@ def _schedule(opts: Options) -> dict:
     return {"kind": "geometric", "alpha": opts.alpha, "dt": opts.dt, "step_policy": opts.step_policy}
 
 
+#: The bound the card states (:func:`certified_bound` computes it for a run).
+BOUND = "||e_k|| <= b_k / sqrt(eig_min X), b_{k+1} = sqrt(1 - eta (1 + mu alpha^k)) b_k + ||S_k d_k||_X"
+
+
 def determined(problem, card_data) -> dict:
     """What the card's problem and its certified gains ``T1``, ``T2`` determine: the sampled plant,
     ``M``, the vertices ``A1``, ``A2``, ``S1``, every runtime polynomial (:func:`coefficients`; dhat's
@@ -279,19 +284,21 @@ def determined(problem, card_data) -> dict:
     M, A1, A2, S1 = _vertices(s, C, opts.alpha)
     T1, T2 = (np.asarray(card_data["matrices"][k], dtype=float) for k in ("T1", "T2"))
     poly = coefficients(M, T1, T2, s, C, opts.alpha)
-    two = lambda x: float(np.linalg.norm(x, 2))                                 # noqa: E731
-    gains = two(T1) + two(T2)                  # N and L hold the gains: their rounding is relative to them
-    poly["N"] = Determined(poly["N"], (1 + two(M) * two(C)) * two(s.A) + gains * two(C))
-    poly["L"] = Determined(poly["L"], gains + two(poly["N"].value[0]) * (1 + two(M)) * (1 + two(C)))
-    if not identifiability_condition(C, s.E).holds:
-        poly.update(dict.fromkeys(("Dy", "Yx", "Yu", "Yc")))
-    mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C, "M": M, "A1": A1,
-            "A2": A2, "S1": S1, **poly}
+    two = lambda x: float(np.linalg.norm(x, 2)) if np.size(x) else 0.0           # noqa: E731
+    cond = condition(C @ s.E)                      # M = -E (CE)^+ is in every polynomial and vertex
+    plant = (1 + two(M) * two(C)) * (two(s.A) + two(s.B) + two(s.w) + two(s.E))
+    size = plant + (two(T1) + two(T2)) * two(C) * (1 + two(M)) + two(M)        # the terms' size: gains too
+    for k in ("N", "L", "G", "c", "Xz", "Xy"):
+        poly[k] = conditioned(poly[k], cond, size)
+    poly.update(dhat_record(C, s.A[None], s.B[None], s.E[None], s.w[None]) if identifiability_condition(C, s.E).holds
+                else dict.fromkeys(DHAT))
+    mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
+            **{k: conditioned(v, cond, plant) for k, v in (("M", M), ("A1", A1), ("A2", A2), ("S1", S1))}, **poly}
     mu = float(card_data["mu"])
     tau1, tau2 = opts.eta * (1 + mu), opts.eta
-    return {"dt": opts.dt, "schedule": _schedule(opts), "alpha": opts.alpha, "eta": opts.eta, "tau1": tau1,
-            "tau2": tau2, "decay_bound": float(np.sqrt(1 - tau2)), "initial_decay_bound": float(np.sqrt(1 - tau1)),
-            **{f"matrices.{k}": v for k, v in mats.items()}}
+    return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "alpha": opts.alpha, "eta": opts.eta,
+            "tau1": tau1, "tau2": tau2, "decay_bound": float(np.sqrt(1 - tau2)),
+            "initial_decay_bound": float(np.sqrt(1 - tau1)), **{f"matrices.{k}": v for k, v in mats.items()}}
 
 
 def certified_bound(card, e0, d) -> np.ndarray:
@@ -357,7 +364,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "decay_bound": float(np.sqrt(1 - tau2)),
         "initial_decay_bound": float(np.sqrt(1 - tau1)),
         "overshoot_bound": overshoot(X),
-        "bound": "||e_k|| <= b_k / sqrt(eig_min X), b_{k+1} = sqrt(1 - eta (1 + mu alpha^k)) b_k + ||S_k d_k||_X",
+        "bound": BOUND,
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),
         "fixed_modes_A1": info.get("fixed_modes_A1", []),

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..runtime.card import MAX_INTERVALS
+from ..runtime.card import DHAT, MAX_INTERVALS
 from ..certificate import (
     Check,
     certificate,
@@ -63,7 +63,7 @@ from ..decoupling import (
     weak_modes_condition,
     zeros_condition,
 )
-from ..consistency import Determined
+from ..consistency import Determined, dhat_record
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..structure import kernel_maps, product_radius
 from ..existence import Condition, Existence, complex_list
@@ -567,6 +567,10 @@ def verify(card) -> list:
     return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], d["matrices"]["Pl"])]
 
 
+#: The bound the card states.
+BOUND = "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0|| for every sequence of design intervals"
+
+
 def _schedule(opts: Options) -> dict:
     return {"kind": "interval", "intervals": list(opts.intervals), "h_prev0": opts.h_prev0,
             "step_policy": opts.step_policy, "step_rtol": STEP_RTOL}
@@ -581,13 +585,12 @@ def determined(problem, card_data) -> dict:
     mats = {"A_sampled": np.array([s.A for s in samples]), "B_sampled": np.array([s.B for s in samples]),
             "E_sampled": np.array([s.E for s in samples]), "C": C, "c": np.zeros((len(samples), plant.n))}
     if all(identifiability_condition(C, s.E).holds for s in samples):
-        mats.update({"Dy": np.array([np.linalg.pinv(C @ s.E) for s in samples]),
-                     "Yx": np.array([C @ s.A for s in samples]), "Yu": np.array([C @ s.B for s in samples]),
-                     "Yc": np.zeros((len(samples), plant.p))})
+        mats.update(dhat_record(C, mats["A_sampled"], mats["B_sampled"], mats["E_sampled"],
+                                np.zeros((len(samples), plant.n))))
     else:
-        mats.update(dict.fromkeys(("Dy", "Yx", "Yu", "Yc")))
+        mats.update(dict.fromkeys(DHAT))
     decay = float(card_data["decay_bound"])
-    return {"dt": None, "schedule": _schedule(opts), "intervals": list(opts.intervals),
+    return {"dt": None, "schedule": _schedule(opts), "bound": BOUND, "intervals": list(opts.intervals),
             "alpha": Determined(1.0 - decay * decay, 1.0), **{f"matrices.{k}": v for k, v in mats.items()}}
 
 
@@ -731,7 +734,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "alpha": alpha,
         "decay_bound": decay,
         "overshoot_bound": overshoot(Pl),
-        "bound": "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0|| for every sequence of design intervals",
+        "bound": BOUND,
         "intervals": list(opts.intervals),
         "alpha_limit_from_zeros": limit,
         "largest_sampled_zero": zmax,

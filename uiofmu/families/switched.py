@@ -42,7 +42,9 @@ import numpy as np
 
 from ..certificate import (EPS, Check, certificate, decay_check, identity_check, lyapunov_check, overshoot,
                            overshoot_check, positive_check, round_up)
+from ..consistency import dhat_record
 from ..decoupling import weak_modes_condition
+from ..runtime.card import DHAT
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSolution, LmiSystem, tune
 from ..runtime.errors import ProblemError
@@ -332,6 +334,10 @@ def verify(card) -> list:
     return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], lyapunov)]
 
 
+#: The bound the card states.
+BOUND = "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0|| under arbitrary switching"
+
+
 def _schedule(plant, opts: Options) -> dict:
     return {"kind": "mode", "dt": plant.dt, "modes": plant.N, "mode_prev0": opts.mode_prev0, "step_policy": "error"}
 
@@ -344,11 +350,10 @@ def determined(problem, card_data) -> dict:
     C, modes = plant.C, plant.modes
     mats = {f"{k}_modes": np.array([getattr(md, k) for md in modes]) for k in "ABEw"}
     if all(rank(C @ md.E) == md.E.shape[1] for md in modes):
-        mats.update({"Dy": np.array([np.linalg.pinv(C @ md.E) for md in modes]), "Yx": C @ mats["A_modes"],
-                     "Yu": C @ mats["B_modes"], "Yc": mats["w_modes"] @ C.T})
+        mats.update(dhat_record(C, mats["A_modes"], mats["B_modes"], mats["E_modes"], mats["w_modes"]))
     else:
-        mats.update(dict.fromkeys(("Dy", "Yx", "Yu", "Yc")))
-    return {"dt": plant.dt, "schedule": _schedule(plant, opts), "modes": plant.N,
+        mats.update(dict.fromkeys(DHAT))
+    return {"dt": plant.dt, "schedule": _schedule(plant, opts), "bound": BOUND, "modes": plant.N,
             "decay": float(card_data["decay_bound"]), "matrices.C": C,
             **{f"matrices.{k}": v for k, v in mats.items()}}
 
@@ -408,7 +413,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "decay": lam,
         "decay_bound": lam,
         "overshoot_bound": bound,
-        "bound": "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0|| under arbitrary switching",
+        "bound": BOUND,
         "modes": plant.N,
         "fixed_eigenvalues": [complex_list(md.fixed) for md in modes],
         "largest_fixed_modulus": largest,

@@ -358,6 +358,7 @@ class DelayedRuntime:
         t0 = self.t
         z = self.z
         hist = self._now()
+        notices = []                               # kept only if the step is taken
         steps = substeps(h, self.max_substep, MAX_SUBSTEPS, "RK4 substeps of the observer") if valid else None
         if steps and not self.running:             # start, or restart from the predicted estimate
             ya, yad, _ = self._augmented_at(t0, hist)
@@ -384,15 +385,16 @@ class DelayedRuntime:
                     start = end
             except FloatingPointError:
                 z, running = self.z, False
-                self.notices.append(f"t = {t0:.6g} s: the rank margin vanished inside the step; the estimates are "
-                                    "held from here")
+                notices.append(f"t = {t0:.6g} s: the rank margin vanished inside the step; the estimates are "
+                               "held from here")
+        if not all(np.all(np.isfinite(v)) for v in (xa_now, theta_now, z)):
+            raise StepRejected(self._overflow("the new estimate is not finite"))
+        self.notices += notices
         if not valid and not self._noted and t0 >= self.tau:
             self._noted = True
             self.notices.append(f"t = {t0:.6g} s: rank margin sigma_min(C D_y) = {self.margin():.3g} below the "
                                 f"premise bound {self.sigma_bound:.3g}: the estimates are not certified while it "
                                 "is, thetahat is held (noted once)")
-        if not all(np.all(np.isfinite(v)) for v in (xa_now, theta_now, z)):
-            raise StepRejected(self._overflow("the new estimate is not finite"))
         row = np.concatenate([[t0], current[0], current[1], current[2]])
         buf = np.vstack([self.buffer, row[None]])
         keep = np.flatnonzero(buf[:, 0] <= t0 + h - self.tau)

@@ -66,8 +66,8 @@ class ParametricPlantRuntime:
         self.u, self.d = np.zeros(self.m), np.zeros(0)
         self.param_names = [f"theta[{i + 1}]" for i in range(self.theta0.size)]
         self.params = self.theta0.copy()
-        scale = rate(self.A, self.C, self.D0, self.Dy, self.theta0)
-        self.substep = float(substep or SUBSTEP_FRACTION / max(1.0, scale))
+        self._substep = substep
+        self.apply_parameters()
         self.reset()
 
     @property
@@ -76,7 +76,10 @@ class ParametricPlantRuntime:
         return self.params
 
     def apply_parameters(self) -> None:
-        """Nothing to precompute: ``theta`` is read at every evaluation."""
+        """The substep for the parameters set (``theta`` changes the plant's fastest mode); ``theta``
+        itself is read at every evaluation."""
+        scale = rate(self.A, self.C, self.D0, self.Dy, self.params)
+        self.substep = float(self._substep or SUBSTEP_FRACTION / max(1.0, scale))
 
     def reset(self) -> None:
         """Back to ``x0``."""
@@ -136,3 +139,4 @@ class ParametricPlantRuntime:
         self.x, self.x0 = new["x"], new["x0"]
         self.u[:] = new["u"]
         self.params[:] = new["params"]
+        self.apply_parameters()
