@@ -429,7 +429,8 @@ def test_an_integer_plant_parameter_is_recorded_as_the_fmu_gets_it(fmus, random_
 @pytest.mark.parametrize("key, value, message", [
     ("seed", "1.5", "campaign.seed: expected an integer, found 1.5"),
     ("seed", "true", "campaign.seed: expected an integer, found True"),
-    ("seed", "-2147483648", "campaign.seed: expected an integer in [0, 9223372036854775807], found -2147483648"),
+    ("seed", "-2147483648", "campaign.seed: expected an integer in [0, 4294967295], found -2147483648"),
+    ("seed", "4294967296", "campaign.seed: expected an integer in [0, 4294967295], found 4294967296"),
     ("runs", "2.0", "campaign.runs: expected an integer, found 2.0"),
     ("runs", "10000001", "campaign.runs: expected an integer in [1, 10000000], found 10000001"),
     ("batch", "0", "campaign.batch: expected an integer in [1, 100000], found 0"),

@@ -10,14 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uiofmu.runtime.card import read_card
 from uiofmu.runtime.delayed import MAX_SUBSTEPS, DelayedRuntime
 from uiofmu.runtime.schedules import StepRejected
 from uiofmu.runtime.state import StateRejected
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = (ROOT / "examples" / "seed001_example.toml").read_text()
-CARD = ROOT / "fmus" / "fouka-example.design.json"
 
 
 @pytest.mark.parametrize("old, new, says", [
@@ -44,9 +42,17 @@ def test_an_observer_step_beyond_the_substep_limit_is_refused_by_the_design(tmp_
     assert not (tmp_path / "card.json").exists()
 
 
-def _running():
+@pytest.fixture(scope="module")
+def card():
+    """The example's design card (designed once for the module)."""
+    import uiofmu
+
+    return uiofmu.design(uiofmu.load_problem(ROOT / "examples" / "seed001_example.toml"))
+
+
+def _running(card):
     """The example's observer driven past its delay with smooth outputs: running."""
-    rt = DelayedRuntime(read_card(CARD))
+    rt = DelayedRuntime(card)
     for k in range(600):
         t = k * 1e-3
         rt.set_y([np.sin(3 * t) + 2, np.cos(2 * t) + 1.5])
@@ -57,8 +63,8 @@ def _running():
     return rt
 
 
-def test_a_long_step_is_refused_and_changes_nothing():
-    rt = _running()
+def test_a_long_step_is_refused_and_changes_nothing(card):
+    rt = _running(card)
     before = rt.get_state()
     began = time.perf_counter()
     with pytest.raises(StepRejected, match=rf"more than the {MAX_SUBSTEPS} a step may take: take steps of at most"):
@@ -67,10 +73,10 @@ def test_a_long_step_is_refused_and_changes_nothing():
     rt.step(1e-3)
 
 
-def test_a_forged_buffer_of_huge_values_is_refused_never_an_internal_error():
+def test_a_forged_buffer_of_huge_values_is_refused_never_an_internal_error(card):
     """Every entry of a restored buffer set to 1e308 (the red team's forged state): the state is refused, or
     the step that would overflow is refused with the state left as it was."""
-    rt = _running()
+    rt = _running(card)
     state = rt.get_state()
     outcomes = set()
     for i in range(len(state["buffer"])):

@@ -77,8 +77,9 @@ def test_every_consistent_forgery_is_refused(docs, name):
         except CardError as exc:
             text = str(exc)
             assert "\n" not in text
-            if label.endswith(" nudged"):          # named, or the field that must agree with it
-                assert label.split(" ")[0].split(".")[-1] in text, (label, text)
+            if label.endswith(" nudged"):          # named, or a field that must agree with it (mu: tau1)
+                assert label.split(" ")[0].split(".")[-1] in text or \
+                    "is not what the card's problem determines" in text, (label, text)
             continue
         accepted.append(label)
     assert not accepted, accepted
@@ -128,3 +129,42 @@ def test_validate_names_an_fmu_whose_card_does_not_re_check(docs, tmp_path, cli)
     assert "matrices.A_sampled is not what the card's problem determines" in res.err
     good = build_observer(card_from_data(docs["example1"]), tmp_path / "good.fmu")
     assert cli("validate", good).code == 0
+
+
+def test_cosim_refuses_a_c_fmu_whose_card_is_not_the_one_compiled_in(docs, tmp_path, cli):
+    """A C observer built (without the re-check) from a card with another N, the honest card then put
+    in its resources/model.json: the card re-checks, but the binary runs other matrices; the GUID the
+    binary was built with is the card's, so the swap is refused."""
+    import zipfile
+
+    from uiofmu.fmu.export import build_observer
+
+    forged = json.loads(json.dumps(docs["example1"]))
+    forged["matrices"]["N"][1][1] = 1.2
+    fmu = build_observer(card_from_data(forged), tmp_path / "forged.fmu", backend="c")
+    swapped = tmp_path / "swapped.fmu"
+    with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(swapped, "w", zipfile.ZIP_DEFLATED) as dst:
+        for item in src.infolist():
+            data = src.read(item.filename)
+            if item.filename == "resources/model.json":
+                data = json.dumps({"kind": "observer", "card": docs["example1"]}).encode()
+            dst.writestr(item, data)
+    plant = tmp_path / "plant.fmu"
+    assert cli("plant", PROBLEMS["example1"], "-o", plant).code == 0
+    res = cli("cosim", "--plant", plant, "--observer", swapped, "--out", tmp_path / "run", "--no-report")
+    assert res.code == 2 and "is not the one its binary was built from" in res.err, res
+    honest = build_observer(card_from_data(docs["example1"]), tmp_path / "honest.fmu", backend="c")
+    assert cli("cosim", "--plant", plant, "--observer", honest, "--out", tmp_path / "ok", "--no-report").code == 0
+
+
+@pytest.mark.parametrize("name, key, value, field", [("example1-slow", "decay", 0.995, "decay_bound"),
+                                                     ("fouka", "decay", 6.0, "decay_rate"),
+                                                     ("example1-ltv", "mu", 80.0, "mu")])
+def test_a_card_whose_problem_asks_for_another_fixed_value_is_refused(docs, name, key, value, field):
+    """The recorded problem is the one that designed the card: a fixed decay (or mu) it asks for is the
+    one the card certifies."""
+    doc = json.loads(json.dumps(docs[name]))
+    assert doc["problem"]["observer"][key] != value
+    doc["problem"]["observer"][key] = value
+    with pytest.raises(CardError, match=rf"design card: {field} is not what the card's problem determines"):
+        recheck(card_from_data(doc))

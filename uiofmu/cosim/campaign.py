@@ -246,6 +246,12 @@ class Campaign:
         return out + [(f"plant.{name}", a) for name, a in self.plant_parameters]
 
 
+
+#: Largest campaign seed: a row's generator is seeded with the words ``[seed, row]``, and numpy splits a
+#: seed of 2^32 or more into two 32-bit words, so seed 2^32 row 0 (``[0, 1, 0]``) would draw what
+#: seed 0 row 1 (``[0, 1]``) draws.
+MAX_SEED = 2**32 - 1
+
 def _integer(table, key: str, default, low: int, high: int) -> int:
     value = table.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int):
@@ -374,7 +380,7 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
         missing = "campaign.observer" if observer is None and plant is not None else (
             "campaign.plant" if plant is None and observer is not None else "campaign.problem")
         raise ProblemError(f"{missing}: required key is missing (give problem, or observer and plant FMUs)")
-    seed = _integer(camp, "seed", 0, 0, 2**63 - 1)
+    seed = _integer(camp, "seed", 0, 0, MAX_SEED)
     grid = camp.get("grid", False)
     if not isinstance(grid, bool):
         raise ProblemError(f"campaign.grid: expected true or false, found {grid!r}"[:300])

@@ -85,9 +85,12 @@ class CosimResult:
 
 
 def observer_card(path) -> Card:
-    """The design card packed in an observer FMU built by uiofmu, checked against the card schema
-    and with its certificate re-checked at the stored matrices (:func:`uiofmu.synthesis.recheck`)."""
+    """The design card packed in an observer FMU built by uiofmu, checked against the card schema,
+    with its certificate re-checked at the stored matrices (:func:`uiofmu.synthesis.recheck`) and,
+    for a C FMU (whose binary holds the matrices), bound to the binary by the GUID both carry."""
+    from ..fmu.c_backend import guid_of
     from ..synthesis import recheck
+    from .fmi import open_archive, read_description
 
     spec = read_model_json(path)
     if spec.get("kind") != "observer" or "card" not in spec:
@@ -95,6 +98,13 @@ def observer_card(path) -> Card:
                        f"{str(spec.get('kind'))[:40]!r})")
     card = card_from_data(spec["card"])
     recheck(card)
+    with open_archive(path) as archive:
+        compiled = "sources/design_data.c" in archive.namelist()
+    guid = read_description(path).guid if compiled else None
+    if compiled and str(guid).strip("{}") != guid_of(spec["card"]):
+        raise FmuError(f"{path}: the card in resources/model.json is not the one its binary was built from (the "
+                       f"FMU's GUID {str(guid)[:40]} is not the card's {guid_of(spec['card'])}): rebuild the FMU "
+                       "from its card")
     return card
 
 

@@ -412,6 +412,7 @@ def determined(problem, card_data) -> dict:
                          "max_substep": schedule.get("max_substep"), "sigma_bound": schedule.get("sigma_bound")},
             **{f"premise.{k}": v for k, v in opts.premise.to_data().items()},
             "decay_bound": None, "overshoot_bound": None,
+            **({} if opts.decay == "max" else {"decay_rate": float(opts.decay)}),         # a fixed decay is the card's
             "delays": list(opts.delays), "m": len(opts.delays), "dims.nz": plant.n * (len(opts.delays) + 1),
             "matrices.Abar": plant.A, "matrices.Bbar": plant.B, "matrices.Cbar": plant.C, "matrices.D0": plant.D0,
             "matrices.Dy": plant.Dy, "matrices.Ca": augmented(plant.C, len(opts.delays) + 1)}

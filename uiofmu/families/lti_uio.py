@@ -216,7 +216,8 @@ def determined(problem, card_data) -> dict:
     dhat = _dhat(s, C) if identifiability_condition(C, s.E).holds else dict.fromkeys(DHAT)
     mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
             "M": conditioned(decoupling_gain(C, s.E), condition(C @ s.E)), **dhat}
-    return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "decay": card_data["decay_bound"],
+    requested = {} if opts.decay == "max" else {"decay_bound": float(opts.decay)}     # a fixed decay is the card's
+    return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "decay": card_data["decay_bound"], **requested,
             **{f"matrices.{k}": v for k, v in mats.items()}}
 
 

@@ -294,10 +294,10 @@ def determined(problem, card_data) -> dict:
                 else dict.fromkeys(DHAT))
     mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
             **{k: conditioned(v, cond, plant) for k, v in (("M", M), ("A1", A1), ("A2", A2), ("S1", S1))}, **poly}
-    mu = float(card_data["mu"])
+    mu = float(card_data["mu"] if opts.mu == "max" else opts.mu)          # a fixed mu is the card's
     tau1, tau2 = opts.eta * (1 + mu), opts.eta
     return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "alpha": opts.alpha, "eta": opts.eta,
-            "tau1": tau1, "tau2": tau2, "decay_bound": float(np.sqrt(1 - tau2)),
+            "mu": mu, "tau1": tau1, "tau2": tau2, "decay_bound": float(np.sqrt(1 - tau2)),
             "initial_decay_bound": float(np.sqrt(1 - tau1)), **{f"matrices.{k}": v for k, v in mats.items()}}
 
 

@@ -589,9 +589,13 @@ def determined(problem, card_data) -> dict:
                                 np.zeros((len(samples), plant.n))))
     else:
         mats.update(dict.fromkeys(DHAT))
-    decay = float(card_data["decay_bound"])
-    return {"dt": None, "schedule": _schedule(opts), "bound": BOUND, "intervals": list(opts.intervals),
-            "alpha": Determined(1.0 - decay * decay, 1.0), **{f"matrices.{k}": v for k, v in mats.items()}}
+    if opts.alpha == "max":
+        decay = float(card_data["decay_bound"])
+        alpha = {"alpha": Determined(1.0 - decay * decay, 1.0)}
+    else:                                                   # a fixed alpha is the card's
+        alpha = {"alpha": float(opts.alpha), "decay_bound": float(np.sqrt(1.0 - opts.alpha))}
+    return {"dt": None, "schedule": _schedule(opts), "bound": BOUND, "intervals": list(opts.intervals), **alpha,
+            **{f"matrices.{k}": v for k, v in mats.items()}}
 
 
 def in_plant_coordinates(v: dict, t) -> dict:
