@@ -50,14 +50,6 @@ class Determined:
     rtol: float = SAME_RTOL
 
 
-def product(A, B) -> Determined:
-    """``A @ B``, compared relative to ``max(|A| |B|)`` (the size of its terms: an entry that is zero in
-    exact arithmetic is computed as rounding of that size, or as exact zero, by different kernels)."""
-    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
-    terms = np.abs(A) @ np.abs(B)
-    return Determined(A @ B, float(terms.max()) if terms.size else 0.0)
-
-
 def conditioned(value, cond: float, scale: float = 0.0) -> Determined:
     """``value`` computed through a pseudo-inverse (or solve) of condition number ``cond``: compared
     with the tolerance ``max(SAME_RTOL, CONDITION_FACTOR * cond * EPS)``."""
@@ -77,12 +69,13 @@ def dhat_record(C, A, B, E, w) -> dict:
     A, B, E, w = (np.asarray(x, dtype=float) for x in (A, B, E, w))
     CE = np.einsum("ij,kjl->kil", C, E)
     return {"Dy": conditioned(np.array([np.linalg.pinv(m) for m in CE]), condition(CE)),
-            "Yx": _stacked(C, A), "Yu": _stacked(C, B),
-            "Yc": _stacked(C, w[..., None], squeeze=True)}
+            "Yx": product(C, A), "Yu": product(C, B), "Yc": product(C, w[..., None], squeeze=True)}
 
 
-def _stacked(C, X, squeeze: bool = False) -> Determined:
-    """``C @ X[k]`` for a stack ``X`` as one :func:`product`."""
+def product(C, X, squeeze: bool = False) -> Determined:
+    """``C @ X[k]`` for a stack ``X``, compared relative to ``max(|C| |X[k]|)`` (the size of its terms: an
+    entry that is zero in exact arithmetic is computed as rounding of that size, or as exact zero, by
+    different kernels); ``squeeze`` drops a last axis of length 1."""
     X = np.asarray(X, dtype=float)
     value = np.einsum("ij,kjl->kil", C, X)
     terms = np.einsum("ij,kjl->kil", np.abs(C), np.abs(X))
