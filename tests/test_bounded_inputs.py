@@ -426,3 +426,22 @@ def test_a_plant_real_output_fed_to_an_integer_input_is_checked():
     with pytest.raises(FmuError, match=r"the plant's output mode\[1\], an Integer input of the observer, at t = 0.1 s: "
                                        r"4294967298.0 is not an fmi2Integer"):
         _Loop._convert(loop, None, None, None, 1)
+
+
+def test_a_matplotlib_setting_it_refuses_is_exit_2_not_a_bug(ex1, tmp_path):
+    """``MPLBACKEND=bogus``: matplotlib refuses it on import; cosim says so in one line (exit 2);
+    with --no-report (no matplotlib) the same run goes through."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "MPLBACKEND": "bogus"}
+    argv = [sys.executable, "-m", "uiofmu", "cosim", "--plant", str(ex1 / "plant.fmu"), "--observer",
+            str(ex1 / "observer.fmu")]
+    res = subprocess.run([*argv, "--out", str(tmp_path / "run")], capture_output=True, text=True, env=env,
+                         timeout=120)
+    res.code, res.err = res.returncode, res.stderr
+    _refused(res, "matplotlib refuses its settings", "unset MPLBACKEND")
+    ok = subprocess.run([*argv, "--out", str(tmp_path / "quiet"), "--no-report"], capture_output=True, text=True,
+                        env=env, timeout=120)
+    assert ok.returncode == 0, ok.stderr

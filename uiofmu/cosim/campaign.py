@@ -1540,11 +1540,9 @@ def plot_campaign(tally: Tally, worst_result, worst: dict | None, path, title: s
     -------
     Path
     """
-    import matplotlib
+    from .report import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()[0]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     conv = tally.values["time_to_1pct"]
     never = tally.present["time_to_1pct"] - len(conv)

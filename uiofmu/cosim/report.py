@@ -6,10 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..runtime.errors import ProblemError
 from ..runtime.files import atomic_output
 
 
-def _pyplot():
+def pyplot():
     """matplotlib's pyplot on the Agg backend (no display needed) and the colours of its property cycle.
 
     Returns
@@ -19,7 +20,11 @@ def _pyplot():
     colors : list of str
         The colours of ``axes.prop_cycle``, in order.
     """
-    import matplotlib
+    try:
+        import matplotlib
+    except ValueError as exc:               # matplotlib validates MPLBACKEND (and matplotlibrc) on import
+        raise ProblemError(f"matplotlib refuses its settings ({str(exc)[:160]}): unset MPLBACKEND or fix the "
+                           "matplotlibrc (uiofmu draws with Agg whatever it says)") from None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -151,7 +156,7 @@ def plot_report(result, path, title: str | None = None) -> Path:
         return plot_functional(result, path, title)
     if result.delayed is not None:
         return plot_delayed(result, path, title)
-    plt, colors = _pyplot()
+    plt, colors = pyplot()
     m = result.metrics
     scale, unit = (3600.0, "h") if result.times[-1] > 4 * 3600 else (1.0, "s")
     t = result.times / scale
@@ -226,7 +231,7 @@ def plot_functional(result, path, title: str | None = None) -> Path:
     -------
     Path
     """
-    plt, colors = _pyplot()
+    plt, colors = pyplot()
     m, f = result.metrics, result.functional
     k = np.arange(len(result.times))
     filling = m["valid_from"] if m["valid_from"] is not None else len(k)
@@ -284,7 +289,7 @@ def plot_delayed(result, path, title: str | None = None) -> Path:
     -------
     Path
     """
-    plt, colors = _pyplot()
+    plt, colors = pyplot()
     m, dl = result.metrics, result.delayed
     t, valid = result.times, dl["valid"]
     v = m["validity"]
