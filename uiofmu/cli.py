@@ -411,9 +411,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("verify", help="re-check every claim of a design card, without a solver",
                        description="Re-check a design card someone gave you, as build and cosim do before they use "
-                                   "it: the certificate's inequalities and identities at the stored matrices (the "
-                                   "ones the FMU runs), and the bounds the card prints (decay_bound, overshoot_bound). "
-                                   "Exit 0 when every claim holds, 2 naming the first that does not, with its numbers.")
+                                   "it: that what its recorded problem determines (the plant matrices the FMU runs, "
+                                   "the schedule, the stated bound, the figures derived from the certificate) is what "
+                                   "the card says, the certificate's inequalities and identities at the stored "
+                                   "matrices, and the bounds the card prints (decay_bound, overshoot_bound). Exit 0 "
+                                   "when every claim holds, 2 naming the first that does not, with its numbers.")
     p.add_argument("design", help="design card (JSON)")
     p.set_defaults(func=_cmd_verify)
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .certificate import Check
+from .certificate import EPS, Check
 
 #: How the name of a check of :func:`same_check` ends (after the card's path).
 DETERMINED = " as the card's problem determines it (relative difference)"
@@ -36,7 +36,6 @@ SAME_RTOL = 1e-9
 #: Rounding of a computation whose condition number is ``cond`` is below ``cond * EPS`` times its size;
 #: :func:`conditioned` allows this many times that.
 CONDITION_FACTOR = 100.0
-EPS = float(np.finfo(float).eps)
 
 
 @dataclass(frozen=True)
