@@ -247,8 +247,24 @@ def scenario_instantiate(a):
         guid = read_model_description(str(p)).guid
         p.write_text(text.replace(guid, "12345678-1234-5678-1234-567812345678"))
 
+    def swap_model_and_guid(d):
+        """The card edited and modelDescription.xml's GUID recomputed to match (as the slave computes it)."""
+        import hashlib
+        import re
+        import uuid
+
+        swap_model(d)
+        ident = read_model_description(str(d / "modelDescription.xml")).coSimulation.modelIdentifier
+        slave = next((d / "resources").glob("*_slave.py")).read_text()
+        runtime = re.search(r'^RUNTIME = "([A-Za-z0-9_]+)"', slave, re.M).group(1)
+        digest = hashlib.sha256((d / "resources" / "model.json").read_bytes()).hexdigest()
+        new = str(uuid.uuid5(uuid.NAMESPACE_URL, f"uiofmu:pythonfmu:{runtime}:{ident}:{digest}"))
+        p = d / "modelDescription.xml"
+        p.write_text(p.read_text().replace(read_model_description(str(p)).guid.strip("{}"), new))
+
     res["other_model_json"] = refused(rezip(a["path"], work / "swapped.fmu", swap_model))
     res["edited_guid"] = refused(rezip(a["path"], work / "edited.fmu", edit_guid))
+    res["model_and_guid"] = refused(rezip(a["path"], work / "both.fmu", swap_model_and_guid))
     res["intact"] = refused(a["path"])
     # the importer's fmuGUID never reaches the slave; the guard compares it with its own
     md = read_model_description(a["path"])
@@ -437,6 +453,9 @@ def test_resources_that_are_not_the_fmus_own_are_refused_at_instantiation(fmus, 
     for key in ("other_model_json", "edited_guid"):
         assert "fmi2Instantiate failed" in res[key] and "instantiation refused" in res[key], res[key]
     assert "12345678-1234-5678-1234-567812345678" in res["edited_guid"]
+    # a card edited with modelDescription.xml's GUID made to match: the native guard was compiled with the
+    # GUID of the card build re-checked, and refuses the one the importer now passes
+    assert "is not this FMU's" in res["model_and_guid"] and "instantiation refused" in res["model_and_guid"]
     assert res["bogus_guid_instantiated"] is False      # refused by the guard, which knows the FMU's GUID
 
 

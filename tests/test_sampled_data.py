@@ -20,8 +20,9 @@ def test_certificate_is_rechecked(building_card):
     card, _ = building_card
     assert card.data["certificate"]["verified"] is True
     assert all(c.holds for c in uiofmu.verify(card))
-    size = card.data["lmi_size"]
-    assert size["lmis"] == 144 and size["lmi_dim"] == 4
+    size = card.data["lmi_size"]             # p = q = 1: Corollary 2 on ker C, one dimension of the two states
+    assert card.data["design_method"] == "lmi on ker C (p = q)"
+    assert size["lmis"] == 144 and size["lmi_dim"] == 2
 
 
 def test_decoupling_identities_for_every_pair(building_card):

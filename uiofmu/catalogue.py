@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .certificate import overshoot_text
+
 #: The repository (the folder of ``examples/`` and ``plants/``) of an editable install.
 ROOT = Path(__file__).resolve().parents[1]
 #: The command that builds one example's row(s), ``--only KEY`` appended.
@@ -275,15 +277,16 @@ def _observer_steps(card) -> str:
 def _certified(card) -> str:
     d = card.data
     text = d.get("bound") or ""
-    decay, over = d.get("decay_bound"), d.get("overshoot_bound")
-    if decay is not None and over is not None:
+    decay = d.get("decay_bound")
+    if decay is not None and d.get("overshoot_bound") is not None:
+        over = overshoot_text(d)
         if decay < 1e-9:
-            text = text.replace("decay_bound**k", "δ^k").replace("overshoot_bound", num(over))
+            text = text.replace("decay_bound**k", "δ^k").replace("overshoot_bound", over)
             text += " with δ < 1e-9: dead-beat (the error is zero after one step, to rounding)"
         elif "decay_bound" in text:
-            text = text.replace("overshoot_bound", num(over)).replace("decay_bound**k", f"{num(decay)}^k")
+            text = text.replace("overshoot_bound", over).replace("decay_bound**k", f"{num(decay)}^k")
         else:
-            text += f"; decay_bound {num(decay)}, overshoot_bound {num(over)}"
+            text += f"; decay_bound {num(decay)}, overshoot_bound {over}"
     if d.get("formula"):
         text += f"; formula {d['formula']}"
     return round_text(text)

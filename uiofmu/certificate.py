@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .runtime.errors import InfeasibleError
-from .lmi import LmiSolution
-from .runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, ROUNDING_FACTOR, VERIFY_FRACTION
+from .lmi import LmiSolution, point_scale
+from .runtime.tolerances import FIGURE_RTOL, IDENTITY_RTOL, LMI_MARGIN, POINT_RTOL, ROUNDING_FACTOR, VERIFY_FRACTION
 
 #: The unit round-off of double precision.
 EPS = float(np.finfo(float).eps)
@@ -152,6 +152,40 @@ def overshoot(lyapunov) -> float:
     per interval or mode): the ``overshoot_bound`` of ``||e_k|| <= overshoot * decay**k * ||e_0||``."""
     eig = _spectra(lyapunov)
     return float(np.sqrt(eig.max() / eig.min()))
+
+
+#: Significant digits of a figure the solver determines to its full tolerance, and of one it does not.
+FIGURE_DIGITS, LOOSE_FIGURE_DIGITS = 4, 2
+
+
+def figure_digits(solution: LmiSolution) -> int:
+    """The significant digits that a figure read off ``solution``'s point (the overshoot) has on every machine.
+
+    :data:`FIGURE_DIGITS` for a closed form, or for the optimum of the system's own objective that
+    CLARABEL reached to its full tolerance (``optimal``) with normalisations held to
+    :data:`~uiofmu.runtime.tolerances.FIGURE_RTOL`; :data:`LOOSE_FIGURE_DIGITS` for anything else (an
+    ``optimal_inaccurate`` optimum, the point of largest margin, a point reused from another value, an
+    optimum whose variables are so large that the solver's tolerance leaves its normalisations loose).
+    """
+    if solution.status.startswith("closed form"):
+        return FIGURE_DIGITS
+    accurate = solution.status == "optimal" and solution.relative_margin is None
+    if accurate and POINT_RTOL * point_scale(solution.values) <= FIGURE_RTOL:
+        return FIGURE_DIGITS
+    return LOOSE_FIGURE_DIGITS
+
+
+def figure_text(value: float, digits: int) -> str:
+    """``value`` to ``digits`` significant digits, in plain notation where it fits (``290``, ``36``, ``6.452``)."""
+    rounded = float(f"{value:.{digits}g}")
+    if not (math.isfinite(rounded) and 1e-4 <= abs(rounded) < 1e6):
+        return f"{rounded:.{digits}g}"
+    return np.format_float_positional(rounded, trim="-")
+
+
+def overshoot_text(data: dict) -> str:
+    """A card's ``overshoot_bound`` to the digits its design determines (``overshoot_digits``; 4 when absent)."""
+    return figure_text(float(data["overshoot_bound"]), int(data.get("overshoot_digits") or FIGURE_DIGITS))
 
 
 def overshoot_check(claimed, lyapunov) -> Check:

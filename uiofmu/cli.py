@@ -80,18 +80,22 @@ def design_summary(card, timing: bool = True) -> list[str]:
     """The lines ``uiofmu design`` prints under its first: bounds, formula, search, certificate, time.
 
     The bounds of a design at given tunables are optimal values of its LMIs, printed to the digits
-    the solver's tolerance determines (the overshoot to 4): the same on every machine, like the
-    verdict. The solver's own word (``optimal`` or ``optimal_inaccurate``) is printed only for a
-    refused certificate: a verified one was re-checked without the solver, and that word moved with
-    the BLAS kernel. The result of a ``"max"`` search is the last value whose point the re-check
-    accepted; next to the edge of what the solver resolves (the check's notes about gains of order
-    1/margin) that value, and the figures at it, can differ between machines. The seconds (left out
-    with ``timing=False``) always do.
+    the solver's tolerance determines (the overshoot to the card's ``overshoot_digits``, 4 or 2):
+    the same on every machine, like the verdict. The solver's own word (``optimal`` or
+    ``optimal_inaccurate``) is printed only for a refused certificate: a verified one was re-checked
+    without the solver, and that word moved with the BLAS kernel. The result of a ``"max"`` search
+    is decided by optimal values (largest margins); where a plant's margin is lost in the solver's
+    own noise over a range of values, the search ends somewhere in that range, and that value and
+    the figures at it can differ between machines. The seconds (left out with ``timing=False``)
+    always do.
     """
+    from .certificate import overshoot_text
+
     lines = []
-    for key, digits in (("decay_bound", 6), ("overshoot_bound", 4), ("alpha", 6)):
+    for key, digits in (("decay_bound", 6), ("overshoot_bound", 0), ("alpha", 6)):
         if card.data.get(key) is not None:
-            lines.append(f"  {key:16s} {card.data[key]:.{digits}g}")
+            text = overshoot_text(card.data) if key == "overshoot_bound" else f"{card.data[key]:.{digits}g}"
+            lines.append(f"  {key:16s} {text}")
     if card.data.get("formula"):                  # a functional observer (window kernel)
         lines.append(f"  formula          {card.data['formula']}")
         lines.append(f"  window           {card.data['window']} outputs (r = {card.data['r']}, K = {card.data['K']}), "

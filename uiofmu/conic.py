@@ -11,6 +11,7 @@ product each and calls the solver.
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from functools import lru_cache
@@ -319,6 +320,7 @@ class ConicProblem:
 
         maps, coef, const, diag = [], [], [], []
         self.cones = []
+        self._kinds = []               # (first row, rows, size, kind) of every cone, for margin_form
         entry = row = 0
         for lmi in lmis:
             F = lmi.matrix if isinstance(lmi.matrix, Affine) else Affine.constant(lmi.matrix)
@@ -327,8 +329,13 @@ class ConicProblem:
             maps.append((rows + row, weights))
             if lmi.equality:
                 self.cones.append(clarabel.ZeroConeT(count))
+                self._kinds.append((row, count, m, "equality"))
             else:
                 self.cones.append(clarabel.PSDTriangleConeT(m))
+                normalisation = not lmi.strict and np.any(F.const.get(None, 0.0)) and \
+                    all(k is None for k in F.const)
+                self._kinds.append((row, count, m, "strict" if lmi.strict else
+                                    "normalisation" if normalisation else "nonstrict"))
                 if lmi.strict:                                    # F - margin I in the cone
                     diag.append(entry + np.arange(m) * (m + 1))
             for (key, var), T in F.coef.items():
@@ -356,6 +363,66 @@ class ConicProblem:
                 self.q[self.offsets[var]:self.offsets[var] + self.sizes[var]] += T[0, 0]
         self.P = sp.csc_matrix((np.zeros(0), np.zeros(0, int), np.zeros(self.nvar + 1, int)),
                                shape=(self.nvar, self.nvar))
+
+    def margin_form(self, name: str, margin: float, tie_break: float) -> tuple["ConicProblem", int]:
+        """The largest-margin problem of these LMIs, from the assembled data (no second tracing).
+
+        Every strict LMI ``F(x) - margin I`` becomes ``F(x) - t I``; every normalisation (a non-strict
+        LMI with a constant, parameter-free part, such as ``X - I``) loses its constant and becomes
+        ``F_lin(x) - t I``; one equality row makes the traces of the normalised ``F_lin`` add up to 1;
+        the objective is ``-t`` plus ``tie_break`` times this problem's own. ``t`` is the variable
+        ``name`` (a scalar, last).
+
+        Returns
+        -------
+        (ConicProblem, int)
+            The problem, and the total size of the normalised matrices.
+
+        Raises
+        ------
+        ValueError
+            When there is no normalisation (the margin would be unbounded).
+        """
+        def diagonal(first, m):
+            j = np.arange(m)
+            return first + j * (j + 1) // 2 + j
+
+        strict = [diagonal(r, m) for r, _, m, kind in self._kinds if kind == "strict"]
+        norms = [(r, c, m) for r, c, m, kind in self._kinds if kind == "normalisation"]
+        if not norms:
+            raise ValueError("a largest-margin problem needs a normalisation (a non-strict LMI with a constant part)")
+        norm_diag = np.concatenate([diagonal(r, m) for r, _, m in norms])
+        t_rows = np.sort(np.concatenate(strict + [norm_diag]))
+        keys = len(self.keys)
+        cols = np.repeat(np.arange(self.nvar), np.diff(self._indptr))
+        on_trace = np.isin(self._indices, norm_diag)          # the trace row: minus the sum of those rows
+        trace_cols, where = np.unique(cols[on_trace], return_inverse=True)
+        trace_vals = np.zeros((trace_cols.size, keys))
+        np.add.at(trace_vals, where, -self._values[on_trace])
+        t_vals = np.zeros((t_rows.size, keys))
+        t_vals[:, 0] = 1.0                                    # s = F - t I
+        rows = np.concatenate([self._indices, np.full(trace_cols.size, self.nrows), t_rows])
+        cols = np.concatenate([cols, trace_cols, np.full(t_rows.size, self.nvar)])
+        vals = np.vstack([self._values, trace_vals, t_vals])
+        order = np.lexsort((rows, cols))
+        out = copy.copy(self)
+        out.nvar, out.nrows = self.nvar + 1, self.nrows + 1
+        out._indices, out._values = rows[order], vals[order]
+        out._indptr = np.searchsorted(cols[order], np.arange(out.nvar + 1))
+        b = self._b.copy()
+        for rows_ in strict:
+            b[rows_, 0] += margin                             # the strictness margin is t now
+        for r, c, _ in norms:
+            b[r:r + c, 0] = 0.0                               # the normalisation's constant goes
+        out._b = np.vstack([b, np.eye(1, keys)])              # the traces add up to 1
+        out.cones = [*self.cones, clarabel.ZeroConeT(1)]
+        out.q = np.concatenate([tie_break * self.q, [-1.0]])
+        out.P = sp.csc_matrix((np.zeros(0), np.zeros(0, int), np.zeros(out.nvar + 1, int)),
+                              shape=(out.nvar, out.nvar))
+        out.specs = {**self.specs, name: ("scalar",)}
+        out.offsets, out.sizes = {**self.offsets, name: self.nvar}, {**self.sizes, name: 1}
+        out._basis = {**self._basis, name: np.ones((1, 1, 1))}
+        return out, int(sum(m for *_, m in norms))
 
     def _pattern(self, blocks: list, to_row: np.ndarray, to_weight: np.ndarray):
         """``A``'s pattern (CSC) and its values per parameter key, from dense coefficient blocks

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import SimpleNamespace
 from typing import Callable
 
@@ -31,7 +31,15 @@ import numpy as np
 
 from .runtime.errors import InfeasibleError
 from .progress import progress
-from .runtime.tolerances import LMI_MARGIN, POINT_RTOL, SEARCH_TOL, SOLVER_TOL, VERIFY_FRACTION
+from .runtime.tolerances import (
+    LMI_MARGIN,
+    MARGIN_DECISION_RTOL,
+    MARGIN_SOLVER_TOL,
+    POINT_RTOL,
+    SEARCH_TOL,
+    SOLVER_TOL,
+    VERIFY_FRACTION,
+)
 
 
 @dataclass(frozen=True)
@@ -108,6 +116,9 @@ class LmiSolution:
     setup_time: float
     objective: float | None = None
     margin: float = LMI_MARGIN
+    #: For a point of largest margin (:meth:`LmiSystem.largest_margin`): that margin, relative to the mean
+    #: eigenvalue of the normalised matrices; None for the point of a plain solve.
+    relative_margin: float | None = None
 
 
 def eig_min(lmis: list[Lmi]) -> dict:
@@ -175,6 +186,14 @@ def accepted(eigs: dict, lmis: list[Lmi], margin: float = LMI_MARGIN,
     return not rejected(eigs, lmis, scale, margin, verify_fraction)
 
 
+#: The margin variable of a largest-margin problem (a name no family uses).
+MARGIN_VARIABLE = "largest margin t"
+
+#: Weight of the system's own objective in its largest-margin problem: enough to pin variables that only
+#: bound others (``t`` of ``X <= t I``, ``gamma``), far too little to move the margin.
+MARGIN_TIE_BREAK = 1e-12
+
+
 @dataclass
 class LmiSystem:
     """An LMI problem, compiled once and solved for any parameter values.
@@ -239,6 +258,7 @@ class LmiSystem:
     certify: Callable | None = None
     recentre: Callable | None = None
     _conic: object = field(init=False, repr=False, default=None)
+    _margin: tuple | None = field(init=False, repr=False, default=None)
     _frame: tuple | None = field(init=False, repr=False, default=None)
     _vars: dict = field(init=False, repr=False)
     _params: dict = field(init=False, repr=False)
@@ -289,6 +309,108 @@ class LmiSystem:
     def recentred(self) -> bool:
         """Whether solves now start in coordinates chosen by ``recentre``."""
         return self._frame is not None
+
+    def largest_margin(self, **parameters) -> LmiSolution:
+        """The point of largest margin at the parameter values, scaled to the normalisations and re-checked.
+
+        Solves the bounded problem of :meth:`uiofmu.conic.ConicProblem.margin_form` (derived once from
+        the assembled LMIs): every strict LMI ``>= t I``, every normalisation ``X >= I`` as ``X >= t I``,
+        the normalised matrices' traces adding up to 1, ``t`` maximised to
+        :data:`~uiofmu.runtime.tolerances.MARGIN_SOLVER_TOL`. It is bounded and feasible at every
+        parameter value (``t`` may be negative), and positive exactly where the system has a
+        certificate. Its optimal value is determined by the problem to the solver's accuracy, where the
+        point a feasibility solve stops at is not; its point, divided by ``t``, satisfies every
+        normalisation with every strict LMI ``>= I``.
+
+        With ``recentre``, a point of too small a margin is solved once more in the coordinates
+        ``recentre`` chooses from it (as :meth:`solve` does), where the margin is measured; its point
+        is mapped back and re-checked here.
+
+        Returns
+        -------
+        LmiSolution
+            Verified when the relative margin is at least
+            :data:`~uiofmu.runtime.tolerances.MARGIN_DECISION_RTOL` and the scaled point passes
+            :meth:`recheck` (the family's checks at the stored matrices included); ``relative_margin``
+            holds the margin (None when CLARABEL returned no point).
+
+        Raises
+        ------
+        ValueError
+            When the system is not homogeneous, or has no normalisation.
+        """
+        if not self.homogeneous:
+            raise ValueError(f"{self.name}: a largest margin needs a homogeneous system")
+        pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
+        sol = self._margin_in(self._frame, pvals)
+        if sol.verified or self.recentre is None or not sol.values:
+            return sol
+        try:
+            t0 = time.perf_counter()
+            frame = self.recentre(sol.values)
+            self.assembly_time += time.perf_counter() - t0
+        except (np.linalg.LinAlgError, ValueError):
+            frame = None
+        if frame is None:
+            return sol
+        again = self._margin_in(frame, pvals)
+        if again.verified:
+            self._frame = frame
+            return again
+        return sol
+
+    def _margin_in(self, frame, pvals: dict) -> LmiSolution:
+        """The largest margin in this system's coordinates (``frame`` None) or in a recentred ``frame``
+        ``(system, back)``: there the margin is the frame's, and its point is mapped back and re-checked
+        here (see :meth:`largest_margin`)."""
+        if frame is not None:
+            system, back = frame
+            inner = system.largest_margin(**pvals)
+            self.solves += 1
+            self.solver_time += inner.solve_time
+            if not inner.values:
+                return replace(inner, verified=False)
+            sol = self.recheck(back(inner.values), pvals, inner.status)
+            return LmiSolution(sol.values, pvals, inner.status, sol.eig_min, sol.verified and inner.verified,
+                               inner.solve_time, inner.setup_time, sol.objective, self.margin, inner.relative_margin)
+        if self._margin is None:
+            from .conic import ConicProblem
+
+            t0 = time.perf_counter()
+            base = self._conic if self._conic is not None else ConicProblem(
+                self.variables, self.parameters, self.build, self.objective, self.margin)
+            self._margin = base.margin_form(MARGIN_VARIABLE, self.margin, MARGIN_TIE_BREAK)
+            self.assembly_time += time.perf_counter() - t0
+        conic, size = self._margin
+        t0 = time.perf_counter()
+        values, status, solve_time = conic.solve(pvals, MARGIN_SOLVER_TOL)
+        total = time.perf_counter() - t0
+        self.solves += 1
+        self.solver_time += solve_time
+        if not values:
+            return LmiSolution({}, pvals, status, {}, False, solve_time, total - solve_time, None, self.margin)
+        t = float(values.pop(MARGIN_VARIABLE))
+        relative = t * size
+        if not (t > 0 and np.isfinite(t)):
+            return LmiSolution({}, pvals, status, {}, False, solve_time, total - solve_time, None, self.margin,
+                               relative)
+        sol = self.recheck({k: np.asarray(v) / t for k, v in values.items()}, pvals, f"{status} (largest margin)")
+        return LmiSolution(sol.values, pvals, sol.status, sol.eig_min,
+                           sol.verified and relative >= MARGIN_DECISION_RTOL, solve_time, max(total - solve_time, 0.0),
+                           sol.objective, self.margin, relative)
+
+    def decide(self, **parameters) -> LmiSolution:
+        """Whether the parameter values have a certificate, decided by an optimal value.
+
+        A homogeneous system on the direct backend is decided by :meth:`largest_margin`; any other
+        by :meth:`solve` (the cvxpy backend keeps the straightforward formulation it is there to compare).
+        """
+        return self.largest_margin(**parameters) if self.decides_by_margin else self.solve(**parameters)
+
+    @property
+    def decides_by_margin(self) -> bool:
+        """Whether :meth:`decide` uses :meth:`largest_margin` (a homogeneous system on the direct backend)."""
+        return self.homogeneous and self.backend == "direct"
 
     def evaluate(self, values: dict, parameters: dict) -> list[Lmi]:
         """The LMIs as numpy matrices at ``values`` (the re-check's input)."""
@@ -540,7 +662,14 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
     """Bisection for the best value of one tunable, keeping only re-checked certificates.
 
     ``infeasible_end`` is a value known (from theory) not to verify, or the limit of the range;
-    the best value is the one closest to it that still verifies, within ``tol``. The bracket
+    the best value is the one closest to it that still verifies, within ``tol``. Each value is
+    decided by :meth:`LmiSystem.decide`: for a homogeneous system, by the optimal value of its
+    largest-margin problem (and the certificate of its point), so that the search ends at the same
+    value under every BLAS kernel wherever the solver resolves that margin more finely than the
+    search's step. When no value verifies that way, the search runs again deciding each value by a
+    plain solve (the solver's point, re-checked): a certificate the margins miss is still found. The
+    value found is then solved for the system's own objective (the least overshoot), whose point is
+    kept when it certifies; otherwise the point of largest margin is. The bracket
     comes from theory (zeros, fixed modes), and the search first tries the value ``tol`` inside
     it (never past ``feasible_end``): where theory's limit is reached (as for the building) one
     solve decides. Otherwise ``feasible_end`` is tried; when it does not verify either, values
@@ -583,40 +712,73 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
     """
     f = transform or (lambda x: x)
     t0 = time.perf_counter()
-    good, bad = float(feasible_end), float(infeasible_end)
-    steps = max(0, int(np.ceil(np.log2(max(abs(good - bad), tol) / tol))))
+    steps = max(0, int(np.ceil(np.log2(max(abs(feasible_end - infeasible_end), tol) / tol))))
+    deciders = [system.decide] + ([system.solve] if system.decides_by_margin else [])
+    solves = 0
     with progress(total=steps + 2, desc=label or f"search {parameter}", unit="solve") as bar:
-        step = min(tol, 0.5 * abs(good - bad))
-        near = bad + (step if good > bad else -step)
-        best = system.solve(**{parameter: f(near)})
-        bar.update()
-        solves = 1
-        if best.verified:
-            return SearchResult(near, best, solves, time.perf_counter() - t0, (near, bad), name or parameter)
-        bad = near
-        best = system.solve(**{parameter: f(good)})
-        bar.update()
-        solves += 1
-        for k in range(1, walk + 1 if safe_end is not None else 1):
-            if best.verified:
+        for decide in deciders:
+            found = _bisect(decide, parameter, f, float(feasible_end), float(infeasible_end), tol, safe_end, walk,
+                            bar)
+            solves += found[3]
+            if found[2].verified:
                 break
-            bad = good
-            good = float(feasible_end) + (safe_end - float(feasible_end)) * (1.0 - 0.5 ** k)
-            best = system.solve(**{parameter: f(good)})
-            solves += 1
-            bar.update()
+        good, bad, best, _ = found
         if not best.verified:
             system.refuse(best, diagnose)
-        while abs(good - bad) > tol:
-            mid = 0.5 * (good + bad)
-            sol = system.solve(**{parameter: f(mid)})
-            solves += 1
-            bar.update()
-            if sol.verified:
-                good, best = mid, sol
-            else:
-                bad = mid
-    return SearchResult(good, best, solves, time.perf_counter() - t0, (good, bad), name or parameter)
+        best, more = _settled(system, parameter, f(good), best)
+    return SearchResult(good, best, solves + more, time.perf_counter() - t0, (good, bad), name or parameter)
+
+
+def _bisect(decide: Callable, parameter: str, f: Callable, good: float, bad: float, tol: float,
+            safe_end: float | None, walk: int, bar) -> tuple:
+    """The bisection of :func:`search` with one way of deciding a value.
+
+    Returns
+    -------
+    (float, float, LmiSolution, int)
+        The best value and the nearest refused one, the solution at the best value (not verified
+        when nothing verified: then the one closest to ``safe_end``), and the solves made.
+    """
+    step = min(tol, 0.5 * abs(good - bad))
+    near = bad + (step if good > bad else -step)
+    best = decide(**{parameter: f(near)})
+    bar.update()
+    if best.verified:
+        return near, bad, best, 1
+    bad, solves = near, 2
+    best = decide(**{parameter: f(good)})
+    bar.update()
+    start = good
+    for k in range(1, walk + 1 if safe_end is not None else 1):
+        if best.verified:
+            break
+        bad = good
+        good = start + (safe_end - start) * (1.0 - 0.5 ** k)
+        best = decide(**{parameter: f(good)})
+        solves += 1
+        bar.update()
+    if not best.verified:
+        return good, bad, best, solves
+    while abs(good - bad) > tol:
+        mid = 0.5 * (good + bad)
+        sol = decide(**{parameter: f(mid)})
+        solves += 1
+        bar.update()
+        if sol.verified:
+            good, best = mid, sol
+        else:
+            bad = mid
+    return good, bad, best, solves
+
+
+def _settled(system: LmiSystem, parameter: str, value: float, decided: LmiSolution) -> tuple[LmiSolution, int]:
+    """The point a search keeps at the value it found: the optimum of the system's own objective when
+    that certifies (a plain solve), else the point of largest margin that decided the value; and the
+    number of extra solves."""
+    if decided.relative_margin is None:
+        return decided, 0
+    sol = system.solve(**{parameter: value})
+    return (sol if sol.verified else decided), 1
 
 
 @dataclass(frozen=True)
@@ -634,10 +796,11 @@ def tune(system: LmiSystem, parameter: str, requested, *, feasible_end: float, i
          name: str | None = None, diagnose: bool = True) -> Tuned:
     """A tunable that is a number or ``"max"``: solve at the number, or search for the best value.
 
-    A number that does not verify directly is not refused yet: when the best value (searched
-    then) lies on its far side, the best value's point certifies the number too, because
-    the LMIs only get easier toward ``safe_end``; it is re-checked at the number and used. So
-    a value on the feasible side of a certified ``"max"`` always designs.
+    A number that does not verify directly is not refused yet: its point of largest margin may
+    certify (a homogeneous system), and when the best value (searched then) lies on its far side,
+    the best value's point certifies the number too, because the LMIs only get easier toward
+    ``safe_end``; it is re-checked at the number and used. So a value on the feasible side of a
+    certified ``"max"`` always designs.
 
     Parameters
     ----------
@@ -678,6 +841,10 @@ def tune(system: LmiSystem, parameter: str, requested, *, feasible_end: float, i
     sol = system.solve(**{parameter: f(value)})
     if sol.verified:
         return Tuned(value, sol, None)
+    if system.decides_by_margin:
+        decided = system.largest_margin(**{parameter: f(value)})
+        if decided.verified:
+            return Tuned(value, decided, None)
     try:
         found = search(system, parameter, feasible_end, infeasible_end, **kwargs)
     except InfeasibleError:

@@ -25,6 +25,7 @@ import numpy as np
 from ..runtime.card import Card, card_from_data
 from ..runtime.errors import FmuError, ProblemError
 from ..runtime.files import atomic_output, check_output_dir, write_atomic
+from ..certificate import overshoot_text
 from ..families import certified_bound
 from .fmi import Fmu, FmuCallError, first_non_integer, not_an_integer, read_description, read_model_json, vector_sizes
 from .inputs import CsvInputs, SignalInputs, values_at
@@ -239,7 +240,7 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
     if bound is not None:
         text = card.data.get("bound", "")
         if card.data.get("overshoot_bound") is not None:
-            text = (text.replace("overshoot_bound", f"{card.data['overshoot_bound']:.4g}")
+            text = (text.replace("overshoot_bound", overshoot_text(card.data))
                     .replace("decay_bound**k", f"{card.data['decay_bound']:.6g}^k"))
         result.metrics["bound_formula"] = text
     if MODE is not None:

@@ -45,6 +45,7 @@ from ..certificate import (
     decay_check,
     identity_check,
     lyapunov_check,
+    figure_digits,
     overshoot,
     overshoot_check,
     positive_check,
@@ -170,8 +171,15 @@ def analyse(problem) -> Analysis:
 
 def _lmis(A1, A2, S1, C, eta, least_overshoot: bool = False):
     """Theorem 2's LMIs, minimising ``gamma``, or with ``least_overshoot`` the least ``t`` with
-    ``X <= t I``."""
+    ``X <= t I``.
+
+    ``S1`` enters scaled to unit norm: with ``S1 = s S1n``, the congruence ``diag(I, I, I / s)`` maps
+    (33) with ``S1`` to (33) with ``S1n`` and the same ``gamma``, so feasibility and ``gamma`` are
+    those of the paper, while the block ``Om``, of size ``|S1|^2``, no longer drowns in the strictness
+    margin when the unknown input's unit makes ``E`` tiny (``E`` of 1e-10 designs as ``E`` of 1 does).
+    """
     n, p, q = C.shape[1], C.shape[0], S1.shape[1]
+    S1 = S1 / max(float(np.linalg.norm(S1, 2)), 1e-300)
 
     def build(v, prm, ops):
         X, G1, G2, gamma = v["X"], v["G1"], v["G2"], v["gamma"]
@@ -345,7 +353,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
                  name="mu")
     mu, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
-    gamma = float(sol.values["gamma"])
+    # the least gamma at mu (Remark 1) is a figure of the card only where the solver reached that optimum
+    gamma = float(sol.values["gamma"]) if sol.status == "optimal" and sol.relative_margin is None else None
     least = _lmis(A1, A2, S1, C, opts.eta, least_overshoot=True)
     least.certify = system.certify
     refined = least.solve(tau1=opts.eta * (1 + mu))
@@ -364,6 +373,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "decay_bound": float(np.sqrt(1 - tau2)),
         "initial_decay_bound": float(np.sqrt(1 - tau1)),
         "overshoot_bound": overshoot(X),
+        "overshoot_digits": figure_digits(sol),
         "bound": BOUND,
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),

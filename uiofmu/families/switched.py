@@ -40,8 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import (EPS, Check, certificate, decay_check, identity_check, lyapunov_check, overshoot,
-                           overshoot_check, positive_check, round_up)
+from ..certificate import (EPS, FIGURE_DIGITS, Check, certificate, decay_check, figure_digits, identity_check,
+                           lyapunov_check, overshoot, overshoot_check, positive_check, round_up)
 from ..consistency import dhat_record
 from ..decoupling import weak_modes_condition
 from ..runtime.card import DHAT
@@ -395,7 +395,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         norm = round_up(max(norm, floor), 1)
         lam = norm if opts.decay == "max" else max(float(opts.decay), norm)
         sol = _closed_form(lam, "closed form (dead-beat: Kt_i = At_i Ct_i^+)")
-        method, solver, bound = "deadbeat", "none", 1.0
+        method, solver, bound, digits = "deadbeat", "none", 1.0, FIGURE_DIGITS
     else:
         system = _lmis(modes)
         system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(modes, v, C, has_dhat),
@@ -406,13 +406,14 @@ def design(problem, analysis: Analysis) -> DesignResult:
         lam, sol = tuned.value, tuned.solution
         searched = tuned.search.to_data() if tuned.search else None
         mats = _lmi_runtime(modes, sol.values, C, has_dhat)
-        bound = overshoot(mats["S"])
+        bound, digits = overshoot(mats["S"]), figure_digits(sol)
         method, solver = "lmi", "CLARABEL"
     cert = certificate(sol, checks(mats, lam), f"{NAME} design of {problem.name}", solver=solver)
     results = {
         "decay": lam,
         "decay_bound": lam,
         "overshoot_bound": bound,
+        "overshoot_digits": digits,
         "bound": BOUND,
         "modes": plant.N,
         "fixed_eigenvalues": [complex_list(md.fixed) for md in modes],

@@ -22,6 +22,17 @@ SOLVER_TOL = 1e-8
 #: matrices' mean eigenvalue: 100x the solver tolerance, so that its own error cannot flip the sign.
 MARGIN_PROOF_RTOL = 100 * SOLVER_TOL
 
+#: CLARABEL's tolerances for a largest-margin problem (:meth:`uiofmu.lmi.LmiSystem.largest_margin`): bounded and
+#: strictly feasible by construction, it is solved far more finely than the design LMIs.
+MARGIN_SOLVER_TOL = 1e-10
+
+#: A ``"max"`` search decides each value by the optimal value of its largest-margin problem: the value
+#: passes when that margin, relative to the mean eigenvalue of the normalised Lyapunov matrices, is at least
+#: this (100x :data:`MARGIN_SOLVER_TOL`) and the point of largest margin certifies. An optimal value moves
+#: with the BLAS kernel only in the digits the solver does not resolve, where a feasible point the solver
+#: happened to stop at moves with everything.
+MARGIN_DECISION_RTOL = 100 * MARGIN_SOLVER_TOL
+
 #: The independent re-check accepts a strict LMI when its smallest eigenvalue, evaluated
 #: with numpy at the stored matrices, is at least ``VERIFY_FRACTION * LMI_MARGIN``.
 VERIFY_FRACTION = 0.1
@@ -44,6 +55,14 @@ POINT_RTOL = 1e-9
 #: Largest accepted residual of an identity the design must satisfy exactly
 #: (decoupling (I + MC)E = 0, PA - NP - LC = 0, ...), relative to the norms involved.
 IDENTITY_RTOL = 1e-9
+
+#: A figure read off a certified point (the overshoot bound) is printed to 4 significant digits when the point
+#: is an optimum the solver reached to its full tolerance, with the normalisations it may violate by up to
+#: :data:`POINT_RTOL` times its largest entry violated by at most this (the ratio then moves by less than
+#: half of it, far inside the 4th digit's 1e-3), or when it is a closed form; otherwise to 2 (an optimum
+#: reached only "inaccurately", a point of largest margin, a point reused from another value). The card
+#: keeps the bound of its own matrices to full precision, and the digits its design determines.
+FIGURE_RTOL = 1e-4
 
 #: Bisection tolerance of a "max" search, on the searched parameter.
 SEARCH_TOL = 1e-4

@@ -1,0 +1,131 @@
+"""A ``"max"`` search decided by optimal values: the largest margin of the LMIs at each value.
+
+What the theory guarantees and these tests check: the largest-margin problem of a homogeneous system
+is bounded and feasible at every value, its optimum is positive exactly where a certificate exists, its
+point scaled to the normalisations satisfies every LMI with margin, and a search ends where that margin
+crosses its threshold. The same search under other BLAS kernels is ``tests/test_same_answers.py``'s.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import uiofmu
+from uiofmu.certificate import FIGURE_DIGITS, LOOSE_FIGURE_DIGITS, figure_text, overshoot_text
+from uiofmu.cli import design_summary
+from uiofmu.families import ltv_auid
+from uiofmu.lmi import Lmi, LmiSystem, eig_min, search
+from uiofmu.problem import problem_from_data
+from uiofmu.runtime.tolerances import MARGIN_DECISION_RTOL, SEARCH_TOL
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _toy():
+    """``X >= 1``, ``(1 - s) X > 0`` and ``(2 - s) X > 0``: largest margin ``min(1, 1 - s)`` with ``X = 1``."""
+    def build(v, prm, ops):
+        return [Lmi("X >= 1", v["X"] - ops.eye(1), strict=False),
+                Lmi("(1 - s) X > 0", (1.0 - prm["s"]) * v["X"] + 0.0 * ops.eye(1)),
+                Lmi("(2 - s) X > 0", (2.0 - prm["s"]) * v["X"] + 0.0 * ops.eye(1))]
+    return LmiSystem("toy", {"X": ("symmetric", 1)}, {"s": 0.0}, build, homogeneous=True)
+
+
+def _example2(**observer):
+    doc = tomllib.loads((ROOT / "examples" / "seed000_example2_consistent.toml").read_text(encoding="utf-8"))
+    doc["observer"].update(observer)
+    return problem_from_data(doc)
+
+
+def _theorem2(problem):
+    """ltv-auid's Theorem 2 system of a problem, and the map from mu to its parameter."""
+    s = problem.plant.sampled(problem.options.dt)
+    _, A1, A2, S1 = ltv_auid._vertices(s, problem.plant.C, problem.options.alpha)
+    eta = problem.options.eta
+    return ltv_auid._lmis(A1, A2, S1, problem.plant.C, eta), (lambda mu: eta * (1.0 + mu))
+
+
+def test_the_largest_margin_of_a_toy_is_its_closed_form():
+    system = _toy()
+    for s in (0.0, 0.3, 0.9):
+        sol = system.largest_margin(s=s)
+        assert sol.relative_margin == pytest.approx(min(1.0, 1.0 - s), abs=1e-8)
+        assert sol.verified
+        lmis = system.evaluate(sol.values, {"s": s})
+        assert eig_min(lmis)["X >= 1"] >= -1e-9               # scaled back to its normalisation
+    beyond = system.largest_margin(s=1.2)
+    assert beyond.relative_margin == pytest.approx(-0.2, abs=1e-8) and not beyond.verified
+
+
+def test_a_search_ends_where_the_margin_crosses_its_threshold():
+    found = search(_toy(), "s", 0.0, 1.0, tol=1e-4)
+    assert 1.0 - MARGIN_DECISION_RTOL - 1e-4 <= found.value < 1.0 - MARGIN_DECISION_RTOL
+    assert found.solution.verified and found.solution.relative_margin is None     # settled: the plain optimum
+
+
+def test_a_system_without_normalisation_has_no_margin():
+    def build(v, prm, ops):
+        return [Lmi("X > 0", v["X"] + 0.0 * ops.eye(1))]
+    with pytest.raises(ValueError, match="needs a normalisation"):
+        LmiSystem("bare", {"X": ("symmetric", 1)}, {}, build, homogeneous=True).largest_margin()
+
+
+def test_example_2s_margin_vanishes_at_the_papers_mu():
+    """Theorem 2's LMIs of seed 000 Example 2 (consistent data): the largest margin changes sign
+    between mu = 14.8 and 15.2; the paper's Example 2 reports mu = 15."""
+    system, tau1 = _theorem2(_example2())
+    inside, outside = system.largest_margin(tau1=tau1(14.8)), system.largest_margin(tau1=tau1(15.2))
+    assert inside.status.startswith("optimal") and outside.status.startswith("optimal")
+    assert inside.relative_margin > 0 > outside.relative_margin
+
+
+def test_example_2s_search_stops_at_its_threshold():
+    card = uiofmu.design(_example2())
+    mu, (good, bad) = card.data["mu"], card.data["search"]["bracket"]
+    assert good == mu and 14.0 < mu < 15.0
+    system, tau1 = _theorem2(_example2())
+    assert system.largest_margin(tau1=tau1(good)).relative_margin >= MARGIN_DECISION_RTOL
+    assert system.largest_margin(tau1=tau1(bad)).relative_margin < MARGIN_DECISION_RTOL
+    assert abs(bad - good) <= SEARCH_TOL * card.data["existence"]["conditions"][-1]["values"]["mu_limit"] + 1e-12
+    assert all(c.holds for c in uiofmu.verify(card))
+
+
+def test_a_value_whose_plain_solve_fails_designs_from_its_largest_margin():
+    """At mu = 14.4 a plain solve of Theorem 2 ends without a certificate (CLARABEL stalls near the
+    edge); its point of largest margin certifies, and the card is that design."""
+    card = uiofmu.design(_example2(mu=14.4))
+    assert card.data["mu"] == 14.4 and card.data["certificate"]["verified"]
+    assert all(c.holds for c in uiofmu.verify(card))
+
+
+def test_the_unknown_inputs_unit_does_not_change_an_ltv_design():
+    """Scaling E scales S1; (33) with S1 / |S1| is the same LMI (a congruence), so E of 1e-10 designs the
+    mu that E of 1 does (it used to need slack 1e-6 in (33))."""
+    base = tomllib.loads((ROOT / "examples" / "seed000_example1_ltv.toml").read_text(encoding="utf-8"))
+    base["observer"]["mu"] = "max"
+    mus = []
+    for scale in (1.0, 1e-10):
+        doc = {**base, "plant": {**base["plant"], "E": (np.array(base["plant"]["E"]) * scale).tolist()}}
+        card = uiofmu.design(problem_from_data(doc))
+        assert all(c.holds for c in uiofmu.verify(card))
+        mus.append(card.data["mu"])
+    limit = 1.0 / 0.01 - 1.0
+    assert abs(mus[0] - mus[1]) <= 2 * SEARCH_TOL * limit
+
+
+def test_the_overshoot_is_printed_to_the_digits_its_design_determines():
+    accurate = uiofmu.design(problem_from_data(tomllib.loads(
+        (ROOT / "examples" / "seed000_example1_ltv.toml").read_text(encoding="utf-8"))))
+    assert accurate.data["overshoot_digits"] == FIGURE_DIGITS
+    edge = uiofmu.design(_example2(mu=14.4))                # the point of largest margin
+    assert edge.data["overshoot_digits"] == LOOSE_FIGURE_DIGITS
+    for card in (accurate, edge):
+        text = overshoot_text(card.data)
+        assert f"  overshoot_bound  {text}" in design_summary(card, timing=False)
+        digits = card.data["overshoot_digits"]
+        assert float(text) == pytest.approx(card.data["overshoot_bound"], rel=10.0 ** (1 - digits))
+    assert [figure_text(v, 2) for v in (292.79, 36.08, 0.00012345)] == ["290", "36", "0.00012"]
+    assert figure_text(6.4517, 4) == "6.452" and figure_text(2.5e6, 2) == "2.5e+06"
