@@ -2573,7 +2573,7 @@ def _nudge(value, rng, scale: float | None = None):
     if isinstance(value, dict) and value:
         out = copy.deepcopy(value)
         key = rng.choice(sorted(out))
-        out[key] = _nudge(out[key], rng)
+        out[key] = _nudge(out[key], rng, scale)
         return out
     return value
 
@@ -2609,14 +2609,14 @@ def consistent_forgeries(doc: dict, others: list, rng) -> list[tuple[str, dict]]
     out = []
     paths = [c.name[:-len(DETERMINED)] for c in verify(card_from_data(doc)) if c.name.endswith(DETERMINED)]
     for path in paths:
-        keys = path.split(".")
         new = copy.deepcopy(doc)
-        parent = new
-        for key in keys[:-1]:
-            parent = parent[key]
-        before = parent.get(keys[-1])
-        parent[keys[-1]] = _nudge(before, rng)
-        if parent[keys[-1]] != before:
+        parent, last = _locate(new, path)
+        before = parent[last] if isinstance(parent, list) else parent.get(last)
+        # an existence figure may move by up to eigen_rtol(n) <= 7e-3 (n <= 6) of its condition's size between
+        # machines: nudged by 3e-2 of that size (and of 1), beyond it
+        wide = 30.0 * max([abs(x) for x in _floats_of(before)] + [1.0]) if path.startswith("existence.") else None
+        parent[last] = _nudge(before, rng, wide)
+        if parent[last] != before:
             out.append((f"{path} nudged", new))
     for key, value in (("decay_bound", 0.5), ("overshoot_bound", 1.0)):
         if key in doc and doc[key] is None:                     # a bound the family does not certify
@@ -2653,6 +2653,28 @@ def consistent_forgeries(doc: dict, others: list, rng) -> list[tuple[str, dict]]
                 new[key] = theirs
                 out.append((f"{key} {theirs:.4g} from {other['name']} (the card's is {mine:.4g})", new))
     return out
+
+
+def _floats_of(value) -> list:
+    """Every float of a JSON value."""
+    if isinstance(value, dict):
+        return [x for v in value.values() for x in _floats_of(v)]
+    if isinstance(value, list):
+        return [x for v in value for x in _floats_of(v)]
+    return [value] if isinstance(value, float) and math.isfinite(value) else []
+
+
+def _locate(doc: dict, path: str) -> tuple:
+    """The container and the key (or index) of a check's card path (``existence.conditions[2].values``;
+    what a check's name adds after the path, `` (...)``, is left out)."""
+    steps = []
+    for part in path.split(" (")[0].split("."):
+        key, *indices = part.split("[")
+        steps += [key] + [int(i.rstrip("]")) for i in indices]
+    parent = doc
+    for step in steps[:-1]:
+        parent = parent[step]
+    return parent, steps[-1]
 
 
 def _false_below(doc: dict) -> dict:

@@ -9,6 +9,7 @@ and ``verify`` run, and by the command line with exit 2 and one line.
 
 from __future__ import annotations
 
+import copy
 import json
 import random
 from pathlib import Path
@@ -168,3 +169,82 @@ def test_a_card_whose_problem_asks_for_another_fixed_value_is_refused(docs, name
     doc["problem"]["observer"][key] = value
     with pytest.raises(CardError, match=rf"design card: {field} is not what the card's problem determines"):
         recheck(card_from_data(doc))
+
+
+# -- what a card lists besides its certificate -------------------------------------------------------------
+
+def _refused(doc) -> str:
+    from uiofmu.runtime.errors import CardError
+
+    try:
+        recheck(card_from_data(doc))
+    except CardError as exc:
+        return str(exc)
+    return ""
+
+
+@pytest.mark.parametrize("name", sorted(PROBLEMS))
+def test_the_existence_a_card_lists_is_its_problems(docs, name):
+    """Every condition of the card's existence analysis is recomputed without a solver: a verdict flipped, a
+    condition dropped or a number of it changed is refused by name."""
+    doc = docs[name]
+    conditions = doc["existence"]["conditions"]
+    flipped = copy.deepcopy(doc)
+    first = next(i for i, c in enumerate(conditions) if c.get("solver") is not True)
+    flipped["existence"]["conditions"][first]["holds"] = not conditions[first]["holds"]
+    said = _refused(flipped)              # the flipped verdict, or the claim that an observer exists it decided
+    assert f"existence.conditions[{first}].holds (found" in said or "existence.exists (found True" in said, said
+    dropped = copy.deepcopy(doc)
+    del dropped["existence"]["conditions"][first]
+    assert "existence.conditions (" in _refused(dropped)
+    with_numbers = [(i, k) for i, c in enumerate(conditions) if c.get("solver") is not True
+                    for k, v in c["values"].items() if isinstance(v, float) and v != 0.0]
+    for i, key in with_numbers[:3]:
+        changed = copy.deepcopy(doc)
+        changed["existence"]["conditions"][i]["values"][key] *= 1.5
+        assert f"existence.conditions[{i}].values.{key}" in _refused(changed), (name, i, key)
+
+
+@pytest.mark.parametrize("name,key", [("example1", "eigenvalues_N"), ("example1", "spectral_radius_N"),
+                                      ("example1", "fixed_modes"), ("example1-ltv", "eigenvalues_N_k0"),
+                                      ("example1-ltv", "norm_MCE"), ("building", "eigenvalues_L_constant"),
+                                      ("building", "sampled_invariant_zeros"), ("building", "lmi_size"),
+                                      ("three-modes", "spectral_radius_Phi"), ("deadbeat", "nilpotency_class")])
+def test_the_figures_a_card_lists_are_recomputed(docs, name, key):
+    """Eigenvalues, zeros, radii and sizes a card lists are recomputed from its matrices and its problem's
+    analysis: one halved (or, for an integer, one more) is refused by name."""
+    doc = copy.deepcopy(docs[name])
+
+    def change(value):
+        if isinstance(value, dict):
+            k = sorted(value)[0]
+            return {**value, k: change(value[k])}
+        if isinstance(value, list):
+            return [change(value[0]), *value[1:]] if value else value
+        if isinstance(value, bool) or value is None:
+            return value
+        return value + 1 if isinstance(value, int) else 0.5 * value + 0.25
+
+    doc[key] = change(doc[key])
+    assert doc[key] != docs[name][key]
+    assert _refused(doc).startswith(f"design card: {key}"), _refused(doc)
+
+
+def test_a_condition_that_took_a_solve_stays_the_solvers_record(docs):
+    """Sampled-data's certificate on ker C (an LMI solve) is not recomputed by verify, which runs no solver; a
+    condition the analysis decides itself, marked as a solver's, is recomputed all the same."""
+    from uiofmu.families.random_plants import campaign
+
+    doc = next(uiofmu.design(problem_from_data(p)).data for p in campaign("sampled-data", 3, 2024, n_max=5,
+                                                                              intervals_max=4)
+               if any(c.get("solver") for c in uiofmu.check(problem_from_data(p)).to_data()["conditions"]))
+    solved = [i for i, c in enumerate(doc["existence"]["conditions"]) if c.get("solver")]
+    assert solved and not _refused(doc)
+    edited = copy.deepcopy(doc)
+    edited["existence"]["conditions"][solved[0]]["values"]["status"] = "edited"
+    assert not _refused(edited)                                  # the solver's word: a record, not a claim
+    marked = copy.deepcopy(doc)
+    marked["existence"]["conditions"][0]["solver"] = True
+    marked["existence"]["conditions"][0]["holds"] = not doc["existence"]["conditions"][0]["holds"]
+    said = _refused(marked)
+    assert "existence.conditions[0].holds (found" in said or "existence.exists (found True" in said, said

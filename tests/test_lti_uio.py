@@ -34,6 +34,9 @@ def test_tampered_card_fails_recheck(example1_card):
     N[1, 1] += 0.02
     mats["N"] = N.tolist()
     data["matrices"] = mats
+    eig = np.linalg.eigvals(N)                       # the figures the card lists of N, made to match
+    data["eigenvalues_N"] = [[float(z.real), float(z.imag)] for z in eig]
+    data["spectral_radius_N"] = float(np.abs(eig).max())
     bad = uiofmu.runtime.card.card_from_data(data)
     failed = {c.name for c in verify(bad) if not c.holds}
     assert "eig_min(rho^2 X - N'XN)" in failed and "||PA - NP - LC||" in failed

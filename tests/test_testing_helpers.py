@@ -16,7 +16,12 @@ import numpy as np
 import pytest
 
 from tests.conftest import EXAMPLES
+from uiofmu.existence import complex_list
+from uiofmu.families import lti_uio
 from uiofmu.fmu.export import build_observer
+from uiofmu.problem import problem_from_data
+from uiofmu.scaling import state_scaling
+from uiofmu.scaling import to_data as scaling_data
 from uiofmu.runtime.card import card_from_data
 from uiofmu.synthesis import recheck
 from uiofmu.testing import (MAX_SEEDS, assert_bound_respected, assert_converges, assert_exact_functional,
@@ -52,6 +57,14 @@ def _perturbed(card, dk: list, plant_too: bool, name: str) -> dict:
         data["matrices"][key] = m[key].tolist()
     if plant_too:                     # a discrete plant: its A is the sampled one
         data["problem"]["plant"]["A"] = m["A_sampled"].tolist()
+    # what the card lists of its plant and of N, made to match as well (a consistent card)
+    problem = problem_from_data(data["problem"])
+    analysis = lti_uio.analyse(problem)
+    data["scaling"] = scaling_data(state_scaling(problem.plant.A, problem.options.scaling), problem.options.scaling)
+    eig = np.linalg.eigvals(m["N"])
+    data.update(existence=analysis.existence.to_data(), fixed_modes=complex_list(analysis.data["fixed"]),
+                invariant_zeros=analysis.existence.value("stable invariant zeros", "zeros"),
+                eigenvalues_N=complex_list(eig), spectral_radius_N=float(np.abs(eig).max()))
     return data
 
 

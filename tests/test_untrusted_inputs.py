@@ -287,6 +287,7 @@ def test_a_forged_verified_flag_does_not_pass_the_recheck(example1_card, tmp_pat
     """``verified: true`` is a claim; build re-checks the matrices and refuses a broken certificate."""
     data = _card(example1_card)
     data["matrices"]["N"] = [[1.5, 0.0], [0.0, 1.5]]
+    data["eigenvalues_N"], data["spectral_radius_N"] = [[1.5, 0.0], [1.5, 0.0]], 1.5      # its figures to match
     res = cli("build", _write(tmp_path, data), "-o", tmp_path / "o.fmu")
     assert res.code == 2 and "certificate does not hold at the stored matrices" in res.err, res
     assert not (tmp_path / "o.fmu").exists()

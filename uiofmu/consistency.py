@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .certificate import EPS, Check
+from .runtime.tolerances import IDENTITY_RTOL
 
 #: How the name of a check of :func:`same_check` ends (after the card's path).
 DETERMINED = " as the card's problem determines it (relative difference)"
@@ -47,6 +48,90 @@ class Determined:
     value: object
     scale: float = 0.0
     rtol: float = SAME_RTOL
+
+
+#: Eigenvalues (and invariant zeros, fixed modes) of an ``n x n`` problem computed in double precision move
+#: between BLAS kernels by up to ``(c n eps)^(1/k)`` of the matrix's size for a defective eigenvalue of a
+#: Jordan block of size ``k``; :func:`eigen_rtol` allows ``k = n`` with ``c`` this.
+EIGEN_FACTOR = 100.0
+
+
+def eigen_rtol(n: int) -> float:
+    """The relative tolerance of an eigenvalue of an ``n x n`` matrix recomputed on another machine:
+    ``(EIGEN_FACTOR n eps)^(1/n)``, the perturbation bound of a Jordan block of size ``n`` (2e-7 for
+    ``n = 2``, 4e-5 for 3, 5e-4 for 4; a forged eigenvalue moves far more), and never below
+    :data:`SAME_RTOL`."""
+    n = max(int(n), 1)
+    return max(SAME_RTOL, (EIGEN_FACTOR * n * EPS) ** (1.0 / n))
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """Eigenvalues a card records, compared as a multiset (any order) within :func:`eigen_rtol`.
+
+    Attributes
+    ----------
+    value : numpy.ndarray
+        Complex eigenvalues: shape ``(n,)``, or ``(count, n)`` for one list per matrix of a stack.
+    scale : float
+        The size they are relative to (the matrix's norm).
+    rtol : float
+    form : {"pairs", "radius", "radii"}
+        How the card records them: ``[re, im]`` pairs (a list, or a list per matrix), the largest
+        modulus (one number, over the whole stack), or the largest modulus per matrix.
+    """
+
+    value: np.ndarray
+    scale: float
+    rtol: float
+    form: str = "pairs"
+
+
+def spectrum(matrices, form: str = "pairs") -> Spectrum:
+    """The eigenvalues of a matrix or a stack, as a card records them in ``form`` (see :class:`Spectrum`)."""
+    M = np.asarray(matrices, dtype=float)
+    scale = float(np.linalg.norm(M.reshape(-1, *M.shape[-2:]), 2, axis=(-2, -1)).max()) if M.size else 0.0
+    return Spectrum(np.linalg.eigvals(M) if M.size else np.zeros(M.shape[:-1], complex), scale,
+                    eigen_rtol(M.shape[-1]), form)
+
+
+def computed_values(values, scale: float, n: int) -> Spectrum:
+    """Eigenvalues or zeros a problem's analysis computes (a list, or a list per interval or mode), compared
+    like :func:`spectrum`'s relative to ``scale`` (the size of the matrices they come from)."""
+    return Spectrum(np.asarray(values, dtype=complex), float(scale), eigen_rtol(n))
+
+
+def _spectrum_check(path: str, claimed, expected: Spectrum) -> Check:
+    """The card's eigenvalues against a :class:`Spectrum`: the largest distance of a matched pair, relative
+    to the spectrum's size (the matching minimises the distances, so any order passes)."""
+    from scipy.optimize import linear_sum_assignment
+
+    want = np.asarray(expected.value, dtype=complex)
+    size = max(expected.scale, float(np.abs(want).max()) if want.size else 0.0, np.finfo(float).tiny)
+    if expected.form in ("radius", "radii"):
+        radii = np.abs(want).max(axis=-1) if want.size else np.zeros(want.shape[:-1])
+        want_r = radii.max() if expected.form == "radius" and radii.size else radii
+        got = _numbers(claimed)
+        if got is None or got.shape != np.shape(want_r) or isinstance(claimed, bool):
+            return Check(f"{path} (a {type(claimed).__name__}, its matrices give shape {np.shape(want_r)})"
+                         + DETERMINED, math.inf, expected.rtol)
+        diff = float(np.abs(got - want_r).max()) / size if got.size else 0.0
+        return Check(path + DETERMINED, diff if math.isfinite(diff) else math.inf, expected.rtol)
+    got = _numbers(claimed)
+    if not want.size and got is not None and not got.size and not isinstance(claimed, bool):
+        return Check(path + DETERMINED, 0.0, expected.rtol)              # none, as the problem gives none
+    if got is None or got.shape != (*want.shape, 2) or isinstance(claimed, bool):
+        return Check(f"{path} (shape {None if got is None else got.shape}, its problem gives {want.size} eigenvalues "
+                     "as [re, im] pairs)" + DETERMINED, math.inf, expected.rtol)
+    got = (got[..., 0] + 1j * got[..., 1]).reshape(-1, want.shape[-1] if want.ndim else 1)
+    worst = 0.0
+    for a, b in zip(got, want.reshape(got.shape)):
+        cost = np.abs(a[:, None] - b[None, :])
+        if not np.all(np.isfinite(cost)):
+            return Check(path + DETERMINED, math.inf, expected.rtol)
+        rows, cols = linear_sum_assignment(cost)
+        worst = max(worst, float(cost[rows, cols].max()) if rows.size else 0.0)
+    return Check(path + DETERMINED, worst / size, expected.rtol)
 
 
 def conditioned(value, cond: float, scale: float = 0.0) -> Determined:
@@ -114,6 +199,8 @@ def same_check(path: str, claimed, expected) -> Check:
     Check
         Its value is the relative difference (infinite for a different type, shape or text).
     """
+    if isinstance(expected, Spectrum):
+        return _spectrum_check(path, claimed, expected)
     scale, rtol = (expected.scale, expected.rtol) if isinstance(expected, Determined) else (0.0, SAME_RTOL)
     expected = expected.value if isinstance(expected, Determined) else expected
     if expected is None or isinstance(expected, (str, bool)) or (
@@ -147,17 +234,25 @@ def _found(claimed, expected) -> str:
 
 
 def _lookup(data, path: str):
-    """The card's value at a dotted path (``None`` where a key is missing)."""
-    for key in path.split("."):
+    """The card's value at a dotted path whose keys may end in list indices (``a.b[2].c``; ``None``
+    where a key or an index is missing)."""
+    for part in path.split("."):
+        key, *indices = part.split("[")
         if not isinstance(data, dict) or key not in data:
             return None
         data = data[key]
+        for index in indices:
+            i = int(index.rstrip("]"))
+            if not isinstance(data, list) or not 0 <= i < len(data):
+                return None
+            data = data[i]
     return data
 
 
 def consistency_checks(card_data: dict, expected: dict) -> list:
     """One :func:`same_check` per entry of ``expected`` (dotted card paths to values; a dict value
-    is compared key by key, and the card's table must have no other keys).
+    is compared key by key, and the card's table must have no other keys; a list of dicts element by
+    element, the card's list of the same length).
 
     Parameters
     ----------
@@ -172,7 +267,13 @@ def consistency_checks(card_data: dict, expected: dict) -> list:
     """
     out = []
     for path, value in expected.items():
-        if isinstance(value, dict):
+        if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            claimed = _lookup(card_data, path)
+            if not isinstance(claimed, list) or len(claimed) != len(value):
+                out.append(Check(f"{path} (a list of {len(value)} tables)" + DETERMINED, math.inf, 0.0))
+                continue
+            out += consistency_checks(card_data, {f"{path}[{i}]": v for i, v in enumerate(value)})
+        elif isinstance(value, dict):
             claimed = _lookup(card_data, path)
             extra = sorted(set(claimed) - set(value)) if isinstance(claimed, dict) else []
             if not isinstance(claimed, dict) or extra:
@@ -185,6 +286,123 @@ def consistency_checks(card_data: dict, expected: dict) -> list:
     return out
 
 
+#: Numbers of an existence analysis recomputed on another machine. Those of :data:`SPECTRAL_KEYS` (zeros, fixed
+#: modes, their moduli and limits, PBH margins) are compared to ``eigen_rtol(n)`` of the larger of their magnitude
+#: and the largest such number of their condition (at least the smaller of 1 and the plant's size,
+#: :func:`plant_scale`: a zero near 0 of a Jordan block is rounding of that size; a PBH margin, the smallest
+#: singular value of ``[A - z I; C]``, moves at most as its mode ``z`` does); every
+#: other number (a step, a requested decay, a fraction, a premise figure from a long simulation, a residual that
+#: is rounding) to ``EXISTENCE_RTOL`` of the larger of its magnitude and ``IDENTITY_RTOL`` times the plant's size.
+EXISTENCE_RTOL = 1e-6
+
+#: Keys of an existence condition's values that hold eigenvalues, zeros and what is computed from them.
+SPECTRAL_KEYS = frozenset({"zeros", "moduli", "real_parts", "fixed_modes", "largest_modulus", "largest_fixed_modulus",
+                           "fixed_eigenvalues", "fixed_modes_A1", "modes", "largest_zero_modulus", "switching_radius",
+                           "alpha_limit", "mu_limit", "weakest_mode", "pbh_margins", "weakest_margin"})
+
+#: Keys of an existence condition's values that are a choice of the computation, not a figure of the problem
+#: (bases of subspaces, whose signs and rotations an SVD picks; the polynomial monomials' order; the
+#: solver's word): not compared.
+RECORD_KEYS = frozenset({"P", "Phat", "basis", "monomials", "status"})
+
+
+def existence_checks(claimed, recomputed, n: int, scale: float = 1.0) -> list:
+    """The card's ``existence`` against the analysis of its problem recomputed without a solver.
+
+    Every condition the analysis decides without a solve must be the card's, in order, with the same
+    name, verdict and requirement, and values equal to the numbers' tolerance; a condition that took a
+    solve (``"solver": true``, e.g. sampled-data's certificate on ker C) is the solver's record and is not
+    recomputed, unless its name is one the analysis decides itself. ``exists`` must be what the card's
+    required verdicts say.
+
+    Parameters
+    ----------
+    claimed : object
+        The card's ``existence``.
+    recomputed : Existence
+        ``family.analyse(problem, solver=False).existence``.
+    n : int
+        The state dimension (the eigenvalue tolerance's, :func:`eigen_rtol`).
+    scale : float
+        The size of the plant's matrices (:func:`plant_scale`; see :data:`EXISTENCE_RTOL` for how the
+        numbers are compared).
+
+    Returns
+    -------
+    list of Check
+    """
+    want = recomputed.to_data()
+    conditions = claimed.get("conditions") if isinstance(claimed, dict) else None
+    if not isinstance(conditions, list) or not all(isinstance(c, dict) for c in conditions):
+        return [Check("existence (not a table with a list of conditions)" + DETERMINED, math.inf, 0.0)]
+    names = {c["name"] for c in want["conditions"]}
+    kept = [c for c in conditions if not (c.get("solver") is True and c.get("name") not in names)]
+    out = [same_check("existence.family", claimed.get("family"), want["family"]),
+           same_check("existence.exists", claimed.get("exists"),
+                      all(c.get("holds") is True for c in conditions if c.get("required") is not False))]
+    if len(kept) != len(want["conditions"]):
+        return out + [Check(f"existence.conditions ({len(kept)} decided without a solver, its problem gives "
+                            f"{len(want['conditions'])})" + DETERMINED, math.inf, 0.0)]
+    for i, (got, expected) in enumerate(zip(kept, want["conditions"])):
+        at = f"existence.conditions[{i}]"
+        out += [same_check(f"{at}.{key}", got.get(key), expected[key]) for key in ("name", "holds", "required")]
+        values, claimed_values = expected["values"], got.get("values")
+        if not isinstance(claimed_values, dict) or set(claimed_values) != set(values):
+            out.append(Check(f"{at}.values (the keys of {expected['name']})" + DETERMINED, math.inf, 0.0))
+            continue
+        spectral = [abs(x) for x in _floats(values, SPECTRAL_KEYS)]
+        tolerance = {"spectral": (eigen_rtol(n), max(spectral + [min(scale, 1.0)])),
+                     "other": (EXISTENCE_RTOL, IDENTITY_RTOL * max(scale, 1.0))}
+        out += [Check(f"{at}.values.{key} (in multiples of what is allowed)" + DETERMINED,
+                      _difference(claimed_values[key], value, tolerance, key), 1.0)
+                for key, value in values.items() if key not in RECORD_KEYS]
+    return out
+
+
+def _floats(value, keys: frozenset, inside: bool = False) -> list:
+    """Every finite float of a JSON value under one of ``keys`` (at any depth)."""
+    if isinstance(value, dict):
+        return [x for k, v in value.items() for x in _floats(v, keys, inside or k in keys)]
+    if isinstance(value, list):
+        return [x for v in value for x in _floats(v, keys, inside)]
+    return [value] if inside and isinstance(value, float) and math.isfinite(value) else []
+
+
+def plant_scale(plant_table) -> float:
+    """The size of a problem's plant: the largest entry of its ``A`` (of every mode and scheduling part too; at
+    least ``IDENTITY_RTOL``), the size of the rounding of its zeros and fixed modes."""
+    if not isinstance(plant_table, dict):
+        return 1.0
+    tables = [plant_table, *(t for key in ("modes", "scheduling") for t in (plant_table.get(key) or [])
+                             if isinstance(t, dict))]
+    entries = [_numbers(t.get("A")) for t in tables]
+    return max([IDENTITY_RTOL] + [float(np.abs(a).max()) for a in entries
+                                  if a is not None and a.size and np.all(np.isfinite(a))])
+
+
+def _difference(claimed, expected, tolerance: dict, key: str = "") -> float:
+    """The largest difference of two JSON values as a multiple of what is allowed: a number under a key of
+    :data:`SPECTRAL_KEYS` within ``rtol * max(|x|, floor)`` of ``tolerance["spectral"] = (rtol, floor)``, any
+    other within ``tolerance["other"]``'s; keys of :data:`RECORD_KEYS` are not compared; everything else
+    (structure, integers, strings, booleans, None) exactly (``inf`` when not equal)."""
+    if isinstance(expected, dict):
+        if not isinstance(claimed, dict) or set(claimed) != set(expected):
+            return math.inf
+        return max([_difference(claimed[k], v, tolerance, k) for k, v in expected.items() if k not in RECORD_KEYS]
+                   + [0.0])
+    if isinstance(expected, list):
+        if not isinstance(claimed, list) or len(claimed) != len(expected):
+            return math.inf
+        return max([_difference(a, b, tolerance, key) for a, b in zip(claimed, expected)] + [0.0])
+    if isinstance(expected, float) and not isinstance(claimed, bool) and isinstance(claimed, (int, float)):
+        if math.isfinite(expected):
+            rtol, floor = tolerance["spectral" if key in SPECTRAL_KEYS else "other"]
+            diff = abs(float(claimed) - expected) / (rtol * max(abs(expected), floor))
+            return diff if math.isfinite(diff) else math.inf
+        return 0.0 if claimed == expected else math.inf
+    return 0.0 if type(claimed) is type(expected) and claimed == expected else math.inf
+
+
 def plant_record(problem) -> dict:
     """What every family's card records of its plant: the dimensions, the time base and the
     observer's initial estimate (zero unless the problem gives ``observer.xhat0``)."""
@@ -194,5 +412,6 @@ def plant_record(problem) -> dict:
             "initial.xhat0": np.zeros(plant.n) if xhat0 is None else np.asarray(xhat0, dtype=float)}
 
 
-__all__ = ["DETERMINED", "SAME_RTOL", "Determined", "condition", "conditioned", "consistency_checks", "dhat_record",
-           "first", "plant_record", "product", "same_check"]
+__all__ = ["DETERMINED", "SAME_RTOL", "Determined", "Spectrum", "computed_values", "condition", "conditioned",
+           "consistency_checks", "dhat_record", "eigen_rtol", "existence_checks", "first", "plant_record",
+           "plant_scale", "product", "same_check", "spectrum"]

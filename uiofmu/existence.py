@@ -14,6 +14,12 @@ def complex_list(values) -> list:
     return [[float(np.real(v)), float(np.imag(v))] for v in np.asarray(values).ravel()]
 
 
+def from_pairs(pairs) -> np.ndarray:
+    """``[re, im]`` pairs (:func:`complex_list`) back as complex numbers."""
+    arr = np.asarray(pairs, dtype=float).reshape(-1, 2)
+    return arr[:, 0] + 1j * arr[:, 1]
+
+
 def format_complex(values) -> str:
     """Complex numbers for a message: ``0.99, 0.5±0.2j`` (conjugates merged)."""
     out = []
@@ -40,6 +46,10 @@ class Condition:
         One sentence with the numbers, e.g. ``rank(CE) = 1 < rank(E) = 2``.
     values : dict
         The numbers, JSON-ready.
+    solver : bool
+        Whether deciding it took a solve (an LMI condition): ``analyse(problem, solver=False)``
+        leaves such conditions out, and :func:`uiofmu.verify`, which runs no solver, keeps the card's
+        as the solver's record.
     """
 
     name: str
@@ -47,11 +57,12 @@ class Condition:
     required: bool
     message: str
     values: dict = field(default_factory=dict)
+    solver: bool = False
 
     def to_data(self) -> dict:
         """JSON-ready form."""
         return {"name": self.name, "holds": bool(self.holds), "required": self.required,
-                "message": self.message, "values": self.values}
+                "message": self.message, "values": self.values, **({"solver": True} if self.solver else {})}
 
 
 @dataclass(frozen=True)

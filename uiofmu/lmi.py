@@ -341,23 +341,7 @@ class LmiSystem:
         """
         if not self.homogeneous:
             raise ValueError(f"{self.name}: a largest margin needs a homogeneous system")
-        pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
-        sol = self._margin_in(self._frame, pvals)
-        if sol.verified or self.recentre is None or not sol.values:
-            return sol
-        try:
-            t0 = time.perf_counter()
-            frame = self.recentre(sol.values)
-            self.assembly_time += time.perf_counter() - t0
-        except (np.linalg.LinAlgError, ValueError):
-            frame = None
-        if frame is None:
-            return sol
-        again = self._margin_in(frame, pvals)
-        if again.verified:
-            self._frame = frame
-            return again
-        return sol
+        return self._recentring(self._margin_in, parameters)
 
     def _margin_in(self, frame, pvals: dict) -> LmiSolution:
         """The largest margin in this system's coordinates (``frame`` None) or in a recentred ``frame``
@@ -427,8 +411,14 @@ class LmiSystem:
         LmiSolution
             Also when the solver fails (``values`` empty, ``verified`` False).
         """
+        return self._recentring(self._solve_in, parameters)
+
+    def _recentring(self, attempt: Callable, parameters: dict) -> LmiSolution:
+        """``attempt(frame, pvals)`` in the current coordinates, and once more in the coordinates
+        ``recentre`` chooses from a refused point (the solver proved nothing); the new coordinates are kept
+        when their point verifies."""
         pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
-        sol = self._solve_in(self._frame, pvals)
+        sol = attempt(self._frame, pvals)
         if sol.verified or self.recentre is None or not sol.values or sol.status in INFEASIBLE:
             return sol
         try:
@@ -439,7 +429,7 @@ class LmiSystem:
             frame = None
         if frame is None:
             return sol
-        again = self._solve_in(frame, pvals)
+        again = attempt(frame, pvals)
         if again.verified:
             self._frame = frame
             return again

@@ -14,7 +14,7 @@ from .runtime.card import FORMAT, VERSION, Card, card_from_data, declared_ports,
 from .runtime.errors import CardError, InfeasibleError, NumericalError, ProblemError
 from .existence import Existence
 from .families import DesignResult, available_family
-from .consistency import DETERMINED, consistency_checks, plant_record
+from .consistency import DETERMINED, consistency_checks, existence_checks, plant_record, plant_scale
 from .problem import Problem, problem_from_data
 from .runtime.tolerances import LMI_MARGIN
 from .threads import single_blas_thread
@@ -89,6 +89,13 @@ def _tight_spots(conditions) -> list:
 def verify(card: Card) -> list:
     """Re-check a design card's certificate from its stored matrices, without any solver.
 
+    First what the card's problem determines: the plant's record, the existence analysis recomputed
+    without a solve (every condition's verdict and numbers), and the family's ``determined`` (the
+    matrices the FMU runs, the figures derived from the certified variables, the eigenvalues and zeros
+    the card lists); then the certificate's checks. What no solver-free computation reproduces is the
+    design's record, not a claim: ``search``, ``timing``, ``generator``, ``design_method``, the solver's
+    word in ``certificate``, ltv-auid's least ``gamma``, and existence conditions that took a solve.
+
     Parameters
     ----------
     card : Card
@@ -106,7 +113,12 @@ def verify(card: Card) -> list:
         raise CardError(f"design card problem: {exc}") from None
     consistency = consistency_checks(card.data, plant_record(problem))
     if all(c.holds for c in consistency):              # the family's record may assume the plant's sizes
-        consistency += consistency_checks(card.data, family.determined(problem, card.data))
+        analysis = family.analyse(problem, solver=False)
+        found = existence_checks(card.data.get("existence"), analysis.existence, problem.plant.n,
+                                 plant_scale(problem.data.get("plant")))
+        if analysis.existence.exists:                  # what a design of the problem determines
+            consistency += consistency_checks(card.data, family.determined(problem, card.data, analysis))
+        consistency += found
     if not all(c.holds for c in consistency):
         return consistency               # a certificate of another problem's matrices proves nothing here
     return consistency + family.verify(card)

@@ -45,6 +45,7 @@ takes fmi2Integers only (:data:`uiofmu.cosim.fmi.FMI2_INTEGER`; a number or a li
 from __future__ import annotations
 
 import atexit
+import contextlib
 import csv
 import hashlib
 import json
@@ -883,9 +884,29 @@ def _client(workers: int | None, address: str | None):
                                  f"{SCHEDULER_TIMEOUT_S:g} s") from None
         return client, None
     n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR)
+    with _workers_ignore_interrupts():
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
     return Client(cluster), cluster
+
+
+@contextlib.contextmanager
+def _workers_ignore_interrupts():
+    """Start worker processes with SIGINT ignored (a disposition a child keeps, and Python keeps at its start):
+    Ctrl-C in a terminal reaches the whole process group, and only this process should answer it (it
+    cancels the runs and writes the outputs); workers stopped by it printed tracebacks instead. Nothing
+    changes off the main thread, where no handler can be set."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
 
 
 class SchedulerError(UserError):

@@ -8,16 +8,20 @@ A family module (named in :data:`uiofmu.runtime.registry.FAMILIES`) provides:
     Read the family's keys of ``[observer]`` into a frozen options object, whose ``step`` is the
     communication step a co-simulation of the observer takes by default (the plant FMU's
     default experiment uses it).
-``analyse(problem) -> Analysis``
-    The existence analysis, and whatever of it the design reuses.
+``analyse(problem, solver=True) -> Analysis``
+    The existence analysis, and whatever of it the design reuses. With ``solver=False`` it leaves
+    out the conditions that take a solve (:attr:`uiofmu.existence.Condition.solver`): what
+    :func:`uiofmu.verify` recomputes.
 ``design(problem, analysis) -> DesignResult``
     Solve and certify (``analysis.existence`` holds); :func:`uiofmu.synthesis.design` times
     it, fills in the defaults and assembles the card.
-``determined(problem, card_data) -> dict``
-    What the card's problem (and its certified variables, e.g. a gain) determine of the card:
-    dotted card paths to values (the plant's matrices the FMU runs, the schedule, the figures
-    derived from the certificate), compared with the card by
-    :func:`uiofmu.consistency.consistency_checks` before :func:`verify` runs.
+``determined(problem, card_data, analysis) -> dict``
+    What the card's problem, its analysis (``analyse(problem, solver=False)``) and its certified
+    variables (e.g. a gain) determine of the card: dotted card paths to values (the plant's
+    matrices the FMU runs, the schedule, the figures derived from the certificate, the zeros and
+    eigenvalues the card lists: :class:`uiofmu.consistency.Spectrum`), compared with the card by
+    :func:`uiofmu.consistency.consistency_checks` before :func:`verify` runs. A figure no
+    solver-free computation reproduces (the search, the solver's status) is the design's record.
 ``verify(card) -> list of Check``
     The certificate's checks at a card's stored matrices, without any solver.
 ``certified_bound(card, e0, d)`` (optional)

@@ -47,7 +47,7 @@ from ..certificate import Check
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lpv_plant import LpvPlant
 from ..polynomials import PolyMatrix, TooLarge, hstack, shifted, stack, work_limit
-from ..runtime.card import MAX_POWER, MAX_WINDOW
+from ..runtime.card import MAX_POWER
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..runtime.matrices import as_matrix
 from ..runtime.tolerances import IDENTITY_RTOL, RANK_RTOL
@@ -367,7 +367,7 @@ def _analysis(problem):
     return Existence(NAME, tuple(conds)), {"inverse": inv, "K": K, "t": t, "monomials": monomials}
 
 
-def analyse(problem) -> Analysis:
+def analyse(problem, solver: bool = True) -> Analysis:
     """Inherent delay r (2), inverse system (4), decomposition (8), Algorithm 1, nilpotency (Corollary 1)."""
     existence, data = _analysis(problem)
     return Analysis(existence, data or {})
@@ -492,18 +492,21 @@ def _bound(length: int, delay: int) -> str:
     return f"gx_k = G x_(k-{delay}) exactly from k = {length - 1} on (window of {length} outputs)"
 
 
-def determined(problem, card_data) -> dict:
-    """What the card's problem, its delay ``r`` and its ``K`` determine: the plant's parts (the
-    matrices the re-check simulates), ``C``, ``G``, the window ``K + max(r, 1) + 1`` and the delay
-    ``max(r - 1, 0)`` (in the schedule and as reported), the bound and the formula's text."""
+def determined(problem, card_data, analysis: Analysis) -> dict:
+    """What the card's problem determines: the inherent delay ``r``, the ``K`` of Algorithm 1 and the
+    nilpotency class of its analysis, the plant's parts (the matrices the re-check simulates), ``C``,
+    ``G``, the window ``K + max(r, 1) + 1`` and the delay ``max(r - 1, 0)`` (in the schedule and as
+    reported), the bound and the formula's text."""
     plant = problem.plant
     mats = card_data["matrices"]
     F, exps = np.asarray(mats["F"], dtype=float), np.asarray(mats["Fexp"], dtype=float)
-    r, K = card_data["r"], card_data["K"]
-    if not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_WINDOW for v in (r, K)):
-        raise ValueError(f"r = {str(r)[:20]} and K = {str(K)[:20]} must be integers from 0 to {MAX_WINDOW}")
+    r, K = analysis.data["inverse"].r, analysis.data["K"]
     length, delay = window_length(r, K), max(r - 1, 0)
-    return {"dt": plant.dt, "schedule": _schedule(plant, length, delay, bool(exps.any())), "window": length,
+    if F.ndim != 3 or F.shape[2] != length * plant.p:
+        raise ValueError(f"matrices.F has shape {F.shape}: the window of r = {r}, K = {K} needs "
+                         f"{length * plant.p} columns")
+    found = {"r": r, "K": K, "nilpotency_class": analysis.data["t"]}
+    return {"dt": plant.dt, "schedule": _schedule(plant, length, delay, bool(exps.any())), "window": length, **found,
             "delay": delay, "bound": _bound(length, delay),
             "formula": describe(F, exps, plant.p, length, delay), "decay_bound": None, "overshoot_bound": None,
             "matrices.C": plant.C, "matrices.G": problem.options.G,

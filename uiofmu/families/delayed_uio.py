@@ -333,7 +333,7 @@ def _analysis(problem):
     symbolic = symbolic_rank_condition(plant, copies)
     if not ok:
         return Existence(NAME, tuple(conds)), None
-    grid = premise_grid(problem, opts.delays, opts.premise)
+    grid = _premise_grid(json.dumps(problem.data, sort_keys=True, default=lambda x: np.asarray(x).tolist()))
     floor = sigma_floor(grid, opts.premise)
     used = grid.sigmas >= floor
     fraction = float(np.mean(~used))
@@ -357,7 +357,7 @@ def _analysis(problem):
                                                 grid.times[used])
 
 
-def analyse(problem) -> Analysis:
+def analyse(problem, solver: bool = True) -> Analysis:
     """Rank of the original system, rule (7), the augmented system, the rank of C D_y (symbolic and on
     the premise family), P_y D_y = 0."""
     existence, grid = _analysis(problem)
@@ -401,7 +401,7 @@ def checks(matrices: dict, gammas: np.ndarray, beta: float) -> list:
             Check("decay rate beta > 0", beta, float(np.finfo(float).tiny), at_most=False)]
 
 
-def determined(problem, card_data) -> dict:
+def determined(problem, card_data, analysis: Analysis) -> dict:
     """What the card's problem determines: the plant's matrices the FMU integrates (``Abar``,
     ``Bbar``, ``Cbar``, ``D0``, ``Dy``), the augmented ``Ca`` (8), the delays, the step, and the
     schedule's keys other than the substep and the rank-margin bound (:func:`verify` derives those
@@ -448,14 +448,22 @@ def derived(grid: Grid, K: np.ndarray, Ca: np.ndarray, Q: np.ndarray) -> dict:
 
 
 @functools.lru_cache(maxsize=4)
-def _used_grid(problem_json: str) -> Grid:
-    """The premise grid's points the design uses, of a card's problem (its canonical JSON: the grid is
-    deterministic, so ``build`` after ``verify`` in one process rebuilds it once)."""
+def _premise_grid(problem_json: str) -> Grid:
+    """The premise grid of a problem (its canonical JSON: the grid is deterministic, so the analysis, the
+    design, ``verify`` and ``build`` in one process simulate it once)."""
     from ..problem import problem_from_data
 
     problem = problem_from_data(json.loads(problem_json))
-    grid = premise_grid(problem, problem.options.delays, problem.options.premise)
-    used = grid.sigmas >= sigma_floor(grid, problem.options.premise)
+    return premise_grid(problem, problem.options.delays, problem.options.premise)
+
+
+def _used_grid(problem_json: str) -> Grid:
+    """The premise grid's points the design uses, of a card's problem (its canonical JSON)."""
+    from ..problem import problem_from_data
+
+    premise = problem_from_data(json.loads(problem_json)).options.premise
+    grid = _premise_grid(problem_json)
+    used = grid.sigmas >= sigma_floor(grid, premise)
     return Grid(grid.gammas[used], grid.sigmas[used], grid.decoupling[used], grid.times[used])
 
 

@@ -54,10 +54,10 @@ from ..decoupling import (
     parse_period,
     sampled_decoupling_conditions,
 )
-from ..consistency import condition, conditioned, dhat_record, first
+from ..consistency import computed_values, condition, conditioned, dhat_record, first, spectrum
 from ..runtime.card import DHAT
 from ..runtime.errors import InfeasibleError, ProblemError
-from ..existence import Condition, Existence, complex_list
+from ..existence import Condition, Existence, complex_list, from_pairs
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..scaling import (
     SCALINGS,
@@ -140,7 +140,7 @@ def _analysis(problem):
     return Existence(NAME, tuple(conds)), s, fixed
 
 
-def analyse(problem) -> Analysis:
+def analyse(problem, solver: bool = True) -> Analysis:
     """Rank condition, invariant zeros, detectability of ((I+MC)A, C), requested decay."""
     existence, s, fixed = _analysis(problem)
     return Analysis(existence, {"sampled": s, "fixed": fixed})
@@ -209,17 +209,35 @@ def _schedule(opts: Options) -> dict:
 BOUND = "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0||"
 
 
-def determined(problem, card_data) -> dict:
+def determined(problem, card_data, analysis: Analysis) -> dict:
     """What the card's problem determines: the sampled plant, ``M = -E (CE)^+``, dhat's matrices
-    (absent unless ``rank(CE) = q``), the step and the schedule."""
+    (absent unless ``rank(CE) = q``), the step and the schedule; the fixed modes and invariant zeros of
+    its analysis, the eigenvalues of the stored ``N``, and the state scaling of an LMI design."""
     plant, opts = problem.plant, problem.options
     s, C = plant.sampled(opts.dt), plant.C
+    figures = figures_of(analysis, card_data, problem)
     dhat = _dhat(s, C) if identifiability_condition(C, s.E).holds else dict.fromkeys(DHAT)
     mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
             "M": conditioned(decoupling_gain(C, s.E), condition(C @ s.E)), **dhat}
     requested = {} if opts.decay == "max" else {"decay_bound": float(opts.decay)}     # a fixed decay is the card's
     return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "decay": card_data["decay_bound"], **requested,
-            **{f"matrices.{k}": v for k, v in mats.items()}}
+            **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
+
+
+def figures_of(analysis: Analysis, card_data: dict, problem) -> dict:
+    """The figures an lti-uio card lists that its analysis and its stored ``N`` determine: the fixed
+    modes, the invariant zeros, the eigenvalues of ``N`` and their largest modulus, and the state
+    scaling (the card's ``design_method`` says whether its LMIs were solved in scaled coordinates)."""
+    plant, opts = problem.plant, problem.options
+    A = analysis.data["sampled"].A
+    size, n = float(np.linalg.norm(A, 2)), plant.n
+    N = np.asarray(card_data["matrices"]["N"], dtype=float)
+    lmi = card_data.get("design_method") == "lmi"
+    return {"fixed_modes": computed_values(analysis.data["fixed"], size, n),
+            "invariant_zeros": computed_values(from_pairs(analysis.existence.value("stable invariant zeros", "zeros")),
+                                               size, n),
+            "eigenvalues_N": spectrum(N), "spectral_radius_N": spectrum(N, "radius"),
+            "scaling": scaling_data(state_scaling(plant.A, opts.scaling) if lmi else np.ones(n), opts.scaling)}
 
 
 def _riccati(PA, C, rho: float) -> Tuned:

@@ -57,10 +57,10 @@ from ..decoupling import (
     parse_period,
     sampled_decoupling_conditions,
 )
-from ..consistency import condition, conditioned, dhat_record
+from ..consistency import Determined, computed_values, condition, conditioned, dhat_record, spectrum
 from ..runtime.card import DHAT
 from ..runtime.errors import ProblemError
-from ..existence import Condition, Existence, complex_list, format_complex
+from ..existence import Condition, Existence, complex_list, format_complex, from_pairs
 from ..lmi import Lmi, LmiSystem, tune
 from ..structure import unobservable_modes
 from ..runtime.tolerances import LMI_MARGIN, SEARCH_TOL, ZERO_MARGIN
@@ -163,7 +163,7 @@ def _analysis(problem):
     return Existence(NAME, tuple(conds)), s, fixed, info
 
 
-def analyse(problem) -> Analysis:
+def analyse(problem, solver: bool = True) -> Analysis:
     """The classical conditions, the zero limit on eta and the transient vertex's limit on mu."""
     existence, s, fixed, info = _analysis(problem)
     return Analysis(existence, {"sampled": s, "fixed": fixed, "info": info})
@@ -282,11 +282,12 @@ def _schedule(opts: Options) -> dict:
 BOUND = "||e_k|| <= b_k / sqrt(eig_min X), b_{k+1} = sqrt(1 - eta (1 + mu alpha^k)) b_k + ||S_k d_k||_X"
 
 
-def determined(problem, card_data) -> dict:
+def determined(problem, card_data, analysis: Analysis) -> dict:
     """What the card's problem and its certified gains ``T1``, ``T2`` determine: the sampled plant,
     ``M``, the vertices ``A1``, ``A2``, ``S1``, every runtime polynomial (:func:`coefficients`; dhat's
     absent unless ``rank(CE) = q``), ``alpha``, ``eta``, ``tau1 = eta (1 + mu)``, ``tau2 = eta``, the
-    decay bounds, the step and the schedule."""
+    decay bounds, the step and the schedule; the fixed modes, invariant zeros and fixed modes of
+    ``(A_1, C)`` of its analysis, the eigenvalues of ``N`` at both vertices and ``|M C E|``."""
     plant, opts = problem.plant, problem.options
     s, C = plant.sampled(opts.dt), plant.C
     M, A1, A2, S1 = _vertices(s, C, opts.alpha)
@@ -304,9 +305,18 @@ def determined(problem, card_data) -> dict:
             **{k: conditioned(v, cond, plant) for k, v in (("M", M), ("A1", A1), ("A2", A2), ("S1", S1))}, **poly}
     mu = float(card_data["mu"] if opts.mu == "max" else opts.mu)          # a fixed mu is the card's
     tau1, tau2 = opts.eta * (1 + mu), opts.eta
+    n, scale = C.shape[1], two(s.A)
+    MCE = M @ C @ s.E
+    figures = {"fixed_modes": computed_values(analysis.data["fixed"], scale, n),
+               "invariant_zeros": computed_values(
+                   from_pairs(analysis.existence.value("stable invariant zeros", "zeros")), scale, n),
+               "fixed_modes_A1": computed_values(from_pairs(analysis.data["info"].get("fixed_modes_A1", [])),
+                                                 two(A1), n),
+               "eigenvalues_N_k0": spectrum(A1 - T1 @ C), "eigenvalues_N_inf": spectrum(A2 - T2 @ C),
+               "norm_MCE": Determined(two(MCE), two(M) * two(C) * two(s.E))}
     return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "alpha": opts.alpha, "eta": opts.eta,
             "mu": mu, "tau1": tau1, "tau2": tau2, "decay_bound": float(np.sqrt(1 - tau2)),
-            "initial_decay_bound": float(np.sqrt(1 - tau1)), **{f"matrices.{k}": v for k, v in mats.items()}}
+            "initial_decay_bound": float(np.sqrt(1 - tau1)), **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
 
 
 def certified_bound(card, e0, d) -> np.ndarray:

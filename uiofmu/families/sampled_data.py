@@ -64,10 +64,10 @@ from ..decoupling import (
     weak_modes_condition,
     zeros_condition,
 )
-from ..consistency import Determined, dhat_record
+from ..consistency import Determined, computed_values, dhat_record, eigen_rtol, spectrum
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..structure import kernel_maps, product_radius
-from ..existence import Condition, Existence, complex_list
+from ..existence import Condition, Existence, complex_list, from_pairs
 from ..lmi import Lmi, LmiSystem, tune
 from ..scaling import (
     SCALINGS,
@@ -184,7 +184,7 @@ def _per_interval(conds: list[Condition], name: str, intervals) -> Condition:
                      {"per_interval": [{"h": h, **c.values} for h, c in zip(intervals, conds)]})
 
 
-def _analysis(problem):
+def _analysis(problem, solver: bool = True):
     plant, opts = problem.plant, problem.options
     samples = [plant.sampled(h) for h in opts.intervals]
     zc, _ = zeros_condition(plant.A, plant.E, plant.C, True, required=False)
@@ -212,7 +212,8 @@ def _analysis(problem):
             conds.append(switching)
             floor = max(floor, switching.values["switching_radius"])
             if switching.holds and floor < 1.0 and plant.n > plant.p:
-                conds.append(_certificate_condition(samples, plant.C, opts, 1.0 - floor * floor))
+                certified = _certificate_condition(samples, plant.C, opts, 1.0 - floor * floor, solver)
+                conds += [certified] if certified is not None else []
         limit = 1.0 - zmax * zmax
         info = {"largest_zero_modulus": zmax, "at_interval": zarg, "alpha_limit": limit}
         if opts.alpha == "max":
@@ -417,11 +418,12 @@ def structural_variables(v: dict, samples, C) -> dict:
     return out
 
 
-def _certificate_condition(samples, C, opts, limit: float) -> Condition:
+def _certificate_condition(samples, C, opts, limit: float, solver: bool = True) -> Condition | None:
     """Whether Corollary 2 can certify any observer for the intervals (``p = q``): its LMIs on
     ``ker C`` (:func:`_reduced_lmis`, exact there) at the slowest decay the search would try.
     Only CLARABEL's proof of infeasibility fails the condition; a numerical failure leaves it
-    to the design."""
+    to the design. Without ``solver`` the condition is None unless no solve decides it (a scalar error
+    on ker C)."""
     from ..lmi import INFEASIBLE
 
     alpha = 1e-3 * limit
@@ -429,6 +431,8 @@ def _certificate_condition(samples, C, opts, limit: float) -> Condition:
     if F[0].shape[0] == 1:                    # scalar: equal P_i certify exactly when every |F_i| < sqrt(1 - alpha)
         return Condition("certificate on ker C", True, False,
                          "the error on ker C is scalar (n = p + 1): the zeros decide, as above", {"alpha": alpha})
+    if not solver:
+        return None
     sol = _reduced_lmis(F).solve(c=1.0 - alpha)
     values = {"alpha": alpha, "status": sol.status}
     if not sol.verified and sol.status not in INFEASIBLE:
@@ -441,15 +445,16 @@ def _certificate_condition(samples, C, opts, limit: float) -> Condition:
                              f"(CLARABEL {status} after {solves} solve(s) in recentred coordinates): no quadratic "
                              "Lyapunov function per interval decreases over every succession of these intervals, "
                              "so no observer of this family can be certified; drop intervals from observer.intervals",
-                             values)
+                             values, solver=True)
     if sol.status in INFEASIBLE:
         return Condition("certificate on ker C", False, True,
                          f"with p = q the LMIs of Corollary 2 reduce exactly to ker C, and there CLARABEL proves them "
                          f"infeasible even at alpha = {alpha:.3g}: no quadratic Lyapunov function per interval "
                          "decreases over every succession of these intervals, so no observer of this family can be "
-                         "certified; drop intervals from observer.intervals", values)
+                         "certified; drop intervals from observer.intervals", values, solver=True)
     return Condition("certificate on ker C", True, False,
-                     f"the LMIs of Corollary 2 on ker C (p = q) at alpha = {alpha:.3g}: CLARABEL {sol.status}", values)
+                     f"the LMIs of Corollary 2 on ker C (p = q) at alpha = {alpha:.3g}: CLARABEL {sol.status}", values,
+                     solver=True)
 
 
 def _switching_condition(samples, C, opts) -> Condition:
@@ -482,9 +487,10 @@ def _switching_condition(samples, C, opts) -> Condition:
                      f"sample over the worst repeated sequence of intervals ({text})", values)
 
 
-def analyse(problem) -> Analysis:
-    """Rank conditions, sampled invariant zeros and the decay they allow, for every interval."""
-    existence, samples, floor = _analysis(problem)
+def analyse(problem, solver: bool = True) -> Analysis:
+    """Rank conditions, sampled invariant zeros and the decay they allow, for every interval (and, with
+    ``solver``, whether Corollary 2 on ker C has a certificate at all: one solve)."""
+    existence, samples, floor = _analysis(problem, solver)
     return Analysis(existence, {"samples": samples, "decay_floor": floor})
 
 
@@ -577,10 +583,11 @@ def _schedule(opts: Options) -> dict:
             "step_policy": opts.step_policy, "step_rtol": STEP_RTOL}
 
 
-def determined(problem, card_data) -> dict:
+def determined(problem, card_data, analysis: Analysis) -> dict:
     """What the card's problem determines: the plant sampled at each interval, dhat's matrices
     (absent unless ``rank(C E(h)) = q`` at every interval), the schedule, the intervals and
-    ``alpha = 1 - decay_bound^2``."""
+    ``alpha = 1 - decay_bound^2``; the zeros and the decay limit of its analysis, the LMIs' size of the
+    card's design method, the state scaling, and the eigenvalues of the stored ``L_ij``."""
     plant, opts = problem.plant, problem.options
     samples, C = [plant.sampled(h) for h in opts.intervals], plant.C
     mats = {"A_sampled": np.array([s.A for s in samples]), "B_sampled": np.array([s.B for s in samples]),
@@ -596,7 +603,47 @@ def determined(problem, card_data) -> dict:
     else:                                                   # a fixed alpha is the card's
         alpha = {"alpha": float(opts.alpha), "decay_bound": float(np.sqrt(1.0 - opts.alpha))}
     return {"dt": None, "schedule": _schedule(opts), "bound": BOUND, "intervals": list(opts.intervals), **alpha,
-            **{f"matrices.{k}": v for k, v in mats.items()}}
+            **{f"matrices.{k}": v for k, v in mats.items()}, **figures_of(problem, card_data, analysis)}
+
+
+#: What the card says of its ``largest_sampled_zero``.
+DECAY_FLOOR_NOTE = ("the largest sampled zero, or (p = q) the fixed error's decay under the worst repeated sequence "
+                    "of intervals when larger")
+
+
+def lmi_size(plant, intervals: int, method: str) -> dict:
+    """The size of the LMIs of a design method (``"lmi"``: (15)-(16); on ker C: the reduced LMIs)."""
+    n, p, N = plant.n, plant.p, intervals
+    if method != "lmi":
+        return {"lmis": N * N, "lmi_dim": 2 * (n - p), "normalisation_lmis": 2 * N, "equalities": 0,
+                "scalar_variables": 1 + N * (n - p) * (n - p + 1) // 2}
+    return {"lmis": N * N, "lmi_dim": 2 * n, "normalisation_lmis": 2 * N, "equalities": N,
+            "scalar_variables": 1 + N * n * (n + 1) // 2 + N * n * p + N * N * n * p}
+
+
+def figures_of(problem, card_data: dict, analysis: Analysis) -> dict:
+    """The figures a sampled-data card lists that its analysis and stored matrices determine: the decay
+    limit and the largest zero, each interval's sampled zeros, the LMIs' size and the state scaling of
+    the card's design method (``lmi``, or ``lmi on ker C (p = q)``), the eigenvalues of each ``L_ii``
+    and the largest modulus of every ``L_ij``."""
+    plant, opts = problem.plant, problem.options
+    zmax, n = analysis.data["decay_floor"], plant.n
+    rtol = eigen_rtol(n)
+    size = max(float(np.linalg.norm(s.A, 2)) for s in analysis.data["samples"])
+    method = card_data.get("design_method")
+    methods = ("lmi", "lmi on ker C (p = q)") if plant.p == plant.q and n > plant.p else ("lmi",)
+    N = np.asarray(card_data["matrices"]["N"], dtype=float)
+    zeros = analysis.existence.value("stable sampled invariant zeros", "per_interval")
+    return {"alpha_limit_from_zeros": Determined(1.0 - zmax * zmax, 1.0, rtol),
+            "largest_sampled_zero": Determined(zmax, 1.0, rtol), "decay_floor_note": DECAY_FLOOR_NOTE,
+            "sampled_invariant_zeros": [{"h": z["h"], "zeros": computed_values(from_pairs(z["zeros"]), size, n)}
+                                        for z in zeros],
+            "design_method": method if method in methods else methods[0],
+            "lmi_size": lmi_size(plant, len(opts.intervals), method),
+            "scaling": scaling_data(state_scaling(plant.A, opts.scaling) if method == "lmi" else np.ones(n),
+                                    opts.scaling),
+            "spectral_radius_max": spectrum(N, "radius"),
+            "eigenvalues_L_constant": spectrum(N[np.arange(len(N)), np.arange(len(N))])}
 
 
 def in_plant_coordinates(v: dict, t) -> dict:
@@ -752,13 +799,9 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "intervals": list(opts.intervals),
         "alpha_limit_from_zeros": limit,
         "largest_sampled_zero": zmax,
-        "decay_floor_note": "the largest sampled zero, or (p = q) the fixed error's decay under the worst repeated "
-                            "sequence of intervals when larger",
+        "decay_floor_note": DECAY_FLOOR_NOTE,
         "sampled_invariant_zeros": [{"h": z["h"], "zeros": z["zeros"]} for z in zeros],
-        "lmi_size": ({"lmis": N * N, "lmi_dim": 2 * (n - plant.p), "normalisation_lmis": 2 * N, "equalities": 0,
-                      "scalar_variables": 1 + N * (n - plant.p) * (n - plant.p + 1) // 2} if method != "lmi" else
-                     {"lmis": N * N, "lmi_dim": 2 * n, "normalisation_lmis": 2 * N, "equalities": N,
-                      "scalar_variables": 1 + N * n * (n + 1) // 2 + N * n * plant.p + N * N * n * plant.p}),
+        "lmi_size": lmi_size(plant, N, method),
         "search": searched,
         "design_method": method,
         "scaling": scaling_data(t if method == "lmi" else np.ones(n), opts.scaling),

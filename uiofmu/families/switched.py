@@ -42,7 +42,7 @@ import numpy as np
 
 from ..certificate import (EPS, FIGURE_DIGITS, Check, certificate, decay_check, figure_digits, identity_check,
                            lyapunov_check, overshoot, overshoot_check, positive_check, round_up)
-from ..consistency import dhat_record
+from ..consistency import Determined, computed_values, dhat_record, eigen_rtol, spectrum
 from ..decoupling import weak_modes_condition
 from ..runtime.card import DHAT
 from ..existence import Condition, Existence, complex_list, format_complex
@@ -213,7 +213,7 @@ def _switching_condition(modes, C) -> Condition:
                      f"per step (lower bound of its joint spectral radius, from the modes {text})", values)
 
 
-def analyse(problem) -> Analysis:
+def analyse(problem, solver: bool = True) -> Analysis:
     """Per mode: rank(CE_i) = rank(E_i), rank(CE_i) = q, the fixed eigenvalues of (At_i, Ct_i) and
     their moduli, the weakly observable modes; whether dead-beat is possible; the requested decay."""
     existence, modes, largest, deadbeat = _analysis(problem)
@@ -342,10 +342,11 @@ def _schedule(plant, opts: Options) -> dict:
     return {"kind": "mode", "dt": plant.dt, "modes": plant.N, "mode_prev0": opts.mode_prev0, "step_policy": "error"}
 
 
-def determined(problem, card_data) -> dict:
+def determined(problem, card_data, analysis: Analysis) -> dict:
     """What the card's problem determines: every mode's ``A_i, B_i, E_i, w_i``, ``C``, dhat's matrices
     (absent unless ``rank(CE_i) = q`` in every mode), the step, the schedule, the number of modes
-    and ``decay = decay_bound``."""
+    and ``decay = decay_bound``; each mode's fixed eigenvalues and the largest modulus of its analysis,
+    and the spectral radius of each stored ``Phi_i``."""
     plant, opts = as_switched(problem.plant), problem.options
     C, modes = plant.C, plant.modes
     mats = {f"{k}_modes": np.array([getattr(md, k) for md in modes]) for k in "ABEw"}
@@ -353,9 +354,15 @@ def determined(problem, card_data) -> dict:
         mats.update(dhat_record(C, mats["A_modes"], mats["B_modes"], mats["E_modes"], mats["w_modes"]))
     else:
         mats.update(dict.fromkeys(DHAT))
+    n = plant.n
+    size = max(float(np.linalg.norm(md.A, 2)) for md in modes)
+    figures = {f"fixed_eigenvalues[{i}]": computed_values(md.fixed, size, n)
+               for i, md in enumerate(analysis.data["modes"])}
     return {"dt": plant.dt, "schedule": _schedule(plant, opts), "bound": BOUND, "modes": plant.N,
             "decay": float(card_data["decay_bound"]), "matrices.C": C,
-            **{f"matrices.{k}": v for k, v in mats.items()}}
+            **{f"matrices.{k}": v for k, v in mats.items()}, **figures,
+            "largest_fixed_modulus": Determined(analysis.data["largest"], 1.0, eigen_rtol(n)),
+            "spectral_radius_Phi": spectrum(card_data["matrices"]["Phi"], "radii")}
 
 
 def _lmi_runtime(modes, values: dict, C, has_dhat: bool) -> dict:
