@@ -213,8 +213,38 @@ def test_problem_file_errors():
         problem_from_data(bad)
     bad = copy.deepcopy(EXAMPLE)
     bad["plant"]["scheduling"][0]["E"] = [[0.0], [1.0], [0.0]]     # the unknown input's path depends on theta
-    with pytest.raises(ProblemError, match="depends on theta"):
+    with pytest.raises(ProblemError, match=r"depends on theta .*its largest theta coefficient, entry \(\d+, 1\) of the "
+                                           r"term θ_k\+\d\[1\], is 1 where its products add up to 1: not rounding"):
         design(bad)
+
+
+def _in_coordinates(doc: dict, T: np.ndarray, theta_scale: float) -> dict:
+    """The paper's example for the state ``x = T z`` (``T`` orthogonal), with theta's part scaled by
+    ``theta_scale`` and ``theta = T x`` by its inverse: the same plant, the same functional ``G x``."""
+    out = copy.deepcopy(doc)
+    p, Ti = out["plant"], T.T
+    A, E, C, A1 = (np.array(x, dtype=float) for x in (p["A"], p["E"], p["C"], p["scheduling"][0]["A"]))
+    p.update(A=(Ti @ A @ T).tolist(), E=(Ti @ E).tolist(), C=(C @ T).tolist())
+    p["scheduling"][0]["A"] = (theta_scale * Ti @ A1 @ T).tolist()
+    p["theta"]["T"] = (np.array(p["theta"]["T"]) @ T / theta_scale).tolist()
+    out["observer"]["G"] = (np.array(out["observer"]["G"]) @ T).tolist()
+    return out
+
+
+def test_products_that_are_zero_in_exact_arithmetic_are_not_theta_terms():
+    """In rotated coordinates with theta's part 1e6 times larger, C A_1 E is 4.5e-11 of rounding (its products
+    add up to 1e6): M is constant, and the formula is the paper's, with no theta term of rounding (which would
+    make the FMU read theta). Decided against the products' sizes, not the largest coefficient: it was refused
+    as "M depends on theta"."""
+    T, _ = np.linalg.qr(np.array([[1.0, 0.3, 0.2], [0.1, 1.0, 0.4], [0.5, 0.2, 1.0]]))
+    for scale in (1.0, 1e6):
+        doc = _in_coordinates(EXAMPLE, T, scale)
+        p = doc["plant"]
+        residual = (np.array(p["C"]) @ np.array(p["scheduling"][0]["A"]) @ np.array(p["E"])).item()
+        assert residual != 0.0 and abs(residual) < 1e-9 * scale
+        card = design(doc)
+        assert card.data["formula"] == "(G x)_1 at k = 11·y_k + 2·y_k+1" and card.data["window"] == 4
+        assert not np.any(card.data["matrices"]["Fexp"]) and all(c.holds for c in uiofmu.verify(card))
 
 
 def test_a_tampered_formula_fails_its_re_check():

@@ -251,6 +251,31 @@ class PolyMatrix:
         keep = {m: c for m, c in self.coeffs.items() if c.size and float(np.abs(c).max()) > tol * big}
         return PolyMatrix(self.shape, keep)
 
+    def without_rounding(self, magnitude: "PolyMatrix", rtol: float) -> "PolyMatrix":
+        """Without the entries that are rounding of the products they sum: ``|c| <= rtol * m`` entrywise,
+        ``m`` the coefficient of the same monomial in ``magnitude`` (the same computation on the absolute
+        values of every factor, which bounds the size of the terms each entry adds up). A monomial whose
+        entries are all rounding is left out; an entry that is exactly zero in exact arithmetic is so to
+        rounding of its terms' size, whatever the scale of the rest.
+
+        Parameters
+        ----------
+        magnitude : PolyMatrix
+            The same polynomial computed from absolute values.
+        rtol : float
+
+        Returns
+        -------
+        PolyMatrix
+        """
+        keep = {}
+        for m, c in self.coeffs.items():
+            bound = magnitude.coeffs.get(m, np.zeros(c.shape))
+            cleaned = np.where(np.abs(c) <= rtol * bound, 0.0, c)
+            if cleaned.any() or m == ():
+                keep[m] = cleaned
+        return PolyMatrix(self.shape, keep)
+
     @property
     def variables(self) -> set:
         """The variables that appear."""

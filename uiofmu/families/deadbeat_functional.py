@@ -102,9 +102,11 @@ def parse_options(table, plant) -> Options:
 
 
 # -- polynomial matrices of the plant over a window -------------------------------------------
-def window_matrix(plant: LpvPlant, name: str, lag: int) -> PolyMatrix:
-    """``name(theta_{k+lag})`` as a polynomial in the variables ``(lag, i)``."""
-    return PolyMatrix.affine(getattr(plant, name), {(lag, i): part[name] for i, part in enumerate(plant.parts)})
+def window_matrix(plant: LpvPlant, name: str, lag: int, absolute: bool = False) -> PolyMatrix:
+    """``name(theta_{k+lag})`` as a polynomial in the variables ``(lag, i)`` (of the absolute values of
+    its parts with ``absolute``: what bounds the size of the terms of its products)."""
+    f = np.abs if absolute else np.asarray
+    return PolyMatrix.affine(f(getattr(plant, name)), {(lag, i): f(part[name]) for i, part in enumerate(plant.parts)})
 
 
 class Windows:
@@ -129,22 +131,22 @@ class Windows:
         ``O(theta_{k:k+r})``, ``M(theta_{k:k+r})``, ``M(theta_{k+1:k+r})`` (None for r = 0).
     """
 
-    def __init__(self, plant: LpvPlant):
-        self.plant = plant
+    def __init__(self, plant: LpvPlant, absolute: bool = False):
+        self.plant, self.absolute = plant, absolute
         self.r = -1
         self.O = self.M = self.M_next = None
 
     def advance(self) -> "Windows":
         """From delay ``r`` to ``r + 1``."""
-        plant = self.plant
-        C, D = window_matrix(plant, "C", 0), window_matrix(plant, "D", 0)
+        plant, absolute = self.plant, self.absolute
+        C, D = window_matrix(plant, "C", 0, absolute), window_matrix(plant, "D", 0, absolute)
         if self.r < 0:
             self.O, self.M = C, D
         else:
             O_next, self.M_next = shifted(self.O, 1), shifted(self.M, 1)
             top = hstack([D, PolyMatrix.constant(np.zeros((plant.p, self.M_next.shape[1])))])
-            self.M = stack([top, hstack([O_next @ window_matrix(plant, "E", 0), self.M_next])])
-            self.O = stack([C, O_next @ window_matrix(plant, "A", 0)])
+            self.M = stack([top, hstack([O_next @ window_matrix(plant, "E", 0, absolute), self.M_next])])
+            self.O = stack([C, O_next @ window_matrix(plant, "A", 0, absolute)])
         self.r += 1
         return self
 
@@ -187,22 +189,57 @@ def _finite(M, what: str) -> None:
                            "rescale the plant (states, outputs or unknown input)")
 
 
-def _constant(P: PolyMatrix, what: str) -> np.ndarray:
-    if not P.is_constant(1e-12):
-        shown = sorted({v for v in P.pruned(1e-12).variables})[:4]
-        raise ProblemError(f"{what} depends on theta (through {', '.join(f'theta_k+{l}[{i + 1}]' for l, i in shown)}): "
-                           "the inverse system (4) is then rational in theta, which this version does not design")
-    return P.coeffs.get((), np.zeros(P.shape))
+#: A coefficient of a window matrix is rounding, not a dependence on theta, when it is at most this relative
+#: to the size of the products it sums (the same polynomial of the absolute values): about 4500 eps, above the
+#: rounding of sums of a few hundred products, far below any theta term the plant's data make.
+STRUCTURAL_RTOL = 1e-12
+
+
+def _constant(P: PolyMatrix, what: str, magnitude) -> np.ndarray:
+    """The constant ``P`` is, once its entries that are rounding of their products are left out.
+
+    Parameters
+    ----------
+    P : PolyMatrix
+    what : str
+        Its name in a refusal.
+    magnitude : callable
+        ``magnitude()``: the same polynomial of absolute values (computed only when ``P`` has theta terms).
+
+    Raises
+    ------
+    ProblemError
+        When a theta term is more than rounding: named with its size and the size of its products.
+    """
+    if P.is_constant(0.0):
+        return P.coeffs.get((), np.zeros(P.shape))
+    bound = magnitude()
+    cleaned = P.without_rounding(bound, STRUCTURAL_RTOL)
+    if cleaned.is_constant(0.0):
+        return cleaned.coeffs.get((), np.zeros(P.shape))
+    m, c = max(((m, c) for m, c in cleaned.coeffs.items() if m), key=lambda mc: float(np.abs(mc[1]).max()))
+    at = np.unravel_index(int(np.argmax(np.abs(c))), c.shape)
+    size = float(bound.coeffs[m][at])
+    shown = sorted(cleaned.variables)[:4]
+    raise ProblemError(f"{what} depends on theta (through {', '.join(f'theta_k+{l}[{i + 1}]' for l, i in shown)}; "
+                       f"its largest theta coefficient, entry ({at[0] + 1}, {at[1] + 1}) of the term "
+                       f"{_monomial_text(m)}, is {abs(float(c[at])):.3g} where its products add up to {size:.3g}: "
+                       f"not rounding): the inverse system (4) is then rational in theta, which this version does "
+                       "not design")
 
 
 @dataclass(frozen=True)
 class Inverse:
-    """The inverse system of delay ``r``: ``x_{k+1} = P x_k + Q y_{k:k+r}`` (polynomials in ``(lag, i)``)."""
+    """The inverse system of delay ``r``: ``x_{k+1} = P x_k + Q y_{k:k+r}`` (polynomials in ``(lag, i)``),
+    and the sizes of the products each coefficient of ``P`` and ``Q`` sums (the same computation on absolute
+    values): what tells a coefficient that is rounding from one the plant makes."""
 
     r: int
     P: PolyMatrix
     Q: PolyMatrix
     ranks: list
+    P_size: PolyMatrix
+    Q_size: PolyMatrix
 
 
 def inverse_system(plant: LpvPlant, max_delay: int) -> tuple[Inverse | None, list]:
@@ -215,26 +252,31 @@ def inverse_system(plant: LpvPlant, max_delay: int) -> tuple[Inverse | None, lis
         :mod:`uiofmu.polynomials` (:func:`too_large`).
     """
     target = rank(np.vstack([plant.E, plant.D]))
-    tried, windows = [], Windows(plant)
+    tried, windows, sizes = [], Windows(plant), Windows(plant, absolute=True)
     for r in range(max_delay + 1):
         try:
             windows.advance()
-            M = _constant(windows.M, f"M(theta_k:k+{r})")
-            M1 = _constant(windows.M_next, f"M(theta_k+1:k+{r})") if r else np.zeros((0, 0))
+            M = _constant(windows.M, f"M(theta_k:k+{r})", lambda: sizes.at(r).M)
+            M1 = _constant(windows.M_next, f"M(theta_k+1:k+{r})", lambda: sizes.at(r).M_next) if r else \
+                np.zeros((0, 0))
             _finite(M, f"M(theta_k:k+{r})")
             got = rank(M) - (rank(M1) if r else 0)
             tried.append({"r": r, "rank_M": rank(M), "rank_M_next": rank(M1) if r else 0, "rank_ED": target})
             if got == target:
                 Ibar = np.hstack([np.eye(plant.q), np.zeros((plant.q, plant.q * r))])
-                Q = window_matrix(plant, "E", 0) @ (Ibar @ np.linalg.pinv(M, rcond=RANK_RTOL))
+                W = Ibar @ np.linalg.pinv(M, rcond=RANK_RTOL)
+                Q = window_matrix(plant, "E", 0) @ W
                 P = window_matrix(plant, "A", 0) - Q @ windows.O
+                Q_size = window_matrix(plant, "E", 0, True) @ np.abs(W)
+                P_size = window_matrix(plant, "A", 0, True) + Q_size @ sizes.at(r).O
+                P, Q = P.without_rounding(P_size, STRUCTURAL_RTOL), Q.without_rounding(Q_size, STRUCTURAL_RTOL)
         except TooLarge as exc:
             raise too_large(plant, exc, f"the inverse system of delay r = {r}", r + 1) from None
         if got == target:
             for name, X in (("P", P), ("Q", Q)):
                 for c in X.coeffs.values():
                     _finite(c, f"the inverse system's {name} (delay r = {r})")
-            return Inverse(r, _nonempty(P.pruned(1e-15)), _nonempty(Q.pruned(1e-15)), tried), tried
+            return Inverse(r, _nonempty(P.pruned(1e-15)), _nonempty(Q.pruned(1e-15)), tried, P_size, Q_size), tried
     return None, tried
 
 
@@ -379,8 +421,12 @@ def window_length(r: int, K: int) -> int:
     return K + max(r, 1) + 1
 
 
-def formula(G: np.ndarray, inv: Inverse, K: int, p: int) -> tuple[PolyMatrix, int, int]:
+def formula(G: np.ndarray, inv: Inverse, K: int, p: int, sizes: bool = False) -> tuple[PolyMatrix, int, int]:
     """``G x_k`` as coefficients on the output window, polynomial in the window's theta values.
+
+    With ``sizes``, the same sums of products of ``|G|`` and the sizes of ``P`` and ``Q``
+    (:class:`Inverse`): what each coefficient's terms add up to, so that a coefficient that is rounding
+    of them (a theta term of a structurally zero product) is told from one the plant makes.
 
     Returns
     -------
@@ -397,17 +443,18 @@ def formula(G: np.ndarray, inv: Inverse, K: int, p: int) -> tuple[PolyMatrix, in
     newest = delay                       # lags relative to k (G x_k): the newest output is y_{k+delay}
     oldest = newest - L + 1
     d = G.shape[0]
+    G, P, Q = (np.abs(G), inv.P_size, inv.Q_size) if sizes else (G, inv.P, inv.Q)
     out = PolyMatrix((d, p * L), {})
     for j in range(-K - 1, 0):           # x_{j+1} = P_j x_j + Q_j y_{j:j+r}, lags relative to k
         term = PolyMatrix.constant(G)
         for i in range(-1, j, -1):       # G P_{k-1} ... P_{j+1}
-            term = term @ shifted(inv.P, i)
-        term = term @ shifted(inv.Q, j)  # (d, p (r + 1)), on y_{j..j+r}
+            term = term @ shifted(P, i)
+        term = term @ shifted(Q, j)      # (d, p (r + 1)), on y_{j..j+r}
         pos = j - oldest
         out = out + hstack([PolyMatrix.constant(np.zeros((d, p * pos))), term,
                             PolyMatrix.constant(np.zeros((d, p * (L - pos - r - 1))))])
     coeffs = {}
-    for m, c in out.pruned(1e-14).coeffs.items():
+    for m, c in (out if sizes else out.pruned(1e-14)).coeffs.items():
         coeffs[tuple(sorted(((lag - oldest, i), pw) for (lag, i), pw in m))] = c
     return PolyMatrix((d, p * L), coeffs or {(): np.zeros((d, p * L))}), L, delay
 
@@ -520,6 +567,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
     try:
         with work_limit():
             F, L, delay = formula(opts.G, inv, K, plant.p)
+            if not F.is_constant(0.0):           # theta terms that are rounding of their products go
+                F = F.without_rounding(formula(opts.G, inv, K, plant.p, sizes=True)[0], STRUCTURAL_RTOL)
     except TooLarge as exc:
         raise too_large(plant, exc, f"the window formula (Proposition 4, r = {inv.r}, K = {K})",
                         window_length(inv.r, K)) from None
