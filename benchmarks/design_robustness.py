@@ -3,9 +3,13 @@
     .venv/bin/python benchmarks/design_robustness.py [--family F] [--count N] [--seed S] [--quick]
                                                      [--timeout T] [--worst K] [--tracebacks K]
                                                      [--reproducers DIR] [--json FILE]
+                                                     [--plant-class C] [--e-scale S]
 
 For every problem of :mod:`uiofmu.families.random_plants` (``--count`` per family, default 150; ``--quick``
-15), in this process, one after the other:
+15; ``--plant-class`` draws one class only; ``--e-scale`` multiplies every unknown-input matrix ``E``, the
+same problems in another unit of ``d``: ``--family ltv-auid --plant-class near-limit-zeros --e-scale 1e-10``
+is the class of sampled zeros next to the unit circle with a tiny ``E``), in this process, one after the
+other:
 
 1. ``uiofmu.check``: does an observer exist?
 2. ``uiofmu.design`` with the searched value at ``"max"`` (lti-uio ``decay``, ltv-auid ``mu``,
@@ -69,7 +73,7 @@ import numpy as np  # noqa: E402
 import uiofmu  # noqa: E402
 from uiofmu.runtime.errors import CardError, InfeasibleError, NoObserverError, UserError  # noqa: E402
 from uiofmu.problem import problem_from_data, to_toml  # noqa: E402
-from uiofmu.families.random_plants import (FAMILY_CODES, SEARCHED, campaign_draws, fixed_values,  # noqa: E402
+from uiofmu.families.random_plants import (CLASSES, FAMILY_CODES, SEARCHED, campaign_draws, fixed_values,  # noqa: E402
                                   with_value)
 
 FAMILIES = tuple(FAMILY_CODES)
@@ -674,13 +678,27 @@ def result_data(r: Result) -> dict:
             "cases": cases(r)}
 
 
-def run_campaign(families, count: int, seed: int, timeout: float | None, progress=None, **knobs) -> dict:
-    """Every family's results: ``{family: [Result, ...]}``."""
+def with_unknown_input_scaled(rp, scale: float):
+    """``rp`` with its unknown-input matrix ``E`` (every mode's too) multiplied by ``scale``: the same observer
+    problem in another unit of ``d``, which no certificate's existence depends on."""
+    import copy
+    from dataclasses import replace
+
+    doc = copy.deepcopy(rp.doc)
+    for table in [doc["plant"], *doc["plant"].get("modes", [])]:
+        if "E" in table:
+            table["E"] = (np.asarray(table["E"], dtype=float) * scale).tolist()
+    return replace(rp, doc=doc)
+
+
+def run_campaign(families, count: int, seed: int, timeout: float | None, progress=None, e_scale: float = 1.0,
+                 **knobs) -> dict:
+    """Every family's results: ``{family: [Result, ...]}`` (``e_scale``: :func:`with_unknown_input_scaled`)."""
     out = {}
     for family in families:
         out[family] = []
         for i, rp in enumerate(campaign_draws(family, count, seed, **knobs)):
-            r = run_problem(rp, timeout)
+            r = run_problem(rp if e_scale == 1.0 else with_unknown_input_scaled(rp, e_scale), timeout)
             out[family].append(r)
             if progress:
                 progress(family, i, count, r)
@@ -701,6 +719,10 @@ def main(argv=None) -> int:
     ap.add_argument("--reproducers", type=Path, help="write each listed worst case's problem as TOML here")
     ap.add_argument("--json", type=Path, help="write every result as JSON here")
     ap.add_argument("--verbose", action="store_true", help="one line per problem on stderr")
+    ap.add_argument("--plant-class", choices=CLASSES, help="draw only plants of this class (e.g. near-limit-zeros)")
+    ap.add_argument("--e-scale", type=float, default=1.0,
+                    help="multiply every unknown-input matrix E by this (e.g. 1e-10: the same problems in another "
+                         "unit of d; default 1)")
     args = ap.parse_args(argv)
     count = args.count if args.count is not None else (15 if args.quick else 150)
     families = args.family or list(FAMILIES)
@@ -714,7 +736,8 @@ def main(argv=None) -> int:
                   file=sys.stderr, flush=True)
 
     t0 = time.perf_counter()
-    results = run_campaign(families, count, args.seed, args.timeout, progress)
+    knobs = {"plant_class": args.plant_class} if args.plant_class else {}
+    results = run_campaign(families, count, args.seed, args.timeout, progress, e_scale=args.e_scale, **knobs)
     total = time.perf_counter() - t0
     ok = True
     print(f"design robustness: {count} problems per family, campaign seed {args.seed}, "

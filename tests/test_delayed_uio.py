@@ -113,13 +113,14 @@ def test_theta_is_exact_with_a_zero_state_error(example):
     plant = ParametricPlantRuntime(problem.plant.to_data())
     rt = DelayedRuntime(card)
     h, t, history = 1e-3, 0.0, []
-    for _ in range(700):
+    start = card.schedule["valid_from"]                                   # the premise's start, 1 s
+    for _ in range(int(round((start + 0.2) / h))):
         plant.u[:] = [s(t) for s in problem.u]
         history.append(plant.x.copy())
         rt.set_y(plant.y())
         rt.set_ydot(plant.ydot())
         rt.set_u(plant.u)
-        if t >= 0.6:
+        if t >= start + 0.1:
             break
         rt.step(h)
         plant.step(h)
@@ -135,12 +136,16 @@ def test_theta_is_exact_with_a_zero_state_error(example):
 
 
 def test_start_up_is_flagged_and_the_estimate_converges_inside_the_premise(example):
+    """Invalid before the premise's start (one delay after tau: the start-up transient it leaves out), valid
+    almost everywhere after, and converged a second later."""
     problem, card = example
-    rows = run(card, problem, 1e-3, 1.8)
+    start = card.schedule["valid_from"]
+    assert start == card.data["premise"]["start"] == 1.0
+    rows = run(card, problem, 1e-3, start + 1.3)
     t, e, eth, valid = rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
-    assert not valid[t < 0.5].any()                                     # start-up: t < tau
-    assert valid[t >= 0.6].mean() > 0.99
-    late = t >= 1.5
+    assert not valid[t < start].any()                                   # start-up: t < tau, then the transient
+    assert valid[t >= start + 0.1].mean() > 0.99
+    late = t >= start + 1.0
     assert e[late].max() < 1e-3 * e[0]                                  # ||e|| < 1e-3 ||e_0||
     assert np.median(eth[late]) < 1e-2                                  # thetahat within 1e-2 of theta
 
@@ -165,16 +170,17 @@ def test_outside_the_premise_the_margin_collapses_and_the_run_says_so(example):
         rt.set_ydot(plant.ydot())
         rt.set_u(plant.u)
         theta = rt.theta().copy()
-        if t >= 0.5 and not rt.valid:
+        if t >= card.schedule["valid_from"] and not rt.valid:
             invalid += 1
-            assert rt.margin() < card.schedule["sigma_bound"]
+            sigma, size = rt._signals()
+            assert sigma < card.schedule["sigma_bound"] or size > card.schedule["gamma_bound"]
             held += np.array_equal(theta, last)
         last = theta
         rt.step(h)
         plant.step(h)
         t += h
     assert invalid > 20 and held == invalid
-    assert any("below the premise bound" in n for n in rt.notices)
+    assert any("below the premise bound" in n or "above the largest of the premise points" in n for n in rt.notices)
 
 
 def test_state_round_trip_with_the_delay_buffer(example):
@@ -235,4 +241,65 @@ def test_a_card_claiming_no_decay_is_refused(example, beta):
         recheck(forged)
     data["problem"]["observer"]["decay"] = "max"              # then only the certificate can refuse it
     with pytest.raises(CardError, match="certificate (does not hold|cannot be re-checked)"):    # NaN: no eigenvalues
+        recheck(card_from_data(data))
+
+
+# -- the certificate covers its premise family, not only its grid ------------------------------------------
+
+def _fresh(problem, card, seed: int):
+    """LMI (29) at the card's Q and K on every point of the premise family drawn with ``seed`` that the run-time
+    flag calls valid: the margins, and how many points."""
+    import json
+
+    from uiofmu.families import delayed_uio as du
+
+    data = copy.deepcopy(problem.data)
+    data["observer"]["premise"] = {**data["observer"].get("premise", {}), "seed": seed}
+    key = json.dumps(data, sort_keys=True)
+    grid = du._used_grid(json.dumps(problem.data, sort_keys=True))
+    points = du.validation_points(key, 0, grid)
+    values, bound, _ = du.point_checks(card.data["matrices"], points.gammas, card.data["decay_rate"])
+    return values - bound, len(points.gammas)
+
+
+def test_the_certificate_holds_on_fresh_draws_of_its_premise_family(example):
+    """The example's LMI (29) at the stored Q and K, on families drawn with seeds the design never saw (the
+    audit's check: before, seed 4 failed at t = 0.501 s, in the start-up transient, with lambda_max = +6.7)."""
+    problem, card = example
+    assert card.data["premise"]["validation"] == [2]              # the first validation family passed as it was
+    for seed in (4, 9, 12):
+        margins, count = _fresh(problem, card, seed)
+        assert count > 1000 and margins.min() > 0, (seed, count, margins.min())
+
+
+def test_the_premise_leaves_out_the_start_up_transient(example):
+    """From one delay after tau (1 s): the largest |Gamma| of the grid falls from 1411 (from tau on) to 70; the
+    observer is valid from there, and the FMU's substep grows with it."""
+    problem, card = example
+    assert card.data["premise"]["start"] == 1.0 == card.schedule["valid_from"]
+    assert card.data["premise"]["gamma_max"] < 100 and card.schedule["gamma_bound"] == card.data["premise"]["gamma_max"]
+    data = copy.deepcopy(problem.data)
+    data["observer"]["premise"]["start"] = 0.5
+    with_start_up = uiofmu.check(problem_from_data(data))
+    assert with_start_up.exists
+    from uiofmu.families.delayed_uio import analyse
+
+    grid = analyse(problem_from_data(data)).data["grid"]
+    assert max(np.linalg.norm(G, 2) for G in grid.gammas) > 1000
+
+
+def test_a_forged_validation_record_is_refused(example):
+    """``premise.validation`` names the families verify re-checks: seed + 1 .. seed + k; another list, or none,
+    is refused; the families themselves are rebuilt and checked by verify."""
+    _, card = example
+    names = [c.name for c in uiofmu.verify(card)]
+    assert any("over the validation family of seed 2" in n for n in names)
+    for forged in ([], [5], [3, 2], "2"):
+        data = copy.deepcopy(card.data)
+        data["premise"]["validation"] = forged
+        with pytest.raises(CardError, match="premise.validation"):
+            recheck(card_from_data(data))
+    data = copy.deepcopy(card.data)
+    data["schedule"]["gamma_bound"] *= 10                         # valid where nothing was certified
+    with pytest.raises(CardError, match="schedule.gamma_bound is not what the card's problem determines"):
         recheck(card_from_data(data))

@@ -13,7 +13,16 @@ certificate, in the notation of :mod:`uiofmu.runtime.delayed` (the kernel this f
   declared *premise family*: ``count`` trajectories of the plant driven by the problem's ``[signals] u``
   (each scaled by a factor drawn in ``premise.scale`` and shifted in time by up to ``premise.shift``
   seconds), simulated with ``premise.theta`` (default: the plant's), ``samples`` points each between
-  the largest delay and ``premise.duration``.
+  ``premise.start`` and ``premise.duration``. The start leaves out the start-up transient (default: one
+  delay after the largest delay, or half-way to the duration): just after ``t = tau`` the delayed outputs
+  are the initial state's, and ``Gamma`` there is far larger than anywhere later (1411 against 93 on the
+  example), while the observer is not valid before the start anyway.
+* The certificate must cover the family, not only its grid: after the design, LMI (29) is checked at the
+  stored ``Q``, ``K`` on *validation families*, the same family with other draws (seeds ``seed + 1``,
+  ``seed + 2``, ...), on every point the run-time flag would call valid (rank margin at least the floor,
+  ``||Gamma||`` at most the grid's largest). A family with failing points adds them to the design points
+  and the design is solved again; the card is verified once a validation family passes without any
+  change, and it records the seeds (``premise.validation``), which ``verify`` re-checks.
 * LMI (29) for one Lyapunov matrix and one gain on every grid point, with a decay ``beta`` (1/s)::
 
       Gamma_g' Q + Q Gamma_g - Ca' R' - R Ca + 2 beta Q < 0,   I <= Q <= t I,   [[Q, R], [R', cap^2 I]] >= 0
@@ -30,12 +39,12 @@ import functools
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..certificate import Check, certificate, definite_check, positive_check
-from ..consistency import Determined, consistency_checks
+from ..certificate import Check, certificate, positive_check, rounding_floor
+from ..consistency import DETERMINED, Determined, consistency_checks
 from ..existence import Condition, Existence
 from ..lmi import Lmi, LmiSystem
 from ..progress import progress
@@ -47,7 +56,7 @@ from ..runtime.schedules import StepRejected
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..runtime.matrices import as_vector
 from ..runtime.parametric_plant import ParametricPlantRuntime
-from ..runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, SEARCH_TOL, VERIFY_FRACTION
+from ..runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, ROUNDING_FACTOR, SEARCH_TOL, VERIFY_FRACTION
 from ..structure import rank
 from . import Analysis, DesignResult
 
@@ -69,12 +78,18 @@ class Premise:
     shift: float
     theta: tuple | None
     sigma_floor: float | None = None
+    start: float = 0.0
 
     def to_data(self) -> dict:
         """The card's record of it."""
         return {"signals": self.signals, "count": self.count, "samples": self.samples, "seed": self.seed,
                 "duration": self.duration, "scale": list(self.scale), "shift": self.shift,
-                "theta": None if self.theta is None else list(self.theta), "sigma_floor": self.sigma_floor}
+                "theta": None if self.theta is None else list(self.theta), "sigma_floor": self.sigma_floor,
+                "start": self.start}
+
+    def drawn(self, seed: int) -> "Premise":
+        """The same family with other draws of scale and shift (a validation family)."""
+        return replace(self, seed=seed)
 
 
 @dataclass(frozen=True)
@@ -171,9 +186,13 @@ def parse_options(table, plant) -> Options:
     theta = pt.get("theta", None)
     theta = None if theta is None else tuple(as_vector(theta, pt.key("theta"), plant.n_theta).tolist())
     floor = pt.scalar("sigma_floor", None, low=0.0, open_low=True) if pt.has("sigma_floor") else None
+    tau = float(delays.max())
+    start = pt.scalar("start", tau + min(tau, 0.5 * (duration - tau)), low=tau)
+    if not start < duration:
+        raise ProblemError(f"{pt.key('start')}: {start:g} s must be before premise.duration = {duration:g} s")
     pt.done()
     premise = Premise(signals, ints["count"], ints["samples"], ints["seed"], duration, tuple(scale.tolist()),
-                      shift, theta, floor)
+                      shift, theta, floor, start)
     _premise_cost(plant, delays, premise, pt.name)
     gain_cap = table.scalar("gain_cap", 1e4, low=0.0, open_low=True)
     xhat0 = table.vector("xhat0", plant.n, None)
@@ -238,12 +257,11 @@ def simulate_family(plant: ParametricPlant, signals, theta: np.ndarray, draws, d
     runs = len(draws)
     scale = np.array([s for s, _ in draws])[:, None]
     shift = np.array([h for _, h in draws])
-    A, B, C, D0, Dy = plant.A, plant.B, plant.C, plant.D0, plant.Dy
+    At, Bt, Ct = plant.A.T, plant.B.T, plant.C.T
+    D0th, Dyth = plant.D0 @ theta, plant.Dy @ theta          # D(y) theta = D0 theta + y (Dy theta)
 
     def f(x, u):
-        y = x @ C.T
-        Dth = D0 @ theta + np.einsum("ri,ij->rj", y, Dy @ theta)
-        return x @ A.T + u @ B.T + Dth
+        return x @ At + u @ Bt + D0th + (x @ Ct) @ Dyth
 
     x = np.tile(plant.x0, (runs, 1))
     T = np.arange(steps + 1) * delta
@@ -253,8 +271,8 @@ def simulate_family(plant: ParametricPlant, signals, theta: np.ndarray, draws, d
     for k in range(steps + 1):
         before = u
         u = scale * np.array([[sig(T[k] + h) for sig in signals] for h in shift]).reshape(runs, plant.m)
-        Ys[k], Yd[k] = x @ C.T, f(x, u) @ C.T
-        Yl[k] = Yd[k] if before is None else f(x, before) @ C.T
+        Ys[k], Yd[k] = x @ Ct, f(x, u) @ Ct
+        Yl[k] = Yd[k] if before is None else f(x, before) @ Ct
         if k == steps:
             break
         for _ in range(sub):
@@ -279,7 +297,7 @@ def premise_grid(problem, delays, premise: Premise) -> Grid:
     T, Ys, Yd, Yl = simulate_family(plant, problem.u, theta, draws, premise.duration, min(delays))
     gammas, sigmas, dec, times = [], [], [], []
     for r in range(premise.count):
-        for t in np.linspace(max(delays) + T[1], premise.duration, premise.samples):
+        for t in np.linspace(max(premise.start, max(delays) + T[1]), premise.duration, premise.samples):
             pts = [hermite(T, Ys[:, r], Yd[:, r], t - tau, Yl[:, r]) for tau in (0.0,) + tuple(delays)]
             ya, yad = np.array([q[0] for q in pts]), np.array([q[1] for q in pts])
             Da, Dadot = stacked(plant.D0, plant.Dy, ya, yad)
@@ -382,22 +400,32 @@ def _lmis(gammas: np.ndarray, Ca: np.ndarray, cap: float) -> LmiSystem:
                      {"beta2": 1.0}, build, objective=lambda v: v["t"], homogeneous=False)
 
 
+def point_checks(matrices: dict, gammas: np.ndarray, beta: float) -> tuple:
+    """LMI (29) at the stored matrices at every premise point: ``eig_min(-(N_g' Q + Q N_g + 2 beta Q))``
+    (``N_g = Gamma_g - K Ca``) and the bound each must clear, decided with margin over its rounding as
+    :func:`uiofmu.certificate.definite_check` decides one; and the rounding floors."""
+    Q, K, Ca = (np.asarray(matrices[k], dtype=float) for k in ("Q", "K", "Ca"))
+    N = np.asarray(gammas, dtype=float).reshape(-1, *Q.shape) - (K @ Ca)[None]
+    aQ = np.abs(Q)
+    M = -(np.swapaxes(N, 1, 2) @ Q[None] + Q[None] @ N + 2 * beta * Q[None])
+    M = 0.5 * (M + np.swapaxes(M, 1, 2))
+    floor = rounding_floor(M, 2.0 * np.swapaxes(np.abs(N), 1, 2) @ aQ[None] + 2.0 * beta * aQ[None], len(Q) + 3)
+    bound = np.maximum(VERIFY_FRACTION * LMI_MARGIN, ROUNDING_FACTOR * floor)
+    values = np.linalg.eigvalsh(M)[:, 0] if len(M) else np.zeros(0)
+    return values, bound, floor
+
+
 def checks(matrices: dict, gammas: np.ndarray, beta: float) -> list:
     """The certificate at the stored matrices: ``Q > 0`` and ``-(N_g' Q + Q N_g + 2 beta Q) > 0`` at every
-    premise point (``N_g = Gamma_g - K Ca``), the worst one reported."""
-    Q, K, Ca = (np.asarray(matrices[k], dtype=float) for k in ("Q", "K", "Ca"))
-    worst = None
-    aQ = np.abs(Q)
-    for G in gammas:
-        N = G - K @ Ca
-        M = -(N.T @ Q + Q @ N + 2 * beta * Q)
-        check = definite_check("eig_min of -(N'Q + QN + 2 beta Q) over the premise grid", M,
-                               2.0 * np.abs(N).T @ aQ + 2.0 * beta * aQ, len(Q) + 3)
-        if worst is None or check.value - check.bound < worst.value - worst.bound:
-            worst = check
-    if worst is None:
-        worst = Check("eig_min of -(N'Q + QN + 2 beta Q) over the premise grid", -np.inf, 0.0, at_most=False)
-    return [positive_check("eig_min(Q)", Q), worst,
+    premise point (``N_g = Gamma_g - K Ca``, :func:`point_checks`), the worst one reported."""
+    name = "eig_min of -(N'Q + QN + 2 beta Q) over the premise grid"
+    values, bound, floor = point_checks(matrices, gammas, beta)
+    if len(values):
+        i = int(np.argmin(values - bound))
+        worst = Check(name, float(values[i]), float(bound[i]), at_most=False, floor=float(floor[i]))
+    else:
+        worst = Check(name, -np.inf, 0.0, at_most=False)
+    return [positive_check("eig_min(Q)", np.asarray(matrices["Q"], dtype=float)), worst,
             Check("decay rate beta > 0", beta, float(np.finfo(float).tiny), at_most=False)]
 
 
@@ -409,7 +437,8 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     plant, opts = problem.plant, problem.options
     schedule = card_data["schedule"]
     return {"schedule": {"kind": "continuous", "delays": list(opts.delays), "step": opts.step, "step_policy": "error",
-                         "max_substep": schedule.get("max_substep"), "sigma_bound": schedule.get("sigma_bound")},
+                         "max_substep": schedule.get("max_substep"), "sigma_bound": schedule.get("sigma_bound"),
+                         "gamma_bound": schedule.get("gamma_bound"), "valid_from": opts.premise.start},
             **{f"premise.{k}": v for k, v in opts.premise.to_data().items()},
             "decay_bound": None, "overshoot_bound": None,
             **({} if opts.decay == "max" else {"decay_rate": float(opts.decay)}),         # a fixed decay is the card's
@@ -437,17 +466,17 @@ def substep(gamma_max: float, K: np.ndarray, Ca: np.ndarray) -> float:
 
 def derived(grid: Grid, K: np.ndarray, Ca: np.ndarray, Q: np.ndarray) -> dict:
     """The card's figures the premise grid (the points the design uses) and the certified ``Q``, ``K``
-    determine: the substep, the run-time rank-margin bound, the premise's extremes, ``||K||`` and the
-    overshoot ``sqrt(eig_max(Q) / eig_min(Q))``."""
+    determine: the substep, the run-time bounds of the rank margin and of ``||Gamma||``, the premise's
+    extremes, ``||K||`` and the overshoot ``sqrt(eig_max(Q) / eig_min(Q))``."""
     gmax = float(max(np.linalg.norm(G, 2) for G in grid.gammas))
     eig = np.linalg.eigvalsh(0.5 * (Q + Q.T))
     return {"schedule.max_substep": substep(gmax, K, Ca), "schedule.sigma_bound": float(grid.sigmas.min()),
-            "premise.sigma_min": float(grid.sigmas.min()), "premise.gamma_max": gmax,
+            "schedule.gamma_bound": gmax, "premise.sigma_min": float(grid.sigmas.min()), "premise.gamma_max": gmax,
             "premise.points": int(len(grid.gammas)), "gain_norm": float(np.linalg.norm(K, 2)),
             "overshoot": float(np.sqrt(eig[-1] / eig[0]))}
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=16)
 def _premise_grid(problem_json: str) -> Grid:
     """The premise grid of a problem (its canonical JSON: the grid is deterministic, so the analysis, the
     design, ``verify`` and ``build`` in one process simulate it once)."""
@@ -471,13 +500,26 @@ def verify(card) -> list:
     """Re-check the card: the premise grid rebuilt from the card's problem (deterministic), the LMI at
     the stored Q and K on every point, and the figures the grid and the gain determine (:func:`derived`)."""
 
-    grid = _used_grid(json.dumps(card.data["problem"], sort_keys=True))
+    key = json.dumps(card.data["problem"], sort_keys=True)
+    grid = _used_grid(key)
     m = card.data["matrices"]
     Q, K, Ca = (np.asarray(m[k], dtype=float) for k in ("Q", "K", "Ca"))
     figures = derived(grid, K, Ca, Q) if len(grid.gammas) else {}
     figures = {k: v if isinstance(v, int) else Determined(v, 0.0, PREMISE_RTOL) for k, v in figures.items()}
     text = {"bound": _bound(card.data["overshoot"], card.data["decay_rate"])}    # the text of the figures checked
-    return (consistency_checks(card.data, figures) + checks(m, grid.gammas, card.data["decay_rate"])
+    seeds, seed = card.data["premise"].get("validation"), card.data["premise"].get("seed")
+    if not (isinstance(seeds, list) and 1 <= len(seeds) <= MAX_VALIDATIONS and isinstance(seed, int)
+            and seeds == [seed + k for k in range(1, len(seeds) + 1)]):
+        return [Check(f"premise.validation (found {str(seeds)[:40]}: seed + 1 .. seed + k, k from 1 to "
+                      f"{MAX_VALIDATIONS})" + DETERMINED, math.inf, 0.0)]
+    beta = card.data["decay_rate"]
+    validated = []
+    for k in range(1, len(seeds) + 1):
+        name = f"eig_min of -(N'Q + QN + 2 beta Q) over the validation family of seed {seed + k}"
+        points = validation_points(key, k, grid).gammas
+        check = checks(m, points, beta)[1] if len(points) else Check(name, 0.0, 0.0, at_most=False)
+        validated.append(replace(check, name=name))
+    return (consistency_checks(card.data, figures) + checks(m, grid.gammas, beta) + validated
             + consistency_checks(card.data, text))
 
 
@@ -571,15 +613,61 @@ def _certified(gammas, Ca, opts, label):
                                        "seconds": time.perf_counter() - started}
 
 
+#: Most validation families a design draws (each as large as the premise family, and each rebuilt by ``verify``).
+MAX_VALIDATIONS = 4
+
+
+def validation_points(problem_json: str, k: int, grid: Grid) -> Grid:
+    """The points of the ``k``-th validation family (the premise family drawn with seed ``seed + k``) that the
+    run-time flag calls valid: rank margin at least the design grid's smallest (``sigma_bound``), ``||Gamma||``
+    at most its largest (``gamma_bound``)."""
+    data = json.loads(problem_json)
+    premise = dict(data["observer"].get("premise", {}))
+    premise["seed"] = int(premise.get("seed", 1)) + k
+    data["observer"]["premise"] = premise
+    family = _premise_grid(json.dumps(data, sort_keys=True))
+    gmax = float(max(np.linalg.norm(G, 2) for G in grid.gammas))
+    size = np.array([np.linalg.norm(G, 2) if np.all(np.isfinite(G)) else np.inf for G in family.gammas])
+    keep = (family.sigmas >= float(grid.sigmas.min())) & (size <= gmax)
+    return Grid(family.gammas[keep], family.sigmas[keep], family.decoupling[keep], family.times[keep])
+
+
+def _failing(matrices: dict, gammas: np.ndarray, beta: float) -> np.ndarray:
+    """Which premise points fail the certificate's check of LMI (29) at the stored matrices (:func:`point_checks`)."""
+    values, bound, _ = point_checks(matrices, gammas, beta)
+    return ~(values >= bound)
+
+
+def _validated(problem, grid: Grid, Ca: np.ndarray, label: str):
+    """The design on the premise grid, then on validation families (:func:`validation_points`) until one passes
+    without a change: a family with failing points adds them to the design points, and the design is solved
+    again. Returns the decay, its solution and system, the search record, the stored ``Q`` and ``K``, and the
+    validation seeds' offsets."""
+    opts, key = problem.options, json.dumps(problem.data, sort_keys=True, default=lambda x: np.asarray(x).tolist())
+    points = grid.gammas
+    for k in range(1, MAX_VALIDATIONS + 1):
+        beta, sol, system, searched = _certified(points, Ca, opts, label)
+        Q = 0.5 * (sol.values["Q"] + sol.values["Q"].T)
+        K = np.linalg.solve(Q, sol.values["R"])
+        fresh = validation_points(key, k, grid)
+        bad = _failing({"Q": Q, "K": K, "Ca": Ca}, fresh.gammas, beta)
+        if not bad.any():
+            return beta, sol, system, searched, Q, K, list(range(1, k + 1))
+        points = np.concatenate([points, fresh.gammas[bad]])
+    raise InfeasibleError(f"{label}: LMI (29) at the design's Q and K fails on fresh draws of the premise family "
+                          f"after {MAX_VALIDATIONS} validation families ({int(bad.sum())} of {len(bad)} points of the "
+                          f"last, seed {opts.premise.seed + MAX_VALIDATIONS}): the grid does not cover its family; "
+                          "raise premise.count or premise.samples, or premise.start past the start-up transient")
+
+
 def design(problem, analysis: Analysis) -> DesignResult:
-    """LMI (29) on the premise grid; the kernel's matrices and substep; the card's honest bound."""
+    """LMI (29) on the premise grid and its validation families; the kernel's matrices and substep; the card's
+    honest bound."""
     plant, opts = problem.plant, problem.options
     grid = analysis.data["grid"]
     copies = len(opts.delays) + 1
     Ca = augmented(plant.C, copies)
-    beta, sol, system, searched = _certified(grid.gammas, Ca, opts, f"{NAME} design of {problem.name}")
-    Q = 0.5 * (sol.values["Q"] + sol.values["Q"].T)
-    K = np.linalg.solve(Q, sol.values["R"])
+    beta, sol, system, searched, Q, K, offsets = _validated(problem, grid, Ca, f"{NAME} design of {problem.name}")
     matrices = {"Q": Q, "K": K, "Ca": Ca, "Abar": plant.A, "Bbar": plant.B, "Cbar": plant.C, "D0": plant.D0,
                 "Dy": plant.Dy}
     cert = certificate(sol, checks(matrices, grid.gammas, beta), f"{NAME} design of {problem.name}")
@@ -589,13 +677,15 @@ def design(problem, analysis: Analysis) -> DesignResult:
     except StepRejected as exc:
         raise ProblemError(f"observer.dt: {exc}") from None
     schedule = {"kind": "continuous", "delays": list(opts.delays), "max_substep": fig["schedule.max_substep"],
-                "sigma_bound": fig["schedule.sigma_bound"], "step": opts.step, "step_policy": "error"}
+                "sigma_bound": fig["schedule.sigma_bound"], "gamma_bound": fig["schedule.gamma_bound"],
+                "valid_from": opts.premise.start, "step": opts.step, "step_policy": "error"}
     results = {
         "decay_rate": beta,
         "decay_bound": None, "overshoot_bound": None,
         "overshoot": fig["overshoot"],
         "bound": _bound(fig["overshoot"], beta),
-        "premise": {**opts.premise.to_data(), **{k.split(".")[1]: fig[k] for k in fig if k.startswith("premise.")}},
+        "premise": {**opts.premise.to_data(), **{k.split(".")[1]: fig[k] for k in fig if k.startswith("premise.")},
+                    "validation": [opts.premise.seed + k for k in offsets]},
         "delays": list(opts.delays), "m": len(opts.delays), "gain_norm": fig["gain_norm"],
         "search": searched,
         "design_method": "lmi (29) gridded on the premise family",

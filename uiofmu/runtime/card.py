@@ -158,7 +158,7 @@ MAX_INTERVALS = 256
 #: Keys a schedule may hold, per kind (``step_policy`` and ``step_rtol`` for all).
 SCHEDULE_KEYS = {"constant": {"dt"}, "interval": {"intervals", "h_prev0"}, "geometric": {"alpha", "dt"},
                  "mode": {"dt", "modes", "mode_prev0"}, "window": {"dt", "length", "delay", "theta", "uses_theta"},
-                 "continuous": {"delays", "max_substep", "sigma_bound", "step"}}
+                 "continuous": {"delays", "max_substep", "sigma_bound", "step", "valid_from", "gamma_bound"}}
 #: Most modes a mode schedule may have (its card holds N^2 step matrices).
 MAX_MODES = 16
 #: The step policies each schedule kind accepts (see :mod:`uiofmu.runtime.schedules`).
@@ -237,6 +237,9 @@ def _check_schedule(spec, dt) -> dict:
         for key in ("max_substep", "step"):
             _number(spec.get(key), f"schedule.{key}", low=0.0, open_low=True)
         _number(spec.get("sigma_bound"), "schedule.sigma_bound", low=0.0)
+        for key in ("valid_from", "gamma_bound"):            # from the premise's start, and its largest Gamma
+            if key in spec:
+                _number(spec[key], f"schedule.{key}", low=0.0, open_low=key == "gamma_bound")
     if kind == "window":
         length = _integer(spec.get("length"), "schedule.length", 1, MAX_WINDOW)
         _integer(spec.get("delay"), "schedule.delay", 0, length - 1)

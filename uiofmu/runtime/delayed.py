@@ -18,11 +18,13 @@ Between communication points the kernel integrates ``z`` with fixed RK4 substeps
 communication points (cubic Hermite in ``y`` and ``ydot``, ``u`` held), so that aperiodic steps
 need no resampling.
 
-Validity: the estimates are valid from the first point where every delayed signal exists
-(``t >= max tau``) and while the rank margin ``sigma_min(Ca Da)`` is at least the card's
-``sigma_bound`` (the premise family's smallest margin, times a factor). While invalid the kernel
-holds ``xhat`` and ``thetahat`` and does not integrate; it restarts from the held estimate
-(``z = xhat + H ya``) when the margin returns.
+Validity: the estimates are valid where the card's certificate covers the signals: from the premise's
+start (``valid_from``, at least ``max tau``: every delayed signal exists and the start-up transient the
+premise leaves out is over), while the rank margin ``sigma_min(Ca Da)`` is at least the card's
+``sigma_bound`` (the premise family's smallest margin) and ``||Gamma||`` at most its ``gamma_bound``
+(the largest of the premise points certified). While invalid the kernel holds ``xhat`` and
+``thetahat`` and does not integrate; it restarts from the held estimate (``z = xhat + H ya``) when
+the signals return.
 """
 
 from __future__ import annotations
@@ -138,6 +140,8 @@ class DelayedRuntime:
         self.tau = max(self.delays)
         self.max_substep = float(spec["max_substep"])
         self.sigma_bound = float(spec["sigma_bound"])
+        self.valid_from = max(float(spec.get("valid_from", self.tau)), self.tau)
+        self.gamma_bound = float(spec.get("gamma_bound", math.inf))
         self.A, self.B, self.C = mats["Abar"], mats["Bbar"], mats["Cbar"]
         self.D0, self.Dy, self.K = mats["D0"], mats["Dy"], mats["K"]
         self.n, self.m, self.p = self.A.shape[0], self.B.shape[1], self.C.shape[0]
@@ -254,15 +258,27 @@ class DelayedRuntime:
 
     def margin(self) -> float:
         """``sigma_min(Ca Da)`` at the current point (0 before every delayed signal exists)."""
+        return self._signals()[0]
+
+    def _signals(self) -> tuple:
+        """``sigma_min(Ca Da)`` and ``||Gamma||_2`` at the current point (0 and inf before every delayed
+        signal exists, or where the rank is lost)."""
         if self.t < self.tau:
-            return 0.0
+            return 0.0, math.inf
         ya, yad, _ = self._augmented_at(self.t, self._now())
-        return self._matrices(ya, yad)[3]
+        _, H, Hdot, sigma = self._matrices(ya, yad)
+        if H is None:
+            return sigma, math.inf
+        return sigma, float(np.linalg.norm(gamma(self.Aa, self.Ca, H, Hdot), 2))
 
     @property
     def valid(self) -> bool:
-        """Whether the estimates are valid now (every delay filled, margin at least ``sigma_bound``)."""
-        return self.t >= self.tau and self.margin() >= self.sigma_bound
+        """Whether the estimates are valid now: from ``valid_from``, margin at least ``sigma_bound`` and
+        ``||Gamma||`` at most ``gamma_bound`` (the premise set the certificate covers)."""
+        if self.t < self.valid_from:
+            return False
+        sigma, size = self._signals()
+        return sigma >= self.sigma_bound and size <= self.gamma_bound
 
     # -- outputs ----------------------------------------------------------------------------------
     def xhat_augmented(self) -> np.ndarray:
@@ -390,11 +406,14 @@ class DelayedRuntime:
         if not all(np.all(np.isfinite(v)) for v in (xa_now, theta_now, z)):
             raise StepRejected(self._overflow("the new estimate is not finite"))
         self.notices += notices
-        if not valid and not self._noted and t0 >= self.tau:
+        if not valid and not self._noted and t0 >= self.valid_from:
             self._noted = True
-            self.notices.append(f"t = {t0:.6g} s: rank margin sigma_min(C D_y) = {self.margin():.3g} below the "
-                                f"premise bound {self.sigma_bound:.3g}: the estimates are not certified while it "
-                                "is, thetahat is held (noted once)")
+            sigma, size = self._signals()
+            why = (f"rank margin sigma_min(C D_y) = {sigma:.3g} below the premise bound {self.sigma_bound:.3g}"
+                   if sigma < self.sigma_bound else
+                   f"||Gamma|| = {size:.3g} above the largest of the premise points certified, {self.gamma_bound:.3g}")
+            self.notices.append(f"t = {t0:.6g} s: {why}: the estimates are not certified while it is, thetahat is "
+                                "held (noted once)")
         row = np.concatenate([[t0], current[0], current[1], current[2]])
         buf = np.vstack([self.buffer, row[None]])
         keep = np.flatnonzero(buf[:, 0] <= t0 + h - self.tau)

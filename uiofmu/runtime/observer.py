@@ -260,7 +260,8 @@ def default_horizon(card: Card, floor: int = 50, cap: int = 5000) -> float:
 
     A discrete design (``decay_bound`` delta, ``overshoot_bound`` M) needs ``log(1e-3 / M) / log(delta)``
     steps. A continuous-time kernel (``decay_rate`` beta in 1/s, ``overshoot`` M, no ``decay_bound``) needs
-    its largest delay (the start-up, before any estimate is valid) plus ``log(1e3 M) / beta`` seconds
+    its start-up (the premise's start ``valid_from``, at least its largest delay: no estimate is valid before)
+    plus ``log(1e3 M) / beta`` seconds
     (``10 / beta`` without M), in steps of the schedule's default ``step``. Without either, ``cap`` steps.
     A problem's ``[experiment] steps`` overrides all of this (:func:`experiment_steps`).
     """
@@ -275,6 +276,7 @@ def default_horizon(card: Card, floor: int = 50, cap: int = 5000) -> float:
     elif decay is None and (card.data.get("decay_rate") or 0) > 0:
         rate, over = float(card.data["decay_rate"]), card.data.get("overshoot")
         seconds = math.log(1e3 * over) / rate if over and over >= 1 else 10.0 / rate
-        seconds += max([float(t) for t in card.schedule.get("delays", [])], default=0.0)
+        seconds += max([float(t) for t in card.schedule.get("delays", [])]            # the start-up: the
+                       + [float(card.schedule.get("valid_from", 0.0))], default=0.0)   # premise's start
         k = int(math.ceil(seconds / h)) if math.isfinite(seconds) else cap
     return min(max(k, floor), cap) * h

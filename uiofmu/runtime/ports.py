@@ -89,15 +89,17 @@ def observer_experiment(card) -> dict:
     """An observer's default experiment: its first admissible step (``dt``, the first design
     interval, or the default ``step`` of a continuous-time kernel), until the certified bound has
     fallen to 1e-3 (:func:`default_horizon`; for the delayed kernel its start-up plus the decay of
-    its premise-set bound), and at most :data:`MAX_EXPERIMENT_STEPS` steps (1 s for the delayed
-    example at 1 ms: the estimates are valid from its delay, 0.5 s). The stop time is a whole number
+    its premise-set bound), and at most :data:`MAX_EXPERIMENT_STEPS` steps after its start-up (the schedule's
+    ``valid_from``: 2 s for the delayed example at 1 ms, whose estimates are valid from 1 s). The stop time is a
+    whole number
     of steps (a horizon in mean design intervals is rounded up): an importer stepping at ``stepSize``
     ends on it without a shorter last step, which the observer would refuse."""
     from .observer import default_horizon
     from .schedules import make_schedule
 
     step = make_schedule(card.schedule, card.matrices).admissible_steps()[0]
-    steps = min(max(math.ceil(default_horizon(card) / step - 1e-9), 1), MAX_EXPERIMENT_STEPS)
+    start_up = math.ceil(float(card.schedule.get("valid_from", 0.0)) / step - 1e-9)
+    steps = min(max(math.ceil(default_horizon(card) / step - 1e-9), 1), MAX_EXPERIMENT_STEPS + start_up)
     return experiment(step, steps * step)
 
 
