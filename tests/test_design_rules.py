@@ -8,6 +8,7 @@ toward the easy end; a value on the feasible side of a certified best one always
 
 from __future__ import annotations
 
+import copy
 import json
 
 import numpy as np
@@ -337,3 +338,25 @@ def test_with_p_equal_q_the_design_on_ker_c_certifies_where_the_full_lmis_fail()
     assert card.data["design_method"] == "lmi on ker C (p = q)"
     assert card.data["certificate"]["verified"] and all(c.holds for c in uiofmu.verify(card))
     assert 0 < card.data["alpha"] < card.data["alpha_limit_from_zeros"]
+
+
+@pytest.mark.parametrize("family", ["lti-uio", "ltv-auid", "sampled-data"])
+def test_the_units_of_the_unknown_input_and_the_outputs_decide_no_existence_verdict(family):
+    """The same plants with d in units 1e10 larger (E scaled by 1e-10) and outputs in units 1e8 larger (C by
+    1e-8): every required verdict and every zero is the same (ranks, zeros and fixed modes are decided with C's
+    rows and E's columns of unit norm; an E of 1e-10 was found of rank 0, 'rank(CE) = 1 < rank(E) = 0'). The
+    note on weakly observable modes is not required and stays in the problem's units: gains of 1e8 times the
+    size are what the solver then meets."""
+    from uiofmu.families import random_plants as rp
+
+    for doc in rp.campaign(family, 6, 11, plant_class="near-limit-zeros"):
+        scaled = copy.deepcopy(doc)
+        scaled["plant"]["E"] = (1e-10 * np.array(doc["plant"]["E"], dtype=float)).tolist()
+        scaled["plant"]["C"] = (1e-8 * np.array(doc["plant"]["C"], dtype=float)).tolist()
+        want, got = (uiofmu.check(problem_from_data(d)).to_data() for d in (doc, scaled))
+        assert [(c["name"], c["holds"]) for c in got["conditions"] if c["required"]] == \
+            [(c["name"], c["holds"]) for c in want["conditions"] if c["required"]], doc["name"]
+        for a, b in zip(want["conditions"], got["conditions"]):
+            if "zeros" in a["values"]:
+                np.testing.assert_allclose(sorted(np.hypot(*np.array(b["values"]["zeros"]).T)),
+                                           sorted(np.hypot(*np.array(a["values"]["zeros"]).T)), rtol=1e-6, atol=1e-9)

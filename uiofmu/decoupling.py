@@ -26,8 +26,19 @@ def projector(C: np.ndarray, E: np.ndarray) -> np.ndarray:
     return np.eye(C.shape[1]) + decoupling_gain(C, E) @ C
 
 
+def in_unit_scale(C: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``C`` with rows and ``E`` with columns of unit norm (zero ones left zero): the units of the outputs and
+    of the unknown inputs, which change no rank and no zero, are out of the rank decisions (an ``E`` of 1e-10,
+    the same plant with ``d`` in other units, was found of rank 0)."""
+    C, E = np.asarray(C, dtype=float), np.asarray(E, dtype=float)
+    rows = np.linalg.norm(C, axis=1) if C.size else np.zeros(C.shape[0])
+    cols = np.linalg.norm(E, axis=0) if E.size else np.zeros(E.shape[1])
+    return C / np.where(rows > 0, rows, 1.0)[:, None], E / np.where(cols > 0, cols, 1.0)[None, :]
+
+
 def rank_condition(C: np.ndarray, E: np.ndarray, where: str = "", rank_rtol: float = RANK_RTOL) -> Condition:
-    """``rank(CE) = rank(E)``: the unknown input can be decoupled."""
+    """``rank(CE) = rank(E)``: the unknown input can be decoupled (decided in unit scale, :func:`in_unit_scale`)."""
+    C, E = in_unit_scale(C, E)
     rce, re = rank(C @ E, rank_rtol), rank(E, rank_rtol)
     holds = rce == re
     msg = (f"rank(CE) = {rce} = rank(E){where}" if holds else
@@ -37,7 +48,8 @@ def rank_condition(C: np.ndarray, E: np.ndarray, where: str = "", rank_rtol: flo
 
 def identifiability_condition(C: np.ndarray, E: np.ndarray, where: str = "",
                               rank_rtol: float = RANK_RTOL) -> Condition:
-    """``rank(CE) = q``: the unknown input can be estimated (``dhat``); informational."""
+    """``rank(CE) = q``: the unknown input can be estimated (``dhat``); informational (in unit scale)."""
+    C, E = in_unit_scale(C, E)
     rce, q = rank(C @ E, rank_rtol), E.shape[1]
     holds = rce == q
     msg = (f"rank(CE) = q = {q}{where}: dhat is estimated by inversion" if holds else
@@ -47,7 +59,8 @@ def identifiability_condition(C: np.ndarray, E: np.ndarray, where: str = "",
 
 def zeros_condition(A, E, C, continuous: bool, where: str = "", required: bool = True,
                     rank_rtol: float = RANK_RTOL, zero_margin: float = ZERO_MARGIN) -> tuple[Condition, np.ndarray]:
-    """The invariant zeros of ``(A, E, C)`` and whether they are stable."""
+    """The invariant zeros of ``(A, E, C)`` and whether they are stable (in unit scale of ``C`` and ``E``)."""
+    C, E = in_unit_scale(C, E)
     z = invariant_zeros(A, E, C, rank_rtol=rank_rtol)
     if continuous:
         holds = bool(np.all(z.real < -zero_margin))
@@ -65,7 +78,9 @@ def zeros_condition(A, E, C, continuous: bool, where: str = "", required: bool =
 
 def fixed_modes_condition(A, E, C, where: str = "", rank_rtol: float = RANK_RTOL,
                           zero_margin: float = ZERO_MARGIN) -> tuple[Condition, np.ndarray]:
-    """Detectability of the decoupled pair ``((I + MC) A, C)``: its unmovable modes in |z| < 1."""
+    """Detectability of the decoupled pair ``((I + MC) A, C)``: its unmovable modes in |z| < 1 (in unit scale of
+    ``C`` and ``E``, :func:`in_unit_scale`)."""
+    C, E = in_unit_scale(C, E)
     fixed = unobservable_modes(projector(C, E) @ A, C, rank_rtol)
     moduli = np.abs(fixed)
     holds = bool(np.all(moduli < 1 - zero_margin))
