@@ -661,8 +661,8 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
     value found is then solved for the system's own objective (the least overshoot), whose point is
     kept when it certifies; otherwise the point of largest margin is. The bracket
     comes from theory (zeros, fixed modes), and the search first tries the value ``tol`` inside
-    it (never past ``feasible_end``): where theory's limit is reached (as for the building) one
-    solve decides. Otherwise ``feasible_end`` is tried; when it does not verify either, values
+    it (never past ``feasible_end``): where theory's limit is reached (as for the building) that
+    value is decided at once. Otherwise ``feasible_end`` is tried; when it does not verify either, values
     ever closer to ``safe_end`` (the end of the range where the design gets easiest, itself
     excluded: a decay of 1, an alpha of 0) are tried until one verifies, and bisection narrows
     the bracket from there. Every value returned lies strictly between the two ends of the range.
