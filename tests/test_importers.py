@@ -25,6 +25,12 @@ PROBLEMS = {
     "ltv-auid": EXAMPLES / "seed000_example1_ltv.toml",
     "sampled-data": ROOT / "plants" / "two_room_building",
 }
+#: the other families' examples, for the refused-step test (every kind of FMU we build)
+MORE_PROBLEMS = {
+    "switched": EXAMPLES / "seed002_setup2.toml",
+    "deadbeat-functional": EXAMPLES / "seed003_example.toml",
+    "delayed-uio": EXAMPLES / "seed001_example.toml",
+}
 BACKENDS = ("c", "python")
 #: communication steps of the ecospy run
 STEPS = 50
@@ -42,18 +48,19 @@ def fmus(tmp_path_factory):
     made: dict = {}
 
     def get(family: str, kind: str):
+        problem = {**PROBLEMS, **MORE_PROBLEMS}[family]
         entry = made.setdefault(family, {})
         if kind not in entry:
             folder = root / family
             folder.mkdir(exist_ok=True)
             if kind == "card":
-                _cli("design", PROBLEMS[family], "-o", folder / "design.json")
+                _cli("design", problem, "-o", folder / "design.json")
                 entry[kind] = folder / "design.json"
             elif kind == "plant":
-                _cli("plant", PROBLEMS[family], "-o", folder / "plant.fmu")
+                _cli("plant", problem, "-o", folder / "plant.fmu")
                 entry[kind] = folder / "plant.fmu"
             elif kind.startswith("plant-"):
-                _cli("plant", PROBLEMS[family], "-o", folder / f"{kind}.fmu", "--backend", kind[len("plant-"):])
+                _cli("plant", problem, "-o", folder / f"{kind}.fmu", "--backend", kind[len("plant-"):])
                 entry[kind] = folder / f"{kind}.fmu"
             else:
                 card = get(family, "card")
@@ -136,3 +143,36 @@ def test_fmpy_default_experiment_runs(fmus, family, kind):
     for name in result.dtype.names:
         assert np.all(np.isfinite(result[name])), name
 
+
+
+@pytest.mark.parametrize("family, kind", DEFAULT_RUNS + [
+    pytest.param(family, kind, id=f"{family}-{kind}") for family in MORE_PROBLEMS for kind in (*BACKENDS, "plant")
+    if (family, kind) != ("delayed-uio", "c")])  # the delayed UIO has no C kernel
+def test_fmpy_ends_at_once_on_a_step_the_fmu_refuses(fmus, family, kind):
+    """``fmpy simulate --output-interval H`` with an H the FMU will never take: the FMU refuses the
+    first step with fmi2Discard and one log line, answers fmi2Terminated = true, and fmpy ends the
+    run there (it used to repeat the step for ever). An FMU that takes any step runs to the end."""
+    import fmpy
+
+    fmu = fmus(family, kind)
+    h = 0.37 * default_step(fmu)  # off every period and between any two design intervals
+    lines, calls = [], [0]
+
+    def logger(component, instance, status, category, message):
+        lines.append((status, category.decode(errors="replace")))
+
+    def step_finished(t, recorder) -> bool:
+        calls[0] += 1
+        return calls[0] < 200  # a loop is stopped here, and fails below
+
+    result = fmpy.simulate_fmu(str(fmu), stop_time=20 * h, output_interval=h, logger=logger,
+                               step_finished=step_finished, timeout=60.0)
+    discards = [line for line in lines if line[1] == "logStatusDiscard"]
+    assert calls[0] < 200, f"{family} {kind}: fmpy repeated a step ({len(discards)} refusals logged)"
+    takes_any_step = family == "delayed-uio" or (family == "sampled-data" and kind.startswith("plant"))  # continuous
+    assert bool(discards) != takes_any_step, f"{family} {kind}: {len(discards)} refusals"
+    if discards:
+        assert len(discards) == 1, discards
+        assert float(result["time"][-1]) == 0.0, "the run ends where the FMU refused the step"
+    else:
+        assert float(result["time"][-1]) == pytest.approx(20 * h, rel=1e-9)

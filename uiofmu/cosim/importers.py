@@ -101,8 +101,9 @@ def run_fmpy_default(fmu, *, steps: int | None = None, max_stalls: int = 20, tim
     fmpy takes the default experiment's ``stepSize`` as its output interval, doubled while
     (stopTime - startTime) / interval > 1000. After fmi2Discard it asks
     ``fmi2GetBooleanStatus(fmi2Terminated)``: on true it stops (returning the result so far), on
-    false it repeats the same step, for ever if the FMU refuses that step each time. This run
-    stops such a loop and says so, and checks that the run reached its stop time with finite outputs.
+    false it repeats the same step, for ever if the FMU refuses that step each time (uiofmu's FMUs
+    answer true after a refused step; a third party's may not). This run stops such a loop and says
+    so, and checks that the run reached its stop time with finite outputs.
 
     Parameters
     ----------

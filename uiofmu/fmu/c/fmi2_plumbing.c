@@ -40,7 +40,12 @@
  *       start time before the first), or, after a discarded step, its communication point (the
  *       refused step did not leave it). fmi2Discard with a log line when the time is not known:
  *       after fmi2SetFMUstate (the FMU state does not carry the master's time) until the next step.
- *   fmi2GetBooleanStatus(fmi2Terminated)       fmi2OK, fmi2False: the FMU never asks to terminate.
+ *   fmi2GetBooleanStatus(fmi2Terminated)       fmi2OK; fmi2True in step discarded (the FMU will
+ *       never take the step it refused: the same t and h are refused each time), else fmi2False.
+ *       A master that repeats a discarded step while this answers false (fmpy does) would loop for
+ *       ever; on true it ends the run with the refusal's log line as its one message. The
+ *       instance still takes any other step (a master that changes its step, as uiofmu's does, goes
+ *       on), after which the answer is fmi2False again.
  *   fmi2GetStatus(fmi2DoStepStatus), fmi2GetStringStatus(fmi2PendingStatus)  fmi2Discard with a
  *       log line: both are for a step that returned fmi2Pending, and none ever does ("fmi2Discard
  *       is returned also if the slave is not able to return the required status information").
@@ -952,7 +957,7 @@ fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind kind, fmi2
     if (!value) return refuse(s, CALLS[C_GetBooleanStatus].name, "null argument");
     if (kind != fmi2Terminated)
         return wrong_kind(s, C_GetBooleanStatus, kind, "fmi2GetBooleanStatus answers fmi2Terminated");
-    *value = fmi2False; /* this FMU never asks the master to end the simulation */
+    *value = s->state == STEP_DISCARDED ? fmi2True : fmi2False; /* a refused step is refused for ever */
     return fmi2OK;
 }
 
