@@ -86,6 +86,18 @@ CASES = [
      "signals.d[0][0]: unknown field(s) ['freq']"),
     ("signal-seed", GOOD + '[signals]\nd = [[{kind="random", seed=-1, std=1.0, hold=1.0}]]\n',
      "signals.d[0][0].seed: expected a non-negative integer"),
+    # a typo of a required key names the key given and the one it is closest to
+    ("typo-family", edit("family =", "famliy ="), "observer.famliy: unknown key; did you mean 'family'? "
+     "observer.family: required key is missing"),
+    ("typo-plant-table", edit("[plant]", "[plnt]"), "plnt: unknown key; did you mean 'plant'?"),
+    ("typo-dt", edit("dt = 0.1", "dtt = 0.1"), "plant.dtt: unknown key; did you mean 'dt'? plant.dt: required for "
+     "a discrete plant"),
+    ("typo-optional", edit('decay = "max"', 'decay = "max"\nscalng = "none"'),
+     "observer.scalng: unknown key; did you mean 'scaling'?"),
+    ("typo-signal-field", GOOD + '[signals]\nd = [[{kind="random", seed=1, std=1.0, hodl=1.0}]]\n',
+     "did you mean 'hold'?"),
+    ("random-needs-hold", GOOD + '[signals]\nd = [[{kind="random", seed=1, std=1.0}]]\n',
+     "signals.d[0][0].hold: required for kind 'random' (seconds between new draws"),
     ("name-type", 'name = 3\n' + GOOD, "name: expected a string, found int 3"),
     ("no-observer-exists", edit("C = [[1.0, 0.0]]", "C = [[0.0, 1.0]]"),
      "rank(CE) = 0 < rank(E) = 1: the unknown input cannot be decoupled"),

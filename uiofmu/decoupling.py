@@ -182,8 +182,8 @@ def parse_period(table, plant, family: str) -> float:
 
     if plant.continuous:
         if not table.has("dt"):
-            raise ProblemError(f"observer.dt: required for a continuous plant (the sampling period the {family} "
-                               "observer is designed for)")
+            raise table.missing("dt", f"required for a continuous plant (the sampling period the {family} "
+                                "observer is designed for)")
         return table.scalar("dt", low=0.0, open_low=True)
     if table.has("dt"):
         raise ProblemError(f"observer.dt: a discrete plant fixes the period (plant.dt = {plant.dt:g}); "

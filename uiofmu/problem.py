@@ -8,6 +8,7 @@ expected against what was found.
 from __future__ import annotations
 
 import copy
+import difflib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +24,29 @@ from .signals import Signal, parse_signals
 from .runtime.text import MAX_NAME, check_name
 
 _MISSING = object()
+#: How alike a key must be to a known one (difflib's ratio, ignoring case) to be named as its typo.
+TYPO_SIMILARITY = 0.75
+
+
+def closest_key(key, candidates) -> str | None:
+    """The candidate ``key`` is most likely a typo of (or the other way round), or None.
+
+    Parameters
+    ----------
+    key : str
+        A key as written.
+    candidates : iterable
+        Keys to compare it with (non-strings are ignored).
+
+    Returns
+    -------
+    str or None
+        The candidate most alike ``key`` when its similarity (difflib's ratio, ignoring case) is at
+        least :data:`TYPO_SIMILARITY`.
+    """
+    names = {str(c).lower()[:100]: str(c) for c in candidates if isinstance(c, str) and c != key}
+    near = difflib.get_close_matches(str(key).lower()[:100], list(names), n=1, cutoff=TYPO_SIMILARITY)
+    return names[near[0]] if near else None
 #: Longest default experiment a problem file may ask for, in communication steps.
 MAX_STEPS = 100_000
 
@@ -58,8 +82,30 @@ class Table:
         if key in self.data:
             return self.data[key]
         if default is _MISSING:
-            raise ProblemError(f"{self.key(key)}: required key is missing")
+            raise self.missing(key)
         return default
+
+    def missing(self, key: str, why: str = "required key is missing") -> ProblemError:
+        """The error for a required ``key`` that is absent: it names the key given instead when one
+        is a likely typo of it (``observer.famliy: unknown key; did you mean 'family'?``).
+
+        Parameters
+        ----------
+        key : str
+            The key that is required.
+        why : str, optional
+            What the message says of it (``"required for a discrete plant"``).
+
+        Returns
+        -------
+        ProblemError
+            To raise.
+        """
+        typo = closest_key(key, set(self.data) - self.used - {key})
+        if typo is not None:
+            return ProblemError(f"{self.key(typo)[:200]}: unknown key; did you mean {key!r}? "
+                                f"{self.key(key)}: {why}")
+        return ProblemError(f"{self.key(key)}: {why}")
 
     def scalar(self, key: str, default=_MISSING, **bounds) -> float:
         """A finite number within bounds (see :func:`~uiofmu.runtime.matrices.as_scalar`)."""
@@ -92,8 +138,10 @@ class Table:
         unknown = sorted(set(self.data) - self.used)
         if unknown:
             known = ", ".join(sorted(self.used))
-            raise ProblemError(f"{self.key(unknown[0])}: unknown key" + (f" (known here: {known})" if known else "")
-                               + allowed_hint)
+            typo = closest_key(unknown[0], self.used)
+            raise ProblemError(f"{self.key(unknown[0])[:200]}: unknown key"
+                               + (f"; did you mean {typo!r}?" if typo else "")
+                               + (f" (known here: {known})" if known else "") + allowed_hint)
 
 
 @dataclass(frozen=True)
@@ -175,6 +223,8 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
         time = pt.choice("time", ("continuous", "discrete"))
         if pt.has("switching"):
             raise ProblemError("plant.switching: a switching rule needs the plant's [[plant.modes]]")
+        if time == "discrete" and not pt.has("dt"):
+            raise pt.missing("dt", "required for a discrete plant (seconds per step)")
         plant = Plant.create(pt.get("A"), pt.get("C"), pt.get("E"), pt.get("B", None), time=time,
                              dt=pt.get("dt", None), w=pt.get("w", None), x0=pt.get("x0", None))
     pt.done()

@@ -41,6 +41,11 @@ _FIELDS = {
     "random": {"seed", "std", "mean", "hold"},
 }
 
+#: What a missing key of a term means, where its name alone does not say.
+_HINTS = {("random", "hold"): " (seconds between new draws, e.g. the observer's step to draw anew at every "
+                              "step of a periodic run)",
+          ("random", "std"): " (the standard deviation of the draws)"}
+
 
 @dataclass(frozen=True)
 class Term:
@@ -141,15 +146,18 @@ def parse_term(table, name: str) -> Term:
     kind = table.get("kind")
     if not isinstance(kind, str) or kind not in _FIELDS:
         raise ProblemError(f"{name}.kind: expected one of {sorted(_FIELDS)}, found {repr(kind)[:60]}")
-    unknown = set(table) - _FIELDS[kind] - {"kind"}
+    unknown = sorted(map(str, set(table) - _FIELDS[kind] - {"kind"}))
     if unknown:
-        raise ProblemError(f"{name}: unknown field(s) {sorted(unknown)} for kind {kind!r} "
-                           f"(allowed: {sorted(_FIELDS[kind])})")
+        from .problem import closest_key
+
+        typo = closest_key(unknown[0], _FIELDS[kind])
+        raise ProblemError(f"{name}: unknown field(s) {unknown} for kind {kind!r}"[:300]
+                           + (f"; did you mean {typo!r}?" if typo else "") + f" (allowed: {sorted(_FIELDS[kind])})")
 
     def get(key, default=None, low=-MAX_MAGNITUDE, **bounds):
         if key not in table:
             if default is None:
-                raise ProblemError(f"{name}.{key}: required for kind {kind!r}")
+                raise ProblemError(f"{name}.{key}: required for kind {kind!r}" + _HINTS.get((kind, key), ""))
             return default
         return as_scalar(table[key], f"{name}.{key}", low=low, high=MAX_MAGNITUDE, **bounds)
 

@@ -126,7 +126,7 @@ def parse_switched(table) -> SwitchedPlant:
     common = {key: table.get(key, None) for key in MODE_KEYS}
     C, x0 = table.get("C"), table.get("x0", None)
     if not table.has("dt"):
-        raise ProblemError(f"{table.key('dt')}: required for a discrete plant (seconds per step)")
+        raise table.missing("dt", "required for a discrete plant (seconds per step)")
     dt = period(table.get("dt"), table.key("dt"))             # common: named at plant level
     plants = []
     for i, raw in enumerate(modes):
