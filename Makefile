@@ -58,8 +58,11 @@ fuzz: $(STAMP)
 fmus: $(STAMP)
 	$(PY) examples/build_fmus.py --out fmus
 
+# every example script, each writing under examples/out/ (the catalogue there too: fmus/README.md is
+# written by `make fmus` only)
 examples: $(STAMP)
-	for f in examples/*.py; do $(PY) $$f || exit 1; done
+	for f in examples/*.py; do case $$f in */build_fmus.py) $(PY) $$f --out examples/out/fmus || exit 1;; \
+	  */test_*.py) $(PY) -m pytest -q $$f || exit 1;; *) $(PY) $$f || exit 1;; esac; done
 
 clean:
 	rm -rf out examples/out build *.egg-info

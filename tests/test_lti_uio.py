@@ -104,3 +104,17 @@ def test_lmi_search_finds_the_boundary():
     found = search(_toy(), "s", 0.0, 2.0, tol=1e-3)
     assert 1.0 - 2e-3 < found.value < 1.0
     assert found.solution.verified and found.solves >= 10
+
+
+def test_make_problem_warns_of_an_initial_error_of_zero():
+    """From Python (python-control) a plant's x0 defaults to 0, as the observer's xhat0: a
+    co-simulation would show no convergence, and make_problem says so; any other x0 is quiet."""
+    import warnings
+
+    args = ([[0.5, 0.1], [0.0, 0.3]], [[1.0, 1.0]], [[1.0], [0.0]], [[1.0], [0.0]])
+    with pytest.warns(UserWarning, match="estimation error starts at 0"):
+        uiofmu.make_problem(uiofmu.Plant.create(*args, dt=1.0), "lti-uio", decay=0.6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        uiofmu.make_problem(uiofmu.Plant.create(*args, dt=1.0, x0=[1.0, -1.0]), "lti-uio", decay=0.6)
+        uiofmu.make_problem(uiofmu.Plant.create(*args, dt=1.0), "lti-uio", decay=0.6, xhat0=[0.5, 0.0])

@@ -322,6 +322,21 @@ def test_outputs_that_cannot_be_files_are_refused_before_work(example1_card, exa
     assert (tmp_path / "file").read_text() == "keep"
 
 
+def test_missing_folders_are_created_only_inside_an_existing_one(example1_path, tmp_path, cli):
+    """``-o /nonexistent/dir/x.json`` (a typo, most likely) creates no folder at the filesystem's root;
+    missing folders inside an existing one (here tmp_path, or the current folder) are created."""
+    top = Path("/") / f"uiofmu-missing-{tmp_path.name}"
+    assert not top.exists()
+    for command in (("design", example1_path, "-o", top / "dir" / "x.json"),
+                    ("demo", "--out", top / "dir"), ("cosim", "--plant", "p.fmu", "--observer", "o.fmu",
+                                                     "--out", top / "dir")):
+        res = cli(*command)
+        assert res.code == 2 and f"{top} does not exist" in res.err, (command, res.err)
+        assert not top.exists(), command
+    res = cli("design", example1_path, "-o", tmp_path / "a" / "b" / "x.json")
+    assert res.code == 0 and (tmp_path / "a" / "b" / "x.json").is_file()
+
+
 def test_default_output_names_stay_in_the_working_folder(example1_card, tmp_path):
     data = _card(example1_card)
     data["name"] = "../../../escape/" + "x" * 100

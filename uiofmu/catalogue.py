@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .certificate import overshoot_text
+from .runtime.files import write_atomic
 
 #: The repository (the folder of ``examples/`` and ``plants/``) of an editable install.
 ROOT = Path(__file__).resolve().parents[1]
@@ -831,7 +832,7 @@ def main(argv=None, root=ROOT) -> int:
     results, failures = run_checks(catalogue, paths)
     if args.only is None:
         text = render(catalogue, {r.file: check_text(results.get(r.file), r.limited) for r in catalogue.rows})
-        (out / "README.md").write_text(text, encoding="utf-8")
+        write_atomic(out / "README.md", text, "catalogue")
         print(f"wrote {out / 'README.md'}")
     else:
         for row in catalogue.rows:

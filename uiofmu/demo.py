@@ -12,6 +12,8 @@ import time
 from importlib.resources import files
 from pathlib import Path
 
+from .runtime.files import check_output_dir
+
 #: The demo's step sequence and horizon.
 DEMO_STEPS = "dropout:600:0.3:11"
 DEMO_T_END = 2 * 86400.0
@@ -39,7 +41,7 @@ def run_demo(out, say=print) -> dict:
     from .cosim.steps import step_sequence
     from .synthesis import design
 
-    out = Path(out)
+    out = check_output_dir(out, "--out folder")
     out.mkdir(parents=True, exist_ok=True)
     problem = load_problem(demo_problem_path())
     say(f"uiofmu demo: {problem.name}, {problem.family} observer, nominal 10 min sampling with drop-outs")

@@ -324,11 +324,31 @@ def make_problem(plant: Plant, family: str, name: str = "problem", signals: dict
     Returns
     -------
     Problem
+
+    Warns
+    -----
+    UserWarning
+        When the plant's ``x0`` and the observer's ``xhat0`` are equal (both zero by default, as
+        from :func:`~uiofmu.plant.plant_from_statespace`): the estimation error starts at 0, so a
+        co-simulation shows no convergence (give ``x0`` to the plant or ``xhat0=`` here).
     """
+    import warnings
+
+    import numpy as np
+
     data = {"name": name, "plant": plant.to_data(), "observer": {"family": family, **options}}
     if signals:
         data["signals"] = signals
-    return problem_from_data(data, default_name=name)
+    problem = problem_from_data(data, default_name=name)
+    x0 = getattr(problem.plant, "x0", None)
+    if x0 is not None and hasattr(problem.options, "xhat0"):
+        xhat0 = problem.options.xhat0
+        if np.array_equal(np.zeros_like(x0) if xhat0 is None else xhat0, x0):
+            warnings.warn(f"{name}: the plant's x0 and the observer's xhat0 are equal ({np.asarray(x0).tolist()}"[:200]
+                          + "): the estimation error starts at 0 and a co-simulation shows no convergence; give the "
+                          "plant an x0 (plant_from_statespace(sys, E, x0=...)) or make_problem(..., xhat0=...)",
+                          UserWarning, stacklevel=2)
+    return problem
 
 
 def to_toml(doc: dict, header: str = "") -> str:

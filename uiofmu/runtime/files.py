@@ -225,12 +225,20 @@ def check_output_file(path, what: str, suffix: str | None = None) -> Path:
 
 
 def _check_parents(path: Path) -> None:
-    """Refuse a path whose nearest existing parent is not a folder."""
+    """Refuse a path whose nearest existing parent is not a folder, or is the filesystem's root
+    while folders below it are missing (``-o /nonexistent/dir/x.json`` is a typo far more often
+    than a wish for a new top-level folder): missing folders are created only inside an existing
+    folder the path names (the current folder for a relative path)."""
+    missing = None
     for parent in path.parents:
         if parent.exists():
             if not parent.is_dir():
                 raise OutputError(f"{path}: {parent} is not a folder")
+            if missing is not None and parent == Path(parent.anchor):
+                raise OutputError(f"{path}: {missing} does not exist; outputs create missing folders only inside "
+                                  f"an existing folder other than {parent} (create {missing} first, or check the path)")
             break
+        missing = parent
 
 
 def check_output_dir(path, what: str = "output folder") -> Path:
