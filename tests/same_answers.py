@@ -89,7 +89,8 @@ def problems() -> list[tuple[str, dict]]:
 def answer(label: str, doc: dict, figures: bool = False) -> str:
     """The text of one problem: its check's lines and its design's summary (or refusal), with exit codes.
 
-    The summary is what ``uiofmu design`` prints, timings aside; for a problem of
+    The summary is what ``uiofmu design`` prints, timings and the largest gain's figures aside (read off
+    the solver's point, not an optimal value, they differ between kernels; the warning stays); for a problem of
     :data:`AT_THE_EDGE` only its verdict line, unless ``figures``.
     """
     import uiofmu

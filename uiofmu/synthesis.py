@@ -15,6 +15,7 @@ from .runtime.errors import CardError, InfeasibleError, NumericalError, ProblemE
 from .existence import Existence
 from .families import DesignResult, available_family
 from .consistency import DETERMINED, consistency_checks, existence_checks, plant_record, plant_scale
+from .gains import cap_check
 from .problem import Problem, problem_from_data
 from .runtime.tolerances import LMI_MARGIN
 from .threads import single_blas_thread
@@ -63,10 +64,27 @@ def design(problem: Problem) -> Card:
             result = family.design(problem, analysis)
         except InfeasibleError as exc:
             notes = _tight_spots(analysis.existence.conditions)
+            cap = getattr(problem.options, "gain_cap", None)
+            if cap is not None and not getattr(family, "CLOSED_FORM", False) and "gain_cap" not in str(exc):
+                notes.append(f"the LMIs bound every gain by observer.gain_cap = {cap:g}: a larger cap, or a slower "
+                             "decay, leaves them more room")
             if not notes:
                 raise
             raise type(exc)(f"{exc}. " + ". ".join(n[0].upper() + n[1:] for n in notes)) from None
-    return assemble_card(problem, result, analysis.existence, started)
+    card = assemble_card(problem, result, analysis.existence, started)
+    capped = _cap_checks(card.data, problem)
+    if capped and not capped[0].holds:
+        method = card.data.get("design_method") or "closed-form"
+        raise InfeasibleError(f"{problem.family} design of {problem.name}: its largest gain (2-norm) "
+                              f"{capped[0].value:.6g} exceeds observer.gain_cap = {problem.options.gain_cap:g}; the "
+                              f"{method} design's gains follow from a formula, which no cap lowers: raise gain_cap")
+    return card
+
+
+def _cap_checks(card_data: dict, problem: Problem) -> list:
+    """``max ||K||_2 <= observer.gain_cap`` at the card's gains, when the problem gives a cap."""
+    cap = getattr(problem.options, "gain_cap", None)
+    return [] if cap is None else [cap_check(card_data, cap)]
 
 
 #: A decay limit this close to its bound leaves the LMIs' margins almost no room.
@@ -121,7 +139,7 @@ def verify(card: Card) -> list:
         consistency += found
     if not all(c.holds for c in consistency):
         return consistency               # a certificate of another problem's matrices proves nothing here
-    return consistency + family.verify(card)
+    return consistency + family.verify(card) + _cap_checks(card.data, problem)
 
 
 def recheck(card: Card) -> list:

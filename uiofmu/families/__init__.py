@@ -24,6 +24,12 @@ A family module (named in :data:`uiofmu.runtime.registry.FAMILIES`) provides:
     solver-free computation reproduces (the search, the solver's status) is the design's record.
 ``verify(card) -> list of Check``
     The certificate's checks at a card's stored matrices, without any solver.
+``gain_figures(card_data) -> (gains, ||C||, ||A||)``
+    The gains its design chooses (matrices or stacks), ``||C||`` and the size of the plant's matrix they
+    correct (:mod:`uiofmu.gains`: the largest gain ``design`` prints and ``observer.gain_cap`` bounds; an
+    LMI family takes the cap into its LMIs with :func:`uiofmu.gains.cap_lmis`).
+``CLOSED_FORM`` (optional, default False)
+    True for a family whose design is a formula: ``observer.gain_cap`` only checks its gains.
 ``certified_bound(card, e0, d)`` (optional)
     The bound on ``||e_k||`` of a run, when it is not ``overshoot * decay**k * ||e_0||``.
 

@@ -57,6 +57,8 @@ from . import Analysis, DesignResult
 NAME = "deadbeat-functional"
 #: The family designs for LPV plants (``[[plant.scheduling]]``).
 LPV = True
+#: The design is a formula, no LMI: ``observer.gain_cap`` is a check of its gains, never a constraint.
+CLOSED_FORM = True
 #: Most matrices (P_i, Phat_i) a condition's text lists one by one; its values hold them all.
 MAX_LISTED = 8
 
@@ -73,11 +75,15 @@ class Options:
         The plant's period.
     max_delay : int
         Largest inherent delay r tried.
+    gain_cap : float or None
+        Bound on the formula's gains (the largest ``||F_t||_2`` of its coefficient matrices): the formula is
+        a closed form, so a gain above it is refused, not reduced (:mod:`uiofmu.gains`).
     """
 
     G: np.ndarray
     dt: float
     max_delay: int
+    gain_cap: float | None = None
 
     @property
     def step(self) -> float:
@@ -86,7 +92,7 @@ class Options:
 
 
 def parse_options(table, plant) -> Options:
-    """Read ``[observer]``: ``G`` (a matrix, or ``"identity"`` for the whole state) and ``max_delay``."""
+    """Read ``[observer]``: ``G`` (a matrix, or ``"identity"`` for the whole state), ``max_delay``, ``gain_cap``."""
     if not isinstance(plant, LpvPlant):
         raise ProblemError('observer.family = "deadbeat-functional": the plant needs its [[plant.scheduling]] '
                            "tables (an LPV plant; a single table of zeros makes a linear plant one)")
@@ -98,7 +104,7 @@ def parse_options(table, plant) -> Options:
     if isinstance(max_delay, bool) or not isinstance(max_delay, int) or not 0 <= max_delay <= 4 * plant.n:
         raise ProblemError(f"{table.key('max_delay')}: expected an integer from 0 to {4 * plant.n}, "
                            f"found {repr(max_delay)[:40]}")
-    return Options(G, plant.dt, max_delay)
+    return Options(G, plant.dt, max_delay, table.scalar("gain_cap", None, low=0.0, open_low=True))
 
 
 # -- polynomial matrices of the plant over a window -------------------------------------------
@@ -522,6 +528,14 @@ def checks(matrices: dict, schedule: dict, seed: int = 0) -> list:
 def verify(card) -> list:
     """Re-check a card's identity on fresh simulations of its plant matrices (no solver)."""
     return checks(card.data["matrices"], card.data["schedule"], seed=1)
+
+
+def gain_figures(card_data: dict) -> tuple:
+    """The formula's coefficient matrices (one per theta monomial, on the window's outputs), ``||C||`` and
+    ``||G||``: the formula maps outputs to ``G x`` in one go (:mod:`uiofmu.gains`)."""
+    m = card_data["matrices"]
+    C = np.asarray(m["C"], dtype=float)
+    return [m["F"]], float(np.linalg.norm(C, 2)) if C.size else 0.0, float(np.linalg.norm(np.asarray(m["G"]), 2))
 
 
 def _parts(plant) -> dict:

@@ -486,6 +486,13 @@ def _premise_grid(problem_json: str) -> Grid:
     return premise_grid(problem, problem.options.delays, problem.options.premise)
 
 
+def gain_figures(card_data: dict) -> tuple:
+    """The gain ``K``, ``||Ca||`` and the largest ``||Gamma||`` on the premise grid (:mod:`uiofmu.gains`)."""
+    m = card_data["matrices"]
+    Ca = np.asarray(m["Ca"], dtype=float)
+    return [m["K"]], float(np.linalg.norm(Ca, 2)), float(card_data["premise"]["gamma_max"])
+
+
 def _used_grid(problem_json: str) -> Grid:
     """The premise grid's points the design uses, of a card's problem (its canonical JSON)."""
     from ..problem import problem_from_data

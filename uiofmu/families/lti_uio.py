@@ -26,7 +26,8 @@ the discrete Lyapunov equation ``(N/rho)' X (N/rho) - X = -I`` certifies it
 1e3..1e6, where the LMI's normalised variables lose the solver's precision. ``method = "auto"``
 (the default) designs with the LMI, which minimises the overshoot bound, and falls back to the
 Riccati design when the LMI finds no certificate; the card's ``design_method`` says which one
-certified it.
+certified it. With ``observer.gain_cap`` the LMI bounds ``||K||`` (:func:`uiofmu.gains.cap_lmis`) and
+``"auto"`` does not fall back (the Riccati gain knows no cap).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ from ..runtime.card import DHAT
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list, from_pairs
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
+from ..gains import cap_lmis
 from ..scaling import (
     SCALINGS,
     lyapunov_back,
@@ -91,6 +93,8 @@ class Options:
         Design method (see the module docstring).
     scaling : {"balance", "none"}
         The coordinates the LMI is solved in (:mod:`uiofmu.scaling`).
+    gain_cap : float or None
+        Bound on ``||K||_2`` (:mod:`uiofmu.gains`), None for none.
     """
 
     decay: object
@@ -98,6 +102,7 @@ class Options:
     xhat0: np.ndarray | None
     method: str = "auto"
     scaling: str = "balance"
+    gain_cap: float | None = None
 
     @property
     def step(self) -> float:
@@ -112,7 +117,7 @@ METHODS = ("auto", "lmi", "riccati")
 
 def parse_options(table, plant) -> Options:
     """Read ``[observer]``: ``decay`` (default ``"max"``), ``dt`` (continuous plants), ``xhat0``, ``method``,
-    ``scaling``."""
+    ``scaling``, ``gain_cap``."""
     decay = table.tunable("decay", "max", low=0.0, high=1.0, open_low=True, open_high=True)
     dt = parse_period(table, plant, NAME)
     xhat0 = table.vector("xhat0", plant.n, None)
@@ -121,7 +126,8 @@ def parse_options(table, plant) -> Options:
         raise ProblemError('observer.method = "riccati" needs a number for observer.decay: it has no fastest decay '
                            '(without fixed modes any decay is reached, with gains that grow without bound); use '
                            'method = "auto" or "lmi" for decay = "max"')
-    return Options(decay, dt, xhat0, method, table.choice("scaling", SCALINGS, "balance"))
+    return Options(decay, dt, xhat0, method, table.choice("scaling", SCALINGS, "balance"),
+                   table.scalar("gain_cap", None, low=0.0, open_low=True))
 
 
 def _analysis(problem):
@@ -146,20 +152,26 @@ def analyse(problem, solver: bool = True) -> Analysis:
     return Analysis(existence, {"sampled": s, "fixed": fixed})
 
 
-def _lmis(PA, C):
+def _lmis(PA, C, gain_cap: float | None = None):
+    """The decay LMI, and with ``gain_cap`` the LMIs of ``||X^-1 W|| <= gain_cap`` (:func:`uiofmu.gains.cap_lmis`;
+    in the scaled coordinates, whose gain bounds the plant's: ``K = T Ks``, ``T <= I``)."""
     n, p = C.shape[1], C.shape[0]
 
     def build(v, prm, ops):
         X, W, t = v["X"], v["W"], v["t"]
         Y = X @ PA - W @ C
+        capped = [] if gain_cap is None else cap_lmis(gain_cap, [("X", X, [("W", W)])], v["s"], ops)
         return [
             Lmi("decay (Schur form of N'XN < rho^2 X)", ops.bmat([[prm["rho2"] * X, Y.T], [Y, X]])),
             Lmi("X >= I", X - ops.eye(n), strict=False),
             Lmi("X <= t I", t * ops.eye(n) - X, strict=False),
+            *capped,
         ]
 
-    return LmiSystem(f"{NAME} decay", {"X": ("symmetric", n), "W": ("matrix", (n, p)), "t": ("scalar",)},
-                     {"rho2": 0.98}, build, objective=lambda v: v["t"], homogeneous=True)
+    variables = {"X": ("symmetric", n), "W": ("matrix", (n, p)), "t": ("scalar",)}
+    if gain_cap is not None:
+        variables["s"] = ("scalar",)
+    return LmiSystem(f"{NAME} decay", variables, {"rho2": 0.98}, build, objective=lambda v: v["t"], homogeneous=True)
 
 
 def checks(matrices: dict, rho: float) -> list:
@@ -193,6 +205,12 @@ def verify(card) -> list:
     """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims."""
     d = card.data
     return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
+
+
+def gain_figures(card_data: dict) -> tuple:
+    """The gain ``K``, ``||C||`` and ``||A||`` of the sampled plant (:mod:`uiofmu.gains`)."""
+    m = card_data["matrices"]
+    return [m["K"]], float(np.linalg.norm(m["C"], 2)), float(np.linalg.norm(m["A_sampled"], 2))
 
 
 def _dhat(s, C) -> dict:
@@ -297,7 +315,7 @@ def _tuned(s, C, M, t, largest: float, opts: Options, name: str) -> tuple[Tuned,
     the LMI system (solved in the coordinates scaled by ``t``, :mod:`uiofmu.scaling`): a point is
     accepted only where the certificate's checks at the runtime's matrices hold too."""
     PA = (np.eye(len(M)) + M @ C) @ s.A
-    system = _lmis(PA * t[None, :] / t[:, None], scaled_output(C, t))
+    system = _lmis(PA * t[None, :] / t[:, None], scaled_output(C, t), opts.gain_cap)
     system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(s, C, M, t, v),
                                                                     float(np.sqrt(prm["rho2"]))))
     if opts.method == "riccati":
@@ -311,7 +329,7 @@ def _tuned(s, C, M, t, largest: float, opts: Options, name: str) -> tuple[Tuned,
         back["K"] = _lmi_runtime(s, C, M, t, v)["K"]
         return replace(tuned, solution=replace(tuned.solution, values=back)), "lmi", system
     except InfeasibleError as exc:
-        if opts.method == "lmi":
+        if opts.method == "lmi" or opts.gain_cap is not None:       # the Riccati gain knows no cap
             raise
         rho = 0.5 * (1.0 + largest) if opts.decay == "max" else float(opts.decay)
         try:

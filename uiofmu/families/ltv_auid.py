@@ -57,6 +57,7 @@ from ..decoupling import (
     parse_period,
     sampled_decoupling_conditions,
 )
+from ..gains import cap_lmis
 from ..consistency import Determined, computed_values, condition, conditioned, dhat_record, spectrum
 from ..runtime.card import DHAT
 from ..runtime.errors import ProblemError
@@ -89,6 +90,8 @@ class Options:
     xhat0 : numpy.ndarray or None
     step_policy : {"error", "count"}
         A step other than ``dt``: refused, or taken as one step k (explicit opt-in).
+    gain_cap : float or None
+        Bound on ``||T_1||_2`` and ``||T_2||_2`` (:mod:`uiofmu.gains`), None for none.
     """
 
     alpha: float
@@ -97,6 +100,7 @@ class Options:
     dt: float
     xhat0: np.ndarray | None
     step_policy: str
+    gain_cap: float | None = None
 
     @property
     def step(self) -> float:
@@ -105,7 +109,7 @@ class Options:
 
 
 def parse_options(table, plant) -> Options:
-    """Read ``alpha``, ``eta``, ``mu``, ``dt``, ``xhat0``, ``step_policy``."""
+    """Read ``alpha``, ``eta``, ``mu``, ``dt``, ``xhat0``, ``step_policy``, ``gain_cap``."""
     alpha = table.scalar("alpha", low=0.0, high=1.0, open_low=True, open_high=True)
     eta = table.scalar("eta", low=0.0, high=1.0, open_low=True, open_high=True)
     mu = table.tunable("mu", "max", low=0.0, open_low=True)
@@ -115,7 +119,7 @@ def parse_options(table, plant) -> Options:
     dt = parse_period(table, plant, NAME)
     xhat0 = table.vector("xhat0", plant.n, None)
     policy = table.choice("step_policy", ("error", "count"), "error")
-    return Options(alpha, eta, mu, dt, xhat0, policy)
+    return Options(alpha, eta, mu, dt, xhat0, policy, table.scalar("gain_cap", None, low=0.0, open_low=True))
 
 
 def _vertices(s, C, alpha):
@@ -169,9 +173,9 @@ def analyse(problem, solver: bool = True) -> Analysis:
     return Analysis(existence, {"sampled": s, "fixed": fixed, "info": info})
 
 
-def _lmis(A1, A2, S1, C, eta, least_overshoot: bool = False):
+def _lmis(A1, A2, S1, C, eta, least_overshoot: bool = False, gain_cap: float | None = None):
     """Theorem 2's LMIs, minimising ``gamma``, or with ``least_overshoot`` the least ``t`` with
-    ``X <= t I``.
+    ``X <= t I``; with ``gain_cap`` the LMIs of ``||G_i^-1 Tbar_i|| <= gain_cap`` (:func:`uiofmu.gains.cap_lmis`).
 
     ``S1`` enters scaled to unit norm: with ``S1 = s S1n``, the congruence ``diag(I, I, I / s)`` maps
     (33) with ``S1`` to (33) with ``S1n`` and the same ``gamma``, so feasibility and ``gamma`` are
@@ -188,6 +192,9 @@ def _lmis(A1, A2, S1, C, eta, least_overshoot: bool = False):
         Gam = Z1.T @ S1
         Om = gamma * (S1.T @ S1) - S1.T @ (G1 + G1.T) @ S1
         bounded = [Lmi("X <= t I", v["t"] * ops.eye(n) - X, strict=False)] if least_overshoot else []
+        if gain_cap is not None:
+            bounded += cap_lmis(gain_cap, [("G1", G1, [("Tbar_1", v["Tb1"])]), ("G2", G2, [("Tbar_2", v["Tb2"])])],
+                                v["s"], ops)
         return [
             Lmi("X >= I", X - ops.eye(n), strict=False),
             *bounded,
@@ -199,6 +206,8 @@ def _lmis(A1, A2, S1, C, eta, least_overshoot: bool = False):
 
     variables = {"X": ("symmetric", n), "G1": ("matrix", (n, n)), "G2": ("matrix", (n, n)),
                  "Tb1": ("matrix", (n, p)), "Tb2": ("matrix", (n, p)), "gamma": ("scalar",)}
+    if gain_cap is not None:
+        variables["s"] = ("scalar",)
     if not least_overshoot:
         return LmiSystem(f"{NAME} Theorem 2", variables, {"tau1": 2 * eta}, build,
                          objective=lambda v: v["gamma"], homogeneous=True)
@@ -272,6 +281,12 @@ def verify(card) -> list:
     """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims."""
     d = card.data
     return checks(d) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
+
+
+def gain_figures(card_data: dict) -> tuple:
+    """The gains ``T_1``, ``T_2``, ``||C||`` and ``||A||`` of the sampled plant (:mod:`uiofmu.gains`)."""
+    m = card_data["matrices"]
+    return [m["T1"], m["T2"]], float(np.linalg.norm(m["C"], 2)), float(np.linalg.norm(m["A_sampled"], 2))
 
 
 def _schedule(opts: Options) -> dict:
@@ -354,7 +369,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     plant, opts = problem.plant, problem.options
     C = plant.C
     M, A1, A2, S1 = _vertices(s, C, opts.alpha)
-    system = _lmis(A1, A2, S1, C, opts.eta)
+    system = _lmis(A1, A2, S1, C, opts.eta, gain_cap=opts.gain_cap)
     point = lambda v, tau1: _point(v, M, A1, A2, S1, s, C, opts, tau1 / opts.eta - 1.0)   # noqa: E731
     system.certify = lambda v, prm: all(c.holds for c in checks(point(v, prm["tau1"])))
     limit = info["mu_limit"]
@@ -365,7 +380,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     searched = tuned.search.to_data() if tuned.search else None
     # the least gamma at mu (Remark 1) is a figure of the card only where the solver reached that optimum
     gamma = float(sol.values["gamma"]) if sol.status == "optimal" and sol.relative_margin is None else None
-    least = _lmis(A1, A2, S1, C, opts.eta, least_overshoot=True)
+    least = _lmis(A1, A2, S1, C, opts.eta, least_overshoot=True, gain_cap=opts.gain_cap)
     least.certify = system.certify
     refined = least.solve(tau1=opts.eta * (1 + mu))
     if refined.verified:

@@ -57,6 +57,7 @@ from ..certificate import (
     positive_check,
     rounding_floor,
 )
+from ..gains import cap_lmis, two_norms
 from ..decoupling import (
     fixed_modes_condition,
     identifiability_condition,
@@ -112,6 +113,8 @@ class Options:
         What the runtime does with a step that is not a design interval.
     scaling : {"balance", "none"}
         The coordinates the LMIs are solved in (:mod:`uiofmu.scaling`).
+    gain_cap : float or None
+        Bound on ``||K_i||_2`` and ``||Pl_i^-1 Q_ij||_2`` (:mod:`uiofmu.gains`), None for none.
     """
 
     intervals: tuple
@@ -120,6 +123,7 @@ class Options:
     h_prev0: float
     step_policy: str
     scaling: str = "balance"
+    gain_cap: float | None = None
 
     @property
     def step(self) -> float:
@@ -159,7 +163,7 @@ def _intervals(table) -> tuple:
 
 
 def parse_options(table, plant) -> Options:
-    """Read ``intervals``, ``alpha``, ``xhat0``, ``h_prev0``, ``step_policy`` and ``scaling``."""
+    """Read ``intervals``, ``alpha``, ``xhat0``, ``h_prev0``, ``step_policy``, ``scaling`` and ``gain_cap``."""
     if not plant.continuous:
         raise ProblemError(f'observer.family: "{NAME}" samples a continuous plant; plant.time is "discrete" '
                            '(use "lti-uio" for a discrete plant)')
@@ -171,7 +175,8 @@ def parse_options(table, plant) -> Options:
         raise ProblemError(f"observer.h_prev0: {h_prev0:g} s is not one of the intervals "
                            f"{', '.join(f'{h:g}' for h in intervals)} s")
     policy = table.choice("step_policy", STEP_POLICIES, "error")
-    return Options(intervals, alpha, xhat0, h_prev0, policy, table.choice("scaling", SCALINGS, "balance"))
+    return Options(intervals, alpha, xhat0, h_prev0, policy, table.choice("scaling", SCALINGS, "balance"),
+                   table.scalar("gain_cap", None, low=0.0, open_low=True))
 
 
 def _per_interval(conds: list[Condition], name: str, intervals) -> Condition:
@@ -494,7 +499,10 @@ def analyse(problem, solver: bool = True) -> Analysis:
     return Analysis(existence, {"samples": samples, "decay_floor": floor})
 
 
-def _lmis(samples, C):
+def _lmis(samples, C, gain_cap: float | None = None):
+    """Corollary 2's LMIs (15)-(16), and with ``gain_cap`` the LMIs of ``||Pl_i^-1 S_i|| <= gain_cap`` and
+    ``||Pl_i^-1 Q_ij|| <= gain_cap`` (:func:`uiofmu.gains.cap_lmis`; in the scaled coordinates, whose gains bound
+    the plant's)."""
     N, n, p = len(samples), C.shape[1], C.shape[0]
     Es = [s.E / max(np.linalg.norm(s.E, 2), 1e-300) for s in samples]
 
@@ -510,6 +518,10 @@ def _lmis(samples, C):
             for j in range(N):
                 Y = base - v[f"Q{i}_{j}"] @ C
                 out.append(Lmi(f"(15) i={i + 1} j={j + 1}", ops.bmat([[P, Y], [Y.T, scaled[j]]])))
+        if gain_cap is not None:
+            out += cap_lmis(gain_cap, [(f"Pl_{i + 1}", v[f"Pl{i}"], [(f"S_{i + 1}", v[f"S{i}"])]
+                                        + [(f"Q_{i + 1}{j + 1}", v[f"Q{i}_{j}"]) for j in range(N)])
+                                       for i in range(N)], v["s"], ops)
         return out
 
     variables = {"mu": ("scalar",)}
@@ -518,6 +530,8 @@ def _lmis(samples, C):
         variables[f"S{i}"] = ("matrix", (n, p))
         for j in range(N):
             variables[f"Q{i}_{j}"] = ("matrix", (n, p))
+    if gain_cap is not None:
+        variables["s"] = ("scalar",)
     return LmiSystem(f"{NAME} (15)-(16)", variables, {"c": 0.99}, build, objective=lambda v: v["mu"],
                      homogeneous=True)
 
@@ -697,6 +711,14 @@ def observer_matrices(v: dict, samples, C) -> dict:
     }
 
 
+def gain_figures(card_data: dict) -> tuple:
+    """The gains ``K_i`` and ``Pl_i^-1 Q_ij = P_ij - L_ij K_j`` (the card's ``L`` and ``N``), ``||C||`` and the
+    largest ``||A_i||`` of the sampled plant (:mod:`uiofmu.gains`)."""
+    m = {k: np.asarray(card_data["matrices"][k], dtype=float) for k in ("K", "L", "N", "C", "A_sampled")}
+    return ([m["K"], m["L"] - m["N"] @ m["K"][None]], float(np.linalg.norm(m["C"], 2)),
+            float(two_norms([m["A_sampled"]]).max()))
+
+
 #: Interval sets up to this size get every pair tried when a design fails.
 DIAGNOSED_PAIRS = 8
 
@@ -735,22 +757,23 @@ def _interval_diagnosis(samples, C, t, intervals, alpha: float) -> str:
             "narrow the range")
 
 
-def _attempts(samples, C, t, plant):
+def _attempts(samples, C, t, plant, gain_cap: float | None = None):
     """The LMI systems a design tries, in order, each built when it is tried, with the map from its
     point to the stored matrices: for ``p = q``, Corollary 2 on ``ker C`` first (exact there, in
     ``n - p`` unknowns; :func:`_reduced_lmis`): its optimal overshoot is at most the full LMIs', in the
     plant's own coordinates, and CLARABEL resolves its margins where the full LMIs' drown in the gains'
     scale (a campaign plant whose full LMIs certify only alpha = 2.9e-6 gets 0.0916 of the limit 0.0919
-    there); then (15)-(16) in the balanced coordinates of :mod:`uiofmu.scaling`.
+    there); then (15)-(16) in the balanced coordinates of :mod:`uiofmu.scaling`. With ``gain_cap`` only the
+    latter, capped: the reduced LMIs leave the gains to a formula.
 
     Yields
     ------
     (str, LmiSystem, callable)
         The design method, its system (``certify`` set) and the map to the stored matrices.
     """
-    attempts = [("lmi", lambda: _lmis([scaled_step(s, t) for s in samples], scaled_output(C, t)),
+    attempts = [("lmi", lambda: _lmis([scaled_step(s, t) for s in samples], scaled_output(C, t), gain_cap),
                  lambda v: observer_matrices(in_plant_coordinates(v, t), samples, C))]
-    if plant.p == plant.q and plant.n > plant.p:
+    if plant.p == plant.q and plant.n > plant.p and gain_cap is None:
         attempts.insert(0, ("lmi on ker C (p = q)", lambda: _reduced_lmis(fixed_error_maps(samples, C)),
                             lambda v: observer_matrices(structural_variables(v, samples, C), samples, C)))
     for method, build, matrices_at in attempts:
@@ -769,7 +792,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     search = dict(feasible_end=1e-3 * limit, infeasible_end=limit, safe_end=0.0, tol=SEARCH_TOL * limit,
                   label=f"{problem.name}: largest alpha", transform=lambda a: 1.0 - a, name="alpha")
     failures = []
-    for method, system, matrices_at in _attempts(samples, C, t, plant):
+    for method, system, matrices_at in _attempts(samples, C, t, plant, opts.gain_cap):
         try:
             tuned = tune(system, "c", opts.alpha, **search)
             break

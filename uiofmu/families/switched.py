@@ -42,6 +42,7 @@ import numpy as np
 
 from ..certificate import (EPS, FIGURE_DIGITS, Check, certificate, decay_check, figure_digits, identity_check,
                            lyapunov_check, overshoot, overshoot_check, positive_check, round_up)
+from ..gains import cap_lmis, two_norms
 from ..consistency import Determined, computed_values, dhat_record, eigen_rtol, spectrum
 from ..decoupling import weak_modes_condition
 from ..runtime.card import DHAT
@@ -76,6 +77,9 @@ class Options:
         The mode assumed before the first step, alpha_{-1} (its ``Q`` gives ``z_0``).
     method : {"auto", "lmi", "deadbeat"}
         See :data:`METHODS`.
+    gain_cap : float or None
+        Bound on ``||Kt_i||_2 = ||[K_i, Y_i]||_2`` (:mod:`uiofmu.gains`), None for none; with a cap,
+        ``method = "auto"`` designs dead-beat only where its gains are within the cap.
     """
 
     decay: object
@@ -83,6 +87,7 @@ class Options:
     xhat0: np.ndarray | None
     mode_prev0: int = 1
     method: str = "auto"
+    gain_cap: float | None = None
 
     @property
     def step(self) -> float:
@@ -91,7 +96,7 @@ class Options:
 
 
 def parse_options(table, plant) -> Options:
-    """Read ``[observer]``: ``decay`` (default ``"max"``), ``xhat0``, ``mode_prev0``, ``method``."""
+    """Read ``[observer]``: ``decay`` (default ``"max"``), ``xhat0``, ``mode_prev0``, ``method``, ``gain_cap``."""
     plant = as_switched(plant)
     decay = table.tunable("decay", "max", low=0.0, high=1.0, open_low=True, open_high=True)
     xhat0 = table.vector("xhat0", plant.n, None)
@@ -101,7 +106,8 @@ def parse_options(table, plant) -> Options:
     if table.has("dt"):
         raise ProblemError(f"observer.dt: a switched plant fixes the period (plant.dt = {plant.dt:g}); "
                            "remove observer.dt")
-    return Options(decay, plant.dt, xhat0, mode_prev0, table.choice("method", METHODS, "auto"))
+    return Options(decay, plant.dt, xhat0, mode_prev0, table.choice("method", METHODS, "auto"),
+                   table.scalar("gain_cap", None, low=0.0, open_low=True))
 
 
 @dataclass(frozen=True)
@@ -220,7 +226,9 @@ def analyse(problem, solver: bool = True) -> Analysis:
     return Analysis(existence, {"modes": modes, "largest": largest, "deadbeat": deadbeat})
 
 
-def _lmis(modes):
+def _lmis(modes, gain_cap: float | None = None):
+    """LMI (16) for every pair of modes, and with ``gain_cap`` the LMIs of ``||F_i G_i^-1|| <= gain_cap``
+    (:func:`uiofmu.gains.cap_lmis`; ``Kt_i' = G_i^-1 F_i'`` has the same norm)."""
     N, n = len(modes), modes[0].A.shape[0]
 
     def build(v, prm, ops):
@@ -234,6 +242,9 @@ def _lmis(modes):
             corner = G + G.T - S
             for j in range(N):
                 out.append(Lmi(f"(16) i={i + 1} j={j + 1}", ops.bmat([[corner, M.T], [M, scaled[j]]])))
+        if gain_cap is not None:
+            out += cap_lmis(gain_cap, [(f"G_{i + 1}", v[f"G{i}"], [(f"F_{i + 1}", v[f"F{i}"].T)]) for i in range(N)],
+                            v["s"], ops)
         return out
 
     variables = {"t": ("scalar",)}
@@ -241,6 +252,8 @@ def _lmis(modes):
         variables[f"G{i}"] = ("matrix", (n, n))
         variables[f"F{i}"] = ("matrix", (md.Ct.shape[0], n))
         variables[f"S{i}"] = ("symmetric", n)
+    if gain_cap is not None:
+        variables["s"] = ("scalar",)
     return LmiSystem(f"{NAME} (16)", variables, {"lam2": 0.98}, build, objective=lambda v: v["t"],
                      homogeneous=True)
 
@@ -365,6 +378,12 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
             "spectral_radius_Phi": spectrum(card_data["matrices"]["Phi"], "radii")}
 
 
+def gain_figures(card_data: dict) -> tuple:
+    """The gains ``K_i``, ``||C||`` and the largest ``||A_i||`` (:mod:`uiofmu.gains`)."""
+    m = card_data["matrices"]
+    return [m["K"]], float(np.linalg.norm(m["C"], 2)), float(two_norms([m["A_modes"]]).max())
+
+
 def _lmi_runtime(modes, values: dict, C, has_dhat: bool) -> dict:
     """The card's matrices of an LMI point: :func:`_runtime` of its gains, and its Lyapunov matrices ``S``."""
     mats = _runtime(modes, _gains(modes, values), C, has_dhat)
@@ -390,6 +409,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
         raise ProblemError(f'observer.method = "deadbeat": needs rank Ct_i = n = {plant.n} in every mode, '
                            f"found ranks {ranks}")
     searched = None
+    if deadbeat and opts.method == "auto" and opts.gain_cap is not None:
+        deadbeat = float(two_norms(_deadbeat(modes)).max()) <= opts.gain_cap
     if deadbeat and opts.method != "lmi":
         mats = _runtime(modes, _deadbeat(modes), C, has_dhat)
         norm = float(np.linalg.norm(mats["Phi"], 2, axis=(-2, -1)).max())
@@ -404,7 +425,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         sol = _closed_form(lam, "closed form (dead-beat: Kt_i = At_i Ct_i^+)")
         method, solver, bound, digits = "deadbeat", "none", 1.0, FIGURE_DIGITS
     else:
-        system = _lmis(modes)
+        system = _lmis(modes, opts.gain_cap)
         system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(modes, v, C, has_dhat),
                                                                     float(np.sqrt(prm["lam2"]))))
         tuned = tune(system, "lam2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
