@@ -63,9 +63,11 @@ def main():
         ax.step(r.times, r.d[:, 0], where="post", lw=1.2, label="road force d (N)")
         ax.plot(r.times[:-1], r.dhat[1:, 0], ".", ms=3, label="dhat")
         ax.set_title(f"{family}: unknown road force and its estimate")
-        ax.legend(fontsize=8)
+        ax.set_ylabel("road force [N]")
+        ax.legend(fontsize=8, loc="best")
     axes[-1].set_xlabel("time [s]")
     fig.savefig(out / "dhat_vs_d.png", dpi=110)
+    plt.close(fig)
     print(f"figures in {out}")
 
 

@@ -68,6 +68,7 @@ def main():
     ax.semilogy(hours, m["certified_overshoot"] * m["certified_decay"] ** k * e[0], "k--",
                 label=f"certified bound M δ^k ||e_0||, δ = {m['certified_decay']:.4f}")
     ax.set_xlabel("time [h]")
+    ax.set_ylabel("||e_k|| [K]")
     ax.set_title("Figure 2: estimation error norm")
     ax.legend()
     fig.savefig(out / "figure2.png", dpi=110)

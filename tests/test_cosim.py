@@ -169,3 +169,89 @@ def test_signals_are_routed_by_name(built):
             routes(plant, obs, {"u": 1})
         with pytest.raises(FmuError, match="the plant FMU takes 1 inputs u, the input source gives 2"):
             routes(plant, obs, {"u": 2, "d": 1})
+
+
+def test_report_draws_a_cosim_run_again(built, cli):
+    """`uiofmu report RUN_DIR` draws report.png again from the run's results.csv and metrics.json: the same figure."""
+    _, d = built
+    run = d / "redraw"
+    assert cli("cosim", "--plant", d / "plant.fmu", "--observer", d / "obs.fmu", "--steps", "fixed:0.1",
+               "--t-end", "20", "--out", run).code == 0
+    drawn = (run / "report.png").read_bytes()
+    (run / "report.png").unlink()
+    res = cli("report", run)
+    assert res.code == 0, res.err
+    assert (run / "report.png").read_bytes() == drawn
+    assert json.loads((run / "metrics.json").read_text())["title"].endswith("steps fixed:0.1")
+
+
+@pytest.mark.parametrize("damage,fragment", [
+    (lambda run: (run / "metrics.json").unlink(), "metrics.json: no such metrics file"),
+    (lambda run: (run / "results.csv").write_text("time,h,x[1],xhat[1]\n0,0.1,1,0\n0.1,,abc,0\n"),
+     "results.csv: line 3: a value is not a number"),
+    (lambda run: (run / "metrics.json").write_text('{"certified_decay": "fast"}'),
+     "certified_decay: expected a finite number, found fast"),
+])
+def test_report_of_a_damaged_run_exits_2(built, cli, tmp_path, damage, fragment):
+    _, d = built
+    run = tmp_path / "run"
+    assert cli("cosim", "--plant", d / "plant.fmu", "--observer", d / "obs.fmu", "--steps", "fixed:0.1",
+               "--t-end", "2", "--out", run).code == 0
+    before = (run / "report.png").read_bytes()
+    damage(run)
+    res = cli("report", run)
+    assert res.code == 2 and fragment in res.err, res
+    assert len(res.err.strip().splitlines()) == 1 and "Traceback" not in res.err
+    assert (run / "report.png").read_bytes() == before
+
+
+@pytest.mark.parametrize("t_end,unit", [(5.0, "s"), (600.0, "s"), (601.0, "min"), (36000.0, "min"),
+                                        (36001.0, "h"), (172800.0, "h"), (240 * 3600.0 + 1, "d")])
+def test_time_axis_unit_follows_the_run_length(t_end, unit):
+    from uiofmu.cosim.report import time_unit
+
+    scale, name = time_unit(t_end)
+    assert name == unit and scale == {"s": 1.0, "min": 60.0, "h": 3600.0, "d": 86400.0}[unit]
+
+
+def _step_panel(h):
+    from uiofmu.cosim.report import plot_steps, pyplot
+    from uiofmu.cosim.master import communication_points
+
+    plt, _ = pyplot()
+    fig, ax = plt.subplots()
+    plot_steps(ax, communication_points(h), h, "s")
+    heights = [p.get_height() for p in ax.patches]
+    lines = [line.get_xdata().size for line in ax.get_lines()]
+    plt.close(fig)
+    return heights, lines, ax.get_xlabel()
+
+
+def test_step_panel_is_a_trace_up_to_the_limit_and_a_histogram_beyond():
+    from uiofmu.cosim.report import STEP_TRACE_LIMIT
+
+    drawn = step_sequence("choice:0.1,0.3", 400.0, seed=2)
+    heights, lines, xlabel = _step_panel(drawn[:STEP_TRACE_LIMIT])
+    assert heights == [] and lines == [STEP_TRACE_LIMIT] and xlabel == "time [s]"       # the step trace
+    long = drawn[:STEP_TRACE_LIMIT + 1]
+    heights, lines, xlabel = _step_panel(long)
+    assert lines == [] and xlabel == "step length h [s]"
+    assert heights == [np.count_nonzero(long == 0.1), np.count_nonzero(long == 0.3)]   # one bar per length
+    spread = step_sequence("uniform:0.1:0.2", 1000.0, seed=2)[:5000]
+    heights, lines, _ = _step_panel(spread)
+    assert len(heights) == 50 and sum(heights) == 5000 and lines == []
+
+
+def test_bound_check_allows_the_round_off_floor_and_says_where_it_used_it():
+    from uiofmu.cosim.metrics import error_metrics
+
+    steps = np.full(10, 0.1)
+    times = np.concatenate([[0.0], np.cumsum(steps)])
+    bound = np.concatenate([[1.0, 0.1, 0.01], np.zeros(8)])
+    x, xhat = np.zeros((11, 1)), np.zeros((11, 1))
+    x[:, 0] = np.concatenate([[1.0, 0.05, 0.005], np.full(8, 5e-10)])      # under the floor 1e-9 ||e_0||
+    m = error_metrics(times, steps, x, xhat, bound, 0.1, 1.0)
+    assert m["bound_respected"] and m["bound_floor"] == 1e-9 and m["points_on_floor"] == 8
+    x[-1, 0] = 2e-9                                                          # above bound and floor
+    m = error_metrics(times, steps, x, xhat, bound, 0.1, 1.0)
+    assert not m["bound_respected"] and m["first_bound_violation"] == 10 and m["points_on_floor"] == 7

@@ -282,7 +282,11 @@ def test_command_line_end_to_end(built, tmp_path):
     assert "valid " in result.out and "theta error" in result.out and "thetahat" in result.out
     header = (out / "results.csv").read_text().splitlines()[0].split(",")
     assert {"thetahat[1]", "thetahat[3]", "sigma_min", "valid", "theta_error_norm"} <= set(header)
-    assert (out / "report.png").stat().st_size > 10_000
+    drawn = (out / "report.png").read_bytes()
+    assert len(drawn) > 10_000
+    (out / "report.png").unlink()
+    _cli("report", out)                                   # the same figure, from results.csv and metrics.json
+    assert (out / "report.png").read_bytes() == drawn
     for fmu in (ex["obs"], ex["plant"]):
         result = _cli("validate", fmu)
         assert "largest difference 0 " in result.out, result.out

@@ -243,7 +243,10 @@ def test_command_line_end_to_end(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["exact_from_first_full_window"] is True
     assert metrics["valid_from"] == metrics["steps_to_exact"] == 3 and metrics["window"] == 4
-    assert (out / "report.png").stat().st_size > 0
+    drawn = (out / "report.png").read_bytes()
+    (out / "report.png").unlink()
+    _cli("report", out)                                   # the same figure, from results.csv and metrics.json
+    assert (out / "report.png").read_bytes() == drawn
     for fmu, kind in ((obs, "observer"), (plant, "plant")):
         res = _cli("validate", fmu, "--steps", "100")
         assert f"{kind} FMU" in res.out and "validate_fmu         no problem" in res.out

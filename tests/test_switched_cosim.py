@@ -80,7 +80,11 @@ def test_cosim_command_writes_the_mode_and_the_bound(tmp_path, cli):
     with open(tmp_path / "run" / "results.csv") as f:
         rows = list(csv.DictReader(f))
     assert {row["mode"] for row in rows[:-1]} == {"1.0", "2.0", "3.0"}
-    assert (tmp_path / "run" / "report.png").stat().st_size > 10_000
+    drawn = (tmp_path / "run" / "report.png").read_bytes()
+    assert len(drawn) > 10_000
+    (tmp_path / "run" / "report.png").unlink()
+    assert cli("report", tmp_path / "run").code == 0          # the same figure, from results.csv and metrics.json
+    assert (tmp_path / "run" / "report.png").read_bytes() == drawn
 
 
 def test_input_rule_takes_the_mode_from_signals_and_from_a_csv(tmp_path, cli):

@@ -26,6 +26,7 @@ typical session:
   uiofmu plant    plants/two_room_building -o out/plant.fmu
   uiofmu validate out/observer.fmu
   uiofmu cosim    --plant out/plant.fmu --observer out/observer.fmu --steps dropout:600:0.3:11 --out out/run
+  uiofmu report   out/run
 
 exit codes: 0 success, 2 a problem you can fix (bad file or value, no observer exists,
 infeasible LMI), 1 an internal error.
@@ -227,6 +228,10 @@ def print_summary(metrics: dict, paths: dict | None = None, file=None) -> None:
           f"{metrics['certified_overshoot']:.4g}")
         if metrics["bound_respected"]:
             p(f"  bound respected      yes at every step (largest ratio {metrics['max_bound_ratio']:.4g})")
+            if metrics.get("points_on_floor"):
+                p(f"                       checked ||e_k|| <= bound_k (1 + {metrics['bound_rtol']:g}) + "
+                  f"{metrics['bound_floor']:.3g} (round-off floor, {metrics['bound_rtol']:g} ||e_0||): above the "
+                  f"bound itself at {metrics['points_on_floor']} of {metrics['steps'] + 1} points, under the floor")
         else:
             p(f"  bound respected      NO: first at step {metrics['first_bound_violation']}, error "
               f"{metrics['error_at_first_violation']:.3g} > bound {metrics['bound_at_first_violation']:.3g}; the error "
@@ -275,6 +280,14 @@ def _cmd_cosim(args) -> int:
                           report=not args.no_report)
     print(f"{card.name}: co-simulation of {Path(args.observer).name} against {Path(args.plant).name}")
     print_summary(result.metrics, paths)
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from .cosim.report import redraw
+
+    path = redraw(args.run_dir, title=args.title)
+    print(f"{args.run_dir}: report drawn again from results.csv and metrics.json: {path}")
     return 0
 
 
@@ -478,6 +491,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-report", action="store_true",
                    help="do not draw DIR/report.png (saves matplotlib's import and the drawing)")
     p.set_defaults(func=_cmd_cosim)
+
+    p = sub.add_parser("report", help="draw a run's report.png again from its results.csv and metrics.json",
+                       description="Draw RUN_DIR/report.png again from the RUN_DIR/results.csv and "
+                                   "RUN_DIR/metrics.json that `uiofmu cosim --out RUN_DIR` wrote (with this "
+                                   "version's figure: the numbers computed again from the table, the design's "
+                                   "from metrics.json). The figure is replaced only when the new one is complete; "
+                                   "a missing or malformed file exits 2 naming it.")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="the --out folder of `uiofmu cosim`")
+    p.add_argument("--title", metavar="TEXT", help="the figure's title (default: the one in metrics.json)")
+    p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("campaign", help="many co-simulations on Dask: sampled scenarios, worst case, quantiles",
                        description="Run a validation campaign (a TOML file: the FMUs or a problem, the runs, "

@@ -29,7 +29,7 @@ from ..certificate import overshoot_text
 from ..families import certified_bound
 from .fmi import Fmu, FmuCallError, first_non_integer, not_an_integer, read_description, read_model_json, vector_sizes
 from .inputs import CsvInputs, SignalInputs, values_at
-from .metrics import delayed_metrics, error_metrics, functional_metrics
+from .metrics import delayed_metrics, error_metrics, functional_metrics, mode_metrics
 from ..progress import progress
 from ..runtime.observer import Runtime
 from ..runtime.observer import default_horizon as default_t_end
@@ -75,6 +75,8 @@ class CosimResult:
             cols["error_norm"] = np.linalg.norm(f["gx"] - f["true"], axis=1)
             return cols
         cols["error_norm"] = np.linalg.norm(self.x - self.xhat, axis=1)
+        if self.bound is not None:
+            cols["bound"] = self.bound
         if self.delayed is not None:
             dl = self.delayed
             for i in range(dl["thetahat"].shape[1]):
@@ -244,9 +246,7 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
                     .replace("decay_bound**k", f"{card.data['decay_bound']:.6g}^k"))
         result.metrics["bound_formula"] = text
     if MODE is not None:
-        result.metrics["modes"] = {"switches": int(np.count_nonzero(np.diff(MODE[:-1]))),
-                                   "steps_in_mode": {str(int(i)): int(np.count_nonzero(MODE[:-1] == i))
-                                                     for i in np.unique(MODE[:-1])}}
+        result.metrics["modes"] = mode_metrics(MODE)
     return _timed(result, timing, cpu0)
 
 
@@ -570,6 +570,9 @@ def routes(plant, obs, source: dict) -> tuple[list, list]:
 def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, report: bool = True) -> dict:
     """Write ``results.csv``, ``metrics.json`` and (unless ``report`` is false) ``report.png`` into ``out_dir``.
 
+    ``results.csv`` has a column ``bound`` (the certified bound of each point) where the design certifies one, and
+    ``metrics.json`` the key ``title`` when a title is given: with both, ``uiofmu report`` redraws the figure.
+
     Returns
     -------
     dict
@@ -582,7 +585,8 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, rep
         w.writerow(cols)
         for row in zip(*cols.values()):
             w.writerow(["" if isinstance(v, float) and math.isnan(v) else repr(float(v)) for v in row])
-    write_atomic(out / "metrics.json", json.dumps(result.metrics, indent=2) + "\n", "metrics")
+    document = {**result.metrics, **({"title": title} if title else {})}     # the title, for `uiofmu report`
+    write_atomic(out / "metrics.json", json.dumps(document, indent=2) + "\n", "metrics")
     paths = {"results": out / "results.csv", "metrics": out / "metrics.json"}
     if report:
         from .report import plot_report     # matplotlib only when a figure is drawn

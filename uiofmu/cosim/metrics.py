@@ -43,8 +43,10 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
         estimates the input over the previous step).
     bound_rtol : float
         Relative slack of the bound comparison: ``||e_k|| <= bound_k (1 + rtol) + rtol ||e_0||``
-        (the last term admits round-off once the error is down at ``rtol`` of where it began);
-        ``max_bound_ratio`` is the largest ratio of the error to that allowance.
+        (the last term, the round-off floor, admits round-off once the error is down at ``rtol`` of
+        where it began: a certified bound is one of exact arithmetic, and falls below what a run in
+        double precision can reach); ``max_bound_ratio`` is the largest ratio of the error to that
+        allowance.
 
     Returns
     -------
@@ -52,7 +54,9 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
         ``steps``, ``initial_error_norm``, ``final_error_norm``, ``rms_error`` (per state),
         ``steps_to_1pct``, ``time_to_1pct``, and when certified ``certified_decay``,
         ``certified_overshoot``, ``bound_respected``, ``max_bound_ratio``,
-        ``first_bound_violation``; ``dhat_rms_error`` with an unknown-input estimate.
+        ``first_bound_violation``, ``bound_rtol``, ``bound_floor`` (``rtol ||e_0||``) and
+        ``points_on_floor`` (the points where the error exceeds the bound itself and is accepted
+        only as round-off below the floor); ``dhat_rms_error`` with an unknown-input estimate.
     """
     e = x - xhat
     norms = np.linalg.norm(e, axis=1)
@@ -71,7 +75,8 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
         "step_max": float(steps.max()) if steps.size else None,
     }
     if bound is not None:
-        slack = bound * (1 + bound_rtol) + bound_rtol * norms[0]
+        floor = bound_rtol * norms[0]
+        slack = bound * (1 + bound_rtol) + floor
         with np.errstate(over="ignore", divide="ignore"):
             ratio = np.divide(norms, slack, out=np.zeros_like(norms), where=slack > 0)
         bad = np.flatnonzero(norms > slack)
@@ -80,13 +85,31 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
                     "first_bound_violation": int(bad[0]) if bad.size else None,
                     "error_at_first_violation": float(norms[bad[0]]) if bad.size else None,
                     "bound_at_first_violation": float(bound[bad[0]]) if bad.size else None,
-                    "final_bound": float(bound[-1])})
+                    "final_bound": float(bound[-1]), "bound_rtol": bound_rtol, "bound_floor": float(floor),
+                    "points_on_floor": int(np.count_nonzero((norms > bound * (1 + bound_rtol)) & (norms <= slack)))})
     if d is not None and dhat is not None and dhat.size and len(d) > 1:
         err = dhat[1:] - d[:-1]
         out["dhat_rms_error"] = np.sqrt(np.mean(err * err, axis=0)).tolist()
         half = len(err) // 2
         out["dhat_rms_error_second_half"] = np.sqrt(np.mean(err[half:] ** 2, axis=0)).tolist()
     return out
+
+
+def mode_metrics(mode: np.ndarray) -> dict:
+    """The modes of a switched run: ``switches`` and ``steps_in_mode`` (by mode, as text).
+
+    Parameters
+    ----------
+    mode : (K+1,) array
+        The mode at each communication point; the last point starts no step and is not counted.
+
+    Returns
+    -------
+    dict
+    """
+    steps = np.asarray(mode)[:-1]
+    return {"switches": int(np.count_nonzero(np.diff(steps))),
+            "steps_in_mode": {str(int(i)): int(np.count_nonzero(steps == i)) for i in np.unique(steps)}}
 
 
 def functional_metrics(times: np.ndarray, steps: np.ndarray, gx: np.ndarray, true: np.ndarray, valid: np.ndarray,

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import re
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -77,7 +80,62 @@ def _plot_states(ax, t, result, colors, title: str) -> None:
         ax.plot(t, result.x[:, i], color=c, lw=1.6, label=f"x[{i + 1}]")
         ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--", label=f"xhat[{i + 1}]")
     ax.set_title(title)
-    ax.legend(ncol=2, fontsize=8)
+    ax.set_ylabel("state")
+    ax.legend(ncol=2, fontsize=8, loc="best")
+
+
+#: The units of a time axis: (seconds per unit, name, longest run drawn in that unit).
+TIME_UNITS = ((1.0, "s", 600.0), (60.0, "min", 600 * 60.0), (3600.0, "h", 240 * 3600.0), (86400.0, "d", math.inf))
+
+
+def time_unit(t_end: float) -> tuple[float, str]:
+    """The unit of a run's time axis: seconds up to 10 min, minutes up to 10 h, hours up to 10 days,
+    days beyond.
+
+    Parameters
+    ----------
+    t_end : float
+        The run's length in seconds.
+
+    Returns
+    -------
+    scale : float
+        Seconds per unit.
+    unit : str
+        ``"s"``, ``"min"``, ``"h"`` or ``"d"``.
+    """
+    for scale, unit, longest in TIME_UNITS:
+        if t_end <= longest:
+            return scale, unit
+    return TIME_UNITS[-1][:2]
+
+
+def _wrap_titles(fig, title: str | None) -> None:
+    """Give the figure its title ``title``, and break every title wider than its panel (the figure's
+    wider than the figure) into lines that fit (a long title is wrapped, never clipped)."""
+    texts = [(ax.title, 0.85 * _columns(ax)) for ax in fig.axes]
+    if title:                                          # a name is text, never mathtext
+        texts.append((fig.suptitle(title.replace("$", r"\$")), 0.95))
+    renderer = fig.canvas.get_renderer()
+    for text, share in texts:
+        _fit(text, share * fig.bbox.width, renderer)
+
+
+def _columns(ax) -> float:
+    """The share of the figure's width the grid gives ``ax`` (its columns over the grid's)."""
+    spec = ax.get_subplotspec()
+    return 1.0 if spec is None else len(spec.colspan) / spec.get_gridspec().ncols
+
+
+def _fit(text, width: float, renderer) -> None:
+    """Break each line of the Text ``text`` that is wider than ``width`` (pixels) into lines that fit."""
+    lines = text.get_text().split("\n")
+    drawn = text.get_window_extent(renderer).width
+    longest = max(len(line) for line in lines)
+    if drawn <= width or longest == 0:
+        return
+    chars = max(20, int(longest * width / drawn))
+    text.set_text("\n".join(textwrap.fill(line, chars) for line in lines))
 
 
 def _save(plt, fig, path, title: str | None) -> Path:
@@ -98,8 +156,7 @@ def _save(plt, fig, path, title: str | None) -> Path:
         ``path``.
     """
     _thin_lines(fig)
-    if title:
-        fig.suptitle(title)
+    _wrap_titles(fig, title)
     path = Path(path)
     with atomic_output(path, "report") as part:
         fig.savefig(part, dpi=110, format="png")
@@ -139,8 +196,8 @@ def _thin_lines(fig, limit: int = MAX_POINTS) -> None:
 
 
 def plot_report(result, path, title: str | None = None) -> Path:
-    """Write ``report.png``: states and estimates, error norm against the certified bound,
-    the communication steps used, and the unknown input against its estimate.
+    """Write ``report.png``: states and estimates, error norm against the certified bound and the slack
+    its check allows, the communication steps used, and the unknown input against its estimate.
 
     Parameters
     ----------
@@ -157,63 +214,143 @@ def plot_report(result, path, title: str | None = None) -> Path:
     if result.delayed is not None:
         return plot_delayed(result, path, title)
     plt, colors = pyplot()
-    m = result.metrics
-    scale, unit = (3600.0, "h") if result.times[-1] > 4 * 3600 else (1.0, "s")
+    scale, unit = time_unit(float(result.times[-1]))
     t = result.times / scale
-    fig, axes = plt.subplots(2, 2, figsize=(12, 7.5), constrained_layout=True)
-    ax = axes[0, 0]
-    _plot_states(ax, t, result, colors, "true state (solid) and estimate (dashed)")
-    ax.set_xlabel(f"time [{unit}]")
-    ax.grid(alpha=0.3)
-
-    ax = axes[0, 1]
-    norms = np.linalg.norm(result.x - result.xhat, axis=1)
-    floor = max(norms[0], 1e-300) * 1e-16
-    ax.semilogy(t, np.maximum(norms, floor), lw=1.5, label="measured ||x - xhat||")
-    if result.bound is not None:
-        ok = ("respected at every step" if m["bound_respected"] else
-              f"exceeded from step {m['first_bound_violation']}; the error settles at {m['error_floor']:.1e}")
-        ax.semilogy(t, np.maximum(result.bound, floor), "k--", lw=1.2,
-                    label=f"certified bound (δ = {m['certified_decay']:.4g}): {ok}")
-    ax.axhline(0.01 * norms[0], color="gray", ls=":", lw=1, label="1 % of initial error")
-    if m.get("steps_to_1pct") is not None:
-        ax.axvline(t[m["steps_to_1pct"]], color="gray", lw=0.8)
-    ax.set_title("estimation error")
-    ax.set_xlabel(f"time [{unit}]")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3, which="both")
-
-    ax = axes[1, 0]
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8.5), constrained_layout=True)
+    _plot_states(axes[0, 0], t, result, colors, "true state (solid) and estimate (dashed)")
+    _plot_error(axes[0, 1], t, unit, result)
     if result.mode is not None:
-        modes = result.mode[:-1]
-        ax.step(t[:-1], modes, where="post", lw=1.2)
-        ax.set_yticks(np.unique(modes))
-        ax.set_title(f"mode of each step ({m['modes']['switches']} switches; {len(result.h)} steps of "
-                     f"{result.h.min():.4g} s)")
-        ax.set_ylabel("alpha_k")
+        _plot_modes(axes[1, 0], t, result)
     else:
-        ax.step(t[:-1], result.h, where="post", lw=1.2)
-        ax.set_title(f"communication steps ({len(result.h)} steps, h in [{result.h.min():.4g}, "
-                     f"{result.h.max():.4g}] s)")
+        plot_steps(axes[1, 0], t, result.h, unit)
+    _plot_inputs(axes[1, 1], t, result, colors)
+    for ax in (axes[0, 0], axes[0, 1], axes[1, 1]):
+        ax.set_xlabel(f"time [{unit}]")
+        ax.grid(alpha=0.3, which="both" if ax.get_yscale() == "log" else "major")
+    return _save(plt, fig, path, title)
+
+
+def _plot_error(ax, t, unit: str, result) -> None:
+    """The error norm on a log scale, the certified bound, the slack its check allows (shaded up to
+    ``bound (1 + rtol) + rtol ||e_0||``, what ``bound_respected`` compares with), the 1 % line and the time
+    from which the error stays under it; the title says what was checked and what it found, the legend
+    sits under the panel (it hides no data)."""
+    m = result.metrics
+    norms = np.linalg.norm(result.x - result.xhat, axis=1)
+    shown = [norms]
+    title = "estimation error"
+    if result.bound is not None:
+        rtol = m["bound_rtol"]
+        bound, allowed = result.bound, result.bound * (1 + rtol) + m["bound_floor"]
+        shown.append(allowed)
+    positive = np.concatenate([v[(v > 0) & np.isfinite(v)] for v in shown])
+    bottom = float(positive.min()) / 30 if positive.size else 1e-300
+    ax.semilogy(t, np.maximum(norms, bottom), lw=1.5, label="measured ||x - xhat||", zorder=3)
+    if result.bound is not None:
+        overshoot = m.get("certified_overshoot")
+        ax.semilogy(t, np.maximum(bound, bottom), "k--", lw=1.2,
+                    label=f"certified bound (δ = {m['certified_decay']:.4g}"
+                          + (f", M = {overshoot:.4g})" if overshoot is not None else ")"))
+        ax.fill_between(t, np.maximum(bound, bottom), allowed, color="0.82", lw=0, zorder=1)
+        ax.semilogy(t, allowed, color="0.4", ls=":", lw=1.4, label="bound + allowed slack (shaded: the slack)")
+        title = f"estimation error: {_bound_verdict(m, len(norms), unit, t)}"
+    one = 0.01 * norms[0]
+    if one > 0:
+        ax.axhline(one, color="tab:gray", ls="-.", lw=1, label="1 % of the initial error")
+    k1 = m.get("steps_to_1pct")
+    if k1 is not None:
+        ax.axvline(t[k1], color="tab:gray", lw=0.8, label=f"under 1 % from t = {t[k1]:.4g} {unit}")
+    if np.any(norms < bottom) or (result.bound is not None and np.any(result.bound < bottom)):
+        ax.set_ylim(bottom=bottom / 2)           # what falls to 0 (or below the drawing) is drawn at the bottom
+    ax.set_title(title, fontsize=10)
+    ax.set_ylabel("||x - xhat||")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
+
+
+def _bound_verdict(m: dict, points: int, unit: str, t) -> str:
+    """What the bound check compared and what it found, in words (the error panel's title)."""
+    rtol = f"{m['bound_rtol']:.0e}".replace("e-0", "e-")
+    check = (f"checked at all {points} points: ||e_k|| <= bound_k·(1 + {rtol}) + {rtol}·||e_0|| "
+             f"(round-off floor {m['bound_floor']:.2g})")
+    if not m["bound_respected"]:
+        k = m["first_bound_violation"]
+        return (f"bound EXCEEDED from step {k} (t = {t[k]:.4g} {unit}: error {m['error_at_first_violation']:.3g} "
+                f"> bound {m['bound_at_first_violation']:.3g}), settles at {m['error_floor']:.2g}\n{check}")
+    on_floor = m.get("points_on_floor", 0)
+    floor = (f"\nabove the bound itself at {on_floor} points, where the bound is under the floor" if on_floor else "")
+    return f"bound + allowed slack respected at every step\n{check}{floor}"
+
+
+#: Above this many steps the communication-step panel draws how many steps of each length there are (a
+#: trace of so many steps is a solid band); up to it, the trace of h_k over time.
+STEP_TRACE_LIMIT = 1000
+
+#: Most distinct step lengths drawn as one bar each; more are binned (a histogram of 50 bins).
+MAX_STEP_BARS = 30
+
+
+def plot_steps(ax, t, h, unit: str, limit: int = STEP_TRACE_LIMIT) -> None:
+    """The communication steps: their trace over time up to ``limit`` steps, beyond it a histogram of
+    their lengths (a bar for each length when there are at most :data:`MAX_STEP_BARS`).
+
+    Parameters
+    ----------
+    ax : Axes
+    t : (K+1,) array
+        The communication points, in ``unit``.
+    h : (K,) array
+        The step lengths in seconds.
+    unit : str
+        The unit of ``t``.
+    limit : int
+        The most steps drawn as a trace.
+    """
+    span = f"{len(h)} steps, h in [{h.min():.4g}, {h.max():.4g}] s"
+    if len(h) <= limit:
+        ax.step(t[:-1], h, where="post", lw=1.2)
+        ax.set_title(f"communication steps ({span})")
+        ax.set_xlabel(f"time [{unit}]")
         ax.set_ylabel("h_k [s]")
-    ax.set_xlabel(f"time [{unit}]")
+    else:
+        lengths, counts = np.unique(h, return_counts=True)
+        if lengths.size <= MAX_STEP_BARS:
+            gap = float(np.diff(lengths).min()) if lengths.size > 1 else abs(float(lengths[0])) or 1.0
+            ax.bar_label(ax.bar(lengths, counts, width=0.6 * gap), fontsize=8)
+        else:
+            ax.hist(h, bins=50)
+        ax.set_title(f"communication steps ({span}): how many of each length")
+        ax.set_xlabel("step length h [s]")
+        ax.set_ylabel("number of steps")
     ax.grid(alpha=0.3)
 
-    ax = axes[1, 1]
+
+def _plot_modes(ax, t, result) -> None:
+    """The mode of each step of a switched run."""
+    modes = result.mode[:-1]
+    ax.step(t[:-1], modes, where="post", lw=1.2)
+    ax.set_yticks(np.unique(modes))
+    ax.set_title(f"mode of each step ({result.metrics['modes']['switches']} switches; {len(result.h)} steps of "
+                 f"{result.h.min():.4g} s)")
+    ax.set_ylabel("alpha_k")
+    ax.set_xlabel(f"time [{time_unit(float(result.times[-1]))[1]}]")
+    ax.grid(alpha=0.3)
+
+
+def _plot_inputs(ax, t, result, colors) -> None:
+    """The unknown input against its estimate, or the output residual when there is no estimate."""
     if result.dhat.size and result.dhat.shape[1]:
         for i in range(result.d.shape[1]):
             c = colors[i % len(colors)]
             ax.step(t, result.d[:, i], where="post", color=c, lw=1.6, label=f"d[{i + 1}] (held over step)")
             ax.plot(t[:-1], result.dhat[1:, i], ".", color=c, ms=3, label=f"dhat[{i + 1}] (drawn at its step's start)")
         ax.set_title("unknown input and its estimate")
+        ax.set_ylabel("d, dhat")
     else:
         for i in range(result.r.shape[1]):
             ax.plot(t, result.r[:, i], lw=1.2, label=f"r[{i + 1}]")
         ax.set_title("output residual r = y - C xhat")
-    ax.set_xlabel(f"time [{unit}]")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    return _save(plt, fig, path, title)
+        ax.set_ylabel("r")
+    ax.legend(fontsize=8, loc="best")
 
 
 def plot_functional(result, path, title: str | None = None) -> Path:
@@ -244,7 +381,8 @@ def plot_functional(result, path, title: str | None = None) -> Path:
                 label=f"gx[{i + 1}]")
     ax.set_title(f"the functional and its estimate (window of {m['window']} outputs, delay {m['delay']}; "
                  f"shaded: window filling)")
-    ax.legend(fontsize=8, ncol=2)
+    ax.set_ylabel("G x, gx")
+    ax.legend(fontsize=8, ncol=2, loc="best")
     ax = axes[1]
     err = np.linalg.norm(f["gx"] - f["true"], axis=1)
     ax.semilogy(k, np.maximum(err, 1e-18), ".-", lw=1)
@@ -253,6 +391,7 @@ def plot_functional(result, path, title: str | None = None) -> Path:
         ax.axvline(exact, color="k", ls="--", lw=1, label=f"exact (round-off) from step {exact}")
         ax.legend(fontsize=8)
     ax.set_title("error |gx - G x| (0 drawn at 1e-18)")
+    ax.set_ylabel("|gx - G x|")
     ax = axes[2]
     for i in range(result.d.shape[1]):
         ax.step(k, result.d[:, i], where="post", lw=1.2, label=f"d[{i + 1}] (unknown)")
@@ -260,7 +399,8 @@ def plot_functional(result, path, title: str | None = None) -> Path:
         ax.plot(k, result.y[:, i], lw=1, label=f"y[{i + 1}]")
     ax.set_title("inputs and outputs")
     ax.set_xlabel("step k")
-    ax.legend(fontsize=8, ncol=3)
+    ax.set_ylabel("d, y")
+    ax.legend(fontsize=8, ncol=3, loc="best")
     return _save(plt, fig, path, title)
 
 
@@ -291,7 +431,8 @@ def plot_delayed(result, path, title: str | None = None) -> Path:
     """
     plt, colors = pyplot()
     m, dl = result.metrics, result.delayed
-    t, valid = result.times, dl["valid"]
+    scale, unit = time_unit(float(result.times[-1]))
+    t, valid = result.times / scale, dl["valid"]
     v = m["validity"]
     fig, axes = _panels(plt, 2, 2, (12, 8), lambda ax: _shade_invalid(ax, t, valid))
     _plot_states(axes[0, 0], t, result, colors, "true state (solid) and estimate (dashed); shaded: not valid")
@@ -301,7 +442,8 @@ def plot_delayed(result, path, title: str | None = None) -> Path:
     floor = max(float(norms.max()), 1e-300) * 1e-9
     ax.semilogy(t, np.maximum(norms, floor), lw=1.5, label=f"measured ||x - xhat|| (below {floor:.1e} drawn there)")
     ax.set_title("state error (no certified bound: it holds on the premise set only)")
-    ax.legend(fontsize=8)
+    ax.set_ylabel("||x - xhat||")
+    ax.legend(fontsize=8, loc="best")
 
     ax = axes[1, 0]
     sig = np.asarray(dl["sigma_min"], dtype=float)
@@ -310,9 +452,10 @@ def plot_delayed(result, path, title: str | None = None) -> Path:
     ax.set_ylim(bottom=low / 2)
     ax.axhline(dl["sigma_bound"], color="k", ls="--", lw=1.2, label=f"premise bound {dl['sigma_bound']:.3g}")
     ax.set_title(f"rank margin; valid {100 * v['fraction']:.1f} % of the run, from t = "
-                 + (f"{v['first_valid_time']:g} s" if v["first_valid_time"] is not None else "never"))
-    ax.set_xlabel("time [s]")
-    ax.legend(fontsize=8)
+                 + (f"{v['first_valid_time'] / scale:.4g} {unit}" if v["first_valid_time"] is not None else "never"))
+    ax.set_xlabel(f"time [{unit}]")
+    ax.set_ylabel("sigma_min(C D_y)")
+    ax.legend(fontsize=8, loc="best")
 
     ax = axes[1, 1]
     th = dl["thetahat"]
@@ -326,10 +469,174 @@ def plot_delayed(result, path, title: str | None = None) -> Path:
         ax.set_ylim(mid - 2 * spread, mid + 2 * spread)
     tm = m.get("theta")
     if tm is not None:
-        when = f"within 1 % from t = {tm['time_to_1pct']:g} s" if tm["time_to_1pct"] is not None else "never within 1 %"
+        when = (f"within 1 % from t = {tm['time_to_1pct'] / scale:.4g} {unit}" if tm["time_to_1pct"] is not None
+                else "never within 1 %")
         ax.set_title(f"parameters: {when}, final relative error {tm['final_relative_error']:.2g}")
     else:
         ax.set_title("parameter estimate (the plant has no parameter theta to compare with)")
-    ax.set_xlabel("time [s]")
-    ax.legend(fontsize=8, ncol=2)
+    ax.set_xlabel(f"time [{unit}]")
+    ax.set_ylabel("theta, thetahat")
+    ax.legend(fontsize=8, ncol=2, loc="best")
     return _save(plt, fig, path, title)
+
+
+#: Largest results table ``uiofmu report`` reads (bytes): a run of a few million steps.
+MAX_RESULTS_BYTES = 2**30
+
+#: The vectors of a results table (columns ``name[1]``, ``name[2]``, ...).
+_VECTOR = re.compile(r"([a-z_]+)\[([1-9][0-9]*)\]")
+
+
+def redraw(run_dir, title: str | None = None) -> Path:
+    """Draw ``RUN_DIR/report.png`` again from the ``results.csv`` and ``metrics.json`` that ``uiofmu cosim
+    --out RUN_DIR`` wrote (atomically: a failure leaves the old figure).
+
+    The figure's numbers are computed again from the table (as the co-simulation computed them); from
+    ``metrics.json`` come the design's: the certified decay and overshoot, a functional observer's window
+    and delay, a delayed observer's premise bound and the plant's true theta, and the title.
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        The run's folder.
+    title : str, optional
+        The figure's title (default: the one in ``metrics.json``).
+
+    Returns
+    -------
+    Path
+        ``RUN_DIR/report.png``.
+
+    Raises
+    ------
+    ProblemError
+        For a missing or unreadable file, or a table or metrics that are not what ``uiofmu cosim`` writes,
+        naming the file and what is wrong.
+    """
+    from ..runtime.files import check_output_file, parse_json, read_text
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise ProblemError(f"{run_dir}: no such run folder (give the --out folder of `uiofmu cosim`)")
+    check_output_file(run_dir / "report.png", "report")
+    metrics = parse_json(read_text(run_dir / "metrics.json", "metrics file", error=ProblemError),
+                         f"{run_dir / 'metrics.json'}", error=ProblemError)
+    if not isinstance(metrics, dict):
+        raise ProblemError(f"{run_dir / 'metrics.json'}: expected a JSON object (the metrics of a run)")
+    table = _read_results(run_dir / "results.csv")
+    result = _result_from_table(table, run_dir / "results.csv", metrics, run_dir / "metrics.json")
+    text = title if title is not None else metrics.get("title")
+    if text is not None and not isinstance(text, str):
+        raise ProblemError(f"{run_dir / 'metrics.json'}: title: expected a string")
+    return plot_report(result, run_dir / "report.png", text[:300] if text else None)
+
+
+def _read_results(path) -> dict:
+    """The columns of a results table by name (empty cells are NaN), checked: a header of distinct names,
+    numbers in every row, a column ``time`` increasing from 0 and ``h`` its steps, at least one step."""
+    import csv
+    import io
+
+    from ..runtime.files import read_text
+
+    text = read_text(path, "results table", limit=MAX_RESULTS_BYTES, error=ProblemError)
+    rows = csv.reader(io.StringIO(text))
+    header = next(rows, None)
+    if not header or len(set(header)) != len(header):
+        raise ProblemError(f"{path}: the first line must name each column once (time,h,x[1],...)")
+    values = []
+    for number, row in enumerate(rows, start=2):
+        if len(row) != len(header):
+            raise ProblemError(f"{path}: line {number} has {len(row)} values, the header {len(header)}")
+        try:
+            values.append([float(v) if v else math.nan for v in row])
+        except ValueError:
+            raise ProblemError(f"{path}: line {number}: a value is not a number") from None
+    data = np.array(values, dtype=float).reshape(len(values), len(header))
+    columns = dict(zip(header, data.T))
+    for name in ("time", "h", "x[1]"):
+        if name not in columns:
+            raise ProblemError(f"{path}: no column {name} (a table written by `uiofmu cosim` has one)")
+    t, h = columns["time"], columns["h"][:-1]
+    if t.size < 2 or not (np.all(np.isfinite(t)) and np.all(np.diff(t) > 0)):
+        raise ProblemError(f"{path}: time must hold finite increasing times, at least two ({t.size} rows)")
+    if not (np.all(np.isfinite(h)) and np.all(h > 0)):
+        raise ProblemError(f"{path}: h must hold a finite step > 0 on every line but the last (line "
+                           f"{int(np.argmax(~(np.isfinite(h) & (h > 0)))) + 2})")
+    bound = columns.get("bound")
+    if bound is not None and not np.all(np.isfinite(bound) & (bound >= 0)):
+        raise ProblemError(f"{path}: bound must hold finite numbers >= 0 (line "
+                           f"{int(np.argmax(~(np.isfinite(bound) & (bound >= 0)))) + 2})")
+    return columns
+
+
+def _vector(columns: dict, name: str, path) -> np.ndarray:
+    """The columns ``name[1]``, ``name[2]``, ... of the table ``path`` as one (rows, n) array (n = 0 without any)."""
+    index = sorted(int(m.group(2)) for m in map(_VECTOR.fullmatch, columns) if m and m.group(1) == name)
+    if index != list(range(1, len(index) + 1)):
+        raise ProblemError(f"{path}: the columns {name}[i] must run from {name}[1] without a gap")
+    rows = len(columns["time"])
+    return np.stack([columns[f"{name}[{i}]"] for i in index], axis=1) if index else np.zeros((rows, 0))
+
+
+def _number(metrics: dict, keys: tuple, where, integer: bool = False, optional: bool = False):
+    """``metrics[keys[0]][keys[1]]...``, checked to be a finite number (an integer >= 0 with ``integer``);
+    None when ``optional`` and absent."""
+    value = metrics
+    for key in keys:
+        value = value.get(key) if isinstance(value, dict) else None
+    if value is None and optional:
+        return None
+    name = ".".join(keys)
+    if integer and not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
+        raise ProblemError(f"{where}: {name}: expected an integer >= 0, found {str(value)[:40]}")
+    if not integer and not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)):
+        raise ProblemError(f"{where}: {name}: expected a finite number, found {str(value)[:40]}")
+    return value
+
+
+def _result_from_table(columns: dict, path, metrics: dict, where):
+    """A :class:`~uiofmu.cosim.master.CosimResult` of the columns of the table ``path``, with its metrics
+    computed again (:mod:`uiofmu.cosim.metrics`) from them and the design's numbers in ``metrics`` (read from
+    ``where``)."""
+    from .master import CosimResult
+    from .metrics import delayed_metrics, error_metrics, functional_metrics, mode_metrics
+
+    T, H = columns["time"], columns["h"][:-1]
+    X, XH, D, DH = (_vector(columns, n, path) for n in ("x", "xhat", "d", "dhat"))
+    args = [T, H, X, XH, _vector(columns, "y", path), _vector(columns, "u", path), D, _vector(columns, "r", path), DH]
+    mode = columns.get("mode")
+    if "gx_valid" in columns:                            # a functional observer
+        gx, true, valid = _vector(columns, "gx", path), _vector(columns, "gx_true", path), columns["gx_valid"]
+        delay, window = (_number(metrics, (k,), where, integer=True) for k in ("delay", "window"))
+        result = CosimResult(*args, mode=mode, functional={"gx": gx, "true": true, "valid": valid})
+        result.metrics = {**functional_metrics(T, H, gx, true, valid, delay, window),
+                          "formula": str(metrics.get("formula", ""))[:300]}
+        return result
+    if "valid" in columns and "sigma_min" in columns:    # a delayed observer
+        thetahat = _vector(columns, "thetahat", path)
+        sigma_bound = _number(metrics, ("validity", "sigma_bound"), where)
+        theta = metrics.get("theta", {}).get("true") if isinstance(metrics.get("theta"), dict) else None
+        if theta is not None and not (isinstance(theta, list) and len(theta) == thetahat.shape[1] and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in theta)):
+            raise ProblemError(f"{where}: theta.true: expected {thetahat.shape[1]} finite numbers")
+        theta = None if theta is None else np.array(theta, dtype=float)
+        result = CosimResult(*args, delayed={"thetahat": thetahat, "theta": theta, "sigma_min": columns["sigma_min"],
+                                             "valid": columns["valid"], "sigma_bound": sigma_bound})
+        result.metrics = {**error_metrics(T, H, X, XH), **delayed_metrics(
+            T, H, X, XH, thetahat, theta, columns["valid"], columns["sigma_min"], sigma_bound)}
+        return result
+    if X.shape != XH.shape:
+        raise ProblemError(f"{path}: {X.shape[1]} columns x[i] but {XH.shape[1]} columns xhat[i]")
+    bound = columns.get("bound")
+    decay = overshoot = None
+    if bound is not None:
+        decay = _number(metrics, ("certified_decay",), where)
+        overshoot = _number(metrics, ("certified_overshoot",), where, optional=True)
+    estimated = DH.shape[1] > 0
+    result = CosimResult(*args, bound=bound, mode=mode)
+    result.metrics = error_metrics(T, H, X, XH, bound, decay, overshoot, D if estimated else None,
+                                   DH if estimated else None)
+    if mode is not None:
+        result.metrics["modes"] = mode_metrics(mode)
+    return result
