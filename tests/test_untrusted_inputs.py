@@ -335,6 +335,10 @@ def test_missing_folders_are_created_only_inside_an_existing_one(example1_path, 
         assert not top.exists(), command
     res = cli("design", example1_path, "-o", tmp_path / "a" / "b" / "x.json")
     assert res.code == 0 and (tmp_path / "a" / "b" / "x.json").is_file()
+    relative = tmp_path / "work"                          # relative paths: inside the current folder
+    relative.mkdir()
+    proc = _uiofmu("design", example1_path, "-o", Path("c") / "d" / "x.json", cwd=relative)
+    assert proc.returncode == 0 and (relative / "c" / "d" / "x.json").is_file(), proc.stderr
 
 
 def test_default_output_names_stay_in_the_working_folder(example1_card, tmp_path):

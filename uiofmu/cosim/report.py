@@ -306,7 +306,7 @@ def plot_steps(ax, t, h, unit: str, limit: int = STEP_TRACE_LIMIT) -> None:
         The most steps drawn as a trace.
     """
     span = f"{len(h)} steps, h in [{h.min():.4g}, {h.max():.4g}] s"
-    if len(h) <= limit:
+    if len(h) <= limit or np.ptp(h) == 0:    # a trace of one length is a line, whatever its steps
         ax.step(t[:-1], h, where="post", lw=1.2)
         ax.set_title(f"communication steps ({span})")
         ax.set_xlabel(f"time [{unit}]")
@@ -343,7 +343,7 @@ def _plot_inputs(ax, t, result, colors) -> None:
             c = colors[i % len(colors)]
             ax.step(t, result.d[:, i], where="post", color=c, lw=1.6, label=f"d[{i + 1}] (held over step)")
             ax.plot(t[:-1], result.dhat[1:, i], ".", color=c, ms=3, label=f"dhat[{i + 1}] (drawn at its step's start)")
-        ax.set_title("unknown input and its estimate")
+        ax.set_title("unknown input and its estimate" + _clip_outliers(ax, result.d, result.dhat[1:], t[:-1]))
         ax.set_ylabel("d, dhat")
     else:
         for i in range(result.r.shape[1]):
@@ -351,6 +351,31 @@ def _plot_inputs(ax, t, result, colors) -> None:
         ax.set_title("output residual r = y - C xhat")
         ax.set_ylabel("r")
     ax.legend(fontsize=8, loc="best")
+
+
+#: Fraction of an estimate's points that may lie off the scale of the unknown-input panel: the first
+#: estimates of an observer started away from the state can be orders of magnitude off, and drawn to
+#: scale they flatten the rest to a line.
+OUTLIER_FRACTION = 0.005
+
+
+def _clip_outliers(ax, d, dhat, t) -> str:
+    """Fit the y-axis to ``d`` and all but the farthest :data:`OUTLIER_FRACTION` of ``dhat``; return the
+    words that say what is off the scale (empty when nothing is)."""
+    finite = dhat[np.isfinite(dhat)]
+    if not finite.size:
+        return ""
+    lo, hi = np.quantile(finite, [OUTLIER_FRACTION, 1.0 - OUTLIER_FRACTION])
+    lo, hi = min(lo, float(np.nanmin(d))), max(hi, float(np.nanmax(d)))
+    pad = 0.1 * (hi - lo) or 0.1 * max(abs(hi), 1.0)
+    lo, hi = lo - pad, hi + pad
+    off = np.isfinite(dhat) & ((dhat < lo) | (dhat > hi))
+    if not off.any():
+        return ""
+    ax.set_ylim(lo, hi)
+    k = np.unravel_index(np.argmax(np.where(off, np.abs(dhat), -np.inf)), dhat.shape)
+    return (f"\n({int(off.sum())} estimate(s) off the scale, the farthest {dhat[k]:.3g} at t = {t[k[0]]:.4g}: "
+            "the start from the initial error)")
 
 
 def plot_functional(result, path, title: str | None = None) -> Path:

@@ -133,6 +133,11 @@ class Options:
 
 def _intervals(table) -> tuple:
     key = table.key("intervals")
+    if not table.has("intervals"):
+        raise table.missing("intervals", "required: the sampling intervals in seconds this observer is designed "
+                            "for, a list (intervals = [0.01] for one period) or a range (intervals = {min = 0.01, "
+                            "max = 0.05, count = 5})" + ("; observer.dt is not a key of this family"
+                                                         if table.has("dt") else ""))
     value = table.get("intervals")
     if isinstance(value, dict):
         sub = type(table)(value, key)

@@ -234,7 +234,7 @@ def _check_parents(path: Path) -> None:
         if parent.exists():
             if not parent.is_dir():
                 raise OutputError(f"{path}: {parent} is not a folder")
-            if missing is not None and parent == Path(parent.anchor):
+            if missing is not None and parent.anchor and parent == Path(parent.anchor):
                 raise OutputError(f"{path}: {missing} does not exist; outputs create missing folders only inside "
                                   f"an existing folder other than {parent} (create {missing} first, or check the path)")
             break
