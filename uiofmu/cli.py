@@ -59,6 +59,8 @@ def check_summary(report) -> list[str]:
     for c in report.conditions:
         mark = "ok  " if c.holds else ("FAIL" if c.required else "note")
         lines.append(f"  [{mark}] {c.message}")
+        if c.hint and not c.holds:
+            lines.append(f"         would help: {c.hint}")
     lines.append("  => an observer exists" if report.exists else "  => no observer exists")
     return lines
 

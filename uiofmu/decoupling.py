@@ -9,6 +9,10 @@ unobservable modes of ``(P A, C)``; they are the invariant zeros of ``(A, E, C)`
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
+from itertools import combinations, islice
+
 import numpy as np
 
 from .existence import Condition, complex_list, format_complex
@@ -142,6 +146,167 @@ def weak_modes_condition(A, E, C, where: str = "", rank_rtol: float = RANK_RTOL,
                      values)
 
 
+#: Most pairs of measured states :func:`measurement_hint` tries, after the single ones.
+MAX_ROW_PAIRS = 300
+#: Most sampled systems whose decoupling conditions :func:`measurement_hint`, and again :func:`period_hint`,
+#: recompute (under a second each for a dozen states).
+MAX_HINT_SYSTEMS = 500
+#: The other sampling periods :func:`period_hint` tries, as multiples of the given one.
+PERIOD_FACTORS = (0.25, 0.5, 2.0, 4.0)
+
+
+def decoupling_verdict(A, E, C, target: str, where: str = "") -> tuple[Condition, bool]:
+    """The conditions of exact decoupling of the sampled plant ``(A, E, C)``: the one named ``target`` (the rank
+    condition when the rank fails first) and whether all of them hold (rank, stable zeros, detectable pair)."""
+    conds = [rank_condition(C, E, where)]
+    if conds[0].holds:
+        conds += [zeros_condition(A, E, C, False, where)[0], fixed_modes_condition(A, E, C, where)[0]]
+    named = [c for c in conds if c.name == target]
+    return (named or conds)[0], all(c.holds for c in conds)
+
+
+def _measured(rows) -> str:
+    return " and ".join(f"x[{i + 1}]" for i in rows)
+
+
+def _added(rows) -> str:
+    return ("the row " if len(rows) == 1 else "the rows ") + ", ".join(f"e_{i + 1}'" for i in rows)
+
+
+def measurement_hint(C: np.ndarray, verdict, max_pairs: int = MAX_ROW_PAIRS, cost: int = 1,
+                     budget: int = MAX_HINT_SYSTEMS) -> str:
+    """Which measured states, added to ``C`` as unit rows, make a failing condition hold.
+
+    The single states ``C`` does not already measure are tried, then (when none makes every condition hold)
+    up to ``max_pairs`` pairs of them, as long as the systems recomputed stay within ``budget``.
+
+    Parameters
+    ----------
+    C : (p, n) array
+    verdict : callable
+        ``verdict(C2) -> (Condition, bool)``: the failing condition recomputed with the output matrix ``C2``,
+        and whether every condition of the family's exact decoupling holds with it.
+    max_pairs : int
+        Most pairs of states tried.
+    cost : int
+        The sampled systems one call of ``verdict`` recomputes (one per sampling interval).
+    budget : int
+        Most sampled systems recomputed in all (:data:`MAX_HINT_SYSTEMS`).
+
+    Returns
+    -------
+    str
+        The hint (empty when ``C`` already measures every state): the states whose measurement makes every
+        condition hold, else those that make the failing one hold, else that none of those tried helps.
+    """
+    n = C.shape[1]
+    unit = np.eye(n)
+    measures = rank(in_unit_scale(C, np.zeros((n, 0)))[0])
+    new = [i for i in range(n) if rank(in_unit_scale(np.vstack([C, unit[i:i + 1]]), np.zeros((n, 0)))[0]) > measures]
+    if not new:
+        return ""
+    trials = max(1, budget // max(cost, 1))
+    singles = [(i,) for i in new][:trials]
+    pairs = list(islice(combinations(new, 2), min(max_pairs, trials - len(singles))))
+    partial = None
+    for group in (singles, pairs):
+        fits = []
+        for rows in group:
+            cond, every = verdict(np.vstack([C, unit[list(rows)]]))
+            if every:
+                fits.append((rows, cond))
+            elif cond.holds and partial is None:
+                partial = (rows, cond)
+        if fits:
+            return _measurement_text(fits)
+    if partial:
+        rows, cond = partial
+        return (f"measuring {_measured(rows)} (adding {_added(rows)} to C): {cond.message}, but other conditions of "
+                f"exact decoupling still fail (with each of the {len(singles)} state(s) and {len(pairs)} pair(s) "
+                "tried)")
+    return (f"no added measurement of one state (of the {len(singles)} tried) nor of a pair (of the {len(pairs)} "
+            "tried) makes it hold")
+
+
+def _measurement_text(fits: list) -> str:
+    """The hint of the measurements ``(rows, condition)`` that make every condition hold (the first, and up to
+    three others)."""
+    rows, cond = fits[0]
+    others = (", " if len(rows) == 1 else "; ").join(_measured(r) for r, _ in fits[1:4])
+    more = f" (so does measuring {others}{', ...' if len(fits) > 4 else ''})" if others else ""
+    return (f"measuring {_measured(rows)} (adding {_added(rows)} to C): {cond.message}, and every condition of exact "
+            f"decoupling holds{more}")
+
+
+def period_hint(periods, verdict, what: str = "dt", factors=PERIOD_FACTORS, budget: int = MAX_HINT_SYSTEMS) -> str:
+    """Which other sampling makes the conditions of exact decoupling hold: ``periods`` times each of ``factors``
+    (nothing is tried when that is more than ``budget`` sampled systems).
+
+    Parameters
+    ----------
+    periods : sequence of float
+        The sampling period(s) as given (s).
+    verdict : callable
+        ``verdict(periods2) -> bool``: whether every condition of exact decoupling holds when sampled at those.
+    what : str
+        The key that sets them, for the message.
+    factors : sequence of float
+        The multiples tried.
+    budget : int
+        Most sampled systems recomputed (:data:`MAX_HINT_SYSTEMS`).
+
+    Returns
+    -------
+    str
+        The periods that work, or that none of those tried does (empty when nothing is tried).
+    """
+    if not 0 < len(periods) * len(factors) <= budget:
+        return ""
+    good = [[f * h for h in periods] for f in factors if verdict([f * h for h in periods])]
+    listed = (lambda hs: f"{hs[0]:g}") if len(periods) == 1 else (lambda hs: f"[{', '.join(f'{h:g}' for h in hs)}]")
+    shown = " or ".join(listed(hs) for hs in good)
+    tried = ", ".join(f"{f:g}" for f in factors)
+    if good:
+        return (f"sampling at {what} = {shown} s: every condition of exact decoupling holds there (tried {tried} "
+                "times the given periods)")
+    return f"no sampling at {tried} times the given {what} makes every condition of exact decoupling hold"
+
+
+def either(*hints: str) -> str:
+    """The non-empty hints joined by ``; or ``, those that found something first."""
+    return "; or ".join(sorted((h for h in hints if h), key=lambda h: h.startswith("no ")))
+
+
+def with_hint(conds: list, hint) -> list:
+    """``conds`` with ``hint(condition)`` (a callable, called only then) on the first failing required condition,
+    unless it has one."""
+    failing = [i for i, c in enumerate(conds) if c.required and not c.holds]
+    if not failing or conds[failing[0]].hint:
+        return conds
+    i = failing[0]
+    return conds[:i] + [replace(conds[i], hint=hint(conds[i]))] + conds[i + 1:]
+
+
+def short_below(x: float) -> float:
+    """A number of three significant digits strictly below ``x > 0`` (the nearest one)."""
+    return _short(x, -1)
+
+
+def short_above(x: float) -> float:
+    """A number of three significant digits strictly above ``x > 0`` (the nearest one)."""
+    return _short(x, 1)
+
+
+def _short(x: float, side: int) -> float:
+    scale = 10.0 ** (2 - math.floor(math.log10(x)))
+    k = math.floor(x * scale) if side < 0 else math.ceil(x * scale)
+    if (k / scale - x) * side <= 0:                  # x has three digits itself
+        k += side
+    if k < 100:                                      # below a power of ten: 9.99 of the decade under it
+        scale, k = 10 * scale, 999
+    return float(f"{k / scale:.3g}")
+
+
 def sampled_decoupling_conditions(plant, s, dt: float) -> tuple[list, np.ndarray, bool]:
     """The classical conditions on a plant sampled at ``dt`` (a discrete plant as it is).
 
@@ -168,7 +333,16 @@ def sampled_decoupling_conditions(plant, s, dt: float) -> tuple[list, np.ndarray
         fc, fixed = fixed_modes_condition(s.A, s.E, plant.C, where)
         conds.append(fc)
         conds.append(weak_modes_condition(s.A, s.E, plant.C, where))
-    return conds, fixed, rank_c.holds
+
+    def hint(failed: Condition) -> str:
+        measure = measurement_hint(plant.C, lambda C2: decoupling_verdict(s.A, s.E, C2, failed.name, where))
+        if not plant.continuous:
+            return measure
+        resampled = period_hint([dt], lambda hs: decoupling_verdict(plant.sampled(hs[0]).A, plant.sampled(hs[0]).E,
+                                                                    plant.C, failed.name)[1], "observer.dt")
+        return either(resampled, measure)
+
+    return with_hint(conds, hint), fixed, rank_c.holds
 
 
 def detectable(conditions: list) -> bool:

@@ -50,6 +50,10 @@ class Condition:
         Whether deciding it took a solve (an LMI condition): ``analyse(problem, solver=False)``
         leaves such conditions out, and :func:`uiofmu.verify`, which runs no solver, keeps the card's
         as the solver's record.
+    hint : str
+        For a failing condition, what would make it hold when that can be computed cheaply (an extra
+        measurement, another sampling period, a slower decay, more delays), checked by recomputing the
+        condition with the change applied; empty otherwise.
     """
 
     name: str
@@ -58,11 +62,17 @@ class Condition:
     message: str
     values: dict = field(default_factory=dict)
     solver: bool = False
+    hint: str = ""
 
     def to_data(self) -> dict:
-        """JSON-ready form."""
+        """JSON-ready form (``hint`` only when there is one)."""
         return {"name": self.name, "holds": bool(self.holds), "required": self.required,
-                "message": self.message, "values": self.values, **({"solver": True} if self.solver else {})}
+                "message": self.message, "values": self.values, **({"solver": True} if self.solver else {}),
+                **({"hint": self.hint} if self.hint else {})}
+
+    def explained(self) -> str:
+        """The message, and the hint when there is one (``...; would help: ...``)."""
+        return f"{self.message}; would help: {self.hint}" if self.hint else self.message
 
 
 @dataclass(frozen=True)
@@ -91,7 +101,7 @@ class Existence:
         """Return self, or raise :class:`NoObserverError` naming the failed conditions."""
         if not self.exists:
             raise NoObserverError(f"no {self.family} observer exists: "
-                                  + "; ".join(c.message for c in self.failures))
+                                  + "; ".join(c.explained() for c in self.failures))
         return self
 
     def holds(self, name: str) -> bool:

@@ -51,7 +51,7 @@ from ..runtime.card import MAX_POWER
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..runtime.matrices import as_matrix
 from ..runtime.tolerances import IDENTITY_RTOL, RANK_RTOL
-from ..structure import rank
+from ..structure import product_radius, rank
 from . import Analysis, DesignResult
 
 NAME = "deadbeat-functional"
@@ -355,6 +355,39 @@ def nilpotency_class(mats: list) -> int | None:
     return None if V.shape[1] else h + 1
 
 
+#: Most products of one length :func:`lasting_product` forms.
+MAX_PRODUCTS = 4096
+
+
+def lasting_product(mats: list) -> tuple[tuple, np.ndarray, bool]:
+    """Why matrices that are not a nilpotent semigroup (:func:`nilpotency_class` None) are not: a product of
+    them that never vanishes: the indices ``(i_1, ..., i_L)`` applied in that order, the product
+    ``P_{i_L} ... P_{i_1}``, and whether it has a non-zero eigenvalue (its powers never vanish).
+
+    A finite set of matrices generates a nilpotent semigroup exactly when every product of them is nilpotent
+    (Levitzki), so some product has a non-zero eigenvalue: the one of largest ``rho ** (1 / L)`` up to the
+    dimension's length (:func:`uiofmu.structure.product_radius`, at most :data:`MAX_PRODUCTS` per length).
+    When rounding hides it, the product of the dimension's length of largest norm, built one factor at a time.
+    """
+    h = mats[0].shape[0]
+    radius, sequence = product_radius(mats, max_length=h, max_products=MAX_PRODUCTS)
+    scale = max(1.0, max(float(np.abs(P).max()) for P in mats))
+    if radius > RANK_RTOL ** (1.0 / max(len(sequence), 1)) * scale:
+        return sequence, _product(mats, sequence), True
+    sequence = ()
+    for _ in range(h):
+        sequence += (max(range(len(mats)), key=lambda i: np.linalg.norm(_product(mats, sequence + (i,)))),)
+    return sequence, _product(mats, sequence), False
+
+
+def _product(mats: list, sequence: tuple) -> np.ndarray:
+    """``P_{i_L} ... P_{i_1}`` of the indices ``(i_1, ..., i_L)``."""
+    out = np.eye(mats[0].shape[0])
+    for i in sequence:
+        out = mats[i] @ out
+    return out
+
+
 def _monomial_text(m: tuple) -> str:
     return "1" if not m else "·".join(f"θ_k+{lag}[{i + 1}]" + (f"^{p}" if p > 1 else "") for (lag, i), p in m)
 
@@ -402,11 +435,21 @@ def _analysis(problem):
     if kernel_short:
         conds.append(Condition("Proposition 6", True, False, "G P_i = 0 for every i: K = 0", {"K": 0}))
     if t is None:
+        sequence, product, cycles = lasting_product(Phat)
+        word = "·".join(f"Phat_{i + 1}" for i in reversed(sequence))
         conds.append(Condition("nilpotent semigroup", False, True,
                                "the matrices Phat_i (13) do not generate a nilpotent semigroup (eigenvalues "
                                + _listed(Phat, lambda i, P: f"Phat_{i + 1}: {format_complex(np.linalg.eigvals(P))}")
-                               + "): no finite window gives G x whatever the unknown input",
-                               {"Phat_eigenvalues": [complex_list(np.linalg.eigvals(P)) for P in Phat]}))
+                               + f"): the product {word} (norm {np.linalg.norm(product, 2):.6g}, eigenvalues "
+                               f"{format_complex(np.linalg.eigvals(product))}) "
+                               + ("has a non-zero eigenvalue, so its powers never vanish" if cycles else
+                                  f"of {len(sequence)} factors does not vanish (the dimension {len(product)} bounds "
+                                  "the length of a vanishing product)")
+                               + ": no finite window gives G x whatever the unknown input",
+                               {"Phat_eigenvalues": [complex_list(np.linalg.eigvals(P)) for P in Phat],
+                                "product": [i + 1 for i in sequence],
+                                "product_norm": float(np.linalg.norm(product, 2)),
+                                "product_eigenvalues": complex_list(np.linalg.eigvals(product))}))
         return Existence(NAME, tuple(conds)), None
     K = 0 if kernel_short else max(t - 1, 0)
     conds.append(Condition("nilpotent semigroup", True, True,

@@ -206,6 +206,39 @@ def minimal_delays(n_theta: int, n_y: int) -> int:
     return max(0, -(-n_theta // n_y) - 1)
 
 
+def generic_rank(plant: ParametricPlant, copies: int, seed: int = 0) -> int:
+    """``rank Ca Da`` with ``copies`` copies of the outputs (the current one and ``copies - 1`` delayed ones) at
+    random, independent values: its rank for almost every value of the outputs."""
+    ys = np.random.default_rng(seed).normal(size=(copies, plant.p))
+    Da, _ = stacked(plant.D0, plant.Dy, ys, np.zeros_like(ys))
+    return rank(augmented(plant.C, copies) @ Da)
+
+
+def delays_needed(plant: ParametricPlant) -> int | None:
+    """The fewest delays ``m`` with ``rank Ca Da = n_theta`` at generic outputs (:func:`generic_rank`), or None
+    when no number of them gives it (once a copy adds no rank, no further copy does: they are alike)."""
+    previous = -1
+    for m in range(plant.n_theta):
+        r = generic_rank(plant, m + 1)
+        if r == plant.n_theta:
+            return m
+        if r == previous:
+            return None
+        previous = r
+    return None
+
+
+def _delays_hint(plant: ParametricPlant, delays: tuple, needed: int | None) -> str:
+    """``observer.delays`` with ``needed`` delays (the given ones, then spaced by the shortest), or that none helps."""
+    if needed is None:
+        return ("no number of delays gives rank C D_y = n_theta at generic outputs: theta cannot be identified from "
+                "these outputs (measure more, or estimate fewer parameters)")
+    step = min(delays) if delays else 0.5
+    example = list(delays[:needed]) + [max(delays, default=0.0) + k * step for k in range(1, needed - len(delays) + 1)]
+    return (f"observer.delays with m = {needed} delays, e.g. [{', '.join(f'{t:g}' for t in example)}]: rank C D_y = "
+            f"{plant.n_theta} = n_theta at generic outputs")
+
+
 def symbolic_rank_condition(plant: ParametricPlant, copies: int) -> str:
     """When ``Ca Da`` loses rank, as a condition on the signals: the nonzero ``n_theta`` minors, factored
     (sympy), all vanish. Symbols ``y1, y2, ...`` now and ``y1_t1, ...`` delayed by tau_1."""
@@ -338,19 +371,32 @@ def _analysis(problem):
                            {"rank_CD": r_cd, "rank_D": r_d}))
     m_min = minimal_delays(plant.n_theta, plant.p)
     m = len(opts.delays)
-    ok = m >= m_min
+    needed = delays_needed(plant)
+    enough = None if needed is None else max(m_min, needed)      # the fewest delays that do (None: no number)
+    ok, extra = m >= m_min, m > (enough or m_min)
     conds.append(Condition("delays from rule (7)", ok, True,
                            f"rule (7): n_theta / n_y - 1 <= m < n_theta / n_y gives m = {m_min} "
                            f"(n_theta = {plant.n_theta}, n_y = {plant.p}); observer.delays gives m = {m}"
-                           + ("" if ok else ": too few delays") + (" (more than needed)" if m > m_min else ""),
-                           {"m_rule": m_min, "m": m}))
+                           + ("" if ok else ": too few delays") + (" (more than needed)" if extra else ""),
+                           {"m_rule": m_min, "m": m}, hint="" if ok else _delays_hint(plant, opts.delays, enough)))
     copies = m + 1
     conds.append(Condition("augmented system (8)", True, False,
                            f"augmented state of dimension {plant.n * copies}, outputs {plant.p * copies}, "
                            f"parameters {plant.n_theta}", {"n": plant.n * copies, "p": plant.p * copies}))
-    symbolic = symbolic_rank_condition(plant, copies)
     if not ok:
         return Existence(NAME, tuple(conds)), None
+    r_a = generic_rank(plant, copies)
+    full = r_a == plant.n_theta
+    conds.append(Condition("rank C D_y at generic outputs", full, True,
+                           f"rank C D_y = {r_a} {'=' if full else '<'} n_theta = {plant.n_theta} at generic current "
+                           f"and delayed outputs with m = {m}"
+                           + ("" if full else f": each copy of the outputs adds at most rank C D(y) = {r_cd}, so theta "
+                              "cannot be decoupled on any trajectory"),
+                           {"rank_CaDa": r_a, "n_theta": plant.n_theta},
+                           hint="" if full else _delays_hint(plant, opts.delays, needed)))
+    if not full:
+        return Existence(NAME, tuple(conds)), None
+    symbolic = symbolic_rank_condition(plant, copies)
     grid = _premise_grid(json.dumps(problem.data, sort_keys=True, default=lambda x: np.asarray(x).tolist()))
     floor = sigma_floor(grid, opts.premise)
     used = grid.sigmas >= floor
@@ -376,8 +422,8 @@ def _analysis(problem):
 
 
 def analyse(problem, solver: bool = True) -> Analysis:
-    """Rank of the original system, rule (7), the augmented system, the rank of C D_y (symbolic and on
-    the premise family), P_y D_y = 0."""
+    """Rank of the original system, rule (7), the augmented system, the rank of C D_y (at generic outputs, where a
+    refusal names the fewest delays that suffice, then symbolic and on the premise family), P_y D_y = 0."""
     existence, grid = _analysis(problem)
     return Analysis(existence, {"grid": grid})
 

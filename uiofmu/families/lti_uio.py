@@ -54,6 +54,7 @@ from ..decoupling import (
     identifiability_condition,
     parse_period,
     sampled_decoupling_conditions,
+    short_above,
 )
 from ..consistency import computed_values, condition, conditioned, dhat_record, first, spectrum
 from ..runtime.card import DHAT
@@ -142,7 +143,9 @@ def _analysis(problem):
             f"requested decay {opts.decay:g} > largest fixed mode modulus {largest:.6g}" if ok else
             f"requested decay {opts.decay:g} <= largest fixed mode modulus {largest:.6g}: no gain K moves "
             "that mode, ask for a slower decay or decay = \"max\"",
-            {"decay": opts.decay, "largest_fixed_modulus": largest}))
+            {"decay": opts.decay, "largest_fixed_modulus": largest},
+            hint="" if ok else f"decay = {short_above(largest + ZERO_MARGIN):g}, just slower than the largest fixed "
+                               "mode (or decay = \"max\")"))
     return Existence(NAME, tuple(conds)), s, fixed
 
 

@@ -56,6 +56,7 @@ from ..decoupling import (
     identifiability_condition,
     parse_period,
     sampled_decoupling_conditions,
+    short_below,
 )
 from ..gains import cap_lmis
 from ..consistency import Determined, computed_values, condition, conditioned, dhat_record, spectrum
@@ -143,7 +144,8 @@ def _analysis(problem):
              "vertex (34) can hold") if ok else
             (f"sqrt(1 - eta) = {np.sqrt(1 - opts.eta):.6g} (eta = {opts.eta:g}) <= largest fixed mode {zmax:.6g}: "
              f"LMI (34) cannot hold; eta must be < 1 - {zmax:.6g}^2 = {1 - zmax * zmax:.6g}"),
-            {"eta": opts.eta, "largest_fixed_modulus": zmax}))
+            {"eta": opts.eta, "largest_fixed_modulus": zmax},
+            hint="" if ok else _below("eta", 1.0 - (zmax + ZERO_MARGIN) ** 2, "the largest fixed mode")))
         _, A1, _, _ = _vertices(s, plant.C, opts.alpha)
         f1 = unobservable_modes(A1, plant.C)
         f1max = float(np.abs(f1).max()) if f1.size else 0.0
@@ -163,8 +165,15 @@ def _analysis(problem):
                 "transient vertex (A_1, C)", ok, True,
                 f"sqrt(1 - tau_1) = {np.sqrt(1 - tau1):.6g} > largest fixed mode of (A_1, C) {f1max:.6g}" if ok else
                 f"sqrt(1 - tau_1) = {np.sqrt(1 - tau1):.6g} (tau_1 = {tau1:g}) <= largest fixed mode of (A_1, C) "
-                f"{f1max:.6g}: LMI (33) cannot hold; mu must be < {mu_limit:.6g}", info))
+                f"{f1max:.6g}: LMI (33) cannot hold; mu must be < {mu_limit:.6g}", info,
+                hint="" if ok else _below("mu", (1.0 - (f1max + ZERO_MARGIN) ** 2) / opts.eta - 1.0,
+                                          "the fixed modes of (A_1, C)")))
     return Existence(NAME, tuple(conds)), s, fixed, info
+
+
+def _below(key: str, limit: float, what: str) -> str:
+    """The hint for a tunable that must stay below ``limit`` (none when no positive value does)."""
+    return f"{key} = {short_below(limit):g}: {key} < {limit:.6g} clears {what}" if limit > 0 else ""
 
 
 def analyse(problem, solver: bool = True) -> Analysis:

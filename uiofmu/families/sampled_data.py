@@ -59,10 +59,16 @@ from ..certificate import (
 )
 from ..gains import cap_lmis, two_norms
 from ..decoupling import (
+    decoupling_verdict,
+    either,
     fixed_modes_condition,
     identifiability_condition,
+    measurement_hint,
+    period_hint,
     rank_condition,
+    short_below,
     weak_modes_condition,
+    with_hint,
     zeros_condition,
 )
 from ..consistency import Determined, computed_values, dhat_record, eigen_rtol, spectrum
@@ -228,10 +234,11 @@ def _analysis(problem, solver: bool = True):
         info = {"largest_zero_modulus": zmax, "at_interval": zarg, "alpha_limit": limit}
         if opts.alpha == "max":
             conds.append(Condition(
-                "decay limited by sampled zeros", True, False,
+                "decay limited by sampled zeros", limit > 0, False,
+                "no sampled invariant zero limits the decay (alpha < 1)" if not zmax > 0 else
                 (f"the sampled invariant zero {zmax:.6g} (h = {zarg:g} s) limits any exactly-decoupling observer "
-                 f"to a decay above {zmax:.6g} per sample, i.e. alpha < 1 - {zmax:.6g}^2 = {limit:.6g}") if zmax > 0
-                else "no sampled invariant zero limits the decay (alpha < 1)", info))
+                 f"to a decay above {zmax:.6g} per sample, i.e. alpha < 1 - {zmax:.6g}^2 = {limit:.6g}") if limit > 0
+                else f"the sampled invariant zero {zmax:.6g} (h = {zarg:g} s) leaves no alpha > 0", info))
         else:
             delta = float(np.sqrt(1 - opts.alpha))
             ok = delta > zmax + ZERO_MARGIN
@@ -242,7 +249,39 @@ def _analysis(problem, solver: bool = True):
                 (f"requested decay sqrt(1 - alpha) = {delta:.6g} (alpha = {opts.alpha:g}) <= largest sampled "
                  f"invariant zero {zmax:.6g} (h = {zarg:g} s): no exactly-decoupling observer converges faster; "
                  f"alpha must be < 1 - {zmax:.6g}^2 = {limit:.6g} (or \"max\")"), {**info, "decay": delta}))
+    conds = with_hint(conds, lambda failed: _hint(plant, opts.intervals, max(zmax, floor), failed))
     return Existence(NAME, tuple(conds)), samples, max(zmax, floor)
+
+
+#: The per-interval conditions of exact decoupling, by their name here and in :mod:`uiofmu.decoupling`.
+DECOUPLING = {"rank(C E(h)) = rank(E(h))": "rank(CE) = rank(E)",
+              "stable sampled invariant zeros": "stable invariant zeros",
+              "detectable decoupled pairs": "detectable decoupled pair"}
+
+
+def _verdict(plant, intervals, C, target: str) -> tuple[Condition, bool]:
+    """:func:`uiofmu.decoupling.decoupling_verdict` at every interval: the ``target`` condition over the
+    intervals (as :func:`_per_interval` states it) and whether every condition holds at every interval."""
+    verdicts = [decoupling_verdict(plant.sampled(h).A, plant.sampled(h).E, C, DECOUPLING[target], f" at h = {h:g} s")
+                for h in intervals]
+    return _per_interval([c for c, _ in verdicts], target, intervals), all(every for _, every in verdicts)
+
+
+def _hint(plant, intervals, bound: float, failed: Condition) -> str:
+    """What would make the failing condition hold: a measured state or other intervals for exact decoupling,
+    an alpha below the limit that the decay ``bound`` per sample (the sampled zeros, the fixed error under
+    switching) sets for a decay it forbids."""
+    if failed.name in ("decay above sampled zeros", "fixed error under switching"):
+        limit = 1.0 - (bound + ZERO_MARGIN) ** 2
+        return (f"alpha = {short_below(limit):g}: alpha < {limit:.6g} clears the sampled zeros and the fixed error "
+                "under switching" if limit > 0 else "")
+    if failed.name not in DECOUPLING:
+        return ""
+    target = DECOUPLING[failed.name]
+    scaled = period_hint(intervals, lambda hs: all(decoupling_verdict(plant.sampled(h).A, plant.sampled(h).E, plant.C,
+                                                                      target)[1] for h in hs), "observer.intervals")
+    measure = measurement_hint(plant.C, lambda C2: _verdict(plant, intervals, C2, failed.name), cost=len(intervals))
+    return either(scaled, measure)
 
 
 def existence_of(conds, name: str) -> bool:
