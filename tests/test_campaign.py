@@ -14,6 +14,8 @@ import pytest
 
 from conftest import EXAMPLES, run_cli
 
+from uiofmu.runtime.errors import ProblemError
+
 pytest.importorskip("distributed")
 
 T_END = 20.0   # 200 steps of seed 000 Example 1
@@ -33,7 +35,24 @@ def fmus(example1_card, example1_path, tmp_path_factory):
     return plant, observer, card
 
 
-def campaign_file(folder, fmus, runs=60, steps='["fixed:0.1", "fixed:0.1", "fixed:0.15"]', extra="") -> str:
+@pytest.fixture(scope="module")
+def counting_fmus(tmp_path_factory):
+    """The ltv-auid observer of seed 000 Example 1 with step_policy = "count" (it takes a step of any length)
+    and the same discrete plant (it takes steps of its dt = 0.1 s only): runs on other steps fail in the plant."""
+    from uiofmu import design, load_problem
+    from uiofmu.fmu.export import build_observer, build_plant
+
+    folder = tmp_path_factory.mktemp("counting_fmus")
+    text = (EXAMPLES / "seed000_example1_ltv.toml").read_text().replace("mu = 90.0", 'mu = 90.0\nstep_policy = "count"')
+    (folder / "problem.toml").write_text(text)
+    problem = load_problem(folder / "problem.toml")
+    card = design(problem)
+    observer = build_observer(card, folder / "observer.fmu")
+    plant = build_plant(problem.plant, problem.name, folder / "plant.fmu", step=problem.options.step)
+    return plant, observer, card
+
+
+def campaign_file(folder, fmus, runs=60, steps='["fixed:0.1", "choice:0.1"]', extra="") -> str:
     plant, observer, _ = fmus
     path = folder / "campaign.toml"
     path.write_text(f'[campaign]\nobserver = "{observer}"\nplant = "{plant}"\nruns = {runs}\nseed = 5\n'
@@ -44,25 +63,28 @@ def campaign_file(folder, fmus, runs=60, steps='["fixed:0.1", "fixed:0.1", "fixe
     return str(path)
 
 
+FAILING_STEPS = "uniform:0.12:0.2"
+
+
 @pytest.fixture(scope="module")
-def campaign_run(fmus, tmp_path_factory):
-    """One campaign of 60 runs on a LocalCluster of 2 workers (a third of them on a step the FMUs refuse)."""
+def campaign_run(counting_fmus, tmp_path_factory):
+    """One campaign of 60 runs on a LocalCluster of 2 workers (a third of them on steps the plant refuses)."""
     folder = tmp_path_factory.mktemp("campaign")
-    spec = campaign_file(folder, fmus)
+    spec = campaign_file(folder, counting_fmus, steps=f'["fixed:0.1", "fixed:0.1", "{FAILING_STEPS}"]')
     out = folder / "out"
     result = run_cli("campaign", spec, "--out", out, "--workers", "2")
     assert result.code == 0, result.err
     return spec, out, result
 
 
-def test_worst_case_equals_the_runs_one_by_one(campaign_run, fmus):
+def test_worst_case_equals_the_runs_one_by_one(campaign_run, counting_fmus):
     from uiofmu.cosim.campaign import load_campaign, prepare, read_table, scaled_inputs, scenario
     from uiofmu.cosim.master import cosimulate, default_inputs
     from uiofmu.cosim.steps import step_sequence
     from uiofmu.runtime.errors import FmuError
 
     spec, out, _ = campaign_run
-    plant, observer, card = fmus
+    plant, observer, card = counting_fmus
     summary = json.loads((out / "summary.json").read_text())
     table = read_table(out / "campaign.csv")
     assert summary["runs"] == summary["finished"] == len(table) == 60
@@ -99,12 +121,90 @@ def test_a_refused_step_is_recorded_and_the_campaign_goes_on(campaign_run):
     _, out, result = campaign_run
     table = read_table(out / "campaign.csv")
     failed = [r for r in table if r["status"] != "ok"]
-    assert failed and all(r["steps"] == "fixed:0.15" and r["status"] == "failed" for r in failed)
-    assert all("refused step 0" in r["reason"] and "h = 0.15 s" in r["reason"] for r in failed)
+    assert failed and all(r["steps"] == FAILING_STEPS and r["status"] == "failed" for r in failed)
+    assert all("plant FMU refused step 0" in r["reason"] for r in failed)
+    assert len({r["reason"] for r in failed}) == len(failed) > 1      # each run its own step h
     assert all(r["status"] == "ok" for r in table if r["steps"] == "fixed:0.1")
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["failure_reasons"][0]["count"] == len(failed)
-    assert "failure(s)" in result.out
+    [kind] = summary["failure_reasons"]                                 # one kind of failure
+    assert kind["count"] == len(failed) and kind["status"] == "failed"
+    assert kind["kind"] == ("the plant FMU refused step # (t = # s, h = # s): t = #: this discrete plant steps "
+                            "at dt = # s and received h = # s")
+    assert kind["rows"] == [int(r["row"]) for r in failed][:20]
+    assert kind["example"] == failed[0]["reason"]
+    assert f"{len(failed):>6} x failed   {kind['kind']}" in result.out
+    assert f"e.g. row {failed[0]['row']}: {failed[0]['reason'][:160]}" in result.out
+
+
+def test_every_run_at_the_bound_start_is_said_instead_of_a_row(campaign_run):
+    """The ratio is measured from k = 1 on (at k = 0 it is 1 / overshoot by construction); the summary says
+    whether every run is nearest its bound at k = 1, and then names no row."""
+    from uiofmu.cosim.campaign import read_table
+
+    _, out, result = campaign_run
+    table = [r for r in read_table(out / "campaign.csv") if r["status"] == "ok"]
+    worst = json.loads((out / "summary.json").read_text())["worst_max_bound_ratio"]
+    steps = {int(r["max_bound_ratio_step"]) for r in table}
+    assert min(steps) >= 1 and worst["step"] == int(table[[float(r["max_bound_ratio"]) for r in table].index(
+        worst["value"])]["max_bound_ratio_step"])
+    assert worst["every_run_at_bound_start"] == (steps == {1})
+    line = next(line for line in result.out.splitlines() if "worst bound ratio" in line)
+    if worst["every_run_at_bound_start"]:
+        assert "every run nearest its bound at k = 1 (the bound's start" in line and "row" not in line, line
+    else:
+        assert f"row {worst['row']} at k = {worst['step']}" in line, line
+
+
+def test_failure_reasons_are_grouped_by_kind():
+    from uiofmu.cosim.campaign import Tally, reason_kind
+
+    assert reason_kind("step 12 (t = 1.2 s, h = -1.5e-3 s) x[2] fmi2Discard dt = 0.1.") == \
+        "step # (t = # s, h = # s) x[#] fmi2Discard dt = #."
+    tally = Tally()
+    reasons = [("failed", "refused step 3 (h = 0.13 s)"), ("failed", "refused step 7 (h = 0.1875 s)"),
+               ("crashed", "refused step 4 (h = 0.5 s)"), ("failed", "y[1] is not finite")]
+    for row, (status, reason) in enumerate(reasons):
+        tally.add(row, {"status": status, "reason": reason})
+    groups = sorted(tally.reasons.values(), key=lambda e: -e["count"])
+    assert [(g["status"], g["kind"], g["count"], g["rows"], g["example"]) for g in groups] == [
+        ("failed", "refused step # (h = # s)", 2, [0, 1], "refused step 3 (h = 0.13 s)"),
+        ("crashed", "refused step # (h = # s)", 1, [2], "refused step 4 (h = 0.5 s)"),
+        ("failed", "y[#] is not finite", 1, [3], "y[1] is not finite")]
+
+
+STEPS_REFUSED = [
+    ('["fixed:0.1", "uniform:0.05:0.2"]', "axes.steps[1] = 'uniform:0.05:0.2': steps from 0.05 to 0.2 s"),
+    ('"fixed:0.15"', "axes.steps[0] = 'fixed:0.15': a step of 0.15 s"),
+    ('["choice:0.1,0.10000005,0.1001"]', "axes.steps[0] = 'choice:0.1,0.10000005,0.1001': a step of 0.1001 s"),
+    ('["dropout:0.1:0.3:2"]', "axes.steps[0] = 'dropout:0.1:0.3:2': a step of 0.2 s"),
+]
+
+
+@pytest.mark.parametrize("steps, message", STEPS_REFUSED)
+def test_steps_the_observer_cannot_take_exit_2_before_any_run(fmus, tmp_path, steps, message):
+    """A step SPEC that can give a step the observer refuses is refused at once, with its steps."""
+    result = run_cli("campaign", campaign_file(tmp_path, fmus, steps=steps), "--out", tmp_path / "out")
+    assert result.code == 2 and result.err.count("\n") == 1, result.err
+    assert message in result.err and "the observer takes only its design period, 0.1 s (within 1e-06 relative; " \
+        "schedule.step_policy = 'error'); e.g. fixed:0.1" in result.err, result.err
+    assert "worker" not in result.out and not (tmp_path / "out" / "campaign.csv").exists()
+
+
+def test_steps_the_observer_takes_pass_the_check(fmus, counting_fmus, tmp_path):
+    from uiofmu.cosim.campaign import check_steps_axis
+
+    (tmp_path / "steps.txt").write_text("0.1\n0.10000001\n# a comment\n0.3\n")
+    taken = ["fixed:0.1", "choice:0.1,0.10000001", "dropout:0.1:0:5", "uniform:0.1:0.10000005",
+             f"file:{tmp_path / 'steps.txt'}"]
+    check_steps_axis(taken[:-1], fmus[2], 20.0)
+    check_steps_axis(taken[-1:], fmus[2], 0.2)         # the line 0.3 lies past t_end
+    with pytest.raises(ProblemError, match="a step of 0.3 s"):
+        check_steps_axis(taken[-1:], fmus[2], 0.25)
+    check_steps_axis(["uniform:0.01:5", "dropout:0.1:0.9:100"], counting_fmus[2], 20.0)   # step_policy count
+    with pytest.raises(ProblemError) as info:                  # a long SPEC is shown by its start and length
+        check_steps_axis(["choice:" + ",".join(["0.2"] * 100_000)], fmus[2], 20.0)
+    assert "axes.steps[0] = 'choice:0.2,0.2" in str(info.value) and "(400006 characters)" in str(info.value)
+    assert len(str(info.value)) < 400
 
 
 def test_replay_reproduces_a_row_bit_for_bit(campaign_run):
@@ -472,7 +572,7 @@ def test_the_figure_and_summary_skip_non_finite_figures(tmp_path):
     for row, (t, ratio) in enumerate([(1.0, 0.5), (float("inf"), float("nan")), (2.0, float("inf"))]):
         tally.add(row, {"status": "ok", "time_to_1pct": t, "max_bound_ratio": ratio})
     tally.add(3, {"status": "failed", "reason": "refused"})
-    assert tally.worst == (float("inf"), 2, None)
+    assert tally.worst == (float("inf"), 2, None, None)
     quant = tally.quantiles()
     assert quant["time_to_1pct"]["count"] == 3 and quant["time_to_1pct"]["non_finite"] == 1
     assert quant["time_to_1pct"]["q100"] == 2.0 and quant["max_bound_ratio"]["q00"] == 0.5
@@ -548,3 +648,37 @@ def test_an_error_never_quotes_a_step_file(tmp_path):
     result = run_cli("campaign", spec, "--out", tmp_path / "out")
     assert result.code == 2 and "axes.steps[0]: line 1 of" in result.err and "must be a number" in result.err
     assert "SECRET" not in result.err and "root:x" not in result.err, result.err
+
+
+@pytest.mark.parametrize("values", [[1 - 1e-9 * k for k in range(60)], np.linspace(0.999, 0.9999999, 60).tolist(),
+                                    [0.9766093529235645 + 1e-16 * k for k in range(60)]])
+def test_the_bound_ratio_axis_is_in_plain_numbers(values):
+    """No axis labelled ``1e-6+1``: an offset-free axis, one bar for values within 1e-6 of each other."""
+    from uiofmu.cosim.campaign import _hist
+    from uiofmu.cosim.report import pyplot
+
+    plt = pyplot()[0]
+    fig, ax = plt.subplots()
+    try:
+        assert _hist(ax, values, "tab:green", marks=(1.0,)) == 60
+        ax.axvline(1.0)
+        fig.canvas.draw()
+        assert ax.xaxis.get_offset_text().get_text() == ""
+        labels = [t.get_text() for t in ax.get_xticklabels()]
+        if max(values) - min(values) < 1e-6:
+            assert len(ax.patches) == 1 and labels[0] == f"{min(values):.6g}", labels
+            text = ax.texts[0].get_text()
+            assert text.startswith("all 60 ") and f"{min(values):.10g}" in text
+    finally:
+        plt.close(fig)
+
+
+def test_the_tally_knows_when_every_run_is_at_the_bound_start():
+    from uiofmu.cosim.campaign import Tally
+
+    tally = Tally()
+    for row, ratio in enumerate([0.5, 0.75, 0.75]):
+        tally.add(row, {"status": "ok", "max_bound_ratio": ratio, "max_bound_ratio_step": 1})
+    assert tally.ratios == tally.ratios_at_start == 3 and tally.worst == (0.75, 1, None, 1)
+    tally.add(3, {"status": "ok", "max_bound_ratio": 0.25, "max_bound_ratio_step": 7})
+    assert tally.ratios == 4 and tally.ratios_at_start == 3

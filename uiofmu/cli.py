@@ -295,12 +295,13 @@ def _cmd_report(args) -> int:
 
 def _cmd_campaign(args) -> int:
     from .cosim.campaign import load_campaign, replay, run_campaign
+    from .cosim.steps import short_spec
 
     campaign = load_campaign(args.spec)
     check_output_dir(args.out, "--out folder")
     if args.replay is not None:
         rep = replay(campaign, args.out, args.replay)
-        print(f"{args.spec}: row {args.replay} replayed ({rep['scenario']['steps']}, seed "
+        print(f"{args.spec}: row {args.replay} replayed ({short_spec(rep['scenario']['steps'])}, seed "
               f"{rep['scenario']['steps_seed']}): {rep['status']}" + (f" ({rep['reason']})" if rep["reason"] else ""))
         if rep["metrics"] is not None:
             print_summary(rep["metrics"], rep["paths"])
@@ -312,10 +313,17 @@ def _cmd_campaign(args) -> int:
     print(f"  finished             {data['finished']} runs in {data['elapsed_s']:.1f} s "
           f"({data['runs_per_s']:.2f} runs/s), {data['failures']} failure(s)")
     worst = data.get("worst_max_bound_ratio")
-    if worst:
-        print(f"  worst bound ratio    {worst['value']:.6g} (row {worst['row']}, steps {worst['scenario']['steps']})")
+    if worst and worst["every_run_at_bound_start"]:
+        print(f"  worst bound ratio    {worst['value']:.6g}, every run nearest its bound at k = 1 (the bound's "
+              "start; at k = 0 the ratio is 1 / overshoot by construction)")
+    elif worst:
+        print(f"  worst bound ratio    {worst['value']:.6g} (row {worst['row']} at k = {worst['step']}, steps "
+              f"{short_spec(worst['scenario']['steps'])})")
     for entry in data["failure_reasons"][:3]:
-        print(f"  {entry['count']:>6} x {entry['status']:<8} {entry['reason'][:160]}")
+        print(f"  {entry['count']:>6} x {entry['status']:<8} {entry['kind'][:160]}")
+        print(f"{'':17}e.g. row {entry['rows'][0]}: {entry['example'][:160]}")
+    if len(data["failure_reasons"]) > 3:
+        print(f"{'':17}{len(data['failure_reasons']) - 3} more kind(s) of failure in the summary")
     print(f"  table                {Path(args.out) / 'campaign.csv'}")
     print(f"  summary              {Path(args.out) / 'summary.json'}")
     print(f"  figure               {Path(args.out) / 'campaign.png'}")

@@ -80,7 +80,8 @@ AXIS_LIMIT = 1e100
 BATCHES_PER_WORKER = 8
 #: Seconds to reach a Dask scheduler, hear its handshake and see a worker.
 SCHEDULER_TIMEOUT_S = 10.0
-#: Distinct failure reasons counted one by one in the summary (the others are counted together).
+#: Kinds of failure reasons (:func:`reason_kind`) counted one by one in the summary (the others are
+#: counted together).
 MAX_REASONS = 1000
 #: The outputs of a campaign, replaced together.
 OUTPUTS = ("campaign.csv", "summary.json", "campaign.png")
@@ -605,9 +606,49 @@ def prepare(campaign: Campaign, out=None, say=None) -> Setup:
     plant_bytes = read_bytes(plant, "plant FMU", error=FmuError)
     observer_bytes = read_bytes(observer, "observer FMU", error=FmuError)
     t_end = campaign.t_end if campaign.t_end is not None else default_t_end(card)
+    check_steps_axis(campaign.steps, card, t_end)
     return Setup(plant_bytes, observer_bytes, _digest(plant_bytes, observer_bytes), t_end, n, parameters,
                  default_steps(card), card.name, has_xhat0, integers=integers, plant_path=Path(plant),
                  observer_path=Path(observer))
+
+
+def _seconds(low: float, high: float) -> str:
+    return f"a step of {low:g} s" if low == high else f"steps from {low:g} to {high:g} s"
+
+
+def check_steps_axis(specs, card, t_end: float) -> None:
+    """Refuse a step SPEC of the ``steps`` axis that can give a step the observer does not take.
+
+    Parameters
+    ----------
+    specs : sequence of str
+        The axis' SPECs.
+    card : uiofmu.runtime.card.Card
+        The observer's card (its schedule decides the steps it takes:
+        :func:`uiofmu.runtime.schedules.takes_steps`).
+    t_end : float
+        The campaign's horizon (a step file's steps past it are not taken).
+
+    Raises
+    ------
+    ProblemError
+        Naming the axis value, a step it can give, the steps the observer takes and a SPEC it takes.
+    """
+    from ..runtime.observer import Runtime
+    from ..runtime.schedules import takes_steps
+    from .master import default_steps
+    from .steps import short_spec, step_ranges
+
+    schedule = Runtime(card).schedule
+    for i, spec in enumerate(specs):
+        bad = next(((lo, hi) for lo, hi in step_ranges(spec, t_end) if not takes_steps(schedule, lo, hi)), None)
+        if bad is None:
+            continue
+        taken = ", ".join(f"{h:g}" for h in schedule.admissible_steps())
+        what = "its design period" if len(schedule.admissible_steps()) == 1 else "one of its design intervals"
+        raise ProblemError(f"axes.steps[{i}] = {short_spec(spec)!r}: {_seconds(*bad)}, and the observer takes only "
+                           f"{what}, {taken} s (within {schedule.step_rtol:g} relative; schedule.step_policy = "
+                           f"{schedule.policy!r}); e.g. {default_steps(card)}")
 
 
 def _vector_types(variables, causality: str) -> dict:
@@ -1162,14 +1203,30 @@ class RowFile:
         self.file.close()
 
 
+_NUMBER = re.compile(r"(?<![\w.])[-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?(?!\w)")
+
+
+def reason_kind(reason: str) -> str:
+    """A failure reason with its numbers masked as ``#`` (not the digits inside a name such as
+    ``fmi2Discard``): the reasons of one kind of failure, whatever its step, time or value.
+
+    Examples
+    --------
+    >>> reason_kind("refused step 12 (t = 1.2 s): h = 1.5e-3 s is not dt = 0.1 s (fmi2Discard)")
+    'refused step # (t = # s): h = # s is not dt = # s (fmi2Discard)'
+    """
+    return _NUMBER.sub("#", reason)
+
+
 class Tally:
     """What the summary and the figure need of the finished rows, kept compact: counters, the failure
-    reasons (at most :data:`MAX_REASONS` distinct ones), the worst bound ratio and its row, and per
-    :data:`QUANTILE_KEYS` figure an array of doubles of its values. Rows must come in row order (the
-    worst ratio's row is then the first of equal ratios)."""
+    reasons grouped by kind (:func:`reason_kind`; at most :data:`MAX_REASONS` kinds, each with its count,
+    one example and its first rows), the worst bound ratio and its row (and how many runs have their
+    largest ratio at k = 1), and per :data:`QUANTILE_KEYS` figure an array of doubles of its values.
+    Rows must come in row order (the worst ratio's row is then the first of equal ratios)."""
 
     def __init__(self):
-        self.finished = self.ok = self.violations = self.other_reasons = 0
+        self.finished = self.ok = self.violations = self.other_reasons = self.ratios = self.ratios_at_start = 0
         self.reasons: dict = {}
         self.worst: tuple | None = None
         self.values = {key: array("d") for key in QUANTILE_KEYS}
@@ -1188,18 +1245,22 @@ class Tally:
                 if result[key] is not None:
                     self.values[key].append(result[key])
         ratio = result.get("max_bound_ratio")
-        if ratio is not None and not math.isnan(ratio) and (self.worst is None or ratio > self.worst[0]):
-            self.worst = (ratio, row, result.get("bound_respected"))
+        if ratio is not None and not math.isnan(ratio):
+            self.ratios += 1
+            self.ratios_at_start += result.get("max_bound_ratio_step") == 1
+            if self.worst is None or ratio > self.worst[0]:
+                self.worst = (ratio, row, result.get("bound_respected"), result.get("max_bound_ratio_step"))
         self.violations += result.get("bound_respected") is False
 
     def _failure(self, row: int, result: dict) -> None:
-        entry = self.reasons.get(result["reason"])
+        kind = (result["status"], reason_kind(result["reason"]))
+        entry = self.reasons.get(kind)
         if entry is None:
             if len(self.reasons) >= MAX_REASONS:
                 self.other_reasons += 1
                 return
-            entry = self.reasons[result["reason"]] = {"reason": result["reason"], "status": result["status"],
-                                                      "count": 0, "rows": []}
+            entry = self.reasons[kind] = {"kind": kind[1], "status": result["status"], "count": 0,
+                                          "example": result["reason"], "rows": []}
         entry["count"] += 1
         if len(entry["rows"]) < 20:
             entry["rows"].append(row)
@@ -1226,8 +1287,10 @@ class Tally:
 
 def summary(campaign: Campaign, setup: Setup, tally: Tally, cancelled: bool = False,
             elapsed: float | None = None, workers: int | None = None, startup_s: float | None = None) -> dict:
-    """``summary.json``: runs, failures and their reasons, the worst bound ratio with its row and
-    scenario, quantiles of the convergence figures; ``elapsed_s`` and ``runs_per_s`` count from the
+    """``summary.json``: runs, failures and their reasons by kind, the worst bound ratio with its row,
+    step and scenario (``every_run_at_bound_start``: every run's largest ratio is at k = 1, the first
+    step it is measured at, so the worst row stands out by that step alone), quantiles of the
+    convergence figures; ``elapsed_s`` and ``runs_per_s`` count from the
     cluster's start (``cluster_startup_s`` before it) to the last row."""
     ranked = sorted(tally.reasons.values(), key=lambda e: -e["count"])
     out = {"campaign": str(campaign.path), "observer": setup.name, "runs": campaign.runs,
@@ -1236,9 +1299,10 @@ def summary(campaign: Campaign, setup: Setup, tally: Tally, cancelled: bool = Fa
     if tally.other_reasons:
         out["failures_of_other_reasons"] = tally.other_reasons
     if tally.worst is not None:
-        value, row, respected = tally.worst
-        out["worst_max_bound_ratio"] = {"value": value, "row": row, "scenario": scenario(campaign, setup, row),
-                                        "bound_respected": respected}
+        value, row, respected, step = tally.worst
+        out["worst_max_bound_ratio"] = {"value": value, "row": row, "step": step,
+                                        "scenario": scenario(campaign, setup, row), "bound_respected": respected,
+                                        "every_run_at_bound_start": tally.ratios_at_start == tally.ratios}
         out["bound_violations"] = tally.violations
     else:
         out["worst_max_bound_ratio"] = None
@@ -1496,6 +1560,7 @@ def replay(campaign: Campaign, out, row: int) -> dict:
         very same numbers; None without one).
     """
     from .master import write_outputs
+    from .steps import short_spec
 
     out = check_output_dir(out, "--out folder")
     setup = prepare(campaign, out)
@@ -1510,7 +1575,8 @@ def replay(campaign: Campaign, out, row: int) -> dict:
         status, reason = "ok", ""
     paths = {"scenario": folder / "scenario.json"}
     if result is not None:
-        paths.update(write_outputs(result, folder, title=f"{setup.name}: campaign row {row}, steps {sc['steps']}"))
+        title = f"{setup.name}: campaign row {row}, steps {short_spec(sc['steps'])}"
+        paths.update(write_outputs(result, folder, title=title))
     matches = None
     table = out / "campaign.csv"
     if table.is_file():
@@ -1526,8 +1592,10 @@ def replay(campaign: Campaign, out, row: int) -> dict:
 # --------------------------------------------------------------------------------------------
 # the figure
 # --------------------------------------------------------------------------------------------
-def _hist(ax, values, color) -> int:
-    """A histogram of the finite values that copes with values all (nearly) equal; how many it drew."""
+def _hist(ax, values, color, marks: tuple = ()) -> int:
+    """A histogram of the finite values, its axis in plain numbers (no offset such as ``1e-6+1``); values
+    all (nearly) equal give one bar, wide enough to see beside the ``marks`` (x positions the caller
+    draws), ticked at its value and annotated with the spread. How many values it drew."""
     values = np.asarray(values, dtype=float)
     values = values[np.isfinite(values)]
     if not values.size:
@@ -1535,9 +1603,18 @@ def _hist(ax, values, color) -> int:
     lo, hi = float(values.min()), float(values.max())
     pad = max(abs(hi) * 1e-6, 1e-12)
     if hi - lo < pad:
+        far = [m for m in marks if abs(m - lo) > pad]
+        pad = max([pad] + [0.02 * abs(m - lo) for m in far])
         ax.hist(values, bins=1, range=(lo - pad, hi + pad), color=color)
+        ax.set_xticks([lo, *far])
+        ax.set_xticklabels([f"{x:.6g}" for x in (lo, *far)])
+        same = f"all {values.size} at {lo:.10g}" if lo == hi else \
+            f"all {values.size} within {hi - lo:.1e} of {lo:.10g}"
+        ax.annotate(same, (0.5, 0.5), xycoords="axes fraction", ha="center", color="black",
+                    bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
     else:
         ax.hist(values, bins=min(40, max(5, len(values) // 5)), range=(lo, hi), color=color)
+        ax.ticklabel_format(axis="x", style="plain", useOffset=False)
     return values.size
 
 
@@ -1573,10 +1650,10 @@ def plot_campaign(tally: Tally, worst_result, worst: dict | None, path, title: s
     ax.set_ylabel("runs")
     ax.set_title(f"convergence ({drawn} runs" + (f", {never} never" if never else "") + ")")
     ax = axes[1]
-    if _hist(ax, tally.values["max_bound_ratio"], "tab:green"):
+    if _hist(ax, tally.values["max_bound_ratio"], "tab:green", marks=(1.0,)):
         ax.axvline(1.0, color="tab:red", linestyle="--", label="bound")
         ax.legend()
-    ax.set_xlabel("max_k ||e_k|| / certified bound_k")
+    ax.set_xlabel("max over k >= 1 of ||e_k|| / certified bound_k")
     ax.set_title(f"bound ratio ({tally.finished - tally.ok} failed run(s))")
     ax = axes[2]
     if worst_result is not None:
@@ -1585,7 +1662,11 @@ def plot_campaign(tally: Tally, worst_result, worst: dict | None, path, title: s
         if worst_result.bound is not None:
             ax.semilogy(worst_result.times, np.maximum(worst_result.bound, 1e-300), "--", label="certified bound")
         ax.legend()
-        ax.set_title(f"worst run: row {worst['row']} (ratio {worst['value']:.4g})")
+        if worst.get("every_run_at_bound_start"):
+            ax.set_title(f"every run nearest its bound at k = 1 (ratio up to {worst['value']:.4g}); row {worst['row']}",
+                         fontsize=10)
+        else:
+            ax.set_title(f"worst run: row {worst['row']} (ratio {worst['value']:.4g} at k = {worst['step']})")
     else:
         ax.set_title("worst run: none with a bound")
     ax.set_xlabel("time [s]")

@@ -19,6 +19,13 @@ def settling_index(norms: np.ndarray, fraction: float) -> int | None:
     return k if k < norms.size else None
 
 
+def bound_ratio_step(ratio: np.ndarray) -> int:
+    """The step k >= 1 of the largest ratio of the error to its bound (the first of equal ones; 0 for a
+    run without steps): at k = 0 the bound is ``M ||e_0||`` and the ratio ``1 / M`` by construction (1
+    with an overshoot of 1), which says nothing of the run."""
+    return int(np.argmax(ratio[1:])) + 1 if ratio.size > 1 else 0
+
+
 def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.ndarray,
                   bound: np.ndarray | None = None, decay: float | None = None, overshoot: float | None = None,
                   d: np.ndarray | None = None, dhat: np.ndarray | None = None,
@@ -53,10 +60,11 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
     dict
         ``steps``, ``initial_error_norm``, ``final_error_norm``, ``rms_error`` (per state),
         ``steps_to_1pct``, ``time_to_1pct``, and when certified ``certified_decay``,
-        ``certified_overshoot``, ``bound_respected``, ``max_bound_ratio``,
-        ``first_bound_violation``, ``bound_rtol``, ``bound_floor`` (``rtol ||e_0||``) and
-        ``points_on_floor`` (the points where the error exceeds the bound itself and is accepted
-        only as round-off below the floor); ``dhat_rms_error`` with an unknown-input estimate.
+        ``certified_overshoot``, ``bound_respected``, ``max_bound_ratio`` (from k = 1 on) and the step
+        it is at, ``max_bound_ratio_step`` (:func:`bound_ratio_step`), ``first_bound_violation``,
+        ``bound_rtol``, ``bound_floor`` (``rtol ||e_0||``) and ``points_on_floor`` (the points where the
+        error exceeds the bound itself and is accepted only as round-off below the floor);
+        ``dhat_rms_error`` with an unknown-input estimate.
     """
     e = x - xhat
     norms = np.linalg.norm(e, axis=1)
@@ -80,8 +88,10 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
         with np.errstate(over="ignore", divide="ignore"):
             ratio = np.divide(norms, slack, out=np.zeros_like(norms), where=slack > 0)
         bad = np.flatnonzero(norms > slack)
+        worst = bound_ratio_step(ratio)
         out.update({"certified_decay": decay, "certified_overshoot": overshoot,
-                    "bound_respected": bool(bad.size == 0), "max_bound_ratio": float(ratio.max()),
+                    "bound_respected": bool(bad.size == 0), "max_bound_ratio": float(ratio[worst]),
+                    "max_bound_ratio_step": worst,
                     "first_bound_violation": int(bad[0]) if bad.size else None,
                     "error_at_first_violation": float(norms[bad[0]]) if bad.size else None,
                     "bound_at_first_violation": float(bound[bad[0]]) if bad.size else None,

@@ -79,43 +79,72 @@ def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
     >>> step_sequence("fixed:0.5", 2.0).tolist()
     [0.5, 0.5, 0.5, 0.5]
     """
+    _check_t_end(t_end)
+    kind, rest = spec.partition(":")[::2]
+    if kind == "file":
+        return _file_steps(rest, t_end)
+    draw, _ = _random_kind(spec, np.random.default_rng(seed))
+    out, t = [], 0.0
+    while t < t_end * (1 - 1e-12):
+        step = draw()
+        out.append(step)
+        t += step
+        if len(out) > MAX_STEPS:
+            raise ProblemError(f"--steps {short_spec(spec)} with --t-end {t_end:g} needs more than {MAX_STEPS} steps")
+    return np.array(out)
+
+
+def short_spec(spec: str, limit: int = 80) -> str:
+    """A SPEC for a title or a message: whole up to ``limit`` characters, else its start and its length
+    (a ``choice:`` of 100,000 steps made a figure's title that matplotlib took minutes to lay out)."""
+    return spec if len(spec) <= limit else f"{spec[:limit]}... ({len(spec)} characters)"
+
+
+def _check_t_end(t_end) -> None:
     if not (isinstance(t_end, (int, float)) and math.isfinite(t_end) and t_end > 0):
         raise ProblemError(f"--t-end must be > 0, found {t_end!r}")
+
+
+def _file_steps(rest: str, t_end: float) -> np.ndarray:
+    """The steps of ``file:PATH`` up to the first point at or after ``t_end``."""
+    lines = read_text(Path(rest), "step file", error=ProblemError).splitlines()
+    if len(lines) > MAX_STEPS:
+        raise ProblemError(f"--steps file:{rest}: {len(lines)} lines, more than {MAX_STEPS} steps")
+    steps = [_positive(line.split("#")[0].strip(), f"line {i + 1} of {rest} (one step in seconds a line, "
+                       "# comments and blank lines aside)", quote=False)
+             for i, line in enumerate(lines) if line.split("#")[0].strip()]
+    if not steps:
+        raise ProblemError(f"--steps file:{rest}: no steps in the file")
+    out, t = [], 0.0
+    for h in steps:
+        if t >= t_end:
+            break
+        out.append(h)
+        t += h
+    return np.array(out)
+
+
+def _random_kind(spec: str, rng: np.random.Generator) -> tuple:
+    """``(draw, ranges)`` of a SPEC other than ``file:``: a function drawing one step from ``rng``, and
+    the ``(low, high)`` intervals every draw lies in (``low == high`` for a step that is listed)."""
     kind, _, rest = spec.partition(":")
-    rng = np.random.default_rng(seed)
-    if kind == "file":
-        lines = read_text(Path(rest), "step file", error=ProblemError).splitlines()
-        if len(lines) > MAX_STEPS:
-            raise ProblemError(f"--steps file:{rest}: {len(lines)} lines, more than {MAX_STEPS} steps")
-        steps = [_positive(line.split("#")[0].strip(), f"line {i + 1} of {rest} (one step in seconds a line, "
-                           "# comments and blank lines aside)", quote=False)
-                 for i, line in enumerate(lines) if line.split("#")[0].strip()]
-        if not steps:
-            raise ProblemError(f"--steps file:{rest}: no steps in the file")
-        out, t = [], 0.0
-        for h in steps:
-            if t >= t_end:
-                break
-            out.append(h)
-            t += h
-        return np.array(out)
     if kind == "fixed":
         fixed = _positive(rest, "fixed:H")
-        draw = lambda: fixed  # noqa: E731
-    elif kind == "choice":
+        return (lambda: fixed), [(fixed, fixed)]
+    if kind == "choice":
         options = [_positive(v, "each choice") for v in rest.split(",") if v.strip()]
         if not options:
             raise ProblemError("--steps choice:H1,H2,...: give at least one step")
-        draw = lambda: options[int(rng.integers(len(options)))]  # noqa: E731
-    elif kind == "uniform":
+        return (lambda: options[int(rng.integers(len(options)))]), [(h, h) for h in dict.fromkeys(options)]
+    if kind == "uniform":
         parts = rest.split(":")
         if len(parts) != 2:
             raise ProblemError(f"--steps uniform:HMIN:HMAX expected, found {spec!r}")
         lo, hi = _positive(parts[0], "HMIN"), _positive(parts[1], "HMAX")
         if lo > hi:
             raise ProblemError(f"--steps uniform: HMIN = {lo:g} > HMAX = {hi:g}")
-        draw = lambda: float(rng.uniform(lo, hi))  # noqa: E731
-    elif kind == "dropout":
+        return (lambda: float(rng.uniform(lo, hi))), [(lo, hi)]
+    if kind == "dropout":
         parts = rest.split(":")
         if len(parts) != 3:
             raise ProblemError(f"--steps dropout:H:P:MAX expected, found {spec!r}")
@@ -133,14 +162,41 @@ def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
             while lost < most and rng.random() < prob:
                 lost += 1
             return nominal * (1 + lost)
-    else:
-        raise ProblemError(f"--steps: unknown kind {kind!r} (expected fixed:H, choice:H1,H2,..., "
-                           "uniform:HMIN:HMAX, dropout:H:P:MAX or file:PATH)")
-    out, t = [], 0.0
-    while t < t_end * (1 - 1e-12):
-        step = draw()
-        out.append(step)
-        t += step
-        if len(out) > MAX_STEPS:
-            raise ProblemError(f"--steps {spec} with --t-end {t_end:g} needs more than {MAX_STEPS} steps")
-    return np.array(out)
+
+        losses = range(most + 1) if prob > 0 else range(1)
+        return draw, [(nominal * (1 + j), nominal * (1 + j)) for j in losses[:MAX_LISTED]]
+    raise ProblemError(f"--steps: unknown kind {kind!r} (expected fixed:H, choice:H1,H2,..., "
+                       "uniform:HMIN:HMAX, dropout:H:P:MAX or file:PATH)")
+
+
+#: Most distinct steps of a SPEC that :func:`step_ranges` lists (a dropout's MAX may be huge).
+MAX_LISTED = 10_000
+
+
+def step_ranges(spec: str, t_end: float) -> list:
+    """The steps a SPEC can give over ``[0, t_end]``, whatever the seed.
+
+    Parameters
+    ----------
+    spec : str
+        A step SPEC.
+    t_end : float
+        The end time (a step file's steps past it are not taken).
+
+    Returns
+    -------
+    list of (float, float)
+        Intervals ``(low, high)`` every step lies in: ``low == high`` for a listed step (``fixed``,
+        ``choice``, a dropout's ``H (1 + losses)``, a file's lines), ``low < high`` for ``uniform``.
+        At most :data:`MAX_LISTED` of them (a dropout's first ones).
+
+    Examples
+    --------
+    >>> step_ranges("dropout:0.1:0.5:2", 1.0)
+    [(0.1, 0.1), (0.2, 0.2), (0.30000000000000004, 0.30000000000000004)]
+    """
+    _check_t_end(t_end)
+    kind, rest = spec.partition(":")[::2]
+    if kind == "file":
+        return [(h, h) for h in dict.fromkeys(_file_steps(rest, t_end).tolist())][:MAX_LISTED]
+    return _random_kind(spec, np.random.default_rng(0))[1]

@@ -305,3 +305,13 @@ def make_schedule(spec: dict, matrices: dict):
     """The schedule object of a card's ``schedule`` entry."""
     schedule_axes(spec)
     return SCHEDULES[spec["kind"]](spec, matrices)
+
+
+def takes_steps(schedule, low: float, high: float) -> bool:
+    """Whether ``schedule`` takes every step from ``low`` to ``high`` s: a continuous kernel and the
+    policies ``nearest`` and ``count`` take any step; the others only those within ``step_rtol`` of one
+    of :meth:`admissible_steps` (the check of :func:`_period` and ``IntervalSchedule.index``)."""
+    if isinstance(schedule, ContinuousSchedule) or schedule.policy in ("nearest", "count"):
+        return True
+    return any(abs(low - H) <= schedule.step_rtol * H and abs(high - H) <= schedule.step_rtol * H
+               for H in schedule.admissible_steps())
