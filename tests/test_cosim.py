@@ -255,3 +255,70 @@ def test_bound_check_allows_the_round_off_floor_and_says_where_it_used_it():
     x[-1, 0] = 2e-9                                                          # above bound and floor
     m = error_metrics(times, steps, x, xhat, bound, 0.1, 1.0)
     assert not m["bound_respected"] and m["first_bound_violation"] == 10 and m["points_on_floor"] == 7
+
+
+def test_the_bound_ratio_is_measured_from_k_1():
+    """At k = 0 the bound is M ||e_0||: with M = 1 the ratio there is 1 by construction, not a property of the run."""
+    from uiofmu.cosim.metrics import error_metrics
+
+    norms = np.array([2.0, 1.2, 1.1, 0.3])
+    bound = 2.0 * 0.8 ** np.arange(4)                  # M = 1, decay 0.8
+    x = np.zeros((4, 2))
+    xhat = np.column_stack([norms, np.zeros(4)])
+    m = error_metrics(np.arange(4.0), np.ones(3), x, xhat, bound=bound, decay=0.8, overshoot=1.0)
+    slack = bound * (1 + 1e-9) + 1e-9 * norms[0]
+    assert norms[0] / slack[0] == pytest.approx(1.0, abs=1e-8)
+    assert m["max_bound_ratio_step"] == 2 and m["max_bound_ratio"] == norms[2] / slack[2] < 0.86
+    assert m["bound_respected"] is True
+    one = error_metrics(np.zeros(1), np.zeros(0), x[:1], xhat[:1], bound=bound[:1], decay=0.8, overshoot=1.0)
+    assert one["max_bound_ratio_step"] == 0        # a run without steps has only k = 0
+
+
+def test_cosim_metrics_give_the_ratio_from_k_1(built, cli):
+    card, d = built
+    res = cli("cosim", "--plant", d / "plant.fmu", "--observer", d / "obs.fmu", "--t-end", "20", "--out", d / "k1")
+    assert res.code == 0, res.err
+    metrics = json.loads((d / "k1" / "metrics.json").read_text())
+    rows = read_results(d / "k1" / "results.csv")
+    norms = np.array([float(r["error_norm"]) for r in rows])
+    M, delta = metrics["certified_overshoot"], metrics["certified_decay"]
+    bound = M * delta ** np.arange(len(norms)) * norms[0]
+    ratio = norms / (bound * (1 + 1e-9) + 1e-9 * norms[0])
+    k = metrics["max_bound_ratio_step"]
+    assert k == 1 + int(np.argmax(ratio[1:])) and metrics["max_bound_ratio"] == pytest.approx(ratio[k], rel=1e-12)
+
+
+def test_results_in_binary_formats_hold_the_csv_columns(built, cli):
+    card, d = built
+    args = ["cosim", "--plant", d / "plant.fmu", "--observer", d / "obs.fmu", "--t-end", "5", "--no-report"]
+    assert cli(*args, "--out", d / "csv").code == 0
+    rows = read_results(d / "csv" / "results.csv")
+    csv_cols = {k: np.array([float(r[k]) if r[k] else np.nan for r in rows]) for k in rows[0]}
+    res = cli(*args, "--out", d / "npz", "--format", "npz")
+    assert res.code == 0, res.err
+    assert not (d / "npz" / "results.csv").exists() and "results.npz" in res.out
+    with np.load(d / "npz" / "results.npz") as z:
+        assert list(z.files) == list(csv_cols)
+        for key, values in csv_cols.items():
+            np.testing.assert_array_equal(z[key], values)      # the same doubles (NaN where the CSV is empty)
+    res = cli(*args, "--out", d / "pq", "--format", "parquet")
+    try:
+        import pyarrow.parquet as pq
+    except ImportError:
+        assert res.code == 2 and "--format parquet: needs pyarrow" in res.err and res.err.count("\n") == 1
+        assert not (d / "pq").exists() or not any((d / "pq").iterdir())
+    else:
+        assert res.code == 0, res.err
+        table = pq.read_table(d / "pq" / "results.parquet")
+        assert table.column_names == list(csv_cols)
+        for key, values in csv_cols.items():
+            np.testing.assert_array_equal(table.column(key).to_numpy(), values)
+    bad = cli(*args, "--out", d / "x", "--format", "xlsx")
+    assert bad.code == 2 and "--format 'xlsx': expected one of csv, npz, parquet" in bad.err
+
+
+def test_a_long_spec_is_shortened_in_titles_and_messages():
+    from uiofmu.cosim.steps import short_spec
+
+    spec = "choice:" + ",".join(["0.1"] * 100_000)
+    assert short_spec(spec) == spec[:80] + f"... ({len(spec)} characters)" and short_spec("fixed:0.1") == "fixed:0.1"

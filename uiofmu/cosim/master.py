@@ -567,8 +567,75 @@ def routes(plant, obs, source: dict) -> tuple[list, list]:
     return fed, sourced
 
 
-def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, report: bool = True) -> dict:
-    """Write ``results.csv``, ``metrics.json`` and (unless ``report`` is false) ``report.png`` into ``out_dir``.
+#: Formats of the results table (``cosim --format``): ``csv`` (every double as its shortest exact text),
+#: ``npz`` (numpy's zip of one array per column, always at hand) and ``parquet`` (with pyarrow installed).
+RESULT_FORMATS = ("csv", "npz", "parquet")
+#: Rows of ``results.csv`` written between two progress updates.
+WRITE_CHUNK = 8192
+
+
+def check_format(fmt: str) -> str:
+    """``fmt`` if it is one of :data:`RESULT_FORMATS` that can be written here (parquet needs pyarrow).
+
+    Raises
+    ------
+    ProblemError
+        Naming the format and what it needs.
+    """
+    if fmt not in RESULT_FORMATS:
+        raise ProblemError(f"--format {str(fmt)[:40]!r}: expected one of {', '.join(RESULT_FORMATS)}")
+    if fmt == "parquet":
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise ProblemError("--format parquet: needs pyarrow (pip install pyarrow), which is not installed; "
+                               "--format npz writes a binary table with numpy alone") from None
+    return fmt
+
+
+def _write_csv(cols: dict, part, show_progress: bool | None) -> None:
+    """The columns as CSV, :data:`WRITE_CHUNK` rows between progress updates (a bar on a terminal)."""
+    names, rows = list(cols), len(next(iter(cols.values())))
+    with open(part, "w", newline="") as f, progress(total=rows, desc="writing results.csv", unit="row",
+                                                    enabled=show_progress) as bar:
+        w = csv.writer(f)
+        w.writerow(names)
+        for k0 in range(0, rows, WRITE_CHUNK):
+            chunk = [np.asarray(cols[name][k0:k0 + WRITE_CHUNK], dtype=float).tolist() for name in names]
+            w.writerows(["" if math.isnan(v) else repr(v) for v in row] for row in zip(*chunk))
+            bar.update(len(chunk[0]))
+
+
+def _write_binary(cols: dict, part, fmt: str) -> None:
+    """The columns as ``npz`` (one float64 array per column) or ``parquet`` (one float64 column each)."""
+    arrays = {name: np.asarray(values, dtype=float) for name, values in cols.items()}
+    if fmt == "npz":
+        with open(part, "wb") as f:
+            np.savez(f, **arrays)
+        return
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.table(arrays), part)
+
+
+def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, report: bool = True,
+                  fmt: str = "csv", show_progress: bool | None = None) -> dict:
+    """Write ``results.FMT``, ``metrics.json`` and (unless ``report`` is false) ``report.png`` into ``out_dir``.
+
+    Parameters
+    ----------
+    result : CosimResult
+    out_dir : str or Path
+    title : str, optional
+        Of the report.
+    report : bool
+        Draw ``report.png``.
+    fmt : str
+        One of :data:`RESULT_FORMATS` (:func:`check_format`): the table is ``results.csv``,
+        ``results.npz`` or ``results.parquet``, with the same columns.
+    show_progress : bool, optional
+        A bar while the CSV is written (default: when stderr is a terminal).
 
     ``results.csv`` has a column ``bound`` (the certified bound of each point) where the design certifies one, and
     ``metrics.json`` the key ``title`` when a title is given: with both, ``uiofmu report`` redraws the figure.
@@ -579,15 +646,17 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, rep
         The paths written.
     """
     out = check_output_dir(out_dir, "output folder")
+    fmt = check_format(fmt)
     cols = result.columns()
-    with atomic_output(out / "results.csv", "results table") as part, open(part, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(cols)
-        for row in zip(*cols.values()):
-            w.writerow(["" if isinstance(v, float) and math.isnan(v) else repr(float(v)) for v in row])
+    table = out / f"results.{fmt}"
+    with atomic_output(table, "results table") as part:
+        if fmt == "csv":
+            _write_csv(cols, part, show_progress)
+        else:
+            _write_binary(cols, part, fmt)
     document = {**result.metrics, **({"title": title} if title else {})}     # the title, for `uiofmu report`
     write_atomic(out / "metrics.json", json.dumps(document, indent=2) + "\n", "metrics")
-    paths = {"results": out / "results.csv", "metrics": out / "metrics.json"}
+    paths = {"results": table, "metrics": out / "metrics.json"}
     if report:
         from .report import plot_report     # matplotlib only when a figure is drawn
 
