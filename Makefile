@@ -51,7 +51,7 @@ lint: $(STAMP)
 # hostile problem files, cards, step specs and tables through the command line
 fuzz: $(STAMP)
 	$(PY) tests/cfuzz.py --seconds $(FUZZ_SECONDS) --family all
-	$(PY) tests/fuzz_campaign.py --cases 300 --seed $(FUZZ_SEED) --seconds $(FUZZ_SECONDS)
+	$(PY) tests/fuzz_campaign.py --cases 4000 --seed $(FUZZ_SEED) --seconds $(FUZZ_SECONDS)
 
 # the FMU catalogue: every example's observer and plant FMU, checked (validate, our master, fmpy, ecospy);
 # writes fmus/README.md (in git; tests/test_fmus_catalogue.py fails when it is stale)

@@ -5,6 +5,11 @@ Usage::
     python tests/fuzz_campaign.py [--cases N] [--seed S] [--seconds T] [--jobs J]
                                   [--only CATEGORY ...] [--workdir DIR] [--report FILE.json]
 
+``--cases N`` is the number of cases in total: each category generates its share (N divided by the
+number of categories, rounded up), the categories are interleaved and the first N are run (fewer when
+the fixed lists of some categories are shorter than their share; the count is printed first).
+A command line that no process can take (an argument of more than :data:`hostile.MAX_ARG_BYTES`, a
+NUL byte) reaches the command through a file (:func:`hostile.run_subprocess`).
 Each case (``tests/hostile.py``) runs as ``python -m uiofmu ...`` in its own sandbox with a 4 GiB
 address-space limit and a timeout; the sandbox is snapshot before and after. The table counts,
 per category, the cases tried, their exit codes (0, 2, 1), crashes by a signal, timeouts,
@@ -59,14 +64,15 @@ def spread(cases: list, n: int) -> list:
     return cases[:: max(1, len(cases) // max(n, 1))][:n]
 
 
-def generate(bases: hostile.Bases, n: int, seed: int, only: set | None = None) -> dict:
-    """Every category's cases.
+def generate(bases: hostile.Bases, total: int, seed: int, only: set | None = None) -> dict:
+    """Every category's cases: its share of ``total``.
 
     Parameters
     ----------
     bases : hostile.Bases
-    n : int
-        Cases per generated category (fixed lists are cut to ``n``).
+    total : int
+        Cases of all categories together: each generates ``ceil(total / categories)`` (fixed lists
+        are cut to it), and :func:`interleave` then :func:`first_cases` keep ``total`` of them.
     seed : int
     only : set of str, optional
         Categories to generate.
@@ -131,7 +137,14 @@ def generate(bases: hostile.Bases, n: int, seed: int, only: set | None = None) -
         return out[:n]
     makers["sizes"] = sizes
     opt_in = {"sizes"}  # slow by nature (large LMIs): run with --only sizes
-    return {cat: make() for cat, make in makers.items() if (cat in only if only else cat not in opt_in)}
+    chosen = [cat for cat in makers if (cat in only if only else cat not in opt_in)]
+    n = -(-total // max(1, len(chosen)))
+    return {cat: makers[cat]() for cat in chosen}
+
+
+def first_cases(groups: dict, total: int) -> list:
+    """The first ``total`` cases of the categories interleaved (every category gets its share)."""
+    return interleave(groups)[:total]
 
 
 def interleave(groups: dict) -> list:
@@ -250,7 +263,8 @@ def describe_files(case, names: dict) -> list[str]:
 def main(argv=None) -> int:
     """Run the campaign; exit status 1 when any case broke a promise."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--cases", type=int, default=200, help="cases per generated category (default 200)")
+    parser.add_argument("--cases", type=int, default=3000,
+                        help="cases in total, shared evenly by the categories (default 3000)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the generators (default 0)")
     parser.add_argument("--seconds", type=float, default=None, help="wall-time budget (default: none)")
     parser.add_argument("--jobs", type=int, default=2, help="cases run at once (default 2)")
@@ -264,16 +278,16 @@ def main(argv=None) -> int:
     workdir = Path(args.workdir or tempfile.mkdtemp(prefix="uiofmu_fuzz_"))
     workdir.mkdir(parents=True, exist_ok=True)
     started = time.monotonic()
-    print(f"uiofmu fuzz campaign: seed {args.seed}, {args.cases} cases per category, workdir {workdir}", flush=True)
+    print(f"uiofmu fuzz campaign: seed {args.seed}, {args.cases} cases in total, workdir {workdir}", flush=True)
     try:
         bases = hostile.build_bases(workdir / "bases")
     except RuntimeError as exc:
         print(f"cannot build the valid base inputs, nothing to fuzz: {exc}", file=sys.stderr)
         return 3
     groups = generate(bases, args.cases, args.seed, set(args.only) if args.only else None)
-    cases = interleave(groups)
-    print(f"  {len(cases)} cases in {len(groups)} categories (bases built in {time.monotonic() - started:.0f} s)",
-          flush=True)
+    cases = first_cases(groups, args.cases)
+    print(f"  {len(cases)} cases in {len(groups)} categories, at most {-(-args.cases // max(1, len(groups)))} each "
+          f"(bases built in {time.monotonic() - started:.0f} s)", flush=True)
     sandboxes = workdir / "cases"
     failures_dir = workdir / "failures"
     failures_dir.mkdir(exist_ok=True)
@@ -353,7 +367,7 @@ def main(argv=None) -> int:
             print(f"    kept in {best.root}")
 
     report = Path(args.report) if args.report else workdir / "report.json"
-    data = {"seed": args.seed, "cases_per_category": args.cases, "seconds": time.monotonic() - started,
+    data = {"seed": args.seed, "cases": len(cases), "seconds": time.monotonic() - started,
             "outcomes": [{"category": o.case.category, "label": o.case.label, "commands": o.case.command_line(),
                           "codes": [r.code for r in o.results], "timed_out": [r.timed_out for r in o.results],
                           "stderr": [r.err[-2000:] for r in o.results], "problems": o.problems,

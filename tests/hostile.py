@@ -1720,8 +1720,25 @@ def _limits():  # pragma: no cover - runs in the child
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
 
 
+#: Longest argument passed on a command line (Linux refuses one of more than 128 KiB with E2BIG);
+#: a longer one, or one with a NUL byte (which no command line holds), goes through a file.
+MAX_ARG_BYTES = 100_000
+#: How a command line that no process can take reaches ``uiofmu.cli.main``: read from a JSON file.
+ARGV_FROM_FILE = ("import json, sys\nfrom uiofmu.cli import main\n"
+                  "argv = json.load(open(sys.argv[1], encoding='utf-8'))\nsys.argv = ['uiofmu', *argv]\n"
+                  "sys.exit(main(argv))")
+
+
+def fits_a_command_line(argv: list[str]) -> bool:
+    """Whether every argument can be passed to a process as it is (no NUL, at most MAX_ARG_BYTES)."""
+    return all("\x00" not in a and len(a.encode("utf-8", "surrogateescape")) <= MAX_ARG_BYTES for a in argv)
+
+
 def run_subprocess(argv: list[str], cwd: Path, tmpdir: Path, timeout: float) -> RunResult:
     """``python -m uiofmu ARGV`` in its own session, with limits and a timeout.
+
+    Arguments that no command line takes (:func:`fits_a_command_line`) are written to a JSON file
+    outside the sandbox, which the child reads and hands to ``uiofmu.cli.main`` (:data:`ARGV_FROM_FILE`).
 
     Parameters
     ----------
@@ -1741,19 +1758,29 @@ def run_subprocess(argv: list[str], cwd: Path, tmpdir: Path, timeout: float) -> 
                MKL_NUM_THREADS="1", MPLBACKEND="Agg", PYTHONHASHSEED="0")
     env.pop("PYTHONPATH", None)
     start = time.monotonic()
-    proc = subprocess.Popen([sys.executable, "-m", "uiofmu", *argv], cwd=cwd, env=env, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=_limits,
-                            start_new_session=True)
+    argv_file = None
+    command = [sys.executable, "-m", "uiofmu", *argv]
+    if not fits_a_command_line(argv):
+        fd, argv_file = tempfile.mkstemp(prefix="uiofmu_argv_", suffix=".json")
+        with os.fdopen(fd, "w", encoding="utf-8", errors="surrogateescape") as f:
+            json.dump(argv, f)
+        command = [sys.executable, "-c", ARGV_FROM_FILE, argv_file]
     timed_out = False
     try:
-        out, err = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        timed_out = True
+        proc = subprocess.Popen(command, cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, preexec_fn=_limits, start_new_session=True)
         try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        out, err = proc.communicate()
+            out, err = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            timed_out = True
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            out, err = proc.communicate()
+    finally:
+        if argv_file is not None:
+            os.unlink(argv_file)
     code = proc.returncode
     sig = -code if code is not None and code < 0 and not timed_out else None
     return RunResult(argv, code, out.decode("utf-8", "replace"), err.decode("utf-8", "replace"),
