@@ -286,3 +286,17 @@ def test_a_leak_beyond_round_off_is_not_the_floor():
     assert sim["worst_leak"] > dr.LEAK_EPS
     honest = dr.simulate(card, problem, np.random.default_rng(1))
     assert honest["worst_leak"] <= dr.LEAK_EPS and (not honest["violated"] or honest["roundoff"])
+
+
+def test_the_counts_of_false_certificates_agree():
+    """A run at double precision's floor is not a false certificate: neither counted as one nor its problem
+    counted as a problem with one."""
+    floor = ("run", [("simulation (round-off)", "leaks within round-off")])
+    false = ("run", [("bound >= 1", "bound 1.2")])
+    results = [dr.Result("lti-uio", 1, "a", "c", True, {}, false_certificates=[floor]),
+               dr.Result("lti-uio", 2, "b", "c", True, {}, false_certificates=[floor, false]),
+               dr.Result("lti-uio", 3, "c", "c", True, {})]
+    c = dr.summarise(results)
+    assert c["false certificates"] == 1 and c["problems with a false certificate"] == 1
+    assert c["round-off floor only (not counted)"] == 2 and c["problems with a round-off floor run (not counted)"] == 2
+    assert c["... bound >= 1"] == 1
