@@ -49,10 +49,11 @@ def sanitized_plant(plant, output: Path) -> Path:
     ident = "sanitized_plant"
     data = plant.to_data()
     guid = c_backend.guid_of({"sanitized": True, **data})
+    spec = {"kind": "plant", "plant": data}
     return c_backend.pack_c_fmu(output, ident, c_backend.plant_kernel(data), c_backend.plant_source(data, guid, ident),
-                                lambda sources: c_backend.plant_model_description(data, "sanitized", guid, ident,
-                                                                                  sources, None),
-                                {"kind": "plant", "plant": data}, list(cfuzz.SANITIZER_FLAGS))
+                                lambda sources: c_backend.plant_model_description(spec, "sanitized", guid, ident,
+                                                                                  sources),
+                                spec, list(cfuzz.SANITIZER_FLAGS))
 
 
 def _failed(status: int, call, words) -> None:

@@ -641,7 +641,7 @@ def build(catalogue: Catalogue, out, root=ROOT) -> dict:
         paths[d.observer.file] = build_observer(d.card, out / d.observer.file)
         step = d.plant.experiment["stepSize"] if d.plant.experiment else None
         paths[d.plant.file] = build_plant(d.problem.plant, d.problem.name, out / d.plant.file, step=step,
-                                          experiment_steps=d.problem.experiment_steps)
+                                          experiment_steps=d.problem.experiment_steps, labels=d.problem.labels)
         print(f"{d.example.key}: built {d.observer.file}, {d.plant.file}", flush=True)
     if catalogue.mujoco is not None:
         from .mujoco_plant import build_mujoco_plant, load_spec

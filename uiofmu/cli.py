@@ -178,7 +178,7 @@ def _cmd_plant(args) -> int:
     if note:
         print(f"{problem.name}: note: {note}")
     path = build_plant(problem.plant, problem.name, out, step=problem.options.step, backend=backend,
-                       experiment_steps=problem.experiment_steps)
+                       experiment_steps=problem.experiment_steps, labels=problem.labels)
     print(f"{problem.name}: {problem.plant.time} {plant_kind(problem.plant)} FMU ({backend} backend) written to {path}")
     return 0
 

@@ -56,7 +56,7 @@ def run_demo(out, say=print) -> dict:
         f"{'verified' if cert['verified'] else 'NOT verified'}")
     obs = build_observer(card, out / "observer.fmu")
     plant = build_plant(problem.plant, problem.name, out / "plant.fmu", step=problem.options.step,
-                        experiment_steps=problem.experiment_steps)
+                        experiment_steps=problem.experiment_steps, labels=problem.labels)
     say(f"  FMUs                 {obs}, {plant}")
     steps = step_sequence(DEMO_STEPS, DEMO_T_END, seed=DEMO_SEED)
     result = cosimulate(plant, obs, steps)

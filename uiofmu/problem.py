@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import copy
 import difflib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from .runtime.errors import ProblemError
 from .runtime.files import parse_toml, read_text
+from .runtime.labels import KEYS as LABEL_KEYS, check_labels
 from .runtime.matrices import as_scalar, as_vector
 from .lpv_plant import LpvPlant, parse_lpv
 from .parametric_plant import ParametricPlant, parse_parametric
@@ -171,6 +172,9 @@ class Problem:
         component), or empty.
     data : dict
         The problem as data (what the design card records).
+    labels : dict
+        The names and units ``[plant]`` gives its states, inputs, unknown inputs and outputs
+        (``{"states": [...], "state_units": [...], ...}``, the keys given; :mod:`uiofmu.runtime.labels`).
     """
 
     name: str
@@ -183,6 +187,7 @@ class Problem:
     mode: tuple[Signal, ...] = ()
     theta: tuple[Signal, ...] = ()
     experiment_steps: int | None = None
+    labels: dict = field(default_factory=dict)
 
 
 def _model_name(name: str) -> str:
@@ -227,6 +232,8 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
             raise pt.missing("dt", "required for a discrete plant (seconds per step)")
         plant = Plant.create(pt.get("A"), pt.get("C"), pt.get("E"), pt.get("B", None), time=time,
                              dt=pt.get("dt", None), w=pt.get("w", None), x0=pt.get("x0", None))
+    labels = check_labels({key: pt.get(key) for key in LABEL_KEYS if pt.has(key)},
+                          {"n": plant.n, "m": plant.m, "q": plant.q, "p": plant.p}, "plant", ProblemError)
     pt.done()
     ot = Table(top.get("observer"), "observer")
     family = ot.get("family")
@@ -267,7 +274,7 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
         raise ProblemError(f"experiment.steps: expected an integer from 1 to {MAX_STEPS}, found {repr(steps)[:40]}")
     et.done()
     top.done()
-    return Problem(_model_name(name), plant, family, options, u, d, copy.deepcopy(data), mode, theta, steps)
+    return Problem(_model_name(name), plant, family, options, u, d, copy.deepcopy(data), mode, theta, steps, labels)
 
 
 def _available() -> list[str]:
@@ -305,7 +312,7 @@ def load_problem(path) -> Problem:
 
 
 def make_problem(plant: Plant, family: str, name: str = "problem", signals: dict | None = None,
-                 **options) -> Problem:
+                 labels: dict | None = None, **options) -> Problem:
     """A :class:`Problem` from a :class:`~uiofmu.plant.Plant` given from Python.
 
     Parameters
@@ -318,6 +325,8 @@ def make_problem(plant: Plant, family: str, name: str = "problem", signals: dict
         Model name.
     signals : dict, optional
         The ``[signals]`` table.
+    labels : dict, optional
+        Names and units, as the ``[plant]`` keys ``states``, ``state_units``, ... of a problem file.
     **options
         The family's parameters, as in the ``[observer]`` table.
 
@@ -336,7 +345,7 @@ def make_problem(plant: Plant, family: str, name: str = "problem", signals: dict
 
     import numpy as np
 
-    data = {"name": name, "plant": plant.to_data(), "observer": {"family": family, **options}}
+    data = {"name": name, "plant": {**plant.to_data(), **(labels or {})}, "observer": {"family": family, **options}}
     if signals:
         data["signals"] = signals
     problem = problem_from_data(data, default_name=name)

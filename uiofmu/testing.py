@@ -837,7 +837,7 @@ def build_fmus(problem, out_dir, backend: str | None = None) -> Fmus:
     card_path = card.write(out / f"{problem.name}.design.json")
     observer = build_observer(card, out / f"{problem.name}_observer.fmu", backend=backend)
     plant = build_plant(problem.plant, problem.name, out / f"{problem.name}_plant.fmu", backend=backend,
-                        experiment_steps=problem.experiment_steps)
+                        experiment_steps=problem.experiment_steps, labels=problem.labels)
     return Fmus(problem, card, Path(card_path), Path(observer), Path(plant))
 
 

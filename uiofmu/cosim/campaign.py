@@ -565,7 +565,7 @@ def build_fmus(campaign: Campaign, folder, say=None) -> tuple[Path, Path]:
     card.write(folder / "design.json")
     build_observer(card, observer, campaign.backend)
     build_plant(problem.plant, problem.name, plant, step=problem.options.step, backend=campaign.backend,
-                experiment_steps=problem.experiment_steps)
+                experiment_steps=problem.experiment_steps, labels=problem.labels)
     write_atomic(record, json.dumps(source, indent=2) + "\n", "FMU record")
     return plant, observer
 

@@ -31,6 +31,7 @@ from .fmi import Fmu, FmuCallError, first_non_integer, not_an_integer, read_desc
 from .inputs import CsvInputs, SignalInputs, values_at
 from .metrics import delayed_metrics, error_metrics, functional_metrics, mode_metrics
 from ..progress import progress
+from ..runtime.labels import column_labels
 from ..runtime.observer import Runtime
 from ..runtime.observer import default_horizon as default_t_end
 from .steps import step_sequence
@@ -57,6 +58,18 @@ class CosimResult:
     functional: dict | None = None
     delayed: dict | None = None
     timing: dict = field(default_factory=dict)
+    names: dict | None = None      # the names and units when there is no card (a run read back from its files)
+
+    @property
+    def labels(self) -> dict:
+        """The names and units of the card's problem (:mod:`uiofmu.runtime.labels`), or ``names``; empty
+        without either."""
+        return self.card.labels if self.card is not None else (self.names or {})
+
+    def column_labels(self) -> dict:
+        """``{column of results.csv: label}`` for every labelled column (``{"xhat[1]": "T_room estimate [K]"}``)."""
+        return column_labels(self.labels, {name: getattr(self, name).shape[1]
+                                           for name in ("x", "xhat", "y", "u", "d", "dhat", "r")})
 
     def columns(self) -> dict:
         """Named columns for ``results.csv``."""
@@ -640,6 +653,11 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, rep
     ``results.csv`` has a column ``bound`` (the certified bound of each point) where the design certifies one, and
     ``metrics.json`` the key ``title`` when a title is given: with both, ``uiofmu report`` redraws the figure.
 
+    The columns of ``results.csv`` keep their FMI names (``x[1]``, ``xhat[1]``, ...); where the problem names
+    its states, inputs and outputs, ``metrics.json`` maps each such column to its label (``"labels": {"x[1]":
+    "T_room [K]"}``), keeps the problem's names and units (``plant_labels``, for ``uiofmu report``), and the
+    report's legends and axes use them.
+
     Returns
     -------
     dict
@@ -654,7 +672,9 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, rep
             _write_csv(cols, part, show_progress)
         else:
             _write_binary(cols, part, fmt)
-    document = {**result.metrics, **({"title": title} if title else {})}     # the title, for `uiofmu report`
+    labels = result.column_labels()
+    document = {**result.metrics, **({"labels": labels, "plant_labels": result.labels} if labels else {}),
+                **({"title": title} if title else {})}     # the names, units and title, for `uiofmu report`
     write_atomic(out / "metrics.json", json.dumps(document, indent=2) + "\n", "metrics")
     paths = {"results": table, "metrics": out / "metrics.json"}
     if report:

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..runtime.errors import ProblemError
 from ..runtime.files import atomic_output
+from ..runtime.labels import axis_label, element_label
 
 
 def pyplot():
@@ -75,12 +76,15 @@ def _plot_states(ax, t, result, colors, title: str) -> None:
     title : str
         The panel's title.
     """
+    labels = result.labels
     for i in range(result.x.shape[1]):
         c = colors[i % len(colors)]
-        ax.plot(t, result.x[:, i], color=c, lw=1.6, label=f"x[{i + 1}]")
-        ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--", label=f"xhat[{i + 1}]")
+        ax.plot(t, result.x[:, i], color=c, lw=1.6, label=axis_label(labels, "x", i))
+        ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--", label=axis_label(labels, "xhat", i))
+    _unit_axis(ax, labels, "x", result.x.shape[1], "state")
     ax.set_title(title)
-    ax.set_ylabel("state")
+    if not ax.get_ylabel():
+        ax.set_ylabel("state")
     ax.legend(ncol=2, fontsize=8, loc="best")
 
 
@@ -136,6 +140,16 @@ def _fit(text, width: float, renderer) -> None:
         return
     chars = max(20, int(longest * width / drawn))
     text.set_text("\n".join(textwrap.fill(line, chars) for line in lines))
+
+
+def _unit_axis(ax, labels: dict, port: str, size: int, what: str) -> None:
+    """The y-label of a panel of ``port``'s elements: the element's label when there is one element
+    (``T_room [K]``), ``what [unit]`` when every element has that unit; none otherwise."""
+    units = {element_label(labels, port, i)[1] for i in range(size)}
+    if size == 1 and element_label(labels, port, 0) != (None, None):
+        ax.set_ylabel(axis_label(labels, port, 0))
+    elif len(units) == 1 and None not in units:
+        ax.set_ylabel(f"{what} [{units.pop()}]")
 
 
 def _save(plt, fig, path, title: str | None) -> Path:
@@ -341,15 +355,21 @@ def _plot_inputs(ax, t, result, colors) -> None:
     if result.dhat.size and result.dhat.shape[1]:
         for i in range(result.d.shape[1]):
             c = colors[i % len(colors)]
-            ax.step(t, result.d[:, i], where="post", color=c, lw=1.6, label=f"d[{i + 1}] (held over step)")
-            ax.plot(t[:-1], result.dhat[1:, i], ".", color=c, ms=3, label=f"dhat[{i + 1}] (drawn at its step's start)")
+            ax.step(t, result.d[:, i], where="post", color=c, lw=1.6,
+                    label=f"{axis_label(result.labels, 'd', i)} (held over step)")
+            ax.plot(t[:-1], result.dhat[1:, i], ".", color=c, ms=3,
+                    label=f"{axis_label(result.labels, 'dhat', i)} (drawn at its step's start)")
+        _unit_axis(ax, result.labels, "d", result.d.shape[1], "unknown input")
         ax.set_title("unknown input and its estimate" + _clip_outliers(ax, result.d, result.dhat[1:], t[:-1]))
-        ax.set_ylabel("d, dhat")
+        if not ax.get_ylabel():
+            ax.set_ylabel("d, dhat")
     else:
         for i in range(result.r.shape[1]):
-            ax.plot(t, result.r[:, i], lw=1.2, label=f"r[{i + 1}]")
+            ax.plot(t, result.r[:, i], lw=1.2, label=axis_label(result.labels, "r", i))
+        _unit_axis(ax, result.labels, "r", result.r.shape[1], "residual")
         ax.set_title("output residual r = y - C xhat")
-        ax.set_ylabel("r")
+        if not ax.get_ylabel():
+            ax.set_ylabel("r")
     ax.legend(fontsize=8, loc="best")
 
 
@@ -627,14 +647,22 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
     from .master import CosimResult
     from .metrics import delayed_metrics, error_metrics, functional_metrics, mode_metrics
 
+    from ..runtime.labels import check_labels
+
     T, H = columns["time"], columns["h"][:-1]
     X, XH, D, DH = (_vector(columns, n, path) for n in ("x", "xhat", "d", "dhat"))
-    args = [T, H, X, XH, _vector(columns, "y", path), _vector(columns, "u", path), D, _vector(columns, "r", path), DH]
+    Y, U = _vector(columns, "y", path), _vector(columns, "u", path)
+    args = [T, H, X, XH, Y, U, D, _vector(columns, "r", path), DH]
+    names = metrics.get("plant_labels", {})
+    if not isinstance(names, dict):
+        raise ProblemError(f"{where}: plant_labels: expected a table of names and units")
+    names = check_labels(names, {"n": X.shape[1], "m": U.shape[1], "q": D.shape[1], "p": Y.shape[1]},
+                         f"{where}: plant_labels", ProblemError)
     mode = columns.get("mode")
     if "gx_valid" in columns:                            # a functional observer
         gx, true, valid = _vector(columns, "gx", path), _vector(columns, "gx_true", path), columns["gx_valid"]
         delay, window = (_number(metrics, (k,), where, integer=True) for k in ("delay", "window"))
-        result = CosimResult(*args, mode=mode, functional={"gx": gx, "true": true, "valid": valid})
+        result = CosimResult(*args, mode=mode, functional={"gx": gx, "true": true, "valid": valid}, names=names)
         result.metrics = {**functional_metrics(T, H, gx, true, valid, delay, window),
                           "formula": str(metrics.get("formula", ""))[:300]}
         return result
@@ -647,7 +675,7 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
             raise ProblemError(f"{where}: theta.true: expected {thetahat.shape[1]} finite numbers")
         theta = None if theta is None else np.array(theta, dtype=float)
         result = CosimResult(*args, delayed={"thetahat": thetahat, "theta": theta, "sigma_min": columns["sigma_min"],
-                                             "valid": columns["valid"], "sigma_bound": sigma_bound})
+                                             "valid": columns["valid"], "sigma_bound": sigma_bound}, names=names)
         result.metrics = {**error_metrics(T, H, X, XH), **delayed_metrics(
             T, H, X, XH, thetahat, theta, columns["valid"], columns["sigma_min"], sigma_bound)}
         return result
@@ -659,7 +687,7 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
         decay = _number(metrics, ("certified_decay",), where)
         overshoot = _number(metrics, ("certified_overshoot",), where, optional=True)
     estimated = DH.shape[1] > 0
-    result = CosimResult(*args, bound=bound, mode=mode)
+    result = CosimResult(*args, bound=bound, mode=mode, names=names)
     result.metrics = error_metrics(T, H, X, XH, bound, decay, overshoot, D if estimated else None,
                                    DH if estimated else None)
     if mode is not None:

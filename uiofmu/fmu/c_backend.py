@@ -34,6 +34,7 @@ from ..runtime.errors import CardError, FmuError
 from ..runtime.files import atomic_output, check_output_file
 from ..runtime.schedules import schedule_axes
 from ..runtime.ports import lpv_plant_ports, model_structure, observer_experiment, plant_ports, write_experiment
+from ..runtime.labels import apply_labels
 from ..runtime.text import c_string
 from ..runtime.tolerances import STEP_RTOL
 
@@ -570,24 +571,26 @@ def model_description(card: Card, guid: str, identifier: str, sources: list[str]
     model = make_model({"kind": "observer", "card": card.data})
     model.refresh()
     return description_xml(identifier, guid, f"{card.family} unknown-input observer of {card.name} "
-                           f"(uiofmu {__version__}, C backend)", sources, observer_experiment(card), model.ports)
+                           f"(uiofmu {__version__}, C backend)", sources, observer_experiment(card), model.ports,
+                           model.labels)
 
 
-def plant_model_description(data: dict, description: str, guid: str, identifier: str, sources: list[str],
-                            experiment: dict | None) -> bytes:
-    """``modelDescription.xml`` of a C plant FMU: the ports of the python backend's plant."""
+def plant_model_description(spec: dict, description: str, guid: str, identifier: str, sources: list[str]) -> bytes:
+    """``modelDescription.xml`` of a C plant FMU of ``spec`` (its ``resources/model.json``): the ports and the
+    names and units of the python backend's plant."""
     from ..runtime.fmu_model import make_model
 
-    model = make_model({"kind": "plant", "plant": data})
+    model = make_model(spec)
     model.refresh()
-    return description_xml(identifier, guid, description, sources, experiment, model.ports)
+    return description_xml(identifier, guid, description, sources, spec.get("experiment"), model.ports, model.labels)
 
 
 def description_xml(identifier: str, guid: str, description: str, sources: list[str], experiment: dict | None,
-                    ports) -> bytes:
+                    ports, labels: dict | None = None) -> bytes:
     """The ``modelDescription.xml`` of every C FMU: Co-Simulation without an execution tool, its
-    ``<SourceFiles>``, the plumbing's ``<LogCategories>``, ``<DefaultExperiment>`` (when given) and
-    the variables and structure of ``ports`` (:func:`write_variables`)."""
+    ``<SourceFiles>``, the plumbing's ``<LogCategories>``, ``<DefaultExperiment>`` (when given),
+    the variables and structure of ``ports`` (:func:`write_variables`) and their names and units
+    (``labels``: :func:`uiofmu.runtime.labels.apply_labels`)."""
     root = Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": identifier, "guid": f"{{{guid}}}",
         "description": description,
@@ -607,6 +610,7 @@ def description_xml(identifier: str, guid: str, description: str, sources: list[
     if experiment:
         write_experiment(root, experiment)
     write_variables(root, ports)
+    apply_labels(root, ports, labels or {})
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
 
 
@@ -686,7 +690,7 @@ def build_c_observer(card: Card, output, identifier: str, call_floor: bool = Fal
 
 
 def build_c_plant(plant, output, identifier: str, experiment: dict | None = None,
-                  description: str | None = None, call_floor: bool = False) -> Path:
+                  description: str | None = None, call_floor: bool = False, labels: dict | None = None) -> Path:
     """Write the C FMU of a plant to ``output`` (``c/kernel_plant.c``: exact zero-order hold for
     any step of a continuous plant, dt only for a discrete one; a switched plant in its current
     mode, picked by its rule; ``c/kernel_lpv.c``: an LPV plant at its theta, from the state or
@@ -706,6 +710,9 @@ def build_c_plant(plant, output, identifier: str, experiment: dict | None = None
         The ``description`` attribute of the model description.
     call_floor : bool, optional
         A benchmark variant whose fmi2DoStep returns at once (as :func:`build_c_observer`).
+    labels : dict, optional
+        Names and units of its states, inputs and outputs (a problem's ``labels``): descriptions and
+        units of its variables, never in its sources.
 
     Returns
     -------
@@ -715,12 +722,13 @@ def build_c_plant(plant, output, identifier: str, experiment: dict | None = None
     data = plant.to_data()
     plant_kernel(data)                     # a plant the C backend has no kernel for is refused first
     _check_platform()
-    spec = {"kind": "plant", "plant": data, **({"experiment": experiment} if experiment else {})}
+    spec = {"kind": "plant", "plant": data, **({"experiment": experiment} if experiment else {}),
+            **({"labels": labels} if labels else {})}
     guid = guid_of({"backend": "c", **spec})
     what = "LPV plant" if "scheduling" in data else "switched plant" if "modes" in data else "linear plant"
     text = description or f"{plant.time} {what} (uiofmu {__version__}, C backend)"
     return pack_c_fmu(output, identifier, plant_kernel(data), plant_source(data, guid, identifier),
-                      lambda sources: plant_model_description(data, text, guid, identifier, sources, experiment),
+                      lambda sources: plant_model_description(spec, text, guid, identifier, sources),
                       spec, ["-DUIOFMU_CALL_FLOOR"] if call_floor else [])
 
 

@@ -169,7 +169,7 @@ def plant_kind(plant) -> str:
 
 
 def build_plant(plant: Plant, name: str, output, step: float | None = None, backend: str | None = None,
-                experiment_steps: int | None = None) -> Path:
+                experiment_steps: int | None = None, labels: dict | None = None) -> Path:
     """Pack a plant as an FMU (a linear one exact between communication points).
 
     Parameters
@@ -193,6 +193,9 @@ def build_plant(plant: Plant, name: str, output, step: float | None = None, back
     experiment_steps : int, optional
         The length of that experiment in steps (a problem's ``[experiment] steps``; default
         :data:`uiofmu.runtime.ports.PLANT_EXPERIMENT_STEPS`).
+    labels : dict, optional
+        Names and units of its states, inputs and outputs (a problem's ``labels``,
+        :mod:`uiofmu.runtime.labels`): the descriptions and units of its variables.
 
     Returns
     -------
@@ -208,7 +211,8 @@ def build_plant(plant: Plant, name: str, output, step: float | None = None, back
     if backend == "c":
         from .c_backend import build_c_plant
 
-        return build_c_plant(plant, output, ident, experiment, desc + ", C backend)")
+        return build_c_plant(plant, output, ident, experiment, desc + ", C backend)", labels=labels)
     desc += ")"
-    spec = {"kind": "plant", "plant": plant.to_data(), **({"experiment": experiment} if experiment else {})}
+    spec = {"kind": "plant", "plant": plant.to_data(), **({"experiment": experiment} if experiment else {}),
+            **({"labels": labels} if labels else {})}
     return _build_python(spec, ident, desc, output)

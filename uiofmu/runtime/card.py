@@ -16,6 +16,7 @@ import numpy as np
 
 from .errors import CardError
 from .files import parse_json, read_text, write_atomic
+from .labels import check_labels
 from .matrices import as_array, as_scalar, as_vector
 from .ports import check_declared, delayed_ports, observer_ports, window_ports
 from .registry import KNOWN
@@ -126,6 +127,11 @@ class Card:
     def kernel(self) -> str:
         """The runtime kernel that steps the observer (:data:`KERNELS`)."""
         return self.data.get("kernel", "affine")
+
+    @property
+    def labels(self) -> dict:
+        """The names and units its problem's ``[plant]`` gives (:func:`plant_labels`)."""
+        return plant_labels(self.data)
 
     @property
     def ports(self) -> list:
@@ -414,6 +420,7 @@ def check_card(data, require_verified: bool = True) -> dict:
         if key in cert:
             _text(cert[key], f"certificate.{key}", 100)
     observer = _table(data["problem"], "problem").get("observer")
+    plant_labels(data)
     if isinstance(observer, dict) and observer.get("family", data["family"]) != data["family"]:
         raise CardError(f"design card family {data['family']!r} is not its problem's observer.family "
                         f"{str(observer.get('family'))[:40]!r}: the card was edited after the design")
@@ -438,6 +445,19 @@ def check_card(data, require_verified: bool = True) -> dict:
         check_declared(data["ports"], declared_ports(data, matrices))
     return matrices
 
+
+
+def plant_labels(data: dict) -> dict:
+    """The names and units of a card's problem (``problem.plant.states``, ...; :mod:`uiofmu.runtime.labels`),
+    checked against its dims: free text that reaches ``modelDescription.xml`` and the figures.
+
+    Raises
+    ------
+    CardError
+        Naming the key, as :func:`uiofmu.runtime.labels.check_labels` does.
+    """
+    plant = data["problem"].get("plant")
+    return check_labels(plant, data["dims"], "design card problem.plant", CardError) if isinstance(plant, dict) else {}
 
 
 def declared_ports(data: dict, matrices: dict) -> list:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .card import card_from_data
+from .labels import check_labels
 from .plant_runtime import PlantRuntime
 from .ports import PortSpec, lpv_plant_ports, parametric_plant_ports, plant_ports
 from .observer import Runtime, RuntimeInputError
@@ -75,6 +76,11 @@ class StatefulModel(PortsModel):
     """What observer and plant models share: their state is the runtime's plus the parameter ports'."""
 
     kind = "model"
+
+    @property
+    def labels(self) -> dict:
+        """Names and units of the ports' elements (:mod:`uiofmu.runtime.labels`): an observer's from its card."""
+        return self.card.labels
 
     def get_state(self) -> dict:
         """JSON-ready state.
@@ -256,7 +262,8 @@ class DelayedModel(StatefulModel):
 
 
 class PlantModel(StatefulModel):
-    """A plant as FMU ports: ``u, d -> y, x``; parameters ``x0`` and the runtime's physical ones.
+    """A plant as FMU ports: ``u, d -> y, x``; parameters ``x0`` and the runtime's physical ones; ``labels``:
+    the names and units of its model's ``labels`` (:func:`uiofmu.runtime.labels.check_labels`).
 
     The runtime is a linear :class:`~uiofmu.runtime.plant_runtime.PlantRuntime` or a
     :class:`~uiofmu.runtime.mujoco_runtime.MujocoRuntime`; both hold ``x0``, ``u``, ``d``, ``x``, ``y()``,
@@ -264,9 +271,12 @@ class PlantModel(StatefulModel):
     """
 
     kind = "plant"
+    labels = None
 
-    def __init__(self, rt, param_targets: dict | None = None):
+    def __init__(self, rt, param_targets: dict | None = None, labels: dict | None = None):
         self.rt = rt
+        self.labels = check_labels(labels or {}, {"n": rt.n, "m": rt.u.shape[0], "p": rt.p, "q": rt.d.shape[0]},
+                                   "labels")
         physical = [(name, param_targets[name]) for name in rt.param_names] if param_targets else []
         arrays = {"x0": rt.x0.copy(), "u": rt.u, "d": rt.d,
                   **{name: rt.params[i:i + 1].copy() for i, name in enumerate(rt.param_names)}}
@@ -342,19 +352,20 @@ def make_model(spec: dict, resources: str = "."):
 
         return PlantModel(MujocoRuntime(spec["mujoco"], resources), spec["mujoco"].get("parameters", {}))
     if spec["kind"] == "plant":
+        labels = spec.get("labels")
         if "parameters" in spec["plant"]:
             from .parametric_plant import ParametricPlantRuntime
 
-            return PlantModel(ParametricPlantRuntime(spec["plant"]))
+            return PlantModel(ParametricPlantRuntime(spec["plant"]), labels=labels)
         if "scheduling" in spec["plant"]:
             from .lpv import LpvPlantRuntime
 
-            return PlantModel(LpvPlantRuntime(spec["plant"]))
+            return PlantModel(LpvPlantRuntime(spec["plant"]), labels=labels)
         if "modes" in spec["plant"]:
             from .switching import SwitchedPlantRuntime
 
-            return PlantModel(SwitchedPlantRuntime(spec["plant"]))
-        return PlantModel(PlantRuntime(spec["plant"]))
+            return PlantModel(SwitchedPlantRuntime(spec["plant"]), labels=labels)
+        return PlantModel(PlantRuntime(spec["plant"]), labels=labels)
     if spec["card"].get("kernel") == "window":
         return FunctionalModel(spec)
     if spec["card"].get("kernel") == "delayed":
