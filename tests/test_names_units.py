@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import subprocess
 import sys
 import zipfile
@@ -22,7 +23,7 @@ import pytest
 from fmpy import read_model_description
 
 import uiofmu
-from conftest import run_cli
+from conftest import ROOT, run_cli
 from uiofmu.fmu.c_backend import c_compiler
 from uiofmu.fmu.export import build_observer, build_plant
 from uiofmu.problem import load_problem, problem_from_data
@@ -147,6 +148,22 @@ def test_no_name_reaches_the_c_source(fmus):
             sources = b"".join(z.read(n) for n in z.namelist() if n.startswith("sources/"))
         for word in ("position", "velocity", "friction", "force"):
             assert word.encode() not in sources, (role, word)
+
+
+#: The FMU Compliance Checker (``../shared/importers/`` next to the checkout, or ``$UIOFMU_FMUCHECK``).
+FMUCHECK = os.environ.get("UIOFMU_FMUCHECK", str(ROOT.parent / "shared" / "importers" / "fmuCheck.linux64"))
+
+
+@pytest.mark.parametrize("role", ["observer", "plant"])
+def test_the_compliance_checker_accepts_the_c_fmus(fmus, role, tmp_path):
+    if ("observer", "c") not in fmus or not os.access(FMUCHECK, os.X_OK):
+        pytest.skip(f"needs a C compiler and the FMU Compliance Checker at {FMUCHECK}")
+    log = tmp_path / "check.log"
+    proc = subprocess.run([FMUCHECK, "-h", "0.1", "-s", "1", "-t", str(tmp_path), "-o", str(tmp_path / "out.csv"),
+                           "-e", str(log), str(fmus[(role, "c")])], capture_output=True, text=True)
+    text = log.read_text()
+    assert proc.returncode == 0, text[-2000:]
+    assert "Checker reported:\n\t0 Warning(s)\n\t0 Error(s)" in text, text[-2000:]
 
 
 def test_fmpy_info_lists_them(fmus):
