@@ -439,9 +439,9 @@ def plot_functional(result, path, title: str | None = None) -> Path:
     ax.set_ylabel("|gx - G x|")
     ax = axes[2]
     for i in range(result.d.shape[1]):
-        ax.step(k, result.d[:, i], where="post", lw=1.2, label=f"d[{i + 1}] (unknown)")
+        ax.step(k, result.d[:, i], where="post", lw=1.2, label=f"{axis_label(result.labels, 'd', i)} (unknown)")
     for i in range(result.y.shape[1]):
-        ax.plot(k, result.y[:, i], lw=1, label=f"y[{i + 1}]")
+        ax.plot(k, result.y[:, i], lw=1, label=axis_label(result.labels, "y", i))
     ax.set_title("inputs and outputs")
     ax.set_xlabel("step k")
     ax.set_ylabel("d, y")
