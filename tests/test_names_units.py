@@ -201,7 +201,7 @@ def test_cosim_labels_its_columns_and_report(fmus, tmp_path):
     _plot_states(ax, result.times, result, colors, "states")
     assert [t.get_text() for t in ax.get_legend().get_texts()] == [
         "position [m]", "position estimate [m]", "velocity [m/s]", "velocity estimate [m/s]"]
-    assert ax.get_ylabel() == ""                      # two units: the legend says them
-    _unit_axis(ax_d, result.labels, "d", 1, "unknown input")
+    assert ax.get_ylabel() == "state (units in the legend)"   # two units: the legend says them
+    _unit_axis(ax_d, result.labels, "d", 1, "unknown input", "d, dhat")
     assert ax_d.get_ylabel() == "friction [N]"
     plt.close(fig)

@@ -137,7 +137,10 @@ def test_check_rank_failure_json(tmp_path, cli):
     data = json.loads(res.out)
     assert data["conditions"][0] == {"name": "rank(CE) = rank(E)", "holds": False, "required": True,
                                      "message": "rank(CE) = 0 < rank(E) = 1: the unknown input cannot be decoupled",
-                                     "values": {"rank_CE": 0, "rank_E": 1}}
+                                     "values": {"rank_CE": 0, "rank_E": 1},
+                                     # measuring the state E drives makes CE of full rank (C = [0, 1]: CE = 1)
+                                     "hint": "measuring x[2] (adding the row e_2' to C): rank(CE) = 1 = rank(E), "
+                                             "and every condition of exact decoupling holds"}
 
 
 def test_seed000_example2_zeros_from_printed_data():

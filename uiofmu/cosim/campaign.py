@@ -1648,7 +1648,7 @@ def plot_campaign(tally: Tally, worst_result, worst: dict | None, path, title: s
     drawn = _hist(ax, conv, "tab:blue")
     ax.set_xlabel("time to 1 % of the initial error [s]")
     ax.set_ylabel("runs")
-    ax.set_title(f"convergence ({drawn} runs" + (f", {never} never" if never else "") + ")")
+    ax.set_title(f"convergence: {drawn} run(s) under 1 %" + (f", {never} not within the run" if never else ""))
     ax = axes[1]
     if _hist(ax, tally.values["max_bound_ratio"], "tab:green", marks=(1.0,)):
         ax.axvline(1.0, color="tab:red", linestyle="--", label="bound")

@@ -81,10 +81,8 @@ def _plot_states(ax, t, result, colors, title: str) -> None:
         c = colors[i % len(colors)]
         ax.plot(t, result.x[:, i], color=c, lw=1.6, label=axis_label(labels, "x", i))
         ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--", label=axis_label(labels, "xhat", i))
-    _unit_axis(ax, labels, "x", result.x.shape[1], "state")
+    _unit_axis(ax, labels, "x", result.x.shape[1], "state", "state")
     ax.set_title(title)
-    if not ax.get_ylabel():
-        ax.set_ylabel("state")
     ax.legend(ncol=2, fontsize=8, loc="best")
 
 
@@ -142,14 +140,17 @@ def _fit(text, width: float, renderer) -> None:
     text.set_text("\n".join(textwrap.fill(line, chars) for line in lines))
 
 
-def _unit_axis(ax, labels: dict, port: str, size: int, what: str) -> None:
+def _unit_axis(ax, labels: dict, port: str, size: int, what: str, plain: str) -> None:
     """The y-label of a panel of ``port``'s elements: the element's label when there is one element
-    (``T_room [K]``), ``what [unit]`` when every element has that unit; none otherwise."""
+    (``T_room [K]``), ``what [unit]`` when every element has that unit, ``what (units in the legend)``
+    when they have several, ``plain`` when none has a unit."""
     units = {element_label(labels, port, i)[1] for i in range(size)}
     if size == 1 and element_label(labels, port, 0) != (None, None):
         ax.set_ylabel(axis_label(labels, port, 0))
     elif len(units) == 1 and None not in units:
         ax.set_ylabel(f"{what} [{units.pop()}]")
+    else:
+        ax.set_ylabel(f"{what} (units in the legend)" if units - {None} else plain)
 
 
 def _save(plt, fig, path, title: str | None) -> Path:
@@ -359,17 +360,13 @@ def _plot_inputs(ax, t, result, colors) -> None:
                     label=f"{axis_label(result.labels, 'd', i)} (held over step)")
             ax.plot(t[:-1], result.dhat[1:, i], ".", color=c, ms=3,
                     label=f"{axis_label(result.labels, 'dhat', i)} (drawn at its step's start)")
-        _unit_axis(ax, result.labels, "d", result.d.shape[1], "unknown input")
+        _unit_axis(ax, result.labels, "d", result.d.shape[1], "unknown input", "d, dhat")
         ax.set_title("unknown input and its estimate" + _clip_outliers(ax, result.d, result.dhat[1:], t[:-1]))
-        if not ax.get_ylabel():
-            ax.set_ylabel("d, dhat")
     else:
         for i in range(result.r.shape[1]):
             ax.plot(t, result.r[:, i], lw=1.2, label=axis_label(result.labels, "r", i))
-        _unit_axis(ax, result.labels, "r", result.r.shape[1], "residual")
+        _unit_axis(ax, result.labels, "r", result.r.shape[1], "residual", "r")
         ax.set_title("output residual r = y - C xhat")
-        if not ax.get_ylabel():
-            ax.set_ylabel("r")
     ax.legend(fontsize=8, loc="best")
 
 
