@@ -205,3 +205,24 @@ def test_cosim_labels_its_columns_and_report(fmus, tmp_path):
     _unit_axis(ax_d, result.labels, "d", 1, "unknown input", "d, dhat")
     assert ax_d.get_ylabel() == "friction [N]"
     plt.close(fig)
+
+
+def test_report_drawn_again_keeps_the_names(fmus, tmp_path, cli):
+    """`uiofmu report` of a labelled run: the same figure, names and units included (metrics.json's
+    plant_labels); forged ones are refused naming the key."""
+    from uiofmu.cosim.master import cosimulate, write_outputs
+
+    backend = "c" if ("plant", "c") in fmus else "python"
+    result = cosimulate(fmus[("plant", backend)], fmus[("observer", backend)], np.full(20, 0.1))
+    run = tmp_path / "run"
+    write_outputs(result, run, title="labelled")
+    drawn = (run / "report.png").read_bytes()
+    assert json.loads((run / "metrics.json").read_text())["plant_labels"]["states"] == ["position", "velocity"]
+    (run / "report.png").unlink()
+    assert cli("report", run).code == 0
+    assert (run / "report.png").read_bytes() == drawn
+    metrics = json.loads((run / "metrics.json").read_text())
+    metrics["plant_labels"]["states"] = ["position"]
+    (run / "metrics.json").write_text(json.dumps(metrics))
+    res = cli("report", run)
+    assert res.code == 2 and "plant_labels.states: 1 entry for 2 states" in res.err, res.err
