@@ -21,6 +21,7 @@ import numpy as np
 from .plant import check_entries, period
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_matrix, freeze
+from .table import Table
 
 #: Most scheduling components.
 MAX_THETA = 8
@@ -101,7 +102,6 @@ def parse_lpv(table) -> LpvPlant:
         [:data:`uiofmu.plant.MIN_PERIOD`, :data:`uiofmu.plant.MAX_PERIOD`], an unknown key, a
         malformed ``[plant.theta]``.
     """
-    from .problem import Table
 
     time = table.choice("time", ("continuous", "discrete"))
     if time != "discrete":

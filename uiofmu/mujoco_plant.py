@@ -35,7 +35,7 @@ import numpy as np
 from .runtime.errors import ProblemError
 from .runtime.files import parse_toml, read_text
 from .runtime.matrices import as_matrix, as_scalar, as_vector
-from .problem import Table
+from .table import Table
 from .runtime.text import MAX_NAME, check_name
 
 SPEC_FILE = "mujoco.toml"

@@ -21,6 +21,7 @@ from .plant import check_entries
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_matrix, as_vector, freeze
 from .runtime.parametric_plant import MAX_RATE, SUBSTEP_FRACTION, rate
+from .table import Table
 
 #: Most unknown parameters.
 MAX_THETA = 16
@@ -88,7 +89,6 @@ def parse_parametric(table) -> ParametricPlant:
         entry above :data:`uiofmu.plant.MAX_ENTRY`, a plant faster than
         :data:`uiofmu.runtime.parametric_plant.MAX_RATE`.
     """
-    from .problem import Table
 
     time = table.choice("time", ("continuous", "discrete"))
     if time != "continuous":

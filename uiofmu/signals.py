@@ -24,6 +24,7 @@ import numpy as np
 
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_scalar
+from .table import closest_key
 
 #: Largest magnitude of a number of a term (as :data:`uiofmu.cosim.campaign.AXIS_LIMIT`): inputs of any
 #: physical plant are many orders below, and a sum of terms stays far from overflowing.
@@ -148,8 +149,6 @@ def parse_term(table, name: str) -> Term:
         raise ProblemError(f"{name}.kind: expected one of {sorted(_FIELDS)}, found {repr(kind)[:60]}")
     unknown = sorted(map(str, set(table) - _FIELDS[kind] - {"kind"}))
     if unknown:
-        from .problem import closest_key
-
         typo = closest_key(unknown[0], _FIELDS[kind])
         raise ProblemError(f"{name}: unknown field(s) {unknown} for kind {kind!r}"[:300]
                            + (f"; did you mean {typo!r}?" if typo else "") + f" (allowed: {sorted(_FIELDS[kind])})")

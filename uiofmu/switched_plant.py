@@ -19,6 +19,7 @@ from .plant import Plant, period
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_matrix, as_vector
 from .runtime.switching import INT_MAX, INT_MIN, RULES
+from .table import Table
 
 #: Most modes of a switched plant (the design has N^2 LMIs, the card N^2 step matrices).
 MAX_MODES = 16
@@ -66,7 +67,6 @@ class SwitchedPlant:
 
 
 def _switching(table, n: int, N: int) -> dict:
-    from .problem import Table
 
     sw = Table(table.get("switching", {"rule": "input"}), table.key("switching"))
     rule = sw.choice("rule", RULES)
@@ -113,7 +113,6 @@ def parse_switched(table) -> SwitchedPlant:
         Naming the key: a continuous time, no or too many modes, a mode's own ``C``, an unknown
         key of a mode, a matrix of the wrong shape, a malformed switching rule.
     """
-    from .problem import Table
 
     time = table.choice("time", ("continuous", "discrete"))
     if time != "discrete":

@@ -67,6 +67,7 @@ from ..runtime.errors import FmuError, ProblemError, UserError
 from ..runtime.files import OutputError, atomic_output, check_output_dir, check_output_file, parse_json, \
     parse_toml, read_bytes, read_text, write_atomic
 from ..threads import single_blas_thread
+from ..table import Table
 
 #: Most runs of one campaign. What grows with the runs in the command's process is 8 bytes per
 #: finished run for each of the :data:`QUANTILE_KEYS` (at most 480 MB at this limit): the rows go
@@ -300,7 +301,6 @@ def parse_axis(value, key: str) -> Axis:
     ProblemError
         Naming the key and what was expected.
     """
-    from ..problem import Table
 
     if isinstance(value, list):
         if not value:
@@ -353,7 +353,6 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
     ProblemError
         For every malformed or unknown key, naming it.
     """
-    from ..problem import Table
     from .steps import step_sequence
 
     path = Path(path)

@@ -58,6 +58,7 @@ from ..runtime.matrices import as_vector
 from ..runtime.parametric_plant import ParametricPlantRuntime
 from ..runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, ROUNDING_FACTOR, SEARCH_TOL, VERIFY_FRACTION
 from ..structure import rank
+from ..table import Table
 from . import Analysis, DesignResult
 
 NAME = "delayed-uio"
@@ -161,7 +162,6 @@ def _premise_cost(plant: ParametricPlant, delays: np.ndarray, premise: "Premise"
 
 def parse_options(table, plant) -> Options:
     """Read ``[observer]``: ``delays``, ``decay``, ``premise``, ``gain_cap``, ``xhat0``, ``dt``."""
-    from ..problem import Table
 
     if not isinstance(plant, ParametricPlant):
         raise ProblemError('observer.family = "delayed-uio": the plant needs its [plant.parameters] (the unknown '
