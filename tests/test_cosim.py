@@ -191,6 +191,10 @@ def test_report_draws_a_cosim_run_again(built, cli):
      "results.csv: line 3: a value is not a number"),
     (lambda run: (run / "metrics.json").write_text('{"certified_decay": "fast"}'),
      "certified_decay: expected a finite number, found fast"),
+    (lambda run: (run / "results.csv").write_text("time,h,x[1],xhat[1]\n0,0.1,1," + "9" * 200_000 + "\n"),
+     "results.csv: not a CSV table (field larger than field limit"),
+    (lambda run: (run / "results.csv").write_text("time,h,x[1],xhat[1],xhat[2]\n0,0.1,1,0,0\n0.1,,1,0,0\n"),
+     "results.csv: 1 columns x[i] but 2 columns xhat[i]"),
 ])
 def test_report_of_a_damaged_run_exits_2(built, cli, tmp_path, damage, fragment):
     _, d = built
@@ -203,6 +207,23 @@ def test_report_of_a_damaged_run_exits_2(built, cli, tmp_path, damage, fragment)
     assert res.code == 2 and fragment in res.err, res
     assert len(res.err.strip().splitlines()) == 1 and "Traceback" not in res.err
     assert (run / "report.png").read_bytes() == before
+
+
+def test_report_draws_a_binary_table_again(built, cli, tmp_path):
+    """`cosim --format npz` then `uiofmu report`: the table metrics.json names is read, the same figure."""
+    _, d = built
+    run = tmp_path / "npz"
+    assert cli("cosim", "--plant", d / "plant.fmu", "--observer", d / "obs.fmu", "--steps", "fixed:0.1",
+               "--t-end", "5", "--out", run, "--format", "npz").code == 0
+    assert json.loads((run / "metrics.json").read_text())["results_file"] == "results.npz"
+    drawn = (run / "report.png").read_bytes()
+    (run / "report.png").unlink()
+    res = cli("report", run)
+    assert res.code == 0, res.err
+    assert (run / "report.png").read_bytes() == drawn
+    (run / "results.npz").write_bytes(b"PK\x03\x04 not an archive")
+    res = cli("report", run)
+    assert res.code == 2 and "results.npz: not a results table" in res.err, res.err
 
 
 @pytest.mark.parametrize("t_end,unit", [(5.0, "s"), (600.0, "s"), (601.0, "min"), (36000.0, "min"),

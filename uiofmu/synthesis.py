@@ -75,9 +75,11 @@ def design(problem: Problem) -> Card:
     capped = _cap_checks(card.data, problem)
     if capped and not capped[0].holds:
         method = card.data.get("design_method") or "closed-form"
+        why = ("the LMI point's gain misses the cap by more than its rounding: a slightly larger gain_cap or a "
+               "slower decay leaves the LMIs room" if method.startswith("lmi") else
+               f"the {method} design's gains follow from a formula, which no cap lowers: raise gain_cap")
         raise InfeasibleError(f"{problem.family} design of {problem.name}: its largest gain (2-norm) "
-                              f"{capped[0].value:.6g} exceeds observer.gain_cap = {problem.options.gain_cap:g}; the "
-                              f"{method} design's gains follow from a formula, which no cap lowers: raise gain_cap")
+                              f"{capped[0].value:.6g} exceeds observer.gain_cap = {problem.options.gain_cap:g}; {why}")
     return card
 
 

@@ -674,7 +674,8 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, rep
             _write_binary(cols, part, fmt)
     labels = result.column_labels()
     document = {**result.metrics, **({"labels": labels, "plant_labels": result.labels} if labels else {}),
-                **({"title": title} if title else {})}     # the names, units and title, for `uiofmu report`
+                "results_file": table.name,
+                **({"title": title} if title else {})}     # the names, units, table and title, for `uiofmu report`
     write_atomic(out / "metrics.json", json.dumps(document, indent=2) + "\n", "metrics")
     paths = {"results": table, "metrics": out / "metrics.json"}
     if report:

@@ -565,37 +565,26 @@ def redraw(run_dir, title: str | None = None) -> Path:
                          f"{run_dir / 'metrics.json'}", error=ProblemError)
     if not isinstance(metrics, dict):
         raise ProblemError(f"{run_dir / 'metrics.json'}: expected a JSON object (the metrics of a run)")
-    table = _read_results(run_dir / "results.csv")
-    result = _result_from_table(table, run_dir / "results.csv", metrics, run_dir / "metrics.json")
+    name = metrics.get("results_file", "results.csv")
+    if name not in RESULT_FILES:
+        raise ProblemError(f"{run_dir / 'metrics.json'}: results_file: expected one of {', '.join(RESULT_FILES)}")
+    table = _read_results(run_dir / name)
+    result = _result_from_table(table, run_dir / name, metrics, run_dir / "metrics.json")
     text = title if title is not None else metrics.get("title")
     if text is not None and not isinstance(text, str):
         raise ProblemError(f"{run_dir / 'metrics.json'}: title: expected a string")
     return plot_report(result, run_dir / "report.png", text[:300] if text else None)
 
 
+#: The results tables ``uiofmu cosim`` writes (``--format``), as ``metrics.json``'s ``results_file`` names them.
+RESULT_FILES = ("results.csv", "results.npz", "results.parquet")
+
+
 def _read_results(path) -> dict:
     """The columns of a results table by name (empty cells are NaN), checked: a header of distinct names,
-    numbers in every row, a column ``time`` increasing from 0 and ``h`` its steps, at least one step."""
-    import csv
-    import io
-
-    from ..runtime.files import read_text
-
-    text = read_text(path, "results table", limit=MAX_RESULTS_BYTES, error=ProblemError)
-    rows = csv.reader(io.StringIO(text))
-    header = next(rows, None)
-    if not header or len(set(header)) != len(header):
-        raise ProblemError(f"{path}: the first line must name each column once (time,h,x[1],...)")
-    values = []
-    for number, row in enumerate(rows, start=2):
-        if len(row) != len(header):
-            raise ProblemError(f"{path}: line {number} has {len(row)} values, the header {len(header)}")
-        try:
-            values.append([float(v) if v else math.nan for v in row])
-        except ValueError:
-            raise ProblemError(f"{path}: line {number}: a value is not a number") from None
-    data = np.array(values, dtype=float).reshape(len(values), len(header))
-    columns = dict(zip(header, data.T))
+    numbers in every row, a column ``time`` increasing from 0 and ``h`` its steps, at least one step.
+    The table is CSV, or the binary ``.npz`` or ``.parquet`` of ``uiofmu cosim --format``."""
+    columns = _binary_columns(path) if path.suffix in (".npz", ".parquet") else _csv_columns(path)
     for name in ("time", "h", "x[1]"):
         if name not in columns:
             raise ProblemError(f"{path}: no column {name} (a table written by `uiofmu cosim` has one)")
@@ -610,6 +599,58 @@ def _read_results(path) -> dict:
         raise ProblemError(f"{path}: bound must hold finite numbers >= 0 (line "
                            f"{int(np.argmax(~(np.isfinite(bound) & (bound >= 0)))) + 2})")
     return columns
+
+
+def _csv_columns(path) -> dict:
+    """The columns of a CSV results table by name (empty cells are NaN)."""
+    import csv
+    import io
+
+    from ..runtime.files import read_text
+
+    text = read_text(path, "results table", limit=MAX_RESULTS_BYTES, error=ProblemError)
+    rows = csv.reader(io.StringIO(text, newline=""))
+    try:
+        header = next(rows, None)
+        if not header or len(set(header)) != len(header):
+            raise ProblemError(f"{path}: the first line must name each column once (time,h,x[1],...)")
+        values = []
+        for number, row in enumerate(rows, start=2):
+            if len(row) != len(header):
+                raise ProblemError(f"{path}: line {number} has {len(row)} values, the header {len(header)}")
+            try:
+                values.append([float(v) if v else math.nan for v in row])
+            except ValueError:
+                raise ProblemError(f"{path}: line {number}: a value is not a number") from None
+    except csv.Error as exc:
+        raise ProblemError(f"{path}: not a CSV table ({str(exc)[:120]})") from None
+    data = np.array(values, dtype=float).reshape(len(values), len(header))
+    return dict(zip(header, data.T))
+
+
+def _binary_columns(path) -> dict:
+    """The columns of an ``.npz`` or ``.parquet`` results table by name: one float64 array each, all as long."""
+    if not path.is_file():
+        raise ProblemError(f"{path}: no such results table")
+    if path.stat().st_size > MAX_RESULTS_BYTES:
+        raise ProblemError(f"{path}: larger than {MAX_RESULTS_BYTES} bytes")
+    try:
+        if path.suffix == ".npz":
+            with np.load(path, allow_pickle=False) as z:
+                columns = {name: np.asarray(z[name]) for name in z.files}
+        else:
+            import pyarrow.parquet as pq
+
+            table = pq.read_table(path)
+            columns = {name: table.column(name).to_numpy() for name in table.column_names}
+    except ImportError:
+        raise ProblemError(f"{path}: reading parquet needs pyarrow (pip install pyarrow)") from None
+    except Exception as exc:                 # a damaged archive: zipfile, numpy and pyarrow each raise their own
+        raise ProblemError(f"{path}: not a results table ({type(exc).__name__}: {str(exc)[:120]})") from None
+    rows = {c.shape for c in columns.values()}
+    if not columns or len(rows) != 1 or len(rows.pop()) != 1 or any(c.dtype.kind != "f" for c in columns.values()):
+        raise ProblemError(f"{path}: expected one float column per name, all of one length")
+    return {name: c.astype(float) for name, c in columns.items()}
 
 
 def _vector(columns: dict, name: str, path) -> np.ndarray:
@@ -655,9 +696,18 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
         raise ProblemError(f"{where}: plant_labels: expected a table of names and units")
     names = check_labels(names, {"n": X.shape[1], "m": U.shape[1], "q": D.shape[1], "p": Y.shape[1]},
                          f"{where}: plant_labels", ProblemError)
+    if X.shape != XH.shape:
+        raise ProblemError(f"{path}: {X.shape[1]} columns x[i] but {XH.shape[1]} columns xhat[i]")
+    if DH.shape[1] and D.shape != DH.shape:
+        raise ProblemError(f"{path}: {D.shape[1]} columns d[i] but {DH.shape[1]} columns dhat[i]")
     mode = columns.get("mode")
+    if mode is not None and not np.all(np.isfinite(mode) & (mode == np.round(mode))):
+        raise ProblemError(f"{path}: mode must hold an integer on every line (line "
+                           f"{int(np.argmax(~(np.isfinite(mode) & (mode == np.round(mode))))) + 2})")
     if "gx_valid" in columns:                            # a functional observer
         gx, true, valid = _vector(columns, "gx", path), _vector(columns, "gx_true", path), columns["gx_valid"]
+        if gx.shape != true.shape or not gx.shape[1]:
+            raise ProblemError(f"{path}: {gx.shape[1]} columns gx[i] but {true.shape[1]} columns gx_true[i]")
         delay, window = (_number(metrics, (k,), where, integer=True) for k in ("delay", "window"))
         result = CosimResult(*args, mode=mode, functional={"gx": gx, "true": true, "valid": valid}, names=names)
         result.metrics = {**functional_metrics(T, H, gx, true, valid, delay, window),
@@ -676,8 +726,6 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
         result.metrics = {**error_metrics(T, H, X, XH), **delayed_metrics(
             T, H, X, XH, thetahat, theta, columns["valid"], columns["sigma_min"], sigma_bound)}
         return result
-    if X.shape != XH.shape:
-        raise ProblemError(f"{path}: {X.shape[1]} columns x[i] but {XH.shape[1]} columns xhat[i]")
     bound = columns.get("bound")
     decay = overshoot = None
     if bound is not None:

@@ -144,9 +144,17 @@ def _analysis(problem):
             f"requested decay {opts.decay:g} <= largest fixed mode modulus {largest:.6g}: no gain K moves "
             "that mode, ask for a slower decay or decay = \"max\"",
             {"decay": opts.decay, "largest_fixed_modulus": largest},
-            hint="" if ok else f"decay = {short_above(largest + ZERO_MARGIN):g}, just slower than the largest fixed "
-                               "mode (or decay = \"max\")"))
+            hint="" if ok else _decay_hint(largest)))
     return Existence(NAME, tuple(conds)), s, fixed
+
+
+def _decay_hint(largest: float) -> str:
+    """The slowest-change decay to suggest above a fixed mode of modulus ``largest`` (< 1): three digits
+    rounded up, unless that reaches 1 (decay lies in (0, 1)), then ``"max"``."""
+    value = short_above(largest + ZERO_MARGIN)
+    if value < 1.0:
+        return f"decay = {value:g}, just slower than the largest fixed mode (or decay = \"max\")"
+    return f"decay = \"max\" (the largest fixed mode {largest:.6g} leaves no three-digit decay below 1)"
 
 
 def analyse(problem, solver: bool = True) -> Analysis:

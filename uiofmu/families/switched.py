@@ -409,8 +409,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
         raise ProblemError(f'observer.method = "deadbeat": needs rank Ct_i = n = {plant.n} in every mode, '
                            f"found ranks {ranks}")
     searched = None
-    if deadbeat and opts.method == "auto" and opts.gain_cap is not None:
-        deadbeat = float(two_norms(_deadbeat(modes)).max()) <= opts.gain_cap
+    if deadbeat and opts.method == "auto" and opts.gain_cap is not None:   # the gains gain_figures caps: K_i
+        deadbeat = float(two_norms([_runtime(modes, _deadbeat(modes), C, has_dhat)["K"]]).max()) <= opts.gain_cap
     if deadbeat and opts.method != "lmi":
         mats = _runtime(modes, _deadbeat(modes), C, has_dhat)
         norm = float(np.linalg.norm(mats["Phi"], 2, axis=(-2, -1)).max())
