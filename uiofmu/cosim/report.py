@@ -696,8 +696,6 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
         raise ProblemError(f"{where}: plant_labels: expected a table of names and units")
     names = check_labels(names, {"n": X.shape[1], "m": U.shape[1], "q": D.shape[1], "p": Y.shape[1]},
                          f"{where}: plant_labels", ProblemError)
-    if X.shape != XH.shape:
-        raise ProblemError(f"{path}: {X.shape[1]} columns x[i] but {XH.shape[1]} columns xhat[i]")
     if DH.shape[1] and D.shape != DH.shape:
         raise ProblemError(f"{path}: {D.shape[1]} columns d[i] but {DH.shape[1]} columns dhat[i]")
     mode = columns.get("mode")
@@ -713,6 +711,8 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
         result.metrics = {**functional_metrics(T, H, gx, true, valid, delay, window),
                           "formula": str(metrics.get("formula", ""))[:300]}
         return result
+    if X.shape != XH.shape:                              # every observer but the functional one estimates x
+        raise ProblemError(f"{path}: {X.shape[1]} columns x[i] but {XH.shape[1]} columns xhat[i]")
     if "valid" in columns and "sigma_min" in columns:    # a delayed observer
         thetahat = _vector(columns, "thetahat", path)
         sigma_bound = _number(metrics, ("validity", "sigma_bound"), where)
