@@ -633,12 +633,11 @@ def check_steps_axis(specs, card, t_end: float) -> None:
     ProblemError
         Naming the axis value, a step it can give, the steps the observer takes and a SPEC it takes.
     """
-    from ..runtime.observer import Runtime
-    from ..runtime.schedules import takes_steps
+    from ..runtime.schedules import make_schedule, takes_steps
     from .master import default_steps
     from .steps import short_spec, step_ranges
 
-    schedule = Runtime(card).schedule
+    schedule = make_schedule(card.schedule, card.matrices)
     for i, spec in enumerate(specs):
         bad = next(((lo, hi) for lo, hi in step_ranges(spec, t_end) if not takes_steps(schedule, lo, hi)), None)
         if bad is None:

@@ -26,6 +26,12 @@ def bound_ratio_step(ratio: np.ndarray) -> int:
     return int(np.argmax(ratio[1:])) + 1 if ratio.size > 1 else 0
 
 
+def allowance(bound: np.ndarray, rtol: float, floor: float) -> np.ndarray:
+    """What the bound check allows at each point: ``bound_k (1 + rtol) + floor`` (``floor = rtol ||e_0||``,
+    the round-off floor), the one formula of the check, the report's dotted line and its slack."""
+    return bound * (1 + rtol) + floor
+
+
 def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.ndarray,
                   bound: np.ndarray | None = None, decay: float | None = None, overshoot: float | None = None,
                   d: np.ndarray | None = None, dhat: np.ndarray | None = None,
@@ -84,7 +90,7 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
     }
     if bound is not None:
         floor = bound_rtol * norms[0]
-        slack = bound * (1 + bound_rtol) + floor
+        slack = allowance(bound, bound_rtol, floor)
         with np.errstate(over="ignore", divide="ignore"):
             ratio = np.divide(norms, slack, out=np.zeros_like(norms), where=slack > 0)
         bad = np.flatnonzero(norms > slack)

@@ -12,6 +12,7 @@ import numpy as np
 from ..runtime.errors import ProblemError
 from ..runtime.files import atomic_output
 from ..runtime.labels import axis_label, element_label
+from .metrics import allowance
 
 
 def pyplot():
@@ -255,8 +256,7 @@ def _plot_error(ax, t, unit: str, result) -> None:
     shown = [norms]
     title = "estimation error"
     if result.bound is not None:
-        rtol = m["bound_rtol"]
-        bound, allowed = result.bound, result.bound * (1 + rtol) + m["bound_floor"]
+        bound, allowed = result.bound, allowance(result.bound, m["bound_rtol"], m["bound_floor"])
         shown.append(allowed)
     positive = np.concatenate([v[(v > 0) & np.isfinite(v)] for v in shown])
     bottom = float(positive.min()) / 30 if positive.size else 1e-300

@@ -33,7 +33,8 @@ from ..runtime.card import MAX_POWER, Card
 from ..runtime.errors import CardError, FmuError
 from ..runtime.files import atomic_output, check_output_file
 from ..runtime.schedules import schedule_axes
-from ..runtime.ports import lpv_plant_ports, model_structure, observer_experiment, plant_ports, write_experiment
+from ..runtime.ports import (lpv_plant_ports, model_structure, observer_experiment, plant_ports, plant_spec,
+                             write_experiment)
 from ..runtime.labels import apply_labels
 from ..runtime.text import c_string
 from ..runtime.tolerances import STEP_RTOL
@@ -722,8 +723,7 @@ def build_c_plant(plant, output, identifier: str, experiment: dict | None = None
     data = plant.to_data()
     plant_kernel(data)                     # a plant the C backend has no kernel for is refused first
     _check_platform()
-    spec = {"kind": "plant", "plant": data, **({"experiment": experiment} if experiment else {}),
-            **({"labels": labels} if labels else {})}
+    spec = plant_spec(data, experiment, labels)
     guid = guid_of({"backend": "c", **spec})
     what = "LPV plant" if "scheduling" in data else "switched plant" if "modes" in data else "linear plant"
     text = description or f"{plant.time} {what} (uiofmu {__version__}, C backend)"

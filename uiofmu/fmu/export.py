@@ -20,7 +20,7 @@ from ..runtime.card import Card
 from ..runtime.errors import FmuError
 from ..runtime.files import atomic_output, check_output_file
 from ..plant import Plant
-from ..runtime.ports import observer_experiment, plant_experiment
+from ..runtime.ports import observer_experiment, plant_experiment, plant_spec
 from ..runtime.text import fill_template, identifier, py_string
 
 #: What an FMU carries: the package :mod:`uiofmu.runtime`, copied whole (numpy only).
@@ -213,6 +213,4 @@ def build_plant(plant: Plant, name: str, output, step: float | None = None, back
 
         return build_c_plant(plant, output, ident, experiment, desc + ", C backend)", labels=labels)
     desc += ")"
-    spec = {"kind": "plant", "plant": plant.to_data(), **({"experiment": experiment} if experiment else {}),
-            **({"labels": labels} if labels else {})}
-    return _build_python(spec, ident, desc, output)
+    return _build_python(plant_spec(plant.to_data(), experiment, labels), ident, desc, output)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .schedules import StepRejected
+from .schedules import StepRejected, matches
 from .state import StateReader
 from .stepping import check_step
 from .tolerances import STEP_RTOL
@@ -63,7 +63,7 @@ class LpvPlantRuntime:
     def step(self, h: float) -> None:
         """Advance by ``dt`` with ``d`` (and theta) held."""
         check_step(h, {"d": self.d, "theta": self.theta_in})
-        if abs(h - self.dt) > STEP_RTOL * self.dt:
+        if not matches(h, self.dt, STEP_RTOL):
             raise StepRejected(f"this discrete plant steps at dt = {self.dt!r} s and received h = {h!r} s")
         self.x = self.matrix("A") @ self.x + self.matrix("E") @ self.d
 

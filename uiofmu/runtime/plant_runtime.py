@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from .stepping import check_step
-from .schedules import StepRejected
+from .schedules import StepRejected, matches
 from .state import StateReader
 from .tolerances import STEP_RTOL
 
@@ -96,7 +96,7 @@ class PlantRuntime:
             exponential over ``h`` overflows (naming ``h``).
         """
         if not self.continuous:
-            if abs(h - self.dt) > STEP_RTOL * self.dt:
+            if not matches(h, self.dt, STEP_RTOL):
                 raise StepRejected(f"this discrete plant steps at dt = {self.dt!r} s and received h = {h!r} s")
             return self.A, self.B, self.E, self.w
         hit = self._cache.get(h)

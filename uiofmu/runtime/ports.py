@@ -108,6 +108,13 @@ def plant_experiment(step: float, steps: int | None = None) -> dict:
     return experiment(step, (steps or PLANT_EXPERIMENT_STEPS) * float(step))
 
 
+def plant_spec(data: dict, experiment: dict | None = None, labels: dict | None = None) -> dict:
+    """What a plant FMU packs, for either backend: ``{"kind": "plant", "plant": data}`` with its
+    ``experiment`` and ``labels`` (names and units) when given."""
+    return {"kind": "plant", "plant": data, **({"experiment": experiment} if experiment else {}),
+            **({"labels": labels} if labels else {})}
+
+
 def write_experiment(root, spec: dict) -> None:
     """Append ``<DefaultExperiment>`` (:func:`experiment`'s numbers, written with ``repr``)."""
     spec = experiment(spec["stepSize"], spec["stopTime"])

@@ -136,9 +136,15 @@ def pair_tables(matrices: dict, N: int, what: str) -> tuple[list, list]:
     return step, out
 
 
+def matches(h: float, H: float, rtol: float) -> bool:
+    """Whether the step ``h`` is the design step ``H``: ``|h - H| <= rtol * H`` (the one rule of every
+    schedule, and of the check of a campaign's steps axis; a NaN matches nothing)."""
+    return abs(h - H) <= rtol * H
+
+
 def _period(schedule, h: float) -> None:
     """Refuse a step other than the schedule's period ``dt`` (:class:`StepRejected`)."""
-    if abs(h - schedule.dt) > schedule.step_rtol * schedule.dt:
+    if not matches(h, schedule.dt, schedule.step_rtol):
         raise StepRejected(f"this observer was designed for steps of dt = {schedule.dt!r} s and received "
                            f"h = {h!r} s (step_policy = {schedule.policy!r})")
 
@@ -159,7 +165,7 @@ class IntervalSchedule:
         """Index of the design interval of the step ``h`` (raises :class:`StepRejected`)."""
         best = min(range(len(self.intervals)), key=lambda i: abs(h - self.intervals[i]))
         H = self.intervals[best]
-        if abs(h - H) <= self.step_rtol * H:
+        if matches(h, H, self.step_rtol):
             return best
         listed = ", ".join(f"{v:g}" for v in self.intervals)
         if self.policy == "nearest":
@@ -309,9 +315,9 @@ def make_schedule(spec: dict, matrices: dict):
 
 def takes_steps(schedule, low: float, high: float) -> bool:
     """Whether ``schedule`` takes every step from ``low`` to ``high`` s: a continuous kernel and the
-    policies ``nearest`` and ``count`` take any step; the others only those within ``step_rtol`` of one
-    of :meth:`admissible_steps` (the check of :func:`_period` and ``IntervalSchedule.index``)."""
+    policies ``nearest`` and ``count`` take any step; the others only those that :func:`matches` one of
+    :meth:`admissible_steps` (as :func:`_period` and ``IntervalSchedule.index`` decide)."""
     if isinstance(schedule, ContinuousSchedule) or schedule.policy in ("nearest", "count"):
         return True
-    return any(abs(low - H) <= schedule.step_rtol * H and abs(high - H) <= schedule.step_rtol * H
+    return any(matches(low, H, schedule.step_rtol) and matches(high, H, schedule.step_rtol)
                for H in schedule.admissible_steps())
