@@ -69,12 +69,28 @@ def chain_problem(n: int, s: int, feedback: str = "first column", g: int = 0) ->
     return "\n".join(lines) + "\n"
 
 
-def run_measured(tmp_path, *argv) -> tuple[subprocess.CompletedProcess, float, float]:
-    """``python -m uiofmu ARGV`` in a child process: its result, wall-clock seconds and peak resident MB
-    (the child's own, from ``wait4``).
+#: ``python -c`` program that runs ``uiofmu ARGV`` and, at exit, writes its own peak resident set
+#: (``VmHWM`` of /proc/self/status, in kB) to the file named by its first argument.
+_MEASURED = """import atexit, runpy, sys
+def peak(path=sys.argv[1]):
+    with open("/proc/self/status") as f:
+        kb = next(line.split()[1] for line in f if line.startswith("VmHWM:"))
+    with open(path, "w") as f:
+        f.write(kb)
+atexit.register(peak)
+sys.argv = ["uiofmu", *sys.argv[2:]]
+runpy.run_module("uiofmu", run_name="__main__")
+"""
 
-    The child's address space is capped at 3 GB so that an unbounded computation fails fast instead of
-    taking the machine; a run past ``2 * REFUSAL_SECONDS`` is killed (exit code -9: the test fails).
+
+def run_measured(tmp_path, *argv) -> tuple[subprocess.CompletedProcess, float, float]:
+    """``python -m uiofmu ARGV`` in a child process: its result, wall-clock seconds and peak resident MB.
+
+    The peak is the child's own (``VmHWM`` of the program it runs, read by the child as it exits), not
+    ``wait4``'s ``ru_maxrss``: Linux keeps in that the size of the process the child was forked from (a
+    pytest worker, hundreds of MB after the test files before) up to its ``exec``. The child's address
+    space is capped at 3 GB so that an unbounded computation fails fast instead of taking the machine; a
+    run past ``2 * REFUSAL_SECONDS`` is killed (exit code -9: the test fails).
     """
     import resource
     import threading
@@ -83,21 +99,20 @@ def run_measured(tmp_path, *argv) -> tuple[subprocess.CompletedProcess, float, f
         resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
 
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    out, err = tmp_path / "stdout.txt", tmp_path / "stderr.txt"
+    out, err, hwm = tmp_path / "stdout.txt", tmp_path / "stderr.txt", tmp_path / "peak_kb.txt"
     began = time.perf_counter()
     with out.open("w") as fout, err.open("w") as ferr:
-        proc = subprocess.Popen([sys.executable, "-m", "uiofmu", *map(str, argv)], stdout=fout, stderr=ferr,
-                                preexec_fn=cap, env=env, cwd=ROOT)
+        proc = subprocess.Popen([sys.executable, "-c", _MEASURED, str(hwm), *map(str, argv)], stdout=fout,
+                                stderr=ferr, preexec_fn=cap, env=env, cwd=ROOT)
         timer = threading.Timer(2 * REFUSAL_SECONDS, proc.kill)
         timer.start()
         try:
-            _, status, usage = os.wait4(proc.pid, 0)
+            proc.wait()
         finally:
             timer.cancel()
-    proc.returncode = os.waitstatus_to_exitcode(status)
     seconds = time.perf_counter() - began
-    return (subprocess.CompletedProcess(argv, proc.returncode, out.read_text(), err.read_text()), seconds,
-            usage.ru_maxrss / 1024)                                       # kB on Linux
+    peak = int(hwm.read_text()) / 1024 if hwm.exists() else math.inf       # none when killed
+    return subprocess.CompletedProcess(argv, proc.returncode, out.read_text(), err.read_text()), seconds, peak
 
 
 # -- 1. the polynomial arithmetic ----------------------------------------------------------------
