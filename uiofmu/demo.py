@@ -12,6 +12,7 @@ import time
 from importlib.resources import files
 from pathlib import Path
 
+from .cosim.summary import print_summary
 from .runtime.files import check_output_dir
 
 #: The demo's step sequence and horizon.
@@ -62,7 +63,6 @@ def run_demo(out, say=print) -> dict:
     result = cosimulate(plant, obs, steps)
     paths = write_outputs(result, out, title=f"{problem.name}: {problem.family} observer under packet drop-outs "
                                               f"({DEMO_STEPS}, seed {DEMO_SEED})")
-    from .cli import print_summary
 
     print_summary(result.metrics, {"design card": out / "design.json", **paths})
     return result.metrics

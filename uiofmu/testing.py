@@ -110,7 +110,7 @@ class Run:
     Attributes
     ----------
     result : CosimResult
-        Histories and metrics (:class:`uiofmu.cosim.master.CosimResult`).
+        Histories and metrics (:class:`uiofmu.cosim.result.CosimResult`).
     card : Card
         The design card packed in the observer FMU.
     steps : numpy.ndarray
@@ -301,7 +301,7 @@ def run_observer(observer_fmu, plant_fmu, steps=None, t_end: float | None = None
         observer is designed for.
     t_end : float, optional
         End time for a SPEC, finite and > 0 (default: the card's horizon,
-        :func:`uiofmu.runtime.observer.default_horizon`); not with step lengths.
+        :func:`uiofmu.runtime.experiments.default_horizon`); not with step lengths.
     seed : int
         Seed of a random SPEC and of the initial error, from 0 to :data:`MAX_SEED`.
     xhat0_error : float

@@ -843,7 +843,7 @@ def run_scenario(setup: Setup, sc: dict):
 
     Returns
     -------
-    uiofmu.cosim.master.CosimResult
+    uiofmu.cosim.result.CosimResult
 
     Raises
     ------
@@ -1624,7 +1624,7 @@ def plot_campaign(tally: Tally, worst_result, worst: dict | None, path, title: s
     ----------
     tally : Tally
         The finished rows.
-    worst_result : uiofmu.cosim.master.CosimResult or None
+    worst_result : uiofmu.cosim.result.CosimResult or None
         The worst run, re-run.
     worst : dict or None
         The summary's ``worst_max_bound_ratio``.

@@ -11,8 +11,9 @@ import numpy as np
 
 from ..runtime.errors import ProblemError
 from ..runtime.files import atomic_output
-from ..runtime.labels import axis_label, element_label
-from .metrics import allowance
+from ..runtime.labels import axis_label, check_labels, element_label
+from .metrics import allowance, delayed_metrics, error_metrics, functional_metrics, mode_metrics
+from .result import CosimResult
 
 
 def pyplot():
@@ -679,14 +680,9 @@ def _number(metrics: dict, keys: tuple, where, integer: bool = False, optional: 
 
 
 def _result_from_table(columns: dict, path, metrics: dict, where):
-    """A :class:`~uiofmu.cosim.master.CosimResult` of the columns of the table ``path``, with its metrics
+    """A :class:`~uiofmu.cosim.result.CosimResult` of the columns of the table ``path``, with its metrics
     computed again (:mod:`uiofmu.cosim.metrics`) from them and the design's numbers in ``metrics`` (read from
     ``where``)."""
-    from .master import CosimResult
-    from .metrics import delayed_metrics, error_metrics, functional_metrics, mode_metrics
-
-    from ..runtime.labels import check_labels
-
     T, H = columns["time"], columns["h"][:-1]
     X, XH, D, DH = (_vector(columns, n, path) for n in ("x", "xhat", "d", "dhat"))
     Y, U = _vector(columns, "y", path), _vector(columns, "u", path)

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from xml.etree.ElementTree import SubElement
 
 from .errors import CardError
+from .experiments import default_horizon
+from .schedules import make_schedule
 
 CAUSALITIES = ("parameter", "input", "output")
 TYPES = ("Real", "Integer")
@@ -94,9 +96,6 @@ def observer_experiment(card) -> dict:
     whole number
     of steps (a horizon in mean design intervals is rounded up): an importer stepping at ``stepSize``
     ends on it without a shorter last step, which the observer would refuse."""
-    from .observer import default_horizon
-    from .schedules import make_schedule
-
     step = make_schedule(card.schedule, card.matrices).admissible_steps()[0]
     start_up = math.ceil(float(card.schedule.get("valid_from", 0.0)) / step - 1e-9)
     steps = min(max(math.ceil(default_horizon(card) / step - 1e-9), 1), MAX_EXPERIMENT_STEPS + start_up)
