@@ -4,17 +4,17 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test test-fast test-blas lint fmus examples clean fuzz
+.PHONY: install demo test test-fast test-blas lint docs fmus examples clean fuzz
 
 FUZZ_SECONDS ?= 600
 FUZZ_SEED    ?= 0
 
 # quiet: one line says what happens; pip's own errors still show
 $(STAMP): pyproject.toml
-	@echo "installing uiofmu (editable) with its test, mujoco and control extras into $(VENV)/ ..."
+	@echo "installing uiofmu (editable) with its test, mujoco, control and docs extras into $(VENV)/ ..."
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	@$(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip
-	@$(PY) -m pip install --quiet --disable-pip-version-check -e ".[test,mujoco,control]"
+	@$(PY) -m pip install --quiet --disable-pip-version-check -e ".[test,mujoco,control,docs]"
 	@touch $(STAMP)
 
 install: $(STAMP)
@@ -47,6 +47,11 @@ test-blas: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
+# the documentation site (mkdocs.yml, docs/) into site/; any warning fails it (so no --quiet: it
+# silences the warnings, and with them what --strict counts)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
+
 # a long fuzzing campaign: the C FMU's call sequences under ASan + UBSan (all families), then
 # hostile problem files, cards, step specs and tables through the command line
 fuzz: $(STAMP)
@@ -65,5 +70,5 @@ examples: $(STAMP)
 	  */test_*.py) $(PY) -m pytest -q $$f || exit 1;; *) $(PY) $$f || exit 1;; esac; done
 
 clean:
-	rm -rf out examples/out build *.egg-info
+	rm -rf out examples/out build site *.egg-info
 	find fmus -mindepth 1 -not -name README.md -exec rm -rf {} +

@@ -587,6 +587,8 @@ def write_outputs(result: CosimResult, out_dir, title: str | None = None, *, rep
     show_progress : bool, optional
         A bar while the CSV is written (default: when stderr is a terminal).
 
+    Notes
+    -----
     ``results.csv`` has a column ``bound`` (the certified bound of each point) where the design certifies one, and
     ``metrics.json`` the key ``title`` when a title is given: with both, ``uiofmu report`` redraws the figure.
 
