@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import io
+import os
+import shutil
+import sys
 from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,6 +14,25 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
+
+# The tools the test extra installs as wheels (cmake, ruff) live next to the interpreter: put them on
+# PATH as an activated environment does, so `.venv/bin/python -m pytest` finds them too.
+os.environ["PATH"] = os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
+
+#: Tests marked with a tool no PyPI wheel provides, and that tool: without it they skip, saying why.
+SYSTEM_TOOLS = {"valgrind": "valgrind"}
+
+
+def pytest_collection_modifyitems(config, items):
+    """Skip the tests of a system tool that is not installed (valgrind: ``apt-get install valgrind``),
+    with the reason; every other tool of the suite comes from the test extra."""
+    for mark, tool in SYSTEM_TOOLS.items():
+        if shutil.which(tool) is None:
+            skip = pytest.mark.skip(reason=f"{tool} is not installed (apt-get install {tool}); ASan/UBSan tests "
+                                           "cover the same C code")
+            for item in items:
+                if mark in item.keywords:
+                    item.add_marker(skip)
 
 
 @dataclass
