@@ -299,9 +299,25 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
     ProblemError
         For every malformed or unknown key, naming it.
     """
-    from ..steps import step_sequence
-
     path = Path(path)
+    camp, axes = _tables(data)
+    problem, observer, plant = _sources(camp, path.parent)
+    settings = _settings(camp, problem)
+    steps = _steps_axis(axes, path.parent)
+    xhat0_error = parse_axis(axes.get("xhat0_error"), "axes.xhat0_error") if axes.has("xhat0_error") else None
+    d_scale = parse_axis(axes.get("d_scale"), "axes.d_scale") if axes.has("d_scale") else None
+    plant_parameters = _plant_axes(axes)
+    axes.done()
+
+    runs = settings.pop("runs")
+    campaign = Campaign(path=path, problem=problem, observer=observer, plant=plant, runs=runs or 0,
+                        steps=tuple(steps), xhat0_error=xhat0_error, d_scale=d_scale,
+                        plant_parameters=tuple(plant_parameters), text=text, **settings)
+    return replace(campaign, runs=_runs(campaign, runs))
+
+
+def _tables(data: dict) -> tuple:
+    """The ``[campaign]`` and ``[axes]`` tables, refusing any other table and any unknown key."""
     top = Table(data, "")
     camp = Table(top.get("campaign"), "campaign")
     axes = Table(top.get("axes", {}), "axes")
@@ -310,7 +326,11 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
         unknown = sorted(str(k) for k in table.data if k not in known)
         if unknown:
             raise ProblemError(f"{table.key(unknown[0])[:200]}: unknown key (known here: {', '.join(known)})")
-    folder = path.parent
+    return camp, axes
+
+
+def _sources(camp: Table, folder: Path) -> tuple:
+    """``(problem, observer, plant)`` paths of the ``[campaign]`` table: a problem, or both FMUs."""
 
     def location(key):
         value = camp.get(key, None)
@@ -327,6 +347,12 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
         missing = "campaign.observer" if observer is None and plant is not None else (
             "campaign.plant" if plant is None and observer is not None else "campaign.problem")
         raise ProblemError(f"{missing}: required key is missing (give problem, or observer and plant FMUs)")
+    return problem, observer, plant
+
+
+def _settings(camp: Table, problem: Path | None) -> dict:
+    """``seed``, ``grid``, ``t_end``, ``backend``, ``batch`` and ``runs`` (None when not given) of the
+    ``[campaign]`` table, the last of its keys read."""
     seed = _integer(camp, "seed", 0, 0, MAX_SEED)
     grid = camp.get("grid", False)
     if not isinstance(grid, bool):
@@ -342,6 +368,13 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
     batch = _integer(camp, "batch", None, 1, 100_000) if camp.has("batch") else camp.get("batch", None)
     runs = _integer(camp, "runs", None, 1, MAX_RUNS) if camp.has("runs") else camp.get("runs", None)
     camp.done()
+    return {"seed": seed, "grid": grid, "t_end": t_end, "backend": backend, "batch": batch, "runs": runs}
+
+
+def _steps_axis(axes: Table, folder: Path) -> list:
+    """The step SPECs of ``axes.steps`` (a step file's path made relative to ``folder``), each
+    checked for its syntax."""
+    from ..steps import step_sequence
 
     steps = axes.get("steps", None)
     if isinstance(steps, str):
@@ -361,8 +394,11 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
             step_sequence(spec, 1e-300, 0)      # the SPEC's syntax (one step suffices)
         except ProblemError as exc:
             raise ProblemError(f"axes.steps[{i}]: {str(exc).removeprefix('--steps').lstrip(': ')}") from None
-    xhat0_error = parse_axis(axes.get("xhat0_error"), "axes.xhat0_error") if axes.has("xhat0_error") else None
-    d_scale = parse_axis(axes.get("d_scale"), "axes.d_scale") if axes.has("d_scale") else None
+    return steps
+
+
+def _plant_axes(axes: Table) -> list:
+    """``(name, Axis)`` of ``axes.plant_parameters``, in the order of the file."""
     params = axes.get("plant_parameters", {})
     ptable = Table(params, "axes.plant_parameters")
     plant_parameters = []
@@ -370,14 +406,13 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
         if not isinstance(name, str) or not name.isidentifier() or len(name) > 64:
             raise ProblemError(f"axes.plant_parameters.{str(name)[:64]}: not a parameter name")
         plant_parameters.append((name, parse_axis(ptable.get(name), ptable.key(name))))
-    axes.done()
+    return plant_parameters
 
-    campaign = Campaign(path=path, problem=problem, observer=observer, plant=plant, runs=runs or 0, seed=seed,
-                        t_end=t_end, grid=grid, backend=backend, batch=batch, steps=tuple(steps),
-                        xhat0_error=xhat0_error, d_scale=d_scale, plant_parameters=tuple(plant_parameters),
-                        text=text)
+
+def _runs(campaign: Campaign, runs: int | None) -> int:
+    """The number of runs: as given, or the grid's points (a multiple of them with a grid)."""
     size = campaign.grid_size()
-    if grid:
+    if campaign.grid:
         if runs is None:
             runs = size
         elif runs % size:
@@ -387,7 +422,7 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
         raise ProblemError("campaign.runs: required key is missing (or set grid = true)")
     if runs > MAX_RUNS:
         raise ProblemError(f"campaign.runs: {runs} runs, more than {MAX_RUNS}")
-    return replace(campaign, runs=runs)
+    return runs
 
 
 def not_a_folder(path: Path, key: str, what: str) -> None:
