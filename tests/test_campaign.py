@@ -436,9 +436,9 @@ def fake_service():
 ])
 def test_a_service_that_is_not_a_scheduler_exits_2_within_the_deadline(fmus, tmp_path, fake_service, monkeypatch,
                                                                        mode, message):
-    from uiofmu.cosim import campaign
+    from uiofmu.cosim.campaign import scheduler
 
-    monkeypatch.setattr(campaign, "SCHEDULER_TIMEOUT_S", 3.0)
+    monkeypatch.setattr(scheduler, "SCHEDULER_TIMEOUT_S", 3.0)
     address = fake_service(mode)
     t0 = time.perf_counter()
     result = run_cli_within(30, "campaign", campaign_file(tmp_path, fmus), "--out", tmp_path / "out",
@@ -586,6 +586,7 @@ def test_a_failing_campaign_leaves_the_old_outputs_as_they_were(campaign_run, fm
     import shutil
 
     from uiofmu.cosim import campaign
+    from uiofmu.cosim.campaign import run as running
 
     _, old, _ = campaign_run
     out = tmp_path / "out"
@@ -597,7 +598,7 @@ def test_a_failing_campaign_leaves_the_old_outputs_as_they_were(campaign_run, fm
     def broken_figure(*args, **kwargs):
         raise RuntimeError("the figure failed")
 
-    monkeypatch.setattr(campaign, "plot_campaign", broken_figure)
+    monkeypatch.setattr(running, "plot_campaign", broken_figure)
     result = run_cli("campaign", campaign_file(tmp_path, fmus, runs=4), "--out", out, "--workers", "1")
     assert result.code == 1 and "the figure failed" in result.err, result.err
     assert {name: (out / name).read_bytes() for name in campaign.OUTPUTS} == before

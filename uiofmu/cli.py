@@ -328,19 +328,8 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser (also used to document the commands)."""
-    parser = Parser(
-        prog="uiofmu", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG,
-        description="Design unknown-input observers from a TOML problem file, certify them, and ship them "
-                    "as FMI 2.0 Co-Simulation FMUs.")
-    from . import __version__
-    from .runtime.registry import summary
-    parser.add_argument("--version", action="version", version=f"uiofmu {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    parser.commands = sub.choices
-    sub.required = True
-
+def _add_check(sub) -> None:
+    """The arguments of ``uiofmu check``."""
     p = sub.add_parser("check", help="existence analysis: rank conditions, invariant zeros, detectability",
                        description="Check whether the problem's observer family exists: rank(CE) = rank(E), the "
                                    "invariant zeros of (A, E, C), detectability of the decoupled pair and its "
@@ -349,6 +338,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("problem", help="problem file (TOML) or a plants/NAME folder")
     p.add_argument("--json", action="store_true", help="print the conditions as JSON (name, holds, values)")
     p.set_defaults(func=_cmd_check)
+
+
+def _add_design(sub) -> None:
+    """The arguments of ``uiofmu design``."""
+    from .runtime.registry import summary
 
     p = sub.add_parser("design", help="solve the LMI design, re-check the certificate, write the design card",
                        description="Solve the family's LMIs with CLARABEL, re-check the certificate with numpy "
@@ -361,6 +355,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="DESIGN.json", help="card path (default: NAME.design.json)")
     p.set_defaults(func=_cmd_design)
 
+
+def _add_build(sub) -> None:
+    """The arguments of ``uiofmu build``."""
     p = sub.add_parser("build", help="pack a design card as an FMI 2.0 Co-Simulation FMU",
                        description="Pack the observer of a design card as an FMI 2.0 Co-Simulation FMU with inputs "
                                    "y[i], u[i], outputs xhat[i], r[i] (and dhat[i]), parameter xhat0[i] (and "
@@ -377,6 +374,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "default when a C compiler is found); python: pythonfmu (the importer needs Python and numpy)")
     p.set_defaults(func=_cmd_build)
 
+
+def _add_verify(sub) -> None:
+    """The arguments of ``uiofmu verify``."""
     p = sub.add_parser("verify", help="re-check every claim of a design card, without a solver",
                        description="Re-check a design card someone gave you, as build and cosim do before they use "
                                    "it: that what its recorded problem determines (the plant matrices the FMU runs, "
@@ -387,6 +387,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("design", help="design card (JSON)")
     p.set_defaults(func=_cmd_verify)
 
+
+def _add_plant(sub) -> None:
+    """The arguments of ``uiofmu plant``."""
     p = sub.add_parser("plant", help="pack the plant of a problem (or a MuJoCo plant folder) as an FMU",
                        description="Pack a problem's linear plant as an FMU with inputs u[i], d[i], outputs y[i] and "
                                    "the true state x[i], parameter x0[i]. A continuous plant is integrated exactly "
@@ -403,6 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "Python and numpy). MuJoCo plants are pythonfmu FMUs always")
     p.set_defaults(func=_cmd_plant)
 
+
+def _add_linearize(sub) -> None:
+    """The arguments of ``uiofmu linearize``."""
     p = sub.add_parser("linearize", help="linearise a MuJoCo plant folder into a problem file",
                        description="Compute the continuous (A, B, E, C) of a MuJoCo plant (folder with mujoco.toml) "
                                    "from the MJCF's parameters, cross-check them against finite differences of "
@@ -411,6 +417,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="PROBLEM.toml", help="problem file (default: FOLDER/problem.toml)")
     p.set_defaults(func=_cmd_linearize)
 
+
+def _add_cosim(sub) -> None:
+    """The arguments of ``uiofmu cosim``."""
     p = sub.add_parser("cosim", help="co-simulate a plant FMU and an observer FMU with aperiodic steps",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        description="Run the plant and observer FMUs together (fmpy) and write DIR/results.csv "
@@ -444,6 +453,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "(DIR/results.parquet, needs pyarrow); binary ones write a long run's table many times faster")
     p.set_defaults(func=_cmd_cosim)
 
+
+def _add_report(sub) -> None:
+    """The arguments of ``uiofmu report``."""
     p = sub.add_parser("report", help="draw a run's report.png again from its results.csv and metrics.json",
                        description="Draw RUN_DIR/report.png again from the RUN_DIR/results.csv and "
                                    "RUN_DIR/metrics.json that `uiofmu cosim --out RUN_DIR` wrote (with this "
@@ -454,6 +466,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--title", metavar="TEXT", help="the figure's title (default: the one in metrics.json)")
     p.set_defaults(func=_cmd_report)
 
+
+def _add_campaign(sub) -> None:
+    """The arguments of ``uiofmu campaign``."""
     p = sub.add_parser("campaign", help="many co-simulations on Dask: sampled scenarios, worst case, quantiles",
                        description="Run a validation campaign (a TOML file: the FMUs or a problem, the runs, "
                                    "the axes to sample; see README, Campaigns) on Dask: a LocalCluster of worker "
@@ -469,6 +484,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--replay", type=_count(0), metavar="ROW", help="re-run only this row")
     p.set_defaults(func=_cmd_campaign)
 
+
+def _add_validate(sub) -> None:
+    """The arguments of ``uiofmu validate``."""
     p = sub.add_parser("validate", help="fmpy's validate_fmu plus a self-test against the reference runtime",
                        description="Check an FMU built by uiofmu: fmpy's validate_fmu must report nothing, then "
                                    "the FMU runs side by side with the reference (the runtime for observers, "
@@ -481,12 +499,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=_cmd_validate)
 
+
+def _add_demo(sub) -> None:
+    """The arguments of ``uiofmu demo``."""
     p = sub.add_parser("demo", help="the main job: two-room building (seed 004), packet drop-outs",
                        description="Design the observer of the two-room building (seed 004, its problem file) with the "
                                    "largest certified decay, build observer and plant FMUs, co-simulate two days "
                                    "with random packet drop-outs and report measured against certified convergence.")
     p.add_argument("--out", default="out/demo", metavar="DIR", help="output folder (default out/demo)")
     p.set_defaults(func=_cmd_demo)
+
+
+#: The subcommands' arguments, in the order ``uiofmu --help`` lists them.
+_SUBCOMMANDS = (_add_check, _add_design, _add_build, _add_verify, _add_plant, _add_linearize, _add_cosim, _add_report,
+                _add_campaign, _add_validate, _add_demo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (also used to document the commands)."""
+    parser = Parser(
+        prog="uiofmu", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG,
+        description="Design unknown-input observers from a TOML problem file, certify them, and ship them "
+                    "as FMI 2.0 Co-Simulation FMUs.")
+    from . import __version__
+    parser.add_argument("--version", action="version", version=f"uiofmu {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    parser.commands = sub.choices
+    sub.required = True
+    for add in _SUBCOMMANDS:
+        add(sub)
     return parser
 
 

@@ -305,10 +305,55 @@ def run_ecospy(plant_fmu, observer_fmu, step: float, steps: int, inputs=None, *,
         ecospy's own, with its last error message (an FMU that does not load, a variable
         that does not exist).
     """
-    from ecospy import EcosSimulation, EcosSimulationStructure, SimulationListener
+    from ecospy import EcosSimulation, EcosSimulationStructure
 
     preload_libpython()
     K = int(steps)
+    wiring = _wiring(plant_fmu, observer_fmu, estimate)
+    seconds = {}
+    t0 = time.perf_counter()
+    with EcosSimulationStructure() as ss:
+        ss.add_model("plant", Path(plant_fmu).resolve())
+        ss.add_model("observer", Path(observer_fmu).resolve())
+        for source, sink in wiring.connections:
+            if source.split("::", 1)[1] in wiring.integers["plant"]:
+                ss.make_int_connection(source, sink)
+            else:
+                ss.make_real_connection(source, sink)
+        with EcosSimulation(structure=ss, step_size=float(step)) as sim:
+            seconds["build"] = time.perf_counter() - t0
+            recorder = _Recorder(sim, wiring, inputs, K)
+            seconds.update(recorder.run(K))
+            sim.terminate()
+    return EcospyRun(recorder.T, recorder.X, recorder.XH, wiring.connections, seconds)
+
+
+@dataclass
+class _Wiring:
+    """How :func:`run_ecospy` connects the plant and observer FMUs and what it sets and records.
+
+    Attributes
+    ----------
+    integers : dict
+        ``{"plant": names, "observer": names}`` of the Integer variables.
+    sinks : list of (str, str, list)
+        ``(FMU, input, its variables)`` that the inputs set: every plant input, and the observer's
+        that no plant output feeds.
+    x_ids, xhat_ids : list of str
+        The variables recorded as ``x`` and ``xhat``.
+    connections : list of (str, str)
+        Plant outputs to the observer inputs of the same name, element by element.
+    """
+
+    integers: dict
+    sinks: list
+    x_ids: list
+    xhat_ids: list
+    connections: list
+
+
+def _wiring(plant_fmu, observer_fmu, estimate: str) -> _Wiring:
+    """The :class:`_Wiring` of two FMUs, read from their model descriptions."""
     md = {"plant": _description(plant_fmu), "observer": _description(observer_fmu)}
     plant_out, plant_in = ports(md["plant"], "output"), ports(md["plant"], "input")
     obs_out, obs_in = ports(md["observer"], "output"), ports(md["observer"], "input")
@@ -321,69 +366,78 @@ def run_ecospy(plant_fmu, observer_fmu, step: float, steps: int, inputs=None, *,
     x_ids = [f"plant::{v}" for v in plant_out["x"]]
     xhat_ids = [f"observer::{v}" for v in obs_out[estimate]]
     connections = [(f"plant::{a}", f"observer::{b}") for name in fed for a, b in zip(plant_out[name], obs_in[name])]
+    return _Wiring(integers, sinks, x_ids, xhat_ids, connections)
 
-    seconds = {}
-    t0 = time.perf_counter()
-    with EcosSimulationStructure() as ss:
-        ss.add_model("plant", Path(plant_fmu).resolve())
-        ss.add_model("observer", Path(observer_fmu).resolve())
-        for source, sink in connections:
-            if source.split("::", 1)[1] in integers["plant"]:
-                ss.make_int_connection(source, sink)
-            else:
-                ss.make_real_connection(source, sink)
-        with EcosSimulation(structure=ss, step_size=float(step)) as sim:
-            seconds["build"] = time.perf_counter() - t0
-            T, X, XH = np.zeros(K + 1), np.zeros((K + 1, len(x_ids))), np.zeros((K + 1, len(xhat_ids)))
-            errors: list[BaseException] = []
 
-            def set_inputs(t: float) -> None:
-                if inputs is None:
-                    return
-                values = inputs.values(t)
-                for who, name, names in sinks:
-                    for v, value in zip(names, np.ravel(values[name])):
-                        if v in integers[who]:
-                            sim.set_integer(f"{who}::{v}", int(round(float(value))))
-                        else:
-                            sim.set_real(f"{who}::{v}", float(value))
+class _Recorder:
+    """The inputs set before each ecospy step and ``x`` and the estimate recorded after it (rows of ``T``,
+    ``X``, ``XH``); an exception raised in ecospy's callbacks is kept in ``errors`` and raised after the
+    step (exceptions must not cross the native frames of ecospy's callbacks)."""
 
-            def record(k: int) -> None:
-                T[k] = sim.get_time()
-                X[k] = [sim.get_real(i) for i in x_ids]
-                XH[k] = [sim.get_real(i) for i in xhat_ids]
+    def __init__(self, sim, wiring: _Wiring, inputs, K: int):
+        self.sim, self.wiring, self.inputs = sim, wiring, inputs
+        self.T, self.X = np.zeros(K + 1), np.zeros((K + 1, len(wiring.x_ids)))
+        self.XH = np.zeros((K + 1, len(wiring.xhat_ids)))
+        self.errors: list[BaseException] = []
 
-            class Listener(SimulationListener):
-                # Exceptions must not cross the native frames of ecospy's callbacks: keep them.
-                def pre(self, info):
-                    try:
-                        set_inputs(info.time)
-                    except BaseException as exc:  # noqa: BLE001 - re-raised after the step
-                        errors.append(exc)
+    def set_inputs(self, t: float) -> None:
+        """Set the inputs' values at ``t`` on the sinks (nothing without inputs)."""
+        if self.inputs is None:
+            return
+        values = self.inputs.values(t)
+        for who, name, names in self.wiring.sinks:
+            for v, value in zip(names, np.ravel(values[name])):
+                if v in self.wiring.integers[who]:
+                    self.sim.set_integer(f"{who}::{v}", int(round(float(value))))
+                else:
+                    self.sim.set_real(f"{who}::{v}", float(value))
 
-                def post(self, info):
-                    try:
-                        record(info.iterations)
-                    except BaseException as exc:  # noqa: BLE001
-                        errors.append(exc)
+    def record(self, k: int) -> None:
+        """Record row ``k``: ecospy's time, ``x`` and the estimate."""
+        self.T[k] = self.sim.get_time()
+        self.X[k] = [self.sim.get_real(i) for i in self.wiring.x_ids]
+        self.XH[k] = [self.sim.get_real(i) for i in self.wiring.xhat_ids]
 
-            set_inputs(0.0)
-            t0 = time.perf_counter()
-            if not sim.init(0.0):
-                from ecospy import EcosLib
+    def listener(self):
+        """An ecospy ``SimulationListener`` that sets the inputs before each step and records after it."""
+        from ecospy import SimulationListener
 
-                raise RuntimeError(f"ecospy init failed: {EcosLib.get_last_error()}")
-            record(0)
-            seconds["init"] = time.perf_counter() - t0
-            sim.add_listener("uiofmu", Listener())
-            t0 = time.perf_counter()
-            sim.step(K)
-            seconds["steps"] = time.perf_counter() - t0
-            if errors:
-                raise errors[0]
-            sim.terminate()
-    return EcospyRun(T, X, XH, connections, seconds)
+        recorder = self
 
+        class Listener(SimulationListener):
+            # Exceptions must not cross the native frames of ecospy's callbacks: keep them.
+            def pre(self, info):
+                try:
+                    recorder.set_inputs(info.time)
+                except BaseException as exc:  # noqa: BLE001 - re-raised after the step
+                    recorder.errors.append(exc)
+
+            def post(self, info):
+                try:
+                    recorder.record(info.iterations)
+                except BaseException as exc:  # noqa: BLE001
+                    recorder.errors.append(exc)
+
+        return Listener()
+
+    def run(self, K: int) -> dict:
+        """Initialise the simulation at t = 0 and take ``K`` steps; the wall time of ``init`` and ``steps``."""
+        seconds = {}
+        self.set_inputs(0.0)
+        t0 = time.perf_counter()
+        if not self.sim.init(0.0):
+            from ecospy import EcosLib
+
+            raise RuntimeError(f"ecospy init failed: {EcosLib.get_last_error()}")
+        self.record(0)
+        seconds["init"] = time.perf_counter() - t0
+        self.sim.add_listener("uiofmu", self.listener())
+        t0 = time.perf_counter()
+        self.sim.step(K)
+        seconds["steps"] = time.perf_counter() - t0
+        if self.errors:
+            raise self.errors[0]
+        return seconds
 
 __all__ = ["EcospyRun", "EcospyUnavailable", "FmpyStalled", "import_ecospy", "integer_variables", "ports",
            "preload_libpython", "preload_tbb", "run_ecospy", "run_fmpy_default"]

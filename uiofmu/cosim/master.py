@@ -28,8 +28,7 @@ from ..certificate import overshoot_text
 from ..families import certified_bound
 from .fmi import Fmu, FmuCallError, first_non_integer, not_an_integer, read_description, read_model_json, vector_sizes
 from .inputs import CsvInputs, SignalInputs, values_at
-from .metrics import delayed_metrics, error_metrics, functional_metrics, mode_metrics
-from .result import CosimResult
+from .result import CosimResult, run_result
 from ..progress import progress
 from ..runtime.observer import Runtime
 from ..runtime.experiments import default_horizon as default_t_end
@@ -142,13 +141,7 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         # loaded here are closed here, also when the second fails to load; given ones stay open
         plant, obs = instances or (stack.enter_context(Fmu(plant_path, "plant")),
                                    stack.enter_context(Fmu(observer_path, "observer")))
-        if not plant.has("x"):
-            raise FmuError(f"{plant_path}: the plant FMU has no x[...] outputs; the error needs the true state")
-        fed, sourced = routes(plant, obs, inputs.sizes)
-        plant.initialize(0.0, {**(plant_parameters or {}), **({"x0": plant_x0} if plant_x0 is not None else {})})
-        obs.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
-        # the true parameters of a plant with unknown ones, as the plant FMU simulates them
-        theta_true = plant.get("theta") if "theta" in plant.ports("parameter") else None
+        fed, sourced, theta_true = _initialize(plant, obs, plant_path, inputs, plant_parameters, plant_x0, xhat0)
         cpu1 = time.process_time()
         T = communication_points(steps)
         plant_inputs = list(plant.ports("input"))
@@ -160,44 +153,64 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         with progress(total=K, desc="co-simulation", unit="step", enabled=show_progress) as bar:
             loop.run(T.tolist(), steps.tolist(), bar)
         cpu3 = time.process_time()
-        n, p = len(plant.refs("x")), len(plant.refs("y"))
-        m, q = len(plant.refs("u")), len(plant.refs("d"))
-        X, Y = np.zeros((K + 1, n)), np.zeros((K + 1, p))
-        U, D = np.zeros((K + 1, m)), np.zeros((K + 1, q))
-        X[:], Y[:] = loop.plant_history("x"), loop.plant_history("y")
-        if "u" in source:
-            U[:] = source["u"]
-        if "d" in source:
-            D[:] = source["d"]
-        H = {name: np.zeros((K + 1, size)) for name, size in obs.ports("output").items()}
-        for name, history in H.items():
-            history[:] = loop.observer_history(name)
-        MODE = None
-        if obs.has("mode"):
-            MODE = loop.plant_history("mode")[:, 0].copy() if "mode" in fed else np.round(source["mode"])[:, 0]
+        X, Y, U, D, H, MODE = _histories(loop, plant, obs, source, fed, K)
         cpu4 = time.process_time()
     timing = {"steps": cpu4 - cpu1, "loop": cpu3 - cpu2, "fmi_calls_per_step": loop.calls_per_step}
+    return _timed(_result(card, T, steps, X, Y, U, D, H, MODE, theta_true), timing, cpu0)
+
+
+def _initialize(plant: Fmu, obs: Fmu, plant_path, inputs, plant_parameters, plant_x0, xhat0) -> tuple:
+    """Route the signals and initialise both FMUs: ``(fed, sourced)`` of :func:`routes` and the plant's
+    true ``theta`` (None for a plant without one)."""
+    if not plant.has("x"):
+        raise FmuError(f"{plant_path}: the plant FMU has no x[...] outputs; the error needs the true state")
+    fed, sourced = routes(plant, obs, inputs.sizes)
+    plant.initialize(0.0, {**(plant_parameters or {}), **({"x0": plant_x0} if plant_x0 is not None else {})})
+    obs.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
+    # the true parameters of a plant with unknown ones, as the plant FMU simulates them
+    theta_true = plant.get("theta") if "theta" in plant.ports("parameter") else None
+    return fed, sourced, theta_true
+
+
+def _histories(loop: _Loop, plant: Fmu, obs: Fmu, source: dict, fed: list, K: int) -> tuple:
+    """``(X, Y, U, D, H, MODE)`` of a finished loop: the plant's state and outputs, the inputs, the
+    observer's outputs by name and the plant's mode (None without one)."""
+    n, p = len(plant.refs("x")), len(plant.refs("y"))
+    m, q = len(plant.refs("u")), len(plant.refs("d"))
+    X, Y = np.zeros((K + 1, n)), np.zeros((K + 1, p))
+    U, D = np.zeros((K + 1, m)), np.zeros((K + 1, q))
+    X[:], Y[:] = loop.plant_history("x"), loop.plant_history("y")
+    if "u" in source:
+        U[:] = source["u"]
+    if "d" in source:
+        D[:] = source["d"]
+    H = {name: np.zeros((K + 1, size)) for name, size in obs.ports("output").items()}
+    for name, history in H.items():
+        history[:] = loop.observer_history(name)
+    MODE = None
+    if obs.has("mode"):
+        MODE = loop.plant_history("mode")[:, 0].copy() if "mode" in fed else np.round(source["mode"])[:, 0]
+    return X, Y, U, D, H, MODE
+
+
+def _result(card: Card, T, steps, X, Y, U, D, H, MODE, theta_true) -> CosimResult:
+    """The run's :class:`CosimResult` with its metrics (:func:`uiofmu.cosim.result.run_result`), as the
+    observer's kernel reads its histories."""
     if card.kernel == "window":
-        return _timed(_functional_result(card, T, steps, X, Y, U, D, H, MODE), timing, cpu0)
+        return _functional_result(card, T, steps, X, Y, U, D, H, MODE)
     if card.kernel == "delayed":
-        return _timed(_delayed_result(card, T, steps, X, Y, U, D, H, theta_true), timing, cpu0)
+        return _delayed_result(card, T, steps, X, Y, U, D, H, theta_true)
     XH, R = H["xhat"], H["r"]
-    DH = H.get("dhat", np.zeros((K + 1, 0)))
-    nq = DH.shape[1]
-    result = CosimResult(T, steps, X, XH, Y, U, D, R, DH, card=card, mode=MODE)
+    DH = H.get("dhat", np.zeros((len(T), 0)))
     bound = certified_bound(card, X[0] - XH[0], D)
-    result.bound = bound
-    result.metrics = error_metrics(T, steps, X, XH, bound, card.data.get("decay_bound"),
-                                   card.data.get("overshoot_bound"), D if nq else None, DH if nq else None)
+    text = None
     if bound is not None:
         text = card.data.get("bound", "")
         if card.data.get("overshoot_bound") is not None:
             text = (text.replace("overshoot_bound", overshoot_text(card.data))
                     .replace("decay_bound**k", f"{card.data['decay_bound']:.6g}^k"))
-        result.metrics["bound_formula"] = text
-    if MODE is not None:
-        result.metrics["modes"] = mode_metrics(MODE)
-    return _timed(result, timing, cpu0)
+    return run_result(T, steps, X, XH, Y, U, D, R, DH, card=card, mode=MODE, bound=bound,
+                      decay=card.data.get("decay_bound"), overshoot=card.data.get("overshoot_bound"), bound_text=text)
 
 
 def _timed(result: CosimResult, timing: dict, cpu0: float) -> CosimResult:
@@ -444,36 +457,27 @@ def _refused(who: str, k: int, t: float, h: float, exc: FmuCallError) -> FmuErro
 
 def _functional_result(card, T, steps, X, Y, U, D, H, MODE) -> CosimResult:
     """The run of a functional observer (window kernel): ``gx`` against ``G x`` of the point
-    ``delay`` steps back (NaN before there is one), and :func:`functional_metrics`."""
+    ``delay`` steps back (NaN before there is one), and :func:`~uiofmu.cosim.metrics.functional_metrics`."""
     G = np.asarray(card.data["matrices"]["G"], dtype=float)
     delay, K1 = int(card.schedule["delay"]), len(T)
     true = np.full((K1, G.shape[0]), np.nan)
     true[delay:] = X[:K1 - delay] @ G.T
     empty = np.zeros((K1, 0))
-    result = CosimResult(T, steps, X, empty, Y, U, D, empty, empty, card=card, mode=MODE,
-                         functional={"gx": H["gx"], "true": true, "valid": H["gx_valid"][:, 0]})
-    result.metrics = functional_metrics(T, steps, H["gx"], true, H["gx_valid"][:, 0], delay,
-                                        int(card.schedule["length"]))
-    result.metrics["formula"] = card.data.get("formula", "")
-    return result
+    return run_result(T, steps, X, empty, Y, U, D, empty, empty, card=card, mode=MODE,
+                      functional={"gx": H["gx"], "true": true, "valid": H["gx_valid"][:, 0]},
+                      window=(delay, int(card.schedule["length"])), formula=card.data.get("formula", ""))
 
 
 def _delayed_result(card, T, steps, X, Y, U, D, H, theta_true) -> CosimResult:
-    """The run of a delayed observer (seed 001): the state error metrics, :func:`delayed_metrics`
+    """The run of a delayed observer (seed 001): the state error metrics, :func:`~uiofmu.cosim.metrics.delayed_metrics`
     (theta against the plant's true theta, validity), and no certified bound: the card's bound holds
     on its premise set only, which a run is not known to stay in."""
-    K1 = len(T)
-    empty = np.zeros((K1, 0))
-    valid = H["valid"][:, 0]
-    sigma_bound = float(card.schedule["sigma_bound"])
+    empty = np.zeros((len(T), 0))
     theta = None if theta_true is None or theta_true.size != H["thetahat"].shape[1] else theta_true
-    result = CosimResult(T, steps, X, H["xhat"], Y, U, D, H["r"], empty, card=card,
-                         delayed={"thetahat": H["thetahat"], "theta": theta, "sigma_min": H["sigma_min"][:, 0],
-                                  "valid": valid, "sigma_bound": sigma_bound})
-    result.metrics = error_metrics(T, steps, X, H["xhat"])
-    result.metrics.update(delayed_metrics(T, steps, X, H["xhat"], H["thetahat"], theta, valid, H["sigma_min"][:, 0],
-                                          sigma_bound, card.data.get("bound", "")))
-    return result
+    delayed = {"thetahat": H["thetahat"], "theta": theta, "sigma_min": H["sigma_min"][:, 0],
+               "valid": H["valid"][:, 0], "sigma_bound": float(card.schedule["sigma_bound"])}
+    return run_result(T, steps, X, H["xhat"], Y, U, D, H["r"], empty, card=card, delayed=delayed,
+                      bound_text=card.data.get("bound", ""))
 
 
 def routes(plant, obs, source: dict) -> tuple[list, list]:

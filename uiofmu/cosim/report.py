@@ -12,8 +12,8 @@ import numpy as np
 from ..runtime.errors import ProblemError
 from ..runtime.files import atomic_output
 from ..runtime.labels import axis_label, check_labels, element_label
-from .metrics import allowance, delayed_metrics, error_metrics, functional_metrics, mode_metrics
-from .result import CosimResult
+from .metrics import allowance
+from .result import run_result
 
 
 def pyplot():
@@ -681,8 +681,8 @@ def _number(metrics: dict, keys: tuple, where, integer: bool = False, optional: 
 
 def _result_from_table(columns: dict, path, metrics: dict, where):
     """A :class:`~uiofmu.cosim.result.CosimResult` of the columns of the table ``path``, with its metrics
-    computed again (:mod:`uiofmu.cosim.metrics`) from them and the design's numbers in ``metrics`` (read from
-    ``where``)."""
+    computed again (:func:`~uiofmu.cosim.result.run_result`) from them and the design's numbers in ``metrics``
+    (read from ``where``)."""
     T, H = columns["time"], columns["h"][:-1]
     X, XH, D, DH = (_vector(columns, n, path) for n in ("x", "xhat", "d", "dhat"))
     Y, U = _vector(columns, "y", path), _vector(columns, "u", path)
@@ -699,38 +699,38 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
         raise ProblemError(f"{path}: mode must hold an integer on every line (line "
                            f"{int(np.argmax(~(np.isfinite(mode) & (mode == np.round(mode))))) + 2})")
     if "gx_valid" in columns:                            # a functional observer
-        gx, true, valid = _vector(columns, "gx", path), _vector(columns, "gx_true", path), columns["gx_valid"]
-        if gx.shape != true.shape or not gx.shape[1]:
-            raise ProblemError(f"{path}: {gx.shape[1]} columns gx[i] but {true.shape[1]} columns gx_true[i]")
-        delay, window = (_number(metrics, (k,), where, integer=True) for k in ("delay", "window"))
-        result = CosimResult(*args, mode=mode, functional={"gx": gx, "true": true, "valid": valid}, names=names)
-        result.metrics = {**functional_metrics(T, H, gx, true, valid, delay, window),
-                          "formula": str(metrics.get("formula", ""))[:300]}
-        return result
+        return run_result(*args, mode=mode, names=names, **_functional_run(columns, path, metrics, where))
     if X.shape != XH.shape:                              # every observer but the functional one estimates x
         raise ProblemError(f"{path}: {X.shape[1]} columns x[i] but {XH.shape[1]} columns xhat[i]")
     if "valid" in columns and "sigma_min" in columns:    # a delayed observer
-        thetahat = _vector(columns, "thetahat", path)
-        sigma_bound = _number(metrics, ("validity", "sigma_bound"), where)
-        theta = metrics.get("theta", {}).get("true") if isinstance(metrics.get("theta"), dict) else None
-        if theta is not None and not (isinstance(theta, list) and len(theta) == thetahat.shape[1] and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in theta)):
-            raise ProblemError(f"{where}: theta.true: expected {thetahat.shape[1]} finite numbers")
-        theta = None if theta is None else np.array(theta, dtype=float)
-        result = CosimResult(*args, delayed={"thetahat": thetahat, "theta": theta, "sigma_min": columns["sigma_min"],
-                                             "valid": columns["valid"], "sigma_bound": sigma_bound}, names=names)
-        result.metrics = {**error_metrics(T, H, X, XH), **delayed_metrics(
-            T, H, X, XH, thetahat, theta, columns["valid"], columns["sigma_min"], sigma_bound)}
-        return result
+        return run_result(*args, names=names, delayed=_delayed_run(columns, path, metrics, where))
     bound = columns.get("bound")
     decay = overshoot = None
     if bound is not None:
         decay = _number(metrics, ("certified_decay",), where)
         overshoot = _number(metrics, ("certified_overshoot",), where, optional=True)
-    estimated = DH.shape[1] > 0
-    result = CosimResult(*args, bound=bound, mode=mode, names=names)
-    result.metrics = error_metrics(T, H, X, XH, bound, decay, overshoot, D if estimated else None,
-                                   DH if estimated else None)
-    if mode is not None:
-        result.metrics["modes"] = mode_metrics(mode)
-    return result
+    return run_result(*args, bound=bound, decay=decay, overshoot=overshoot, mode=mode, names=names)
+
+
+def _functional_run(columns: dict, path, metrics: dict, where) -> dict:
+    """The ``functional``, ``window`` and ``formula`` of a functional observer's run, from its table and
+    ``metrics.json``."""
+    gx, true, valid = _vector(columns, "gx", path), _vector(columns, "gx_true", path), columns["gx_valid"]
+    if gx.shape != true.shape or not gx.shape[1]:
+        raise ProblemError(f"{path}: {gx.shape[1]} columns gx[i] but {true.shape[1]} columns gx_true[i]")
+    delay, window = (_number(metrics, (k,), where, integer=True) for k in ("delay", "window"))
+    return {"functional": {"gx": gx, "true": true, "valid": valid}, "window": (delay, window),
+            "formula": str(metrics.get("formula", ""))[:300]}
+
+
+def _delayed_run(columns: dict, path, metrics: dict, where) -> dict:
+    """The ``delayed`` histories of a delayed observer's run, from its table and ``metrics.json``."""
+    thetahat = _vector(columns, "thetahat", path)
+    sigma_bound = _number(metrics, ("validity", "sigma_bound"), where)
+    theta = metrics.get("theta", {}).get("true") if isinstance(metrics.get("theta"), dict) else None
+    if theta is not None and not (isinstance(theta, list) and len(theta) == thetahat.shape[1] and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in theta)):
+        raise ProblemError(f"{where}: theta.true: expected {thetahat.shape[1]} finite numbers")
+    theta = None if theta is None else np.array(theta, dtype=float)
+    return {"thetahat": thetahat, "theta": theta, "sigma_min": columns["sigma_min"], "valid": columns["valid"],
+            "sigma_bound": sigma_bound}

@@ -1,5 +1,6 @@
 """The histories of one co-simulation and its metrics (:class:`CosimResult`): what the master returns,
-``results.csv`` holds and the report draws.
+``results.csv`` holds and the report draws; :func:`run_result` makes one of a run's histories, as the
+master records them and as ``uiofmu report`` reads them back.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import numpy as np
 
 from ..runtime.card import Card
 from ..runtime.labels import column_labels
+from .metrics import delayed_metrics, error_metrics, functional_metrics, mode_metrics
 
 
 @dataclass
@@ -74,4 +76,60 @@ class CosimResult:
         return cols
 
 
-__all__ = ["CosimResult"]
+def run_result(times, h, x, xhat, y, u, d, r, dhat, *, mode=None, bound=None, decay=None, overshoot=None,
+               functional: dict | None = None, window: tuple | None = None, formula: str = "",
+               delayed: dict | None = None, bound_text: str | None = None, **known) -> CosimResult:
+    """A run's :class:`CosimResult` with its metrics computed from its histories (:mod:`uiofmu.cosim.metrics`).
+
+    Parameters
+    ----------
+    times, h, x, xhat, y, u, d, r, dhat : arrays
+        The histories (row k is t_k; ``h`` the K steps).
+    mode : array, optional
+        The plant's mode at each point (a switched plant): ``metrics["modes"]``.
+    bound, decay, overshoot : optional
+        The certified bound at each point and the design's decay and overshoot it is compared with.
+    functional : dict, optional
+        A functional observer's ``gx``, ``true`` and ``valid``.
+    window : (int, int), optional
+        With ``functional``: its ``(delay, length)``.
+    formula : str
+        With ``functional``: its ``metrics["formula"]``.
+    delayed : dict, optional
+        A delayed observer's ``thetahat``, ``theta``, ``sigma_min``, ``valid`` and ``sigma_bound``.
+    bound_text : str, optional
+        The card's bound in words: of a delayed observer, for its metrics; else ``metrics["bound_formula"]``
+        (with a bound only).
+    **known
+        ``card`` or ``names`` (:class:`CosimResult`).
+
+    Returns
+    -------
+    CosimResult
+    """
+    args = (times, h, x, xhat, y, u, d, r, dhat)
+    if functional is not None:
+        result = CosimResult(*args, mode=mode, functional=functional, **known)
+        result.metrics = functional_metrics(times, h, functional["gx"], functional["true"], functional["valid"],
+                                            *window)
+        result.metrics["formula"] = formula
+        return result
+    if delayed is not None:
+        dl = delayed
+        result = CosimResult(*args, delayed=delayed, **known)
+        result.metrics = error_metrics(times, h, x, xhat)
+        result.metrics.update(delayed_metrics(times, h, x, xhat, dl["thetahat"], dl["theta"], dl["valid"],
+                                              dl["sigma_min"], dl["sigma_bound"], bound_text or ""))
+        return result
+    estimated = dhat.shape[1] > 0
+    result = CosimResult(*args, bound=bound, mode=mode, **known)
+    result.metrics = error_metrics(times, h, x, xhat, bound, decay, overshoot, d if estimated else None,
+                                   dhat if estimated else None)
+    if bound is not None and bound_text is not None:
+        result.metrics["bound_formula"] = bound_text
+    if mode is not None:
+        result.metrics["modes"] = mode_metrics(mode)
+    return result
+
+
+__all__ = ["CosimResult", "run_result"]

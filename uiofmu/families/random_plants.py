@@ -457,6 +457,42 @@ def draw(family: str, seed: int, **knobs) -> RandomProblem:
     ValueError
         For an unknown family or knob, or sizes out of range.
     """
+    _check_request(family, seed, knobs)
+    rng = np.random.default_rng([int(seed), FAMILY_CODES[family]])
+    klass, time = _class_and_time(rng, family, knobs)
+    n, p, q, m = _sizes(rng, klass, knobs, time)
+    # the base step in normalised time (continuous plants), time scale and unit of d
+    kappa = 10.0 ** (rng.uniform(-1.5, -0.5) if family == "sampled-data" else rng.uniform(-1.5, 0.0))
+    log_t = float(rng.uniform(-3, 3)) if time == "continuous" else None
+    log_d = float(rng.uniform(-3, 3))
+    discrete = time == "discrete"
+    A, B, E, C, zeros, margin, attempts = _plant_attempts(rng, klass, n, p, q, m, time, kappa)
+    scale_t = 10.0 ** log_t if log_t is not None else 1.0
+    A = A * scale_t
+    E = E * (10.0 ** log_d) * scale_t
+    B = B * scale_t
+    zeros = zeros * scale_t
+    base = kappa / scale_t if not discrete else None
+    observer, extra = _observer(rng, family, knobs, zeros, discrete, base)
+    fractions = tuple(float(rng.uniform(lo, hi)) for lo, hi in FRACTION_RANGES)
+    plant = {"time": time, "A": A.tolist(), "E": E.tolist(), "C": C.tolist()}
+    if m:
+        plant["B"] = B.tolist()
+    if discrete:
+        plant["dt"] = 0.1
+    name = _name(family, int(seed), klass, time, n, p, q, m, log_t, log_d, extra)
+    doc = {"name": name, "plant": plant, "observer": observer}
+    if klass in NO_OBSERVER_CLASSES:
+        expect = False if (discrete or klass == "unstable-zero") else None
+    else:
+        expect = True
+    return RandomProblem(doc=doc, family=family, seed=int(seed), plant_class=klass, time=time, n=n, p=p, q=q,
+                         m=m, expect_exists=expect, zeros=tuple(complex(z) for z in zeros), margin=margin,
+                         base_step=base, fractions=fractions, attempts=attempts)
+
+
+def _check_request(family: str, seed: int, knobs: dict) -> None:
+    """Refuse an unknown family or knob and a negative seed (:func:`draw`)."""
     if family not in FAMILY_CODES:
         raise ValueError(f"random_problem: unknown family {family!r} (families: {', '.join(FAMILY_CODES)})")
     unknown = sorted(set(knobs) - set(KNOBS))
@@ -464,7 +500,11 @@ def draw(family: str, seed: int, **knobs) -> RandomProblem:
         raise ValueError(f"random_problem: unknown knob {unknown[0]!r} (knobs: {', '.join(KNOBS)})")
     if int(seed) < 0:
         raise ValueError(f"random_problem: seed must be >= 0, found {seed}")
-    rng = np.random.default_rng([int(seed), FAMILY_CODES[family]])
+
+
+def _class_and_time(rng, family: str, knobs: dict) -> tuple:
+    """The plant class and time (``"discrete"`` or ``"continuous"``) of a draw: drawn, or as the knobs
+    give them (the draws are made either way, so a knob changes nothing else)."""
     names, weights = list(CLASSES), np.array(list(CLASSES.values()))
     klass = str(rng.choice(names, p=weights / weights.sum()))
     klass = knobs.get("plant_class") or klass
@@ -480,11 +520,12 @@ def draw(family: str, seed: int, **knobs) -> RandomProblem:
         time = "discrete" if family == "ltv-auid" else "continuous"
     if time not in ("discrete", "continuous"):
         raise ValueError(f"random_problem: time must be 'discrete' or 'continuous', found {time!r}")
-    n, p, q, m = _sizes(rng, klass, knobs, time)
-    # the base step in normalised time (continuous plants), time scale and unit of d
-    kappa = 10.0 ** (rng.uniform(-1.5, -0.5) if family == "sampled-data" else rng.uniform(-1.5, 0.0))
-    log_t = float(rng.uniform(-3, 3)) if time == "continuous" else None
-    log_d = float(rng.uniform(-3, 3))
+    return klass, time
+
+
+def _plant_attempts(rng, klass, n, p, q, m, time, kappa) -> tuple:
+    """``(A, B, E, C, zeros, margin, attempts)``: :func:`_draw_plant` drawn again (at most 20 times) until
+    its invariant zeros are the ones intended (a rank-deficient plant's are not checked)."""
     discrete = time == "discrete"
     attempts = 0
     while True:
@@ -496,13 +537,11 @@ def draw(family: str, seed: int, **knobs) -> RandomProblem:
                 raise
             continue
         if klass == "rank-deficient" or _zeros_match(A, E, C, zeros, discrete) or attempts >= 20:
-            break
-    scale_t = 10.0 ** log_t if log_t is not None else 1.0
-    A = A * scale_t
-    E = E * (10.0 ** log_d) * scale_t
-    B = B * scale_t
-    zeros = zeros * scale_t
-    base = kappa / scale_t if not discrete else None
+            return A, B, E, C, zeros, margin, attempts
+
+
+def _observer(rng, family: str, knobs: dict, zeros, discrete: bool, base) -> tuple:
+    """The ``[observer]`` table of a draw and the suffix of its name (``-N3`` for 3 sampled-data intervals)."""
     observer: dict = {"family": family}
     extra = ""
     if family == "lti-uio":
@@ -523,21 +562,7 @@ def draw(family: str, seed: int, **knobs) -> RandomProblem:
         observer["intervals"] = [float(base * k) for k in multiples]
         observer["alpha"] = "max"
         extra = f"-N{count}"
-    fractions = tuple(float(rng.uniform(lo, hi)) for lo, hi in FRACTION_RANGES)
-    plant = {"time": time, "A": A.tolist(), "E": E.tolist(), "C": C.tolist()}
-    if m:
-        plant["B"] = B.tolist()
-    if discrete:
-        plant["dt"] = 0.1
-    name = _name(family, int(seed), klass, time, n, p, q, m, log_t, log_d, extra)
-    doc = {"name": name, "plant": plant, "observer": observer}
-    if klass in NO_OBSERVER_CLASSES:
-        expect = False if (discrete or klass == "unstable-zero") else None
-    else:
-        expect = True
-    return RandomProblem(doc=doc, family=family, seed=int(seed), plant_class=klass, time=time, n=n, p=p, q=q,
-                         m=m, expect_exists=expect, zeros=tuple(complex(z) for z in zeros), margin=margin,
-                         base_step=base, fractions=fractions, attempts=attempts)
+    return observer, extra
 
 
 def random_problem(family: str, seed: int, **knobs) -> dict:

@@ -1,0 +1,111 @@
+"""The scenarios of a campaign's rows: each a function of the campaign's seed and the row index
+only, drawn along the campaign's axes when it is asked for."""
+
+from __future__ import annotations
+
+from itertools import islice
+
+import numpy as np
+
+from ...runtime.errors import ProblemError
+from .file import Campaign
+from .fmus import Setup
+
+
+def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
+    """The scenario of one row: a function of the campaign seed and the row index only.
+
+    Parameters
+    ----------
+    campaign : Campaign
+    setup : Setup
+        Gives the vector sizes and the default steps.
+    row : int
+        0 <= row < campaign.runs.
+
+    Returns
+    -------
+    dict
+        ``row``, ``steps`` (a SPEC), ``steps_seed``, and per axis its drawn value: ``xhat0_error``
+        (a list), ``d_scale`` (a float), ``plant.NAME`` (lists).
+    """
+    if not 0 <= row < campaign.runs:
+        raise ProblemError(f"--replay: row {row} is not a row of the campaign (0 to {campaign.runs - 1})")
+    rng = np.random.default_rng([campaign.seed, row])
+    specs = campaign.steps or (setup.default_steps,)
+    picks = {}
+    if campaign.grid:
+        index = row % campaign.grid_size()
+        for name, count in reversed(campaign.grid_axes()):
+            index, picks[name] = divmod(index, count)
+    spec = specs[picks["steps"]] if "steps" in picks else specs[int(rng.integers(len(specs)))]
+    out = {"row": row, "steps": spec, "steps_seed": int(rng.integers(2**32))}
+    sizes = {"xhat0_error": setup.n, "d_scale": 1, **{f"plant.{k}": v for k, v in setup.parameters.items()}}
+    integers = {f"plant.{k}" for k in setup.integers}
+    for name, axis in campaign.named_axes():
+        size = sizes[name]
+        value = axis.value(axis.params["values"][picks[name]], size) if name in picks else axis.draw(rng, size)
+        kind = int if name in integers else float
+        out[name] = float(value[0]) if name == "d_scale" else [kind(v) for v in value]
+    return out
+
+
+def scenarios(campaign: Campaign, setup: Setup, start: int = 0):
+    """The scenarios of the rows from ``start`` on, each made when it is asked for (:func:`scenario`).
+
+    Parameters
+    ----------
+    campaign : Campaign
+    setup : Setup
+    start : int
+        The first row.
+
+    Yields
+    ------
+    dict
+        The scenario of row ``start``, then of the next rows up to ``campaign.runs - 1``.
+    """
+    for row in range(start, campaign.runs):
+        yield scenario(campaign, setup, row)
+
+
+def batches(campaign: Campaign, setup: Setup, size: int):
+    """The scenarios of every row in row order, in lists of ``size`` (the last may be shorter), each
+    made when it is asked for: a campaign of any number of runs starts at once.
+
+    Yields
+    ------
+    list of dict
+    """
+    rows = scenarios(campaign, setup)
+    while batch := list(islice(rows, size)):
+        yield batch
+
+
+def scaled_inputs(inputs, scale: float):
+    """The input source with its ``d`` signals scaled by ``scale`` (every term's level and amplitude).
+
+    Parameters
+    ----------
+    inputs : uiofmu.cosim.inputs.SignalInputs
+    scale : float
+
+    Returns
+    -------
+    uiofmu.cosim.inputs.SignalInputs
+    """
+    from ...signals import Signal, Term
+    from ..inputs import SignalInputs
+
+    levels = {"constant": ("value",), "sine": ("amplitude", "offset"), "step": ("value", "initial"),
+              "random": ("mean", "std")}
+
+    def term(t: Term) -> Term:
+        return Term(t.kind, tuple((k, v * scale if k in levels[t.kind] else v) for k, v in t.params))
+
+    signals = inputs.signals
+    d = tuple(Signal(tuple(term(t) for t in s.terms)) for s in signals["d"])
+    return SignalInputs(signals["u"], d, signals.get("mode", ()), signals.get("theta", ()))
+
+
+__all__ = ["batches", "scaled_inputs", "scenario", "scenarios"]
