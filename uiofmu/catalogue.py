@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .certificate import overshoot_text
+from .certificate import UNDETERMINED, overshoot_text
 from .runtime.files import write_atomic
 
 #: The repository (the folder of ``examples/`` and ``plants/``) of an editable install.
@@ -278,9 +278,10 @@ def _observer_steps(card) -> str:
 def _certified(card) -> str:
     d = card.data
     text = d.get("bound") or ""
-    decay = d.get("decay_bound")
+    decay, over = d.get("decay_bound"), None
     if decay is not None and d.get("overshoot_bound") is not None:
-        over = overshoot_text(d)
+        # an overshoot the problem does not determine is named, not given: its digits are the solver's point's
+        over = "K" if d.get("overshoot_digits") == UNDETERMINED else overshoot_text(d)
         if decay < 1e-9:
             text = text.replace("decay_bound**k", "δ^k").replace("overshoot_bound", over)
             text += " with δ < 1e-9: dead-beat (the error is zero after one step, to rounding)"
@@ -288,6 +289,8 @@ def _certified(card) -> str:
             text = text.replace("overshoot_bound", over).replace("decay_bound**k", f"{num(decay)}^k")
         else:
             text += f"; decay_bound {num(decay)}, overshoot_bound {over}"
+    if over == "K":
+        text += "; K from its card (the problem does not determine it)"
     if d.get("formula"):
         text += f"; formula {d['formula']}"
     return round_text(text)

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .runtime.errors import InfeasibleError
-from .lmi import LmiSolution, point_scale
-from .runtime.tolerances import FIGURE_RTOL, IDENTITY_RTOL, LMI_MARGIN, POINT_RTOL, ROUNDING_FACTOR, VERIFY_FRACTION
+from .lmi import HELD, REPRODUCED, LmiSolution, accurate_optimum
+from .runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, ROUNDING_FACTOR, VERIFY_FRACTION
 
 #: The unit round-off of double precision.
 EPS = float(np.finfo(float).eps)
@@ -154,8 +154,14 @@ def overshoot(lyapunov) -> float:
     return float(np.sqrt(eig.max() / eig.min()))
 
 
-#: Significant digits of a figure the solver determines to its full tolerance, and of one it does not.
-FIGURE_DIGITS, LOOSE_FIGURE_DIGITS = 4, 2
+#: Significant digits of a figure the problem determines to the solver's full tolerance, and the
+#: ``overshoot_digits`` of one it does not determine at all (read off whichever point the solver stopped at).
+FIGURE_DIGITS, UNDETERMINED = 4, 0
+
+#: Significant digits of a figure read off the least objective at a held margin and reproduced to
+#: :data:`~uiofmu.runtime.tolerances.HELD_AGREEMENT` (a rounding boundary within that of the value is a chance
+#: of about 1 %).
+HELD_FIGURE_DIGITS = 2
 
 
 def figure_digits(solution: LmiSolution) -> int:
@@ -163,16 +169,25 @@ def figure_digits(solution: LmiSolution) -> int:
 
     :data:`FIGURE_DIGITS` for a closed form, or for the optimum of the system's own objective that
     CLARABEL reached to its full tolerance (``optimal``) with normalisations held to
-    :data:`~uiofmu.runtime.tolerances.FIGURE_RTOL`; :data:`LOOSE_FIGURE_DIGITS` for anything else (an
-    ``optimal_inaccurate`` optimum, the point of largest margin, a point reused from another value, an
-    optimum whose variables are so large that the solver's tolerance leaves its normalisations loose).
+    :data:`~uiofmu.runtime.tolerances.FIGURE_RTOL`; :data:`HELD_FIGURE_DIGITS` for the least objective at
+    a held margin whose figure was reproduced (:meth:`uiofmu.lmi.LmiSystem.least_at_margin`);
+    :data:`UNDETERMINED` for anything else (an ``optimal_inaccurate`` optimum of a plain solve, a least
+    objective at a held margin not reproduced, the point of largest margin, a point reused from
+    another value, an optimum whose variables are so large that the solver's tolerance leaves its
+    normalisations loose): such a figure moved by factors between BLAS kernels (6.4 against 550 on a
+    plant at the edge), so no digit of it is the problem's.
     """
     if solution.status.startswith("closed form"):
         return FIGURE_DIGITS
-    accurate = solution.status == "optimal" and solution.relative_margin is None
-    if accurate and POINT_RTOL * point_scale(solution.values) <= FIGURE_RTOL:
+    if HELD in solution.status and solution.status.endswith(REPRODUCED):
+        return HELD_FIGURE_DIGITS
+    if accurate_optimum(solution):
         return FIGURE_DIGITS
-    return LOOSE_FIGURE_DIGITS
+    return UNDETERMINED
+
+
+#: What follows an overshoot the problem does not determine (:data:`UNDETERMINED`) where it is printed.
+UNDETERMINED_NOTE = "(this point's; not determined by the problem)"
 
 
 def figure_text(value: float, digits: int) -> str:
@@ -184,8 +199,13 @@ def figure_text(value: float, digits: int) -> str:
 
 
 def overshoot_text(data: dict) -> str:
-    """A card's ``overshoot_bound`` to the digits its design determines (``overshoot_digits``; 4 when absent)."""
-    return figure_text(float(data["overshoot_bound"]), int(data.get("overshoot_digits") or FIGURE_DIGITS))
+    """A card's ``overshoot_bound`` to the digits its design determines (``overshoot_digits``; 4 when absent);
+    one the problem does not determine (``overshoot_digits`` 0) to 2 digits, followed by :data:`UNDETERMINED_NOTE`."""
+    digits = data.get("overshoot_digits")
+    value = float(data["overshoot_bound"])
+    if digits == UNDETERMINED:
+        return f"{figure_text(value, 2)} {UNDETERMINED_NOTE}"
+    return figure_text(value, int(digits or FIGURE_DIGITS))
 
 
 def overshoot_check(claimed, lyapunov) -> Check:

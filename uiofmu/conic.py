@@ -364,7 +364,8 @@ class ConicProblem:
         self.P = sp.csc_matrix((np.zeros(0), np.zeros(0, int), np.zeros(self.nvar + 1, int)),
                                shape=(self.nvar, self.nvar))
 
-    def margin_form(self, name: str, margin: float, tie_break: float) -> tuple["ConicProblem", int]:
+    def margin_form(self, name: str, margin: float, tie_break: float,
+                    held: float | None = None) -> tuple["ConicProblem", int]:
         """The largest-margin problem of these LMIs, from the assembled data (no second tracing).
 
         Every strict LMI ``F(x) - margin I`` becomes ``F(x) - t I``; every normalisation (a non-strict
@@ -372,6 +373,11 @@ class ConicProblem:
         ``F_lin(x) - t I``; one equality row makes the traces of the normalised ``F_lin`` add up to 1;
         the objective is ``-t`` plus ``tie_break`` times this problem's own. ``t`` is the variable
         ``name`` (a scalar, last).
+
+        With ``held``, the least objective at a relative margin held: the normalisations keep their
+        constants (``X >= I``), ``t`` is held at ``held`` times the mean eigenvalue of the normalised
+        ``F_lin`` (the trace row becomes ``size t = held sum traces``), and the objective is this problem's
+        own (the least overshoot, as a plain solve's, but with a margin relative to the point's own size).
 
         Returns
         -------
@@ -392,7 +398,8 @@ class ConicProblem:
         if not norms:
             raise ValueError("a largest-margin problem needs a normalisation (a non-strict LMI with a constant part)")
         norm_diag = np.concatenate([diagonal(r, m) for r, _, m in norms])
-        t_rows = np.sort(np.concatenate(strict + [norm_diag]))
+        size = int(sum(m for *_, m in norms))
+        t_rows = np.sort(np.concatenate(strict + ([] if held is not None else [norm_diag])))
         keys = len(self.keys)
         cols = np.repeat(np.arange(self.nvar), np.diff(self._indptr))
         on_trace = np.isin(self._indices, norm_diag)          # the trace row: minus the sum of those rows
@@ -401,9 +408,12 @@ class ConicProblem:
         np.add.at(trace_vals, where, -self._values[on_trace])
         t_vals = np.zeros((t_rows.size, keys))
         t_vals[:, 0] = 1.0                                    # s = F - t I
-        rows = np.concatenate([self._indices, np.full(trace_cols.size, self.nrows), t_rows])
-        cols = np.concatenate([cols, trace_cols, np.full(t_rows.size, self.nvar)])
-        vals = np.vstack([self._values, trace_vals, t_vals])
+        trace_t = np.zeros((0, keys))
+        if held is not None:                                  # size t - held sum traces = 0
+            trace_vals, trace_t = -held * trace_vals, float(size) * np.eye(1, keys)
+        rows = np.concatenate([self._indices, np.full(trace_cols.size + len(trace_t), self.nrows), t_rows])
+        cols = np.concatenate([cols, trace_cols, np.full(len(trace_t), self.nvar), np.full(t_rows.size, self.nvar)])
+        vals = np.vstack([self._values, trace_vals, trace_t, t_vals])
         order = np.lexsort((rows, cols))
         out = copy.copy(self)
         out.nvar, out.nrows = self.nvar + 1, self.nrows + 1
@@ -412,17 +422,18 @@ class ConicProblem:
         b = self._b.copy()
         for rows_ in strict:
             b[rows_, 0] += margin                             # the strictness margin is t now
-        for r, c, _ in norms:
-            b[r:r + c, 0] = 0.0                               # the normalisation's constant goes
-        out._b = np.vstack([b, np.eye(1, keys)])              # the traces add up to 1
+        if held is None:
+            for r, c, _ in norms:
+                b[r:r + c, 0] = 0.0                           # the normalisation's constant goes
+        out._b = np.vstack([b, np.zeros((1, keys)) if held is not None else np.eye(1, keys)])  # traces add up to 1
         out.cones = [*self.cones, clarabel.ZeroConeT(1)]
-        out.q = np.concatenate([tie_break * self.q, [-1.0]])
+        out.q = np.concatenate([self.q, [0.0]]) if held is not None else np.concatenate([tie_break * self.q, [-1.0]])
         out.P = sp.csc_matrix((np.zeros(0), np.zeros(0, int), np.zeros(out.nvar + 1, int)),
                               shape=(out.nvar, out.nvar))
         out.specs = {**self.specs, name: ("scalar",)}
         out.offsets, out.sizes = {**self.offsets, name: self.nvar}, {**self.sizes, name: 1}
         out._basis = {**self._basis, name: np.ones((1, 1, 1))}
-        return out, int(sum(m for *_, m in norms))
+        return out, size
 
     def _pattern(self, blocks: list, to_row: np.ndarray, to_weight: np.ndarray):
         """``A``'s pattern (CSC) and its values per parameter key, from dense coefficient blocks
@@ -455,15 +466,19 @@ class ConicProblem:
         A = sp.csc_matrix((self._values @ weights, self._indices, self._indptr), shape=(self.nrows, self.nvar))
         return A, self._b @ weights
 
-    def solve(self, params: dict, tol: float):
+    def solve(self, params: dict, tol: float, reduced: float | None = None):
         """Solve for the parameter values; returns ``(values or None, status, solver_time)``.
 
+        ``reduced``, when given, is the accuracy an ``optimal_inaccurate`` answer still has (CLARABEL's
+        reduced gap and feasibility tolerances; its defaults are 5e-5 and 1e-4).
         ``solver_time`` is the wall time spent in CLARABEL's calls: its setup (presolve, KKT
         initialisation, equilibration) and its interior-point iterations."""
         A, b = self.data(params)
         settings = clarabel.DefaultSettings()
         settings.verbose = False
         settings.tol_feas = settings.tol_gap_abs = settings.tol_gap_rel = tol
+        if reduced is not None:
+            settings.reduced_tol_feas = settings.reduced_tol_gap_abs = settings.reduced_tol_gap_rel = reduced
         t0 = time.perf_counter()                      # CLARABEL's own time: its setup and its solve
         sol = clarabel.DefaultSolver(self.P, self.q, A, b, self.cones, settings).solve()
         solver_time = time.perf_counter() - t0

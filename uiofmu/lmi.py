@@ -32,10 +32,16 @@ import numpy as np
 from .runtime.errors import InfeasibleError
 from .progress import progress
 from .runtime.tolerances import (
+    FIGURE_RTOL,
+    HELD_AGREEMENT,
+    HELD_PROBE,
     LMI_MARGIN,
     MARGIN_DECISION_RTOL,
     MARGIN_SOLVER_TOL,
     POINT_RTOL,
+    SEARCH_MARGIN_CAP,
+    SEARCH_MARGIN_FRACTION,
+    SEARCH_RESOLUTION,
     SEARCH_TOL,
     SOLVER_TOL,
     VERIFY_FRACTION,
@@ -193,6 +199,12 @@ MARGIN_VARIABLE = "largest margin t"
 #: bound others (``t`` of ``X <= t I``, ``gamma``), far too little to move the margin.
 MARGIN_TIE_BREAK = 1e-12
 
+#: How the status of a point of :meth:`LmiSystem.least_at_margin` ends.
+HELD = "(least objective at a held margin)"
+
+#: How the status of a point of :meth:`LmiSystem.least_at_margin` ends when its figure was reproduced.
+REPRODUCED = f"reproduced to {HELD_AGREEMENT:g}"
+
 
 @dataclass
 class LmiSystem:
@@ -235,6 +247,9 @@ class LmiSystem:
         no proof of infeasibility, and re-checks the mapped point here, in these coordinates; when
         it verifies, later solves start in the new coordinates. Only a failed solve costs the extra
         solve.
+    figure : callable, optional
+        ``figure(values) -> float``: the figure a card reads off a point (its overshoot), which
+        :meth:`least_at_margin` reproduces before it counts as the problem's; the objective without it.
 
     Attributes
     ----------
@@ -257,8 +272,10 @@ class LmiSystem:
     homogeneous: bool = False
     certify: Callable | None = None
     recentre: Callable | None = None
+    figure: Callable | None = None
     _conic: object = field(init=False, repr=False, default=None)
     _margin: tuple | None = field(init=False, repr=False, default=None)
+    _held: dict = field(init=False, repr=False, default_factory=dict)
     _frame: tuple | None = field(init=False, repr=False, default=None)
     _vars: dict = field(init=False, repr=False)
     _params: dict = field(init=False, repr=False)
@@ -343,13 +360,81 @@ class LmiSystem:
             raise ValueError(f"{self.name}: a largest margin needs a homogeneous system")
         return self._recentring(self._margin_in, parameters)
 
-    def _margin_in(self, frame, pvals: dict) -> LmiSolution:
-        """The largest margin in this system's coordinates (``frame`` None) or in a recentred ``frame``
-        ``(system, back)``: there the margin is the frame's, and its point is mapped back and re-checked
-        here (see :meth:`largest_margin`)."""
+    def least_at_margin(self, held: float, **parameters) -> LmiSolution:
+        """The least objective with the margin held at ``held``, scaled to the normalisations and re-checked.
+
+        The problem of :meth:`largest_margin` with ``t`` held (``held`` is relative to the mean eigenvalue
+        of the normalised matrices, as :attr:`LmiSolution.relative_margin`) and the system's own objective
+        (the least overshoot) minimised: as well scaled as the largest margin, and its optimum, unlike the
+        point a plain solve stops at next to the edge, is determined by the problem. A ``"max"`` search
+        keeps this point at the value it found, with half the margin it decided that value by.
+
+        Whether CLARABEL reached that optimum is not read off its word (``optimal`` or
+        ``optimal_inaccurate`` moved with the BLAS kernel, on answers equal to 1e-5 and on answers 40 %
+        apart alike): the problem is solved once more with the margin held
+        :data:`~uiofmu.runtime.tolerances.HELD_PROBE` higher, and the point's figure (:attr:`figure`, else
+        the objective) is reproduced when the two agree to :data:`~uiofmu.runtime.tolerances.HELD_AGREEMENT`.
+
+        Returns
+        -------
+        LmiSolution
+            ``status`` holds :data:`HELD`, and ends in :data:`REPRODUCED` when the figure was reproduced;
+            ``relative_margin`` is ``held``.
+        """
+        if not self.homogeneous:
+            raise ValueError(f"{self.name}: a margin held needs a homogeneous system")
+        sol = self._held_once(held, parameters)
+        if not sol.verified:
+            return sol
+        again = self._held_once(held * (1.0 + HELD_PROBE), parameters)
+        if not again.verified:
+            return sol
+        a, b = self._figure_of(sol), self._figure_of(again)
+        same = np.isfinite(a) and np.isfinite(b) and abs(a - b) <= HELD_AGREEMENT * max(abs(a), abs(b))
+        return replace(sol, status=f"{sol.status}, {REPRODUCED}") if same else sol
+
+    def _figure_of(self, sol: LmiSolution) -> float:
+        """The figure :meth:`least_at_margin` compares: :attr:`figure` of the point, else its objective."""
+        try:
+            value = self.figure(sol.values) if self.figure is not None else sol.objective
+        except (np.linalg.LinAlgError, ValueError):
+            return float("nan")
+        return float(value) if value is not None else float("nan")
+
+    def _held_once(self, held: float, parameters: dict) -> LmiSolution:
+        """One solve of :meth:`least_at_margin`: in the system's own coordinates first (the margin is
+        relative to them), then as :meth:`_recentring` goes on."""
+        attempt = lambda frame, pvals: self._margin_in(frame, pvals, held=held)   # noqa: E731
+        if self._frame is not None:
+            pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
+            sol = attempt(None, pvals)
+            if sol.verified:
+                return sol
+        return self._recentring(attempt, parameters)
+
+    def _margin_form(self, held: float | None) -> tuple:
+        """The largest-margin problem (or the least objective at the relative margin ``held``) and the total
+        size of the normalised matrices, derived once from the assembled LMIs."""
+        if self._margin is None or (held is not None and held not in self._held):
+            from .conic import ConicProblem
+
+            t0 = time.perf_counter()
+            base = self._conic if self._conic is not None else ConicProblem(
+                self.variables, self.parameters, self.build, self.objective, self.margin)
+            if self._margin is None:
+                self._margin = base.margin_form(MARGIN_VARIABLE, self.margin, MARGIN_TIE_BREAK)
+            if held is not None:
+                self._held[held] = base.margin_form(MARGIN_VARIABLE, self.margin, MARGIN_TIE_BREAK, held=held)
+            self.assembly_time += time.perf_counter() - t0
+        return self._margin if held is None else self._held[held]
+
+    def _margin_in(self, frame, pvals: dict, held: float | None = None) -> LmiSolution:
+        """The largest margin (or the least objective at the margin ``held``) in this system's coordinates
+        (``frame`` None) or in a recentred ``frame`` ``(system, back)``: there the margin is the frame's,
+        and its point is mapped back and re-checked here (see :meth:`largest_margin`)."""
         if frame is not None:
             system, back = frame
-            inner = system.largest_margin(**pvals)
+            inner = system.largest_margin(**pvals) if held is None else system.least_at_margin(held, **pvals)
             self.solves += 1
             self.solver_time += inner.solve_time
             if not inner.values:
@@ -357,31 +442,26 @@ class LmiSystem:
             sol = self.recheck(back(inner.values), pvals, inner.status)
             return LmiSolution(sol.values, pvals, inner.status, sol.eig_min, sol.verified and inner.verified,
                                inner.solve_time, inner.setup_time, sol.objective, self.margin, inner.relative_margin)
-        if self._margin is None:
-            from .conic import ConicProblem
-
-            t0 = time.perf_counter()
-            base = self._conic if self._conic is not None else ConicProblem(
-                self.variables, self.parameters, self.build, self.objective, self.margin)
-            self._margin = base.margin_form(MARGIN_VARIABLE, self.margin, MARGIN_TIE_BREAK)
-            self.assembly_time += time.perf_counter() - t0
-        conic, size = self._margin
+        conic, size = self._margin_form(held)
         t0 = time.perf_counter()
-        values, status, solve_time = conic.solve(pvals, MARGIN_SOLVER_TOL)
+        values, status, solve_time = (conic.solve(pvals, MARGIN_SOLVER_TOL) if held is None else
+                                      conic.solve(pvals, self.solver_tol))
         total = time.perf_counter() - t0
         self.solves += 1
         self.solver_time += solve_time
         if not values:
             return LmiSolution({}, pvals, status, {}, False, solve_time, total - solve_time, None, self.margin)
         t = float(values.pop(MARGIN_VARIABLE))
-        relative = t * size
+        relative = t * size if held is None else held
         if not (t > 0 and np.isfinite(t)):
             return LmiSolution({}, pvals, status, {}, False, solve_time, total - solve_time, None, self.margin,
                                relative)
-        sol = self.recheck({k: np.asarray(v) / t for k, v in values.items()}, pvals, f"{status} (largest margin)")
+        scale = t if held is None else 1.0      # a held point keeps the normalisations' constants
+        sol = self.recheck({k: np.asarray(v) / scale for k, v in values.items()}, pvals,
+                           f"{status} {'(largest margin)' if held is None else HELD}")
         return LmiSolution(sol.values, pvals, sol.status, sol.eig_min,
-                           sol.verified and relative >= MARGIN_DECISION_RTOL, solve_time, max(total - solve_time, 0.0),
-                           sol.objective, self.margin, relative)
+                           sol.verified and relative >= MARGIN_DECISION_RTOL, solve_time,
+                           max(total - solve_time, 0.0), sol.objective, self.margin, relative)
 
     def decide(self, **parameters) -> LmiSolution:
         """Whether the parameter values have a certificate, decided by an optimal value.
@@ -658,8 +738,13 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
     value under every BLAS kernel wherever the solver resolves that margin more finely than the
     search's step. When no value verifies that way, the search runs again deciding each value by a
     plain solve (the solver's point, re-checked): a certificate the margins miss is still found. The
-    value found is then solved for the system's own objective (the least overshoot), whose point is
-    kept when it certifies; otherwise the point of largest margin is. The bracket
+    value found is then solved for the system's own objective (the least overshoot) with the margin held
+    at half the search's threshold (:meth:`LmiSystem.least_at_margin`), whose point is kept when it
+    certifies; otherwise the point of largest margin is. The threshold is the problem's own
+    (:data:`~uiofmu.runtime.tolerances.SEARCH_MARGIN_FRACTION` of the margin at the first value that
+    passed), and the bracket is narrowed only while the margins at its ends differ by more than
+    :data:`~uiofmu.runtime.tolerances.SEARCH_RESOLUTION` thresholds: where the margin is flat near the
+    edge, a finer end would be decided by the solver's last digits. The bracket
     comes from theory (zeros, fixed modes), and the search first tries the value ``tol`` inside
     it (never past ``feasible_end``): where theory's limit is reached (as for the building) that
     value is decided at once. Otherwise ``feasible_end`` is tried; when it does not verify either, values
@@ -712,11 +797,33 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
             solves += found[3]
             if found[2].verified:
                 break
-        good, bad, best, _ = found
+        good, bad, best, _, threshold = found
         if not best.verified:
             system.refuse(best, diagnose)
-        best, more = _settled(system, parameter, f(good), best)
+        best, more = _settled(system, parameter, f(good), best, threshold)
     return SearchResult(good, best, solves + more, time.perf_counter() - t0, (good, bad), name or parameter)
+
+
+def _passes(sol: LmiSolution, threshold: float) -> bool:
+    """Whether a value passes: its point certifies, with a largest margin (where it has one) of at least
+    ``threshold``."""
+    return sol.verified and (sol.relative_margin is None or sol.relative_margin >= threshold)
+
+
+def _threshold(first: LmiSolution) -> float:
+    """A search's threshold from the first value that passed (see
+    :data:`~uiofmu.runtime.tolerances.SEARCH_MARGIN_FRACTION`)."""
+    if first.relative_margin is None:
+        return MARGIN_DECISION_RTOL
+    return min(max(SEARCH_MARGIN_FRACTION * first.relative_margin, MARGIN_DECISION_RTOL), SEARCH_MARGIN_CAP)
+
+
+def _resolved(good: LmiSolution, bad: LmiSolution, threshold: float) -> bool:
+    """Whether the largest margins at a bracket's ends differ by less than the search resolves
+    (:data:`~uiofmu.runtime.tolerances.SEARCH_RESOLUTION` thresholds)."""
+    if good.relative_margin is None or bad.relative_margin is None:
+        return False
+    return good.relative_margin - bad.relative_margin < SEARCH_RESOLUTION * threshold
 
 
 def _bisect(decide: Callable, parameter: str, f: Callable, good: float, bad: float, tol: float,
@@ -725,50 +832,74 @@ def _bisect(decide: Callable, parameter: str, f: Callable, good: float, bad: flo
 
     Returns
     -------
-    (float, float, LmiSolution, int)
+    (float, float, LmiSolution, int, float)
         The best value and the nearest refused one, the solution at the best value (not verified
-        when nothing verified: then the one closest to ``safe_end``), and the solves made.
+        when nothing verified: then the one closest to ``safe_end``), the solves made, and the
+        threshold the margins were held to.
     """
     step = min(tol, 0.5 * abs(good - bad))
     near = bad + (step if good > bad else -step)
     best = decide(**{parameter: f(near)})
     bar.update()
-    if best.verified:
-        return near, bad, best, 1
-    bad, solves = near, 2
+    if _passes(best, SEARCH_RESOLUTION * MARGIN_DECISION_RTOL):     # theory's limit, with a resolved margin
+        return near, bad, best, 1, _threshold(best)
+    bad, refused, solves = near, best, 2
     best = decide(**{parameter: f(good)})
     bar.update()
     start = good
     for k in range(1, walk + 1 if safe_end is not None else 1):
         if best.verified:
             break
-        bad = good
+        bad, refused = good, best
         good = start + (safe_end - start) * (1.0 - 0.5 ** k)
         best = decide(**{parameter: f(good)})
         solves += 1
         bar.update()
     if not best.verified:
-        return good, bad, best, solves
-    while abs(good - bad) > tol:
+        return good, bad, best, solves, MARGIN_DECISION_RTOL
+    threshold = _threshold(best)
+    while abs(good - bad) > tol and not _resolved(best, refused, threshold):
         mid = 0.5 * (good + bad)
         sol = decide(**{parameter: f(mid)})
         solves += 1
         bar.update()
-        if sol.verified:
+        if _passes(sol, threshold):
             good, best = mid, sol
         else:
-            bad = mid
-    return good, bad, best, solves
+            bad, refused = mid, sol
+    return good, bad, best, solves, threshold
 
 
-def _settled(system: LmiSystem, parameter: str, value: float, decided: LmiSolution) -> tuple[LmiSolution, int]:
-    """The point a search keeps at the value it found: the optimum of the system's own objective when
-    that certifies (a plain solve), else the point of largest margin that decided the value; and the
-    number of extra solves."""
-    if decided.relative_margin is None:
+def accurate_optimum(solution: LmiSolution) -> bool:
+    """Whether ``solution`` is the optimum of its system's own objective that CLARABEL reached to its full
+    tolerance (``optimal``), with normalisations held to :data:`~uiofmu.runtime.tolerances.FIGURE_RTOL` (the
+    solver's tolerance is relative to the point's size): a figure read off it is the problem's."""
+    return (solution.status == "optimal" and solution.relative_margin is None
+            and POINT_RTOL * point_scale(solution.values) <= FIGURE_RTOL)
+
+
+def held_margin(solution: LmiSolution, threshold: float | None = None) -> float | None:
+    """The margin to hold a least-objective solve at (:meth:`LmiSystem.least_at_margin`) where ``solution``
+    was decided by margins: half of ``threshold`` (a search's), or of the solution's own margin; the
+    margin itself for a point already held; None for a point of a plain solve."""
+    if solution.relative_margin is None:
+        return None
+    if HELD in solution.status:
+        return solution.relative_margin
+    return 0.5 * (threshold if threshold is not None else solution.relative_margin)
+
+
+def _settled(system: LmiSystem, parameter: str, value: float, decided: LmiSolution,
+             threshold: float) -> tuple[LmiSolution, int]:
+    """The point a search keeps at the value it found: the least objective at half the search's threshold
+    (:meth:`LmiSystem.least_at_margin`, an optimum the problem determines) when that certifies, else the
+    point of largest margin that decided the value; and the number of extra solves."""
+    held = held_margin(decided, threshold)
+    if held is None:
         return decided, 0
-    sol = system.solve(**{parameter: value})
-    return (sol if sol.verified else decided), 1
+    before = system.solves
+    sol = system.least_at_margin(held, **{parameter: value})
+    return (sol if sol.verified else decided), system.solves - before
 
 
 @dataclass(frozen=True)
@@ -828,13 +959,18 @@ def tune(system: LmiSystem, parameter: str, requested, *, feasible_end: float, i
         found = search(system, parameter, feasible_end, infeasible_end, **kwargs)
         return Tuned(found.value, found.solution, found)
     value = float(requested)
-    sol = system.solve(**{parameter: f(value)})
-    if sol.verified:
+    at = {parameter: f(value)}
+    sol = system.solve(**at)
+    if sol.verified and accurate_optimum(sol):
         return Tuned(value, sol, None)
     if system.decides_by_margin:
-        decided = system.largest_margin(**{parameter: f(value)})
-        if decided.verified:
-            return Tuned(value, decided, None)
+        decided = system.largest_margin(**at)
+        if decided.verified:         # the least objective at half its margin: a figure the problem determines
+            held = system.least_at_margin(held_margin(decided, min(decided.relative_margin, SEARCH_MARGIN_CAP)), **at)
+            return Tuned(value, held if held.verified and held.status.endswith(REPRODUCED) else
+                         sol if sol.verified else decided, None)
+    if sol.verified:
+        return Tuned(value, sol, None)
     try:
         found = search(system, parameter, feasible_end, infeasible_end, **kwargs)
     except InfeasibleError:

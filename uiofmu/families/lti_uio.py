@@ -329,6 +329,7 @@ def _tuned(s, C, M, t, largest: float, opts: Options, name: str) -> tuple[Tuned,
     system = _lmis(PA * t[None, :] / t[:, None], scaled_output(C, t), opts.gain_cap)
     system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(s, C, M, t, v),
                                                                     float(np.sqrt(prm["rho2"]))))
+    system.figure = lambda v: overshoot(lyapunov_back(v["X"], t))
     if opts.method == "riccati":
         return _riccati(PA, C, float(opts.decay)), "riccati", system
     try:

@@ -45,6 +45,7 @@ from ..certificate import (
     decay_check,
     identity_check,
     lyapunov_check,
+    UNDETERMINED,
     figure_digits,
     overshoot,
     overshoot_check,
@@ -63,7 +64,7 @@ from ..consistency import Determined, computed_values, condition, conditioned, d
 from ..runtime.card import DHAT
 from ..runtime.errors import ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex, from_pairs
-from ..lmi import Lmi, LmiSystem, tune
+from ..lmi import Lmi, LmiSystem, held_margin, tune
 from ..structure import unobservable_modes
 from ..runtime.tolerances import LMI_MARGIN, SEARCH_TOL, ZERO_MARGIN
 from . import Analysis, DesignResult
@@ -391,7 +392,11 @@ def design(problem, analysis: Analysis) -> DesignResult:
     gamma = float(sol.values["gamma"]) if sol.status == "optimal" and sol.relative_margin is None else None
     least = _lmis(A1, A2, S1, C, opts.eta, least_overshoot=True, gain_cap=opts.gain_cap)
     least.certify = system.certify
-    refined = least.solve(tau1=opts.eta * (1 + mu))
+    least.figure = lambda v: overshoot(v["X"])
+    # where margins decided mu, the least overshoot at the margin its point was held at (determined by the problem)
+    held = held_margin(sol)
+    tau1 = opts.eta * (1 + mu)
+    refined = least.solve(tau1=tau1) if held is None else least.least_at_margin(held, tau1=tau1)
     if refined.verified:
         sol = refined
     data = _point(sol.values, M, A1, A2, S1, s, C, opts, mu)
@@ -407,7 +412,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "decay_bound": float(np.sqrt(1 - tau2)),
         "initial_decay_bound": float(np.sqrt(1 - tau1)),
         "overshoot_bound": overshoot(X),
-        "overshoot_digits": figure_digits(sol),
+        "overshoot_digits": figure_digits(sol) if sol is refined else UNDETERMINED,   # gamma's point: any overshoot
         "bound": BOUND,
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),

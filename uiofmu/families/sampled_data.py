@@ -823,6 +823,7 @@ def _attempts(samples, C, t, plant, gain_cap: float | None = None):
     for method, build, matrices_at in attempts:
         system = build()
         system.certify = lambda v, prm, at=matrices_at: all(c.holds for c in checks(at(v), np.sqrt(prm["c"])))
+        system.figure = lambda v, at=matrices_at: overshoot(list(at(v)["Pl"]))
         yield method, system, matrices_at
 
 

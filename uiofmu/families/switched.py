@@ -428,6 +428,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         system = _lmis(modes, opts.gain_cap)
         system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(modes, v, C, has_dhat),
                                                                     float(np.sqrt(prm["lam2"]))))
+        system.figure = lambda v: overshoot(_lmi_runtime(modes, v, C, has_dhat)["S"])
         tuned = tune(system, "lam2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
                      safe_end=1.0, tol=SEARCH_TOL, label=f"{problem.name}: fastest decay",
                      transform=lambda r: r * r, name="decay")

@@ -430,7 +430,7 @@ def check_card(data, require_verified: bool = True) -> dict:
             if key == "decay_bound" and value >= 1.0:
                 raise CardError(f"design card decay_bound = {value!r}: a bound of 1 or more certifies no convergence")
     if data.get("overshoot_digits") is not None:
-        _integer(data["overshoot_digits"], "overshoot_digits", 1, 17)
+        _integer(data["overshoot_digits"], "overshoot_digits", 0, 17)
     if (data.get("decay_bound") is None) != (data.get("overshoot_bound") is None):
         raise CardError("design card: decay_bound and overshoot_bound come together (one of them is missing)")
     for key in ("bound", "generator"):

@@ -26,12 +26,36 @@ MARGIN_PROOF_RTOL = 100 * SOLVER_TOL
 #: strictly feasible by construction, it is solved far more finely than the design LMIs.
 MARGIN_SOLVER_TOL = 1e-10
 
-#: A ``"max"`` search decides each value by the optimal value of its largest-margin problem: the value
-#: passes when that margin, relative to the mean eigenvalue of the normalised Lyapunov matrices, is at least
-#: this (100x :data:`MARGIN_SOLVER_TOL`) and the point of largest margin certifies. An optimal value moves
-#: with the BLAS kernel only in the digits the solver does not resolve, where a feasible point the solver
-#: happened to stop at moves with everything.
+#: The least margin with which a point of largest margin certifies (:meth:`uiofmu.lmi.LmiSystem.largest_margin`):
+#: relative to the mean eigenvalue of the normalised Lyapunov matrices, 100x :data:`MARGIN_SOLVER_TOL`.
 MARGIN_DECISION_RTOL = 100 * MARGIN_SOLVER_TOL
+
+#: A ``"max"`` search passes a value when its largest margin (relative, as above) is at least a threshold of
+#: its own problem: this fraction of the margin at the first value that passed (the easy end of the range),
+#: within :data:`MARGIN_DECISION_RTOL` and :data:`SEARCH_MARGIN_CAP`. A margin moves with the BLAS kernel in
+#: the digits the solver does not resolve (measured between kernels: 1e-11 to 4e-8 next to the edge), where a
+#: feasible point the solver happened to stop at moves with everything; the threshold keeps the decisions
+#: above those moves, and its point, divided by its margin, far enough from the edge for a re-check that
+#: holds alike on every machine. Some problems never reach a margin of 1e-6 (a vertex the searched value
+#: does not move can cap it), hence a fraction of their own.
+SEARCH_MARGIN_FRACTION = 0.01
+
+#: :meth:`uiofmu.lmi.LmiSystem.least_at_margin` solves its problem twice, the second time with the margin held
+#: this much higher (relative): the optimum barely moves (its figure by about this much), while an answer the
+#: solver did not converge to moves by percents (measured: 334 to 478 between kernels on a plant at the edge).
+HELD_PROBE = 1e-6
+
+#: The two figures of :meth:`uiofmu.lmi.LmiSystem.least_at_margin` agree, and the figure counts as the problem's
+#: (printed to 2 significant digits), when they differ by at most this, relative.
+HELD_AGREEMENT = 1e-3
+
+#: The largest threshold of a ``"max"`` search (see :data:`SEARCH_MARGIN_FRACTION`).
+SEARCH_MARGIN_CAP = 1e-6
+
+#: A ``"max"`` search stops narrowing its bracket when the largest margins at its two ends differ by less than
+#: this many times its threshold: a bracket narrower than that is decided by the solver's last digits where the
+#: margin is flat near the edge, so its end would move with the BLAS kernel.
+SEARCH_RESOLUTION = 4.0
 
 #: The independent re-check accepts a strict LMI when its smallest eigenvalue, evaluated
 #: with numpy at the stored matrices, is at least ``VERIFY_FRACTION * LMI_MARGIN``.
