@@ -24,11 +24,9 @@ import numpy as np
 from ..runtime.card import Card, card_from_data
 from ..runtime.errors import FmuError, ProblemError
 from ..runtime.files import atomic_output, check_output_dir, write_atomic
-from ..certificate import overshoot_text
-from ..families import certified_bound
 from .fmi import Fmu, FmuCallError, first_non_integer, not_an_integer, read_description, read_model_json, vector_sizes
 from .inputs import CsvInputs, SignalInputs, values_at
-from .metrics import delayed_metrics, error_metrics, functional_metrics, mode_metrics
+from .kernels import cosim_kernel
 from .result import CosimResult
 from ..progress import progress
 from ..runtime.observer import Runtime
@@ -177,27 +175,7 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
             MODE = loop.plant_history("mode")[:, 0].copy() if "mode" in fed else np.round(source["mode"])[:, 0]
         cpu4 = time.process_time()
     timing = {"steps": cpu4 - cpu1, "loop": cpu3 - cpu2, "fmi_calls_per_step": loop.calls_per_step}
-    if card.kernel == "window":
-        return _timed(_functional_result(card, T, steps, X, Y, U, D, H, MODE), timing, cpu0)
-    if card.kernel == "delayed":
-        return _timed(_delayed_result(card, T, steps, X, Y, U, D, H, theta_true), timing, cpu0)
-    XH, R = H["xhat"], H["r"]
-    DH = H.get("dhat", np.zeros((K + 1, 0)))
-    nq = DH.shape[1]
-    result = CosimResult(T, steps, X, XH, Y, U, D, R, DH, card=card, mode=MODE)
-    bound = certified_bound(card, X[0] - XH[0], D)
-    result.bound = bound
-    result.metrics = error_metrics(T, steps, X, XH, bound, card.data.get("decay_bound"),
-                                   card.data.get("overshoot_bound"), D if nq else None, DH if nq else None)
-    if bound is not None:
-        text = card.data.get("bound", "")
-        if card.data.get("overshoot_bound") is not None:
-            text = (text.replace("overshoot_bound", overshoot_text(card.data))
-                    .replace("decay_bound**k", f"{card.data['decay_bound']:.6g}^k"))
-        result.metrics["bound_formula"] = text
-    if MODE is not None:
-        result.metrics["modes"] = mode_metrics(MODE)
-    return _timed(result, timing, cpu0)
+    return _timed(cosim_kernel(card).result(card, T, steps, X, Y, U, D, H, MODE, theta_true), timing, cpu0)
 
 
 def _timed(result: CosimResult, timing: dict, cpu0: float) -> CosimResult:
@@ -440,40 +418,6 @@ def _do_steps(steps_: list, k: int, t: float, h: float) -> None:
 def _refused(who: str, k: int, t: float, h: float, exc: FmuCallError) -> FmuError:
     return FmuError(f"the {who} FMU refused step {k} (t = {t:g} s, h = {h:g} s): "
                     + (exc.messages[-1] if exc.messages else str(exc)))
-
-
-def _functional_result(card, T, steps, X, Y, U, D, H, MODE) -> CosimResult:
-    """The run of a functional observer (window kernel): ``gx`` against ``G x`` of the point
-    ``delay`` steps back (NaN before there is one), and :func:`functional_metrics`."""
-    G = np.asarray(card.data["matrices"]["G"], dtype=float)
-    delay, K1 = int(card.schedule["delay"]), len(T)
-    true = np.full((K1, G.shape[0]), np.nan)
-    true[delay:] = X[:K1 - delay] @ G.T
-    empty = np.zeros((K1, 0))
-    result = CosimResult(T, steps, X, empty, Y, U, D, empty, empty, card=card, mode=MODE,
-                         functional={"gx": H["gx"], "true": true, "valid": H["gx_valid"][:, 0]})
-    result.metrics = functional_metrics(T, steps, H["gx"], true, H["gx_valid"][:, 0], delay,
-                                        int(card.schedule["length"]))
-    result.metrics["formula"] = card.data.get("formula", "")
-    return result
-
-
-def _delayed_result(card, T, steps, X, Y, U, D, H, theta_true) -> CosimResult:
-    """The run of a delayed observer (seed 001): the state error metrics, :func:`delayed_metrics`
-    (theta against the plant's true theta, validity), and no certified bound: the card's bound holds
-    on its premise set only, which a run is not known to stay in."""
-    K1 = len(T)
-    empty = np.zeros((K1, 0))
-    valid = H["valid"][:, 0]
-    sigma_bound = float(card.schedule["sigma_bound"])
-    theta = None if theta_true is None or theta_true.size != H["thetahat"].shape[1] else theta_true
-    result = CosimResult(T, steps, X, H["xhat"], Y, U, D, H["r"], empty, card=card,
-                         delayed={"thetahat": H["thetahat"], "theta": theta, "sigma_min": H["sigma_min"][:, 0],
-                                  "valid": valid, "sigma_bound": sigma_bound})
-    result.metrics = error_metrics(T, steps, X, H["xhat"])
-    result.metrics.update(delayed_metrics(T, steps, X, H["xhat"], H["thetahat"], theta, valid, H["sigma_min"][:, 0],
-                                          sigma_bound, card.data.get("bound", "")))
-    return result
 
 
 def routes(plant, obs, source: dict) -> tuple[list, list]:
