@@ -117,7 +117,7 @@ def table_kind(pt) -> PlantKind:
     """The kind of a ``[plant]`` table: the first (in :data:`uiofmu.runtime.plant_kinds.PLANT_KINDS` order) whose
     table it holds, else linear."""
     return next((PLANT_KINDS[k.name] for k in fmu_kinds.PLANT_KINDS.values()
-                 if k.name in PLANT_KINDS and k.key is not None and pt.has(k.key)), PLANT_KINDS["linear"])
+                 if k.name in PLANT_KINDS and k.key is not None and pt.has(k.key)), PLANT_KINDS[fmu_kinds.LINEAR.name])
 
 
 def plant_kind(plant) -> PlantKind:

@@ -16,6 +16,7 @@ from .runtime.files import parse_toml, read_text
 from .runtime.labels import KEYS as LABEL_KEYS, check_labels
 from .plant import Plant
 from .plant_kinds import check_family, table_kind
+from .runtime.plant_kinds import MUJOCO
 from .runtime.registry import AVAILABLE, KNOWN
 from .signals import Signal, parse_signals
 from .runtime.text import MAX_NAME, check_name
@@ -164,7 +165,7 @@ def load_problem(path) -> Problem:
     if path.is_dir():
         path = path / "problem.toml"
     data = parse_toml(read_text(path, "problem file", error=ProblemError), str(path), error=ProblemError)
-    if "mujoco" in data and "plant" not in data:
+    if MUJOCO.key in data and "plant" not in data:
         raise ProblemError(f"{path} is a MuJoCo plant spec, not a problem file: linearise it first "
                            f"(uiofmu linearize {path.parent} -o problem.toml)")
     stem = path.parent.name if path.name == "problem.toml" else path.stem

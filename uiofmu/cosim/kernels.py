@@ -251,6 +251,9 @@ class CosimKernel:
     ecospy_exact : bool
         Whether ecospy's run must equal our master's (a delayed observer gets ``ydot`` with the previous ``u``
         in ecospy, so its run only has to complete).
+    random_run : bool
+        Whether :func:`random_observer_run` drives its FMU (inputs ``y``, ``u`` and a mode; outputs ``xhat``,
+        ``r``, ``dhat``), and so :mod:`uiofmu.testing`'s own loop for a card that fails its re-check.
     """
 
     name: str
@@ -258,6 +261,7 @@ class CosimKernel:
     result: Callable
     validate: Callable
     ecospy_exact: bool = True
+    random_run: bool = False
 
     def estimate_of(self, result: CosimResult) -> np.ndarray:
         """The estimate's rows of a run (``xhat``, or the functional ``gx``)."""
@@ -266,7 +270,7 @@ class CosimKernel:
 
 #: The co-simulation side of each runtime kernel, by name.
 COSIM_KERNELS = {k.name: k for k in (
-    CosimKernel("affine", "xhat", _affine_result, _affine_observer),
+    CosimKernel("affine", "xhat", _affine_result, _affine_observer, random_run=True),
     CosimKernel("window", "gx", _functional_result, _window_observer),
     CosimKernel("delayed", "xhat", _delayed_result, _delayed_observer, ecospy_exact=False),
 )}

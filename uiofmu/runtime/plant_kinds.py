@@ -81,7 +81,8 @@ class PlantKind:
         Its name (``linear``, ``switched``, ``lpv``, ``parametric``, ``mujoco``).
     key : str or None
         The key of ``[plant]`` (and of the plant's data) that marks it; None for a linear plant (none of
-        them) and a MuJoCo plant (its FMU's ``model.json`` says ``kind = "mujoco"``).
+        them). A kind whose FMU is not a ``plant`` one (:attr:`fmu_kind`) has its data under this key instead
+        (a MuJoCo plant: ``[mujoco]`` of its spec file, ``mujoco`` of its ``model.json``).
     start : callable
         ``start(spec, resources) -> (runtime, physical parameter targets or None, labels or None)`` from an
         FMU's ``model.json`` and the folder of its resources.
@@ -129,17 +130,20 @@ PLANT_KINDS = {k.name: k for k in (
     PlantKind("switched", "modes", _plant_runtime(SwitchedPlantRuntime), _switched_ports, _switched_arrays,
               c_kernel="switched", variant=("switching", "rule"), what="switched plant"),
     PlantKind("linear", None, _plant_runtime(PlantRuntime), _linear_ports, c_kernel="linear"),
-    PlantKind("mujoco", None, _mujoco_runtime, _linear_ports, fmu_kind="mujoco",
+    PlantKind("mujoco", "mujoco", _mujoco_runtime, _linear_ports, fmu_kind="mujoco",
               python_only="the C backend has no kernel for a MuJoCo plant (MuJoCo steps it)"),
 )}
 #: The kind of plant data that has none of the kinds' keys.
 LINEAR = PLANT_KINDS["linear"]
+#: A MuJoCo plant: its spec's ``[mujoco]`` and its FMU (:mod:`uiofmu.mujoco_plant`).
+MUJOCO = PLANT_KINDS["mujoco"]
 
 
 def data_kind(data: dict) -> PlantKind:
     """The kind of a plant's data (``to_data()`` of a plant, ``model.json``'s ``plant``): the first kind whose
     :attr:`PlantKind.key` it holds, else linear."""
-    return next((k for k in PLANT_KINDS.values() if k.key is not None and k.key in data), LINEAR)
+    return next((k for k in PLANT_KINDS.values() if k.fmu_kind == PLANT_FMU and k.key is not None and k.key in data),
+                LINEAR)
 
 
 def fmu_kind(spec: dict) -> PlantKind | None:
@@ -149,4 +153,4 @@ def fmu_kind(spec: dict) -> PlantKind | None:
     return next((k for k in PLANT_KINDS.values() if k.fmu_kind == spec["kind"]), None)
 
 
-__all__ = ["LINEAR", "PLANT_FMU", "PLANT_KINDS", "PlantKind", "data_kind", "fmu_kind"]
+__all__ = ["LINEAR", "MUJOCO", "PLANT_FMU", "PLANT_KINDS", "PlantKind", "data_kind", "fmu_kind"]
