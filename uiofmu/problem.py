@@ -16,8 +16,9 @@ from .runtime.files import parse_toml, read_text
 from .runtime.labels import KEYS as LABEL_KEYS, check_labels
 from .plant import Plant
 from .plant_kinds import check_family, table_kind
+from .runtime.kernels import kernel_named
 from .runtime.plant_kinds import MUJOCO
-from .runtime.registry import AVAILABLE, KNOWN
+from .runtime.registry import AVAILABLE, FAMILIES, KNOWN
 from .signals import Signal, parse_signals
 from .runtime.text import MAX_NAME, check_name
 from .table import Table
@@ -210,8 +211,8 @@ def make_problem(plant: Plant, family: str, name: str = "problem", signals: dict
     if signals:
         data["signals"] = signals
     problem = problem_from_data(data, default_name=name)
-    x0 = getattr(problem.plant, "x0", None)
-    if x0 is not None and hasattr(problem.options, "xhat0"):
+    x0 = problem.plant.x0
+    if kernel_named(FAMILIES[family].kernel).estimates_x:              # the family's options have an xhat0
         xhat0 = problem.options.xhat0
         if np.array_equal(np.zeros_like(x0) if xhat0 is None else xhat0, x0):
             warnings.warn(f"{name}: the plant's x0 and the observer's xhat0 are equal ({np.asarray(x0).tolist()}"[:200]

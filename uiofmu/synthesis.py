@@ -65,7 +65,7 @@ def design(problem: Problem) -> Card:
             result = family.design(problem, analysis)
         except InfeasibleError as exc:
             notes = _tight_spots(analysis.existence.conditions)
-            cap = getattr(problem.options, "gain_cap", None)
+            cap = problem.options.gain_cap
             if cap is not None and not FAMILIES[problem.family].closed_form and "gain_cap" not in str(exc):
                 notes.append(f"the LMIs bound every gain by observer.gain_cap = {cap:g}: a larger cap, or a slower "
                              "decay, leaves them more room")
@@ -86,7 +86,7 @@ def design(problem: Problem) -> Card:
 
 def _cap_checks(card_data: dict, problem: Problem) -> list:
     """``max ||K||_2 <= observer.gain_cap`` at the card's gains, when the problem gives a cap."""
-    cap = getattr(problem.options, "gain_cap", None)
+    cap = problem.options.gain_cap
     return [] if cap is None else [cap_check(card_data, cap)]
 
 
