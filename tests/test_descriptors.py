@@ -16,6 +16,7 @@ import pytest
 from conftest import ROOT
 from uiofmu import plant_kinds
 from uiofmu.cosim.kernels import COSIM_KERNELS
+from uiofmu.cosim.validate import PLANT_DRIVERS
 from uiofmu.fmu.c_backend import C_KERNELS, PLANT_KERNELS
 from uiofmu.runtime import kernels, plant_kinds as fmu_kinds
 from uiofmu.runtime.registry import FAMILIES
@@ -104,3 +105,4 @@ def test_every_plant_kind_has_a_c_kernel_or_a_reason():
         else:
             assert any(key.startswith(f"{kind.c_kernel}-") for key in PLANT_KERNELS), kind.name
     assert set(plant_kinds.PLANT_KINDS) <= set(fmu_kinds.PLANT_KINDS)
+    assert set(PLANT_DRIVERS) == {k.name for k in fmu_kinds.PLANT_KINDS.values() if k.fmu_kind == fmu_kinds.PLANT_FMU}

@@ -25,6 +25,7 @@ import numpy as np
 from ..plant import Plant
 from ..runtime.card import card_from_data
 from ..runtime.errors import CardError, FmuError
+from ..runtime.plant_kinds import data_kind
 from .comparison import EQUALITY_RTOL, Validation, compare as _compare
 from .fmi import Fmu, FmuCallError, check_archive, read_model_json
 from .kernels import cosim_kernel, random_observer_run
@@ -142,14 +143,9 @@ def _parametric_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng)
     report.steps = steps
 
 
-def _plant(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
-    data = spec["plant"]
-    if "modes" in data:
-        return _switched_plant(fmu, data, report, steps, rng)
-    if "scheduling" in data:
-        return _lpv_plant(fmu, data, report, steps, rng)
-    if "parameters" in data:
-        return _parametric_plant(fmu, data, report, steps, rng)
+def _linear_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng) -> None:
+    """A linear plant FMU against the exact discretisation of its plant (scipy's matrix exponential), on random
+    inputs and (for a continuous plant) random steps."""
     plant = Plant.create(data["A"], data["C"], data["E"], data["B"] or None, time=data["time"],
                          dt=data.get("dt"), w=data.get("w"), x0=data["x0"])
     report.tolerance = PLANT_RTOL
@@ -169,6 +165,17 @@ def _plant(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
         t += h
     _compare(report, fmu.get("x"), x)
     report.steps = steps
+
+
+#: The validation driver of each kind of plant FMU whose data is ``model.json``'s ``plant``
+#: (:data:`uiofmu.runtime.plant_kinds.PLANT_KINDS`).
+PLANT_DRIVERS = {"linear": _linear_plant, "switched": _switched_plant, "lpv": _lpv_plant,
+                 "parametric": _parametric_plant}
+
+
+def _plant(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
+    data = spec["plant"]
+    PLANT_DRIVERS[data_kind(data).name](fmu, data, report, steps, rng)
 
 
 def _mujoco(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
