@@ -355,7 +355,7 @@ def design_example(example: Example, root=ROOT) -> Design:
                    _ports(specs, "parameter"), _ports(specs, "input"), _ports(specs, "output"),
                    _observer_steps(card), observer_experiment(card), _certified(card))
     plant_specs = [p.spec for p in make_model({"kind": "plant", "plant": problem.plant.to_data()}).ports]
-    step = problem.options.step or getattr(problem.plant, "dt", None)
+    step = problem.options.step or problem.plant.dt
     plant = Row(pfile, "plant", card.family, example.key,
                 "python (no C kernel for this plant)" if c_refusal(problem.plant) else "C", [ofile],
                 _ports(plant_specs, "parameter"), _ports(plant_specs, "input"), _ports(plant_specs, "output"),
