@@ -16,6 +16,7 @@ port the kernel does not implement refused at build time.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import subprocess
 from ctypes import byref
@@ -33,6 +34,7 @@ from uiofmu.fmu.c_backend import HERE, LOG_CATEGORIES, c_sources, design_source,
 from uiofmu.fmu.export import build_observer
 from uiofmu.runtime.card import Card
 from uiofmu.runtime.errors import FmuError
+from uiofmu.runtime.kernels import KERNELS
 from uiofmu.runtime.observer import Runtime
 from uiofmu.runtime.ports import PortSpec
 
@@ -309,6 +311,7 @@ def test_a_port_the_kernel_does_not_implement_is_refused_at_build_time(example1_
 
 
 def test_a_kernel_without_c_code_is_refused_at_build_time(example1_card, monkeypatch, tmp_path):
-    monkeypatch.setattr(Card, "kernel", property(lambda self: "no-such-kernel"))
+    unknown = dataclasses.replace(KERNELS["affine"], name="no-such-kernel", c_kernel="no-such-kernel")
+    monkeypatch.setattr(Card, "stepper", property(lambda self: unknown))
     with pytest.raises(FmuError, match="the C backend has no kernel 'no-such-kernel'"):
         build_observer(example1_card[0], tmp_path / "o.fmu", backend="c")

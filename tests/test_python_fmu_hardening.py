@@ -524,7 +524,7 @@ def test_a_nearest_policy_accepts_any_positive_previous_step(building_card):
 
 
 def test_observer_model_initialisation_and_state_are_all_or_nothing(building_card):
-    model = ObserverModel({"card": building_card[0].data})
+    model = ObserverModel(building_card[0])
     model.parameters[1].values[0] = 650.0                       # h_prev0 that is not an interval
     h_prev0 = model.rt.h_prev0
     with pytest.raises(StepRejected):

@@ -33,7 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from .certificate import UNDETERMINED, overshoot_text
+from .plant_kinds import plant_kind
 from .runtime.files import write_atomic
+from .runtime.plant_kinds import MUJOCO
+from .runtime.registry import FAMILIES as REGISTRY
 
 #: The repository (the folder of ``examples/`` and ``plants/``) of an editable install.
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,18 +47,8 @@ COMMAND = ".venv/bin/python examples/build_fmus.py"
 ECOSPY_RTOL = 1e-12
 #: The checks, in the order of the README's column.
 CHECKS = ("validate", "master", "fmpy", "ecospy")
-#: Families in the order of the README's sections, with a line on what each certifies.
-FAMILIES = {
-    "lti-uio": "classical unknown-input observer (constant step): a certified geometric decay of the error",
-    "ltv-auid": "asymptotic unknown-input decoupling, time-varying gains (constant step): a certified bound "
-                "through the recursion b_k",
-    "sampled-data": "sampled-data observer: a certified decay for every sequence of the design intervals",
-    "switched": "switched linear plant, the mode known at every step: a certified decay under arbitrary switching",
-    "deadbeat-functional": "dead-beat functional observer of an LPV plant: the functional G x exactly, from "
-                           "the first full output window (no decay: exactness)",
-    "delayed-uio": "delayed UIO with parameter identification (continuous time, integrated in the FMU): a "
-                   "decay bound on the design's premise set only, and a validity flag",
-}
+#: Families in the order of the README's sections, with a line on what each certifies (from the registry).
+FAMILIES = {e.name: e.certifies for e in sorted(REGISTRY.values(), key=lambda e: e.section)}
 
 
 @dataclass(frozen=True)
@@ -196,11 +189,11 @@ class Catalogue:
     def rows(self) -> list:
         """Every row, in the README's order: per family, each example's observer then plant."""
         out = []
-        for family in [*FAMILIES, "mujoco"]:
+        for family in [*FAMILIES, MUJOCO.name]:
             for d in self.designs:
                 if d.observer.family == family:
                     out += [d.observer, d.plant]
-            if family == "mujoco" and self.mujoco is not None:
+            if family == MUJOCO.name and self.mujoco is not None:
                 out.append(self.mujoco)
         return out
 
@@ -296,14 +289,10 @@ def _certified(card) -> str:
     return round_text(text)
 
 
-def _plant_steps(kind: str, plant=None, timestep: float | None = None) -> str:
-    if kind == "mujoco":
-        return f"any h > 0 (MuJoCo RK4 substeps of {num(timestep)} s)"
+def _plant_steps(plant) -> str:
     if plant.time == "discrete":
         return f"h = {num(plant.dt)} s only"
-    if getattr(plant, "n_theta", None):
-        return "any h > 0 (RK4 substeps)"
-    return "any h > 0 (exact between points)"
+    return "any h > 0 (exact between points)" if plant_kind(plant).exact else "any h > 0 (RK4 substeps)"
 
 
 def _connect(observer: Row, plant: Row) -> str:
@@ -369,11 +358,11 @@ def design_example(example: Example, root=ROOT) -> Design:
                    _ports(specs, "parameter"), _ports(specs, "input"), _ports(specs, "output"),
                    _observer_steps(card), observer_experiment(card), _certified(card))
     plant_specs = [p.spec for p in make_model({"kind": "plant", "plant": problem.plant.to_data()}).ports]
-    step = problem.options.step or getattr(problem.plant, "dt", None)
+    step = problem.options.step or problem.plant.dt
     plant = Row(pfile, "plant", card.family, example.key,
                 "python (no C kernel for this plant)" if c_refusal(problem.plant) else "C", [ofile],
                 _ports(plant_specs, "parameter"), _ports(plant_specs, "input"), _ports(plant_specs, "output"),
-                _plant_steps("linear", problem.plant),
+                _plant_steps(problem.plant),
                 plant_experiment(step, problem.experiment_steps) if step else None,
                 "— (the plant: its `x` is the truth the checks compare with)")
     observer.connect = _connect(observer, plant)
@@ -401,12 +390,12 @@ def mujoco_row(root=ROOT) -> Row:
     from .runtime.ports import plant_experiment
 
     spec = load_spec(Path(root) / MUJOCO_FOLDER)
-    specs = [p.spec for p in make_model({"kind": "mujoco", "mujoco": spec.mujoco}, str(spec.folder)).ports]
+    specs = [p.spec for p in make_model({"kind": MUJOCO.fmu_kind, MUJOCO.key: spec.mujoco}, str(spec.folder)).ports]
     step = load_problem(Path(root) / MUJOCO_FOLDER / "problem.toml").options.step
-    return Row(MUJOCO_FILE, "plant", "mujoco", MUJOCO_KEY, "python (MuJoCo runs in Python)",
+    return Row(MUJOCO_FILE, "plant", MUJOCO.name, MUJOCO_KEY, "python (MuJoCo runs in Python)",
                [file_name(k, "observer") for k in MUJOCO_OBSERVERS],
                _ports(specs, "parameter"), _ports(specs, "input"), _ports(specs, "output"),
-               _plant_steps("mujoco", timestep=spec.mujoco["timestep"]), plant_experiment(step),
+               f"any h > 0 (MuJoCo RK4 substeps of {num(spec.mujoco['timestep'])} s)", plant_experiment(step),
                "— (the plant the observers were designed from, by linearisation: a model mismatch floor)")
 
 
@@ -574,11 +563,11 @@ def render(catalogue: Catalogue, checks: dict) -> str:
         "Numbers have 4 significant digits. `y[1..3]` is the FMI variables `y[1]`, `y[2]`, `y[3]`.",
         "",
     ]
-    for family in [*FAMILIES, "mujoco"]:
+    for family in [*FAMILIES, MUJOCO.name]:
         rows = [r for r in catalogue.rows if r.family == family]
         if not rows:
             continue
-        if family == "mujoco":
+        if family == MUJOCO.name:
             lines += ["## MuJoCo plant", "", "The quarter-car of `plants/quarter_car` simulated by MuJoCo: the "
                       "plant the quarter-car observers were designed from (by linearisation).", ""]
         else:
@@ -698,13 +687,14 @@ def description_problems(row: Row, path) -> list:
 
 def _master(observer: Row, plant: Row, paths: dict, card):
     """Our master on one pair, over the observer's default experiment with the problem's signals."""
+    from .cosim.kernels import cosim_kernel
     from .cosim.master import cosimulate, default_inputs
 
     spec = observer.experiment
     K = observer.limited.get("master") or int(round(spec["stopTime"] / spec["stepSize"]))
     ours = cosimulate(paths[plant.file], paths[observer.file], np.full(K, spec["stepSize"]), default_inputs(card),
                       show_progress=False)
-    mine = ours.functional["gx"] if card.kernel == "window" else ours.xhat
+    mine = cosim_kernel(card).estimate_of(ours)
     if not (np.all(np.isfinite(ours.x)) and np.all(np.isfinite(mine))):
         raise RuntimeError("x or the estimate is not finite")
     return ours
@@ -712,15 +702,16 @@ def _master(observer: Row, plant: Row, paths: dict, card):
 
 def _ecospy(observer: Row, plant: Row, paths: dict, card, ours) -> str:
     """ecospy on one pair, compared with our master's run ``ours``: ``equal``, ``ran`` or ``not run``."""
-    from .cosim.master import default_inputs
-
     from .cosim.importers import import_ecospy, run_ecospy
+    from .cosim.kernels import cosim_kernel
+    from .cosim.master import default_inputs
 
     if import_ecospy() is None:
         return "not run"
     spec = observer.experiment
     K = observer.limited.get("ecospy") or int(round(spec["stopTime"] / spec["stepSize"]))
-    estimate = "gx" if card.kernel == "window" else "xhat"
+    kernel = cosim_kernel(card)
+    estimate = kernel.estimate
     run = run_ecospy(paths[plant.file], paths[observer.file], spec["stepSize"], K, default_inputs(card),
                      estimate=estimate)
     T, X, E = run.times, run.x, run.xhat
@@ -728,9 +719,9 @@ def _ecospy(observer: Row, plant: Row, paths: dict, card, ours) -> str:
         raise RuntimeError("the estimate is not finite or never moved")
     if T.shape != ours.times.shape or not np.allclose(T, ours.times, rtol=1e-12, atol=0.0):
         raise RuntimeError(f"its clock differs from our master's (last point {T[-1]!r}, ours {ours.times[-1]!r})")
-    if card.kernel == "delayed":          # ydot reaches the observer with the previous u in ecospy
+    if not kernel.ecospy_exact:          # ydot reaches the observer with the previous u in ecospy
         return "ran"
-    mine = ours.functional["gx"] if estimate == "gx" else ours.xhat
+    mine = kernel.estimate_of(ours)
     for name, a, b in (("x", X, ours.x), (estimate, E, mine)):
         scale = max(float(np.max(np.abs(b))), 1e-300)
         if not np.allclose(a, b, rtol=ECOSPY_RTOL, atol=ECOSPY_RTOL * scale):

@@ -26,6 +26,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .certificate import EPS, Check
+from .runtime.kernels import kernel_named
+from .runtime.registry import FAMILIES
 from .runtime.tolerances import IDENTITY_RTOL
 
 #: How the name of a check of :func:`same_check` ends (after the card's path).
@@ -407,7 +409,7 @@ def plant_record(problem) -> dict:
     """What every family's card records of its plant: the dimensions, the time base and the
     observer's initial estimate (zero unless the problem gives ``observer.xhat0``)."""
     plant = problem.plant
-    xhat0 = getattr(problem.options, "xhat0", None)
+    xhat0 = problem.options.xhat0 if kernel_named(FAMILIES[problem.family].kernel).estimates_x else None
     return {"dims.n": plant.n, "dims.m": plant.m, "dims.p": plant.p, "dims.q": plant.q, "time": plant.time,
             "initial.xhat0": np.zeros(plant.n) if xhat0 is None else np.asarray(xhat0, dtype=float)}
 

@@ -35,6 +35,7 @@ import numpy as np
 from .runtime.errors import ProblemError
 from .runtime.files import parse_toml, read_text
 from .runtime.matrices import as_matrix, as_scalar, as_vector
+from .runtime.plant_kinds import MUJOCO
 from .table import Table
 from .runtime.text import MAX_NAME, check_name
 
@@ -65,7 +66,7 @@ def load_spec(path) -> MujocoSpec:
     doc = parse_toml(read_text(file, "MuJoCo plant spec", error=ProblemError), str(file), error=ProblemError)
     top = Table(doc, "")
     name = check_name(top.get("name", folder.name[:MAX_NAME] or "plant"), "name", ProblemError)
-    t = Table(top.get("mujoco"), "mujoco")
+    t = Table(top.get(MUJOCO.key), MUJOCO.key)
     top.get("observer", None), top.get("signals", None)     # copied into the linearised problem file
     top.done()
     model = t.get("model")

@@ -14,11 +14,11 @@ from pathlib import Path
 from .runtime.errors import ProblemError
 from .runtime.files import parse_toml, read_text
 from .runtime.labels import KEYS as LABEL_KEYS, check_labels
-from .lpv_plant import LpvPlant, parse_lpv
-from .parametric_plant import ParametricPlant, parse_parametric
 from .plant import Plant
-from .switched_plant import SwitchedPlant, parse_switched
-from .runtime.registry import AVAILABLE, KNOWN
+from .plant_kinds import check_family, table_kind
+from .runtime.kernels import kernel_named
+from .runtime.plant_kinds import MUJOCO
+from .runtime.registry import AVAILABLE, FAMILIES, KNOWN
 from .signals import Signal, parse_signals
 from .runtime.text import MAX_NAME, check_name
 from .table import Table
@@ -96,24 +96,12 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     top = Table(data, "")
     name = check_name(top.get("name", _model_name(default_name)[:MAX_NAME]), "name", ProblemError)
     pt = Table(top.get("plant"), "plant")
-    time = pt.choice("time", ("continuous", "discrete"))
+    pt.choice("time", ("continuous", "discrete"))              # checked first, whatever the kind
     if pt.has("scheduling") and pt.has("modes"):
         raise ProblemError("plant.scheduling: a plant is either switched ([[plant.modes]]) or LPV "
                            "([[plant.scheduling]]), not both")
-    if pt.has("parameters"):
-        plant = parse_parametric(pt)
-    elif pt.has("scheduling"):
-        plant = parse_lpv(pt)
-    elif pt.has("modes"):
-        plant = parse_switched(pt)
-    else:
-        time = pt.choice("time", ("continuous", "discrete"))
-        if pt.has("switching"):
-            raise ProblemError("plant.switching: a switching rule needs the plant's [[plant.modes]]")
-        if time == "discrete" and not pt.has("dt"):
-            raise pt.missing("dt", "required for a discrete plant (seconds per step)")
-        plant = Plant.create(pt.get("A"), pt.get("C"), pt.get("E"), pt.get("B", None), time=time,
-                             dt=pt.get("dt", None), w=pt.get("w", None), x0=pt.get("x0", None))
+    kind = table_kind(pt)
+    plant = kind.parse(pt)
     labels = check_labels({key: pt.get(key) for key in LABEL_KEYS if pt.has(key)},
                           {"n": plant.n, "m": plant.m, "q": plant.q, "p": plant.p}, "plant", ProblemError)
     pt.done()
@@ -123,15 +111,7 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
         raise ProblemError(f"observer.family: expected a family name, found {type(family).__name__} "
                            f"(families: {', '.join(KNOWN)})")
     module = available_family(family)
-    if isinstance(plant, SwitchedPlant) and not getattr(module, "SWITCHED", False):
-        raise ProblemError(f"plant.modes: a switched plant needs a family that designs for switched plants "
-                           f"(observer.family = \"switched\"), found {family!r}")
-    if isinstance(plant, ParametricPlant) != bool(getattr(module, "PARAMETRIC", False)):
-        raise ProblemError(f"plant.parameters: a plant with unknown parameters needs observer.family = "
-                           f"\"delayed-uio\", and that family such a plant; found {family!r}")
-    if isinstance(plant, LpvPlant) and not getattr(module, "LPV", False):
-        raise ProblemError(f"plant.scheduling: an LPV plant needs a family that designs for LPV plants "
-                           f"(observer.family = \"deadbeat-functional\"), found {family!r}")
+    check_family(kind, family)
     options = module.parse_options(ot, plant)
     ot.done()
     st = Table(top.get("signals", {}), "signals")
@@ -139,13 +119,13 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
     d = parse_signals(st.get("d", None), "signals.d", plant.q)
     mode = ()
     if st.has("mode"):
-        if getattr(plant, "switching", {}).get("rule") != "input":
+        if "mode" not in kind.signals(plant):
             raise ProblemError('signals.mode: only a switched plant whose [plant.switching] rule = "input" takes its '
                                "mode from the signals")
         mode = parse_signals(st.get("mode"), "signals.mode", 1)
     theta = ()
     if st.has("theta"):
-        if getattr(plant, "theta", {}).get("kind") != "input":
+        if "theta" not in kind.signals(plant):
             raise ProblemError('signals.theta: only an LPV plant whose [plant.theta] kind = "input" takes theta from '
                                "the signals")
         theta = parse_signals(st.get("theta"), "signals.theta", plant.s)
@@ -186,7 +166,7 @@ def load_problem(path) -> Problem:
     if path.is_dir():
         path = path / "problem.toml"
     data = parse_toml(read_text(path, "problem file", error=ProblemError), str(path), error=ProblemError)
-    if "mujoco" in data and "plant" not in data:
+    if MUJOCO.key in data and "plant" not in data:
         raise ProblemError(f"{path} is a MuJoCo plant spec, not a problem file: linearise it first "
                            f"(uiofmu linearize {path.parent} -o problem.toml)")
     stem = path.parent.name if path.name == "problem.toml" else path.stem
@@ -231,8 +211,8 @@ def make_problem(plant: Plant, family: str, name: str = "problem", signals: dict
     if signals:
         data["signals"] = signals
     problem = problem_from_data(data, default_name=name)
-    x0 = getattr(problem.plant, "x0", None)
-    if x0 is not None and hasattr(problem.options, "xhat0"):
+    x0 = problem.plant.x0
+    if kernel_named(FAMILIES[family].kernel).estimates_x:              # the family's options have an xhat0
         xhat0 = problem.options.xhat0
         if np.array_equal(np.zeros_like(x0) if xhat0 is None else xhat0, x0):
             warnings.warn(f"{name}: the plant's x0 and the observer's xhat0 are equal ({np.asarray(x0).tolist()}"[:200]

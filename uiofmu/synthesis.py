@@ -17,6 +17,7 @@ from .families import DesignResult, available_family
 from .consistency import DETERMINED, consistency_checks, existence_checks, plant_record, plant_scale
 from .gains import cap_check
 from .problem import Problem, problem_from_data
+from .runtime.registry import FAMILIES
 from .runtime.tolerances import LMI_MARGIN
 from .threads import single_blas_thread
 
@@ -64,8 +65,8 @@ def design(problem: Problem) -> Card:
             result = family.design(problem, analysis)
         except InfeasibleError as exc:
             notes = _tight_spots(analysis.existence.conditions)
-            cap = getattr(problem.options, "gain_cap", None)
-            if cap is not None and not getattr(family, "CLOSED_FORM", False) and "gain_cap" not in str(exc):
+            cap = problem.options.gain_cap
+            if cap is not None and not FAMILIES[problem.family].closed_form and "gain_cap" not in str(exc):
                 notes.append(f"the LMIs bound every gain by observer.gain_cap = {cap:g}: a larger cap, or a slower "
                              "decay, leaves them more room")
             if not notes:
@@ -85,7 +86,7 @@ def design(problem: Problem) -> Card:
 
 def _cap_checks(card_data: dict, problem: Problem) -> list:
     """``max ||K||_2 <= observer.gain_cap`` at the card's gains, when the problem gives a cap."""
-    cap = getattr(problem.options, "gain_cap", None)
+    cap = problem.options.gain_cap
     return [] if cap is None else [cap_check(card_data, cap)]
 
 
@@ -225,7 +226,7 @@ def assemble_card(problem: Problem, result: DesignResult, existence: Existence, 
         "matrices": to_lists(result.matrices),
         "certificate": to_lists(result.certificate),
         "problem": problem.data,
-        "kernel": result.kernel,
+        "kernel": FAMILIES[problem.family].kernel,
         "timing": {"total_s": time.perf_counter() - started,
                    "lmi_assembly_s": sum(s.assembly_time for s in systems),
                    "solver_s": sum(s.solver_time for s in systems), "solves": sum(s.solves for s in systems),

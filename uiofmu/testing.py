@@ -280,7 +280,7 @@ def _prepare(observer_fmu, steps, t_end, seed, xhat0_error):
     if t_end is not None:
         t_end = _real(t_end, "t_end")
     card = packed_card(observer_fmu)
-    if xhat0_error and card.kernel == "window":
+    if xhat0_error and not card.stepper.estimates_x:
         raise ValueError(f"xhat0_error: {_name(observer_fmu)} is a functional observer (kernel window), which has no "
                          f"initial estimate to offset; found xhat0_error={xhat0_error:g} (leave it 0)")
     seq, spec = _steps(card, steps, t_end, seed)
@@ -329,13 +329,14 @@ def run_observer(observer_fmu, plant_fmu, steps=None, t_end: float | None = None
 
 def _execute(observer_fmu, plant_fmu, card: Card, seq: np.ndarray, spec: str, seed: int, xhat0) -> Run:
     """The run of :func:`run_observer` on checked arguments."""
+    from .cosim.kernels import cosim_kernel
     from .cosim.master import cosimulate
 
     problem = certificate_problem(card)
     try:
         if problem is None:
             result = cosimulate(plant_fmu, observer_fmu, seq, xhat0=xhat0, show_progress=False)
-        elif card.kernel == "affine":
+        elif cosim_kernel(card).random_run:
             result = _stale_run(plant_fmu, observer_fmu, card, seq, xhat0)
         else:
             raise AssertionError(f"{_name(observer_fmu)}: expected a certified observer; {problem}, and uiofmu's "
@@ -581,7 +582,7 @@ def assert_bound_respected(observer_fmu, plant_fmu, steps=None, t_end: float | N
     if run.result.bound is None or "bound_respected" not in m:
         raise AssertionError(f"{name}: expected a card with a certified error bound; the {run.card.family} card "
                              f"(kernel {run.card.kernel}) certifies none to compare the run with"
-                             + (" (use assert_exact_functional)" if run.card.kernel == "window" else ""))
+                             + ("" if run.card.stepper.estimates_x else " (use assert_exact_functional)"))
     formula = run.card.data.get("bound", "the bound")
     norms = np.linalg.norm(run.result.x - run.result.xhat, axis=1)
     nonfinite = _not_finite(run, {"||x - xhat||": norms, "bound": np.asarray(run.result.bound, dtype=float)})
@@ -646,7 +647,7 @@ def assert_exact_functional(observer_fmu, plant_fmu, steps=None, t_end: float | 
     rtol = _real(rtol, "rtol")
     card, seq, spec, seed, _ = _prepare(observer_fmu, steps, t_end, seed, 0.0)
     name = _name(observer_fmu)
-    if card.kernel != "window":
+    if card.stepper.estimates_x:
         raise AssertionError(f"{name}: expected a functional observer (kernel window), found a {card.family} "
                              f"observer of kernel {card.kernel} (use assert_converges)")
     window = int(card.schedule["length"])
@@ -706,7 +707,7 @@ def _first_runtime_difference(observer_fmu, card: Card, steps: int, seed: int, r
     inputs and steps of :func:`uiofmu.cosim.validate.validate`; the first step where the largest relative
     difference so far exceeds ``rtol``, with the outputs there, or None."""
     from .cosim.fmi import Fmu
-    from .cosim.validate import random_observer_run
+    from .cosim.kernels import random_observer_run
     from .runtime.observer import Runtime
 
     rt = Runtime(card)
@@ -754,6 +755,7 @@ def assert_matches_runtime(observer_fmu, card=None, steps: int = 200, rtol: floa
         Naming what differs: fmpy's findings, the matrices that are not the card's, the first step
         where the outputs part and by how much, or the reference card's failed certificate check.
     """
+    from .cosim.kernels import cosim_kernel
     from .cosim.validate import validate
 
     steps, rtol, seed = _count(steps, "steps"), _real(rtol, "rtol"), _seed(seed)
@@ -768,7 +770,7 @@ def assert_matches_runtime(observer_fmu, card=None, steps: int = 200, rtol: floa
         differences = _matrix_differences(packed, ref)
         if differences:
             measured = ""
-            if ref.kernel == "affine" and packed.kernel == "affine" and ref.dims == packed.dims:
+            if ref.kernel == packed.kernel and cosim_kernel(ref).random_run and ref.dims == packed.dims:
                 first = _first_runtime_difference(observer_fmu, ref, steps, seed, rtol)
                 if first is not None:
                     k, got, want, rel = first

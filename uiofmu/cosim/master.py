@@ -24,11 +24,10 @@ import numpy as np
 from ..runtime.card import Card, card_from_data
 from ..runtime.errors import FmuError, ProblemError
 from ..runtime.files import atomic_output, check_output_dir, write_atomic
-from ..certificate import overshoot_text
-from ..families import certified_bound
 from .fmi import Fmu, FmuCallError, first_non_integer, not_an_integer, read_description, read_model_json, vector_sizes
 from .inputs import CsvInputs, SignalInputs, values_at
-from .result import CosimResult, run_result
+from .kernels import cosim_kernel
+from .result import CosimResult
 from ..progress import progress
 from ..runtime.observer import Runtime
 from ..runtime.experiments import default_horizon as default_t_end
@@ -156,7 +155,7 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         X, Y, U, D, H, MODE = _histories(loop, plant, obs, source, fed, K)
         cpu4 = time.process_time()
     timing = {"steps": cpu4 - cpu1, "loop": cpu3 - cpu2, "fmi_calls_per_step": loop.calls_per_step}
-    return _timed(_result(card, T, steps, X, Y, U, D, H, MODE, theta_true), timing, cpu0)
+    return _timed(cosim_kernel(card).result(card, T, steps, X, Y, U, D, H, MODE, theta_true), timing, cpu0)
 
 
 def _initialize(plant: Fmu, obs: Fmu, plant_path, inputs, plant_parameters, plant_x0, xhat0) -> tuple:
@@ -191,26 +190,6 @@ def _histories(loop: _Loop, plant: Fmu, obs: Fmu, source: dict, fed: list, K: in
     if obs.has("mode"):
         MODE = loop.plant_history("mode")[:, 0].copy() if "mode" in fed else np.round(source["mode"])[:, 0]
     return X, Y, U, D, H, MODE
-
-
-def _result(card: Card, T, steps, X, Y, U, D, H, MODE, theta_true) -> CosimResult:
-    """The run's :class:`CosimResult` with its metrics (:func:`uiofmu.cosim.result.run_result`), as the
-    observer's kernel reads its histories."""
-    if card.kernel == "window":
-        return _functional_result(card, T, steps, X, Y, U, D, H, MODE)
-    if card.kernel == "delayed":
-        return _delayed_result(card, T, steps, X, Y, U, D, H, theta_true)
-    XH, R = H["xhat"], H["r"]
-    DH = H.get("dhat", np.zeros((len(T), 0)))
-    bound = certified_bound(card, X[0] - XH[0], D)
-    text = None
-    if bound is not None:
-        text = card.data.get("bound", "")
-        if card.data.get("overshoot_bound") is not None:
-            text = (text.replace("overshoot_bound", overshoot_text(card.data))
-                    .replace("decay_bound**k", f"{card.data['decay_bound']:.6g}^k"))
-    return run_result(T, steps, X, XH, Y, U, D, R, DH, card=card, mode=MODE, bound=bound,
-                      decay=card.data.get("decay_bound"), overshoot=card.data.get("overshoot_bound"), bound_text=text)
 
 
 def _timed(result: CosimResult, timing: dict, cpu0: float) -> CosimResult:
@@ -453,31 +432,6 @@ def _do_steps(steps_: list, k: int, t: float, h: float) -> None:
 def _refused(who: str, k: int, t: float, h: float, exc: FmuCallError) -> FmuError:
     return FmuError(f"the {who} FMU refused step {k} (t = {t:g} s, h = {h:g} s): "
                     + (exc.messages[-1] if exc.messages else str(exc)))
-
-
-def _functional_result(card, T, steps, X, Y, U, D, H, MODE) -> CosimResult:
-    """The run of a functional observer (window kernel): ``gx`` against ``G x`` of the point
-    ``delay`` steps back (NaN before there is one), and :func:`~uiofmu.cosim.metrics.functional_metrics`."""
-    G = np.asarray(card.data["matrices"]["G"], dtype=float)
-    delay, K1 = int(card.schedule["delay"]), len(T)
-    true = np.full((K1, G.shape[0]), np.nan)
-    true[delay:] = X[:K1 - delay] @ G.T
-    empty = np.zeros((K1, 0))
-    return run_result(T, steps, X, empty, Y, U, D, empty, empty, card=card, mode=MODE,
-                      functional={"gx": H["gx"], "true": true, "valid": H["gx_valid"][:, 0]},
-                      window=(delay, int(card.schedule["length"])), formula=card.data.get("formula", ""))
-
-
-def _delayed_result(card, T, steps, X, Y, U, D, H, theta_true) -> CosimResult:
-    """The run of a delayed observer (seed 001): the state error metrics, :func:`~uiofmu.cosim.metrics.delayed_metrics`
-    (theta against the plant's true theta, validity), and no certified bound: the card's bound holds
-    on its premise set only, which a run is not known to stay in."""
-    empty = np.zeros((len(T), 0))
-    theta = None if theta_true is None or theta_true.size != H["thetahat"].shape[1] else theta_true
-    delayed = {"thetahat": H["thetahat"], "theta": theta, "sigma_min": H["sigma_min"][:, 0],
-               "valid": H["valid"][:, 0], "sigma_bound": float(card.schedule["sigma_bound"])}
-    return run_result(T, steps, X, H["xhat"], Y, U, D, H["r"], empty, card=card, delayed=delayed,
-                      bound_text=card.data.get("bound", ""))
 
 
 def routes(plant, obs, source: dict) -> tuple[list, list]:

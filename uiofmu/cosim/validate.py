@@ -20,157 +20,18 @@ floor 1 makes outputs near zero compared absolutely.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
+from ..plant import Plant
 from ..runtime.card import card_from_data
 from ..runtime.errors import CardError, FmuError
+from ..runtime.plant_kinds import data_kind
+from .comparison import EQUALITY_RTOL, Validation, compare as _compare
 from .fmi import Fmu, FmuCallError, check_archive, read_model_json
-from ..plant import Plant
-from ..runtime.observer import Runtime
+from .kernels import cosim_kernel, random_observer_run
 
-#: Largest accepted relative difference between an FMU and its reference.
-EQUALITY_RTOL = 1e-12
 #: A plant FMU uses its own matrix exponential; the reference uses scipy's.
 PLANT_RTOL = 1e-9
-
-
-@dataclass
-class Validation:
-    """The outcome of :func:`validate`.
-
-    ``max_abs_diff`` is the largest absolute difference between FMU and reference over the
-    run (every sample, every output channel); ``scale`` is ``max(1, largest |reference
-    value|)`` over the same run; ``max_rel_diff = max_abs_diff / scale``, one scale for the
-    whole run, is what ``tolerance`` bounds.
-    """
-
-    path: str
-    kind: str
-    problems: list = field(default_factory=list)
-    steps: int = 0
-    max_abs_diff: float = 0.0
-    max_rel_diff: float = 0.0
-    tolerance: float = EQUALITY_RTOL
-    scale: float = 1.0
-
-    @property
-    def ok(self) -> bool:
-        """No static problem and outputs within tolerance."""
-        return not self.problems and self.max_rel_diff <= self.tolerance
-
-    def to_data(self) -> dict:
-        """JSON-ready form."""
-        return {"path": self.path, "kind": self.kind, "problems": self.problems, "steps": self.steps,
-                "max_abs_diff": self.max_abs_diff, "max_rel_diff": self.max_rel_diff, "scale": self.scale,
-                "tolerance": self.tolerance, "ok": self.ok}
-
-
-def _compare(report: Validation, got: np.ndarray, ref: np.ndarray) -> None:
-    """Fold one sample into the run's largest difference and its one scale (see the module).
-
-    A NaN difference counts as infinite (``max`` would drop it); the scale takes only finite
-    reference values."""
-    got, ref = np.asarray(got, dtype=float), np.asarray(ref, dtype=float)
-    if ref.size:
-        diff = np.abs(got - ref)
-        report.max_abs_diff = max(report.max_abs_diff, float(np.where(np.isnan(diff), np.inf, diff).max()))
-        finite = np.abs(ref[np.isfinite(ref)])
-        report.scale = max(report.scale, float(finite.max()) if finite.size else 1.0)
-    report.max_rel_diff = report.max_abs_diff / report.scale
-
-
-def _window_observer(fmu: Fmu, card, report: Validation, steps: int, rng) -> None:
-    """A functional observer FMU (window kernel) against :class:`~uiofmu.runtime.window.WindowRuntime`:
-    ``gx`` and ``gx_valid`` at every point, on random outputs ``y`` and, when the FMU takes it, random
-    scheduling values ``theta`` (a window observer steps at its ``dt`` only)."""
-    from ..runtime.window import WindowRuntime
-
-    rt = WindowRuntime(card)
-    fmu.initialize(0.0)
-    takes_theta, t = fmu.has("theta"), 0.0
-    for k in range(steps + 1):
-        y = rng.normal(size=rt.p) * 3
-        fmu.set("y", y)
-        rt.set_y(y)
-        if takes_theta:
-            theta = rng.normal(size=rt.s)
-            fmu.set("theta", theta)
-            rt.set_theta(theta)
-        _compare(report, np.concatenate([fmu.get("gx"), fmu.get("gx_valid")]),
-                 np.concatenate([rt.gx(), [1.0 if rt.valid else 0.0]]))
-        if k < steps:
-            fmu.step(t, rt.dt)
-            rt.step(rt.dt)
-            t += rt.dt
-    report.steps = steps
-
-
-class _Sines:
-    """A smooth random input: per channel a sum of three sines (amplitudes 5 to 20, 0.3 to 3 Hz)."""
-
-    def __init__(self, m: int, rng):
-        self.a = rng.uniform(5.0, 20.0, size=(3, m))
-        self.w = 2 * np.pi * rng.uniform(0.3, 3.0, size=(3, m))
-        self.phi = rng.uniform(0.0, 2 * np.pi, size=(3, m))
-
-    def __call__(self, t: float) -> np.ndarray:
-        return np.sum(self.a * np.sin(self.w * t + self.phi), axis=0)
-
-
-def _delayed_plant_data(card) -> dict:
-    """A plant for the delayed kernel's signals: the card's ``Abar, Bbar, Cbar, D0, Dy`` and the problem's
-    true theta (ones where the card has none)."""
-    mats = card.matrices
-    n_theta = mats["D0"].shape[1]
-    try:
-        theta = [float(v) for v in card.data["problem"]["plant"]["parameters"]["theta"]]
-    except (KeyError, TypeError, ValueError):
-        theta = []
-    theta = theta if len(theta) == n_theta else [1.0] * n_theta
-    return {"time": "continuous", "A": mats["Abar"].tolist(), "B": mats["Bbar"].tolist(), "C": mats["Cbar"].tolist(),
-            "parameters": {"theta": theta, "D0": mats["D0"].tolist(),
-                           "Dy": [{"output": i + 1, "D": D.tolist()} for i, D in enumerate(mats["Dy"])]}}
-
-
-def _delayed_observer(fmu: Fmu, card, report: Validation, steps: int, rng) -> None:
-    """A delayed observer FMU against :class:`~uiofmu.runtime.delayed.DelayedRuntime`: ``xhat``,
-    ``thetahat``, ``r``, ``sigma_min`` and ``valid`` at every point, fed the same ``y``, ``ydot`` (a
-    :class:`~uiofmu.runtime.parametric_plant.ParametricPlantRuntime` of the card's matrices driven by a
-    random sum of sines) and ``u``, from a random ``xhat0``, on random aperiodic steps (0.5 to 1.5 times a
-    mean that is the card's default ``step``, or longer so that the run lasts 1.5 times the largest
-    delay: the estimates become valid, and the delay buffer is read, inside the run)."""
-    from ..runtime.delayed import DelayedRuntime
-    from ..runtime.parametric_plant import ParametricPlantRuntime
-
-    rt = DelayedRuntime(card)
-    plant = ParametricPlantRuntime(_delayed_plant_data(card))
-    u_of = _Sines(rt.m, rng)
-    xhat0 = 0.5 * rng.normal(size=rt.n)
-    rt.xhat0 = xhat0.copy()
-    rt.reset()
-    fmu.initialize(0.0, {"xhat0": xhat0})
-    mean = max(float(card.schedule["step"]), 1.5 * rt.tau / steps)
-    t = 0.0
-    for k in range(steps + 1):
-        plant.u[:] = u_of(t)
-        y, ydot = plant.y(), plant.ydot()
-        for name, value in (("y", y), ("ydot", ydot), ("u", plant.u)):
-            fmu.set(name, value)
-        rt.set_y(y)
-        rt.set_ydot(ydot)
-        rt.set_u(plant.u)
-        got = np.concatenate([fmu.get(name) for name in ("xhat", "thetahat", "r", "sigma_min", "valid")])
-        ref = np.concatenate([rt.xhat(), rt.theta(), rt.residual(), [rt.margin()], [1.0 if rt.valid else 0.0]])
-        _compare(report, got, ref)
-        if k < steps:
-            h = float(rng.uniform(0.5, 1.5) * mean)
-            fmu.step(t, h)
-            rt.step(h)
-            plant.step(h)
-            t += h
-    report.steps = steps
 
 
 def _observer(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
@@ -181,64 +42,7 @@ def _observer(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None
         recheck(card)                       # an FMU from someone else: does its card prove what it claims?
     except CardError as exc:
         report.problems.append(f"its design card does not re-check: {exc}")
-    if card.kernel == "window":
-        return _window_observer(fmu, card, report, steps, rng)
-    if card.kernel == "delayed":
-        return _delayed_observer(fmu, card, report, steps, rng)
-    rt = Runtime(card)
-    for _ in random_observer_run(fmu, rt, steps, rng):
-        got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")])
-        ref = np.concatenate([rt.xhat(), rt.residual(), rt.dhat() if rt.has_dhat else []])
-        _compare(report, got, ref)
-    report.steps = steps
-
-
-def random_observer_run(fmu: Fmu, rt: Runtime, steps: int, rng):
-    """Drive an affine-kernel observer FMU and its reference runtime side by side on random inputs and steps.
-
-    Both start from one random ``xhat0``; at each of the ``steps + 1`` communication points both get the
-    same random ``y`` and ``u`` (and, for a switched plant, a random mode), the generator yields, and
-    then (but after the last point) both take the same random admissible step. The caller reads and
-    compares the outputs of both at each yield: the run of :func:`validate`.
-
-    Parameters
-    ----------
-    fmu : Fmu
-        The observer FMU, not initialised.
-    rt : Runtime
-        The reference runtime of its card (reset here).
-    steps : int
-        The number of steps.
-    rng : numpy.random.Generator
-        The source of the random values, drawn in a fixed order.
-
-    Yields
-    ------
-    int
-        The index k of the communication point, 0 to ``steps``.
-    """
-    choices = rt.schedule.admissible_steps()
-    xhat0 = rng.normal(size=rt.n)
-    rt.xhat0 = xhat0.copy()
-    rt.reset()
-    fmu.initialize(0.0, {"xhat0": xhat0})
-    t = 0.0
-    for k in range(steps + 1):
-        y, u = rng.normal(size=rt.p) * 3, rng.normal(size=rt.m)
-        fmu.set("y", y)
-        fmu.set("u", u)
-        rt.set_y(y)
-        rt.set_u(u)
-        if rt.modes:                                   # a switched plant's mode, at random
-            mode = int(rng.integers(1, rt.modes + 1))
-            fmu.set("mode", [mode])
-            rt.set_mode(mode)
-        yield k
-        if k < steps:
-            h = float(choices[int(rng.integers(len(choices)))])
-            fmu.step(t, h)
-            rt.step(h)
-            t += h
+    cosim_kernel(card).validate(fmu, card, report, steps, rng)
 
 
 def _switched_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng) -> None:
@@ -339,14 +143,9 @@ def _parametric_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng)
     report.steps = steps
 
 
-def _plant(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
-    data = spec["plant"]
-    if "modes" in data:
-        return _switched_plant(fmu, data, report, steps, rng)
-    if "scheduling" in data:
-        return _lpv_plant(fmu, data, report, steps, rng)
-    if "parameters" in data:
-        return _parametric_plant(fmu, data, report, steps, rng)
+def _linear_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng) -> None:
+    """A linear plant FMU against the exact discretisation of its plant (scipy's matrix exponential), on random
+    inputs and (for a continuous plant) random steps."""
     plant = Plant.create(data["A"], data["C"], data["E"], data["B"] or None, time=data["time"],
                          dt=data.get("dt"), w=data.get("w"), x0=data["x0"])
     report.tolerance = PLANT_RTOL
@@ -366,6 +165,17 @@ def _plant(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
         t += h
     _compare(report, fmu.get("x"), x)
     report.steps = steps
+
+
+#: The validation driver of each kind of plant FMU whose data is ``model.json``'s ``plant``
+#: (:data:`uiofmu.runtime.plant_kinds.PLANT_KINDS`).
+PLANT_DRIVERS = {"linear": _linear_plant, "switched": _switched_plant, "lpv": _lpv_plant,
+                 "parametric": _parametric_plant}
+
+
+def _plant(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
+    data = spec["plant"]
+    PLANT_DRIVERS[data_kind(data).name](fmu, data, report, steps, rng)
 
 
 def _mujoco(fmu: Fmu, spec: dict, report: Validation, steps: int, rng) -> None:
@@ -433,3 +243,6 @@ def validate(path, steps: int = 200, seed: int = 0) -> Validation:
         except FmuCallError as exc:
             report.problems.append(f"{exc} ({'; '.join(exc.messages)})")
     return report
+
+
+__all__ = ["EQUALITY_RTOL", "PLANT_RTOL", "Validation", "random_observer_run", "validate"]

@@ -28,10 +28,12 @@ A family module (named in :data:`uiofmu.runtime.registry.FAMILIES`) provides:
     The gains its design chooses (matrices or stacks), ``||C||`` and the size of the plant's matrix they
     correct (:mod:`uiofmu.gains`: the largest gain ``design`` prints and ``observer.gain_cap`` bounds; an
     LMI family takes the cap into its LMIs with :func:`uiofmu.gains.cap_lmis`).
-``CLOSED_FORM`` (optional, default False)
-    True for a family whose design is a formula: ``observer.gain_cap`` only checks its gains.
-``certified_bound(card, e0, d)`` (optional)
+``certified_bound(card, e0, d)`` (where its registry entry says ``own_bound``)
     The bound on ``||e_k||`` of a run, when it is not ``overshoot * decay**k * ||e_0||``.
+
+What the registry entry (:class:`uiofmu.runtime.registry.Entry`) says of the family is not repeated in
+its module: the kernel of its cards, the plant kinds it designs for, whether its design is a closed
+form (``observer.gain_cap`` then only checks its gains) and whether it has its own bound.
 
 Families differ in how they design matrices and how the schedule picks them, never in how
 the runtime steps.
@@ -86,8 +88,8 @@ class DesignResult:
         None for a design without one.
     xhat0 : array_like or None
         Initial estimate (None: zeros).
-    kernel : str
-        The runtime kernel (:data:`uiofmu.runtime.card.KERNELS`).
+
+    The runtime kernel of the card is the family's (:attr:`uiofmu.runtime.registry.Entry.kernel`).
     """
 
     nz: int
@@ -98,7 +100,6 @@ class DesignResult:
     results: dict
     lmi: object
     xhat0: object = None
-    kernel: str = "affine"
 
 
 def available_family(name: str, key: str = "observer.family"):
@@ -150,7 +151,7 @@ def certified_bound(card, e0, d):
     from ..certificate import geometric_bound
 
     module = available_family(card.family, "design card family")
-    if hasattr(module, "certified_bound"):
+    if FAMILIES[card.family].own_bound:
         return module.certified_bound(card, e0, d)
     if card.data.get("decay_bound") is None:
         return None

@@ -55,10 +55,6 @@ from ..structure import product_radius, rank
 from . import Analysis, DesignResult
 
 NAME = "deadbeat-functional"
-#: The family designs for LPV plants (``[[plant.scheduling]]``).
-LPV = True
-#: The design is a formula, no LMI: ``observer.gain_cap`` is a check of its gains, never a constraint.
-CLOSED_FORM = True
 #: Most matrices (P_i, Phat_i) a condition's text lists one by one; its values hold them all.
 MAX_LISTED = 8
 
@@ -647,7 +643,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
                "formula": describe(Fm, exps, plant.p, L, delay),
                "decay_bound": None, "overshoot_bound": None,
                "bound": _bound(L, delay)}
-    return DesignResult(0, plant.dt, schedule, matrices, cert, results, None, None, kernel="window")
+    return DesignResult(0, plant.dt, schedule, matrices, cert, results, None, None)
 
 
 def describe(F: np.ndarray, exps: np.ndarray, p: int, L: int, delay: int) -> str:

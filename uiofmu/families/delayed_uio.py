@@ -62,8 +62,6 @@ from ..table import Table
 from . import Analysis, DesignResult
 
 NAME = "delayed-uio"
-#: The family designs for plants with unknown parameters (``[plant.parameters]``).
-PARAMETRIC = True
 
 
 @dataclass(frozen=True)
@@ -743,5 +741,4 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "search": searched,
         "design_method": "lmi (29) gridded on the premise family",
     }
-    return DesignResult(plant.n * copies, None, schedule, matrices, cert, results, system, opts.xhat0,
-                        kernel="delayed")
+    return DesignResult(plant.n * copies, None, schedule, matrices, cert, results, system, opts.xhat0)

@@ -89,8 +89,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-#: The families the campaign covers, with the code that decorrelates their streams.
-FAMILY_CODES = {"lti-uio": 1, "ltv-auid": 2, "sampled-data": 3}
+from ..runtime.registry import FAMILIES
+
+#: The families the campaign covers, with the code that decorrelates their streams (the registry's
+#: :attr:`~uiofmu.runtime.registry.Entry.random_code`).
+FAMILY_CODES = {e.name: e.random_code for e in FAMILIES.values() if e.random_code is not None}
 
 #: The key of ``[observer]`` that ``"max"`` searches, per family.
 SEARCHED = {"lti-uio": "decay", "ltv-auid": "mu", "sampled-data": "alpha"}

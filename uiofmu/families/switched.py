@@ -55,8 +55,6 @@ from ..switched_plant import as_switched
 from . import Analysis, DesignResult
 
 NAME = "switched"
-#: The family designs for switched plants (``[[plant.modes]]``).
-SWITCHED = True
 #: Design methods: dead-beat where every mode allows it, else the LMI; or one of them.
 METHODS = ("auto", "lmi", "deadbeat")
 

@@ -32,6 +32,8 @@ from .. import __version__
 from ..runtime.card import MAX_POWER, Card
 from ..runtime.errors import CardError, FmuError
 from ..runtime.files import atomic_output, check_output_file
+from ..runtime.kernels import KERNELS
+from ..runtime.plant_kinds import LINEAR, PLANT_KINDS, data_kind
 from ..runtime.schedules import schedule_axes
 from ..runtime.ports import (lpv_plant_ports, model_structure, observer_experiment, plant_ports, plant_spec,
                              write_experiment)
@@ -134,14 +136,10 @@ TIMES = {"discrete": "UIOFMU_DISCRETE", "continuous": "UIOFMU_CONTINUOUS"}
 RULES = {"threshold": "UIOFMU_RULE_THRESHOLD", "input": "UIOFMU_RULE_INPUT", "random": "UIOFMU_RULE_RANDOM"}
 THETA_KINDS = {"state": "UIOFMU_THETA_STATE", "input": "UIOFMU_THETA_INPUT"}
 
-#: Why the C backend has no kernel for these models (what ``--backend c`` says, and the note of the default).
-PYTHON_ONLY = {
-    "delayed": "the C backend has no kernel 'delayed' (the continuous-time delayed UIO with parameter "
-               "identification: RK4 substeps, a time-stamped delay buffer and a rank test at every substep are "
-               "implemented in the Python runtime only)",
-    "parametric": "the C backend has no kernel for a plant with unknown parameters (x' = A x + B u + D(y) theta "
-                  "with RK4 substeps and the output ydot are implemented in the Python runtime only)",
-}
+#: Why the C backend has no kernel for these models (what ``--backend c`` says, and the note of the default),
+#: by kernel and by plant kind (:attr:`uiofmu.runtime.kernels.Kernel.python_only`,
+#: :attr:`uiofmu.runtime.plant_kinds.PlantKind.python_only`).
+PYTHON_ONLY = {d.name: d.python_only for d in (*KERNELS.values(), *PLANT_KINDS.values()) if d.python_only}
 
 
 def c_refusal(model) -> str | None:
@@ -158,17 +156,19 @@ def c_refusal(model) -> str | None:
         One sentence naming what the C backend lacks (:data:`PYTHON_ONLY`).
     """
     if isinstance(model, Card):
-        if model.kernel in C_KERNELS:
+        kernel = model.stepper
+        if kernel.c_kernel in C_KERNELS:
             return None
-        return PYTHON_ONLY.get(model.kernel, f"the C backend has no kernel {str(model.kernel)[:40]!r} "
-                                             f"(it has {', '.join(C_KERNELS)})")
-    data = model.to_data() if hasattr(model, "to_data") else model
-    return PYTHON_ONLY["parametric"] if isinstance(data, dict) and "parameters" in data else None
+        return kernel.python_only or (f"the C backend has no kernel {kernel.name[:40]!r} "
+                                      f"(it has {', '.join(C_KERNELS)})")
+    data = model if isinstance(model, dict) else model.to_data()
+    kind = data_kind(data)
+    return None if kind.c_kernel is not None else kind.python_only
 
 
 def c_kernel(card: Card) -> CKernel:
     """The C kernel of a card; FmuError when there is none for its ``kernel``."""
-    kernel = C_KERNELS.get(card.kernel)
+    kernel = C_KERNELS.get(card.stepper.c_kernel)
     if kernel is None:
         raise FmuError(f"--backend c: {c_refusal(card)}; use --backend python (or leave --backend out: the "
                        "default picks python for this card)")
@@ -283,8 +283,12 @@ def design_source(card: Card, guid: str, identifier: str) -> str:
     str
         The C source.
     """
-    if card.kernel == "window":
-        return _window_source(card, guid, identifier)
+    c_kernel(card)                                  # FmuError for a kernel the C backend lacks
+    return _OBSERVER_SOURCES[card.stepper.c_kernel](card, guid, identifier)
+
+
+def _affine_source(card: Card, guid: str, identifier: str) -> str:
+    """``design_data.c`` of an affine-kernel card (:func:`design_source`)."""
     d = card.dims
     sched = card.schedule
     kind = sched["kind"]
@@ -363,6 +367,10 @@ def _window_source(card: Card, guid: str, identifier: str) -> str:
     return "\n".join(lines)
 
 
+#: The generator of ``design_data.c`` of each observer C kernel (the keys of :data:`C_KERNELS`).
+_OBSERVER_SOURCES = {"affine": _affine_source, "window": _window_source}
+
+
 def fmu_table(guid: str, identifier: str, kernel: CKernel, table: list) -> list:
     """The lines of ``design_data.c`` after the kernel's data: the variable table and ``UIOFMU_FMU``
     (the GUID and model identifier as escaped C literals, the kernel's symbol)."""
@@ -377,23 +385,22 @@ def fmu_table(guid: str, identifier: str, kernel: CKernel, table: list) -> list:
 
 
 def plant_kernel(data: dict) -> CKernel:
-    """The C kernel of a plant's data: ``linear``, ``switched-<rule>`` for data with ``modes``, or
-    ``lpv-<kind>`` for data with ``scheduling`` (the kind of its ``theta``); FmuError for a plant with
-    unknown parameters (no C kernel: :data:`PYTHON_ONLY`)."""
-    if "parameters" in data:
-        raise FmuError(f"--backend c: {PYTHON_ONLY['parametric']}; use --backend python (or leave --backend out: "
+    """The C kernel of a plant's data: its kind's (:attr:`uiofmu.runtime.plant_kinds.PlantKind.c_kernel`), completed
+    by the value its :attr:`~uiofmu.runtime.plant_kinds.PlantKind.variant` names (``switched-<rule>``,
+    ``lpv-<kind of theta>``); FmuError for a plant kind without one (:data:`PYTHON_ONLY`)."""
+    kind = data_kind(data)
+    if kind.c_kernel is None:
+        raise FmuError(f"--backend c: {kind.python_only}; use --backend python (or leave --backend out: "
                        "the default picks python for this plant)")
-    if "scheduling" in data:
-        kind = data.get("theta", {}).get("kind") if isinstance(data.get("theta"), dict) else None
-        if kind not in THETA_KINDS:
-            raise FmuError(f"plant theta.kind: expected one of {', '.join(THETA_KINDS)}, found {str(kind)[:40]!r}")
-        return PLANT_KERNELS[f"lpv-{kind}"]
-    if "modes" not in data:
-        return PLANT_KERNELS["linear"]
-    rule = data.get("switching", {}).get("rule") if isinstance(data.get("switching"), dict) else None
-    if rule not in RULES:
-        raise FmuError(f"plant switching.rule: expected one of {', '.join(RULES)}, found {str(rule)[:40]!r}")
-    return PLANT_KERNELS[f"switched-{rule}"]
+    if kind.variant is None:
+        return PLANT_KERNELS[kind.c_kernel]
+    table, key = kind.variant
+    value = data.get(table, {}).get(key) if isinstance(data.get(table), dict) else None
+    prefix = f"{kind.c_kernel}-"
+    options = tuple(name[len(prefix):] for name in PLANT_KERNELS if name.startswith(prefix))
+    if value not in options:
+        raise FmuError(f"plant {table}.{key}: expected one of {', '.join(options)}, found {str(value)[:40]!r}")
+    return PLANT_KERNELS[prefix + value]
 
 
 def _switched_source(data: dict, guid: str, identifier: str) -> str:
@@ -492,11 +499,12 @@ def plant_source(data: dict, guid: str, identifier: str) -> str:
     by :func:`repr` after a finiteness check, every array with its length checked against the dims
     and compiled with ``UIOFMU_LENGTH``), and the GUID and model identifier as escaped C literals:
     no text of the problem reaches the source."""
-    if "scheduling" in data:
-        return _lpv_source(data, guid, identifier)
-    if "modes" in data:
-        return _switched_source(data, guid, identifier)
-    kernel = PLANT_KERNELS["linear"]
+    return _PLANT_SOURCES[data_kind(data).c_kernel](data, guid, identifier)
+
+
+def _linear_source(data: dict, guid: str, identifier: str) -> str:
+    """``design_data.c`` of a linear plant (:func:`plant_source`)."""
+    kernel = PLANT_KERNELS[LINEAR.c_kernel]
     time = data.get("time")
     if time not in TIMES:
         raise FmuError(f"plant time: expected discrete or continuous, found {str(time)[:40]!r}")
@@ -517,6 +525,10 @@ def plant_source(data: dict, guid: str, identifier: str) -> str:
     return _plant_data_source("a linear plant", kernel, "UiofmuPlant UIOFMU_PLANT", arrays,
                               f".n = {n}, .m = {m}, .p = {p}, .q = {q}, .time = {TIMES[time]},", dt,
                               [".modes = 0, .rule = UIOFMU_RULE_NONE, .mode0 = 1,"], guid, identifier, table)
+
+
+#: The generator of ``design_data.c`` of each plant C kernel (:attr:`uiofmu.runtime.plant_kinds.PlantKind.c_kernel`).
+_PLANT_SOURCES = {"linear": _linear_source, "switched": _switched_source, "lpv": _lpv_source}
 
 
 def _plant_data_source(what: str, kernel: CKernel, declaration: str, arrays, dims: str, dt: float, fields: list,
@@ -725,7 +737,7 @@ def build_c_plant(plant, output, identifier: str, experiment: dict | None = None
     _check_platform()
     spec = plant_spec(data, experiment, labels)
     guid = guid_of({"backend": "c", **spec})
-    what = "LPV plant" if "scheduling" in data else "switched plant" if "modes" in data else "linear plant"
+    what = data_kind(data).what
     text = description or f"{plant.time} {what} (uiofmu {__version__}, C backend)"
     return pack_c_fmu(output, identifier, plant_kernel(data), plant_source(data, guid, identifier),
                       lambda sources: plant_model_description(spec, text, guid, identifier, sources),

@@ -20,6 +20,7 @@ from ..runtime.card import Card
 from ..runtime.errors import FmuError
 from ..runtime.files import atomic_output, check_output_file
 from ..plant import Plant
+from ..plant_kinds import plant_kind as kind_of
 from ..runtime.ports import observer_experiment, plant_experiment, plant_spec
 from ..runtime.text import fill_template, identifier, py_string
 
@@ -158,14 +159,9 @@ def build_observer(card: Card, output, backend: str | None = None) -> Path:
 
 def plant_kind(plant) -> str:
     """What a plant is, for FMU descriptions: ``linear plant``, ``switched linear plant (2 modes, rule
-    threshold)`` or ``LPV plant (1 scheduling component, theta from the state)``."""
-    if getattr(plant, "modes", None):
-        return f"switched linear plant ({len(plant.modes)} modes, rule {plant.switching['rule']})"
-    if getattr(plant, "n_theta", None):
-        return f"plant with {plant.n_theta} unknown parameter(s) theta (D(y) theta, RK4 substeps, output ydot)"
-    if getattr(plant, "parts", None):
-        return f"LPV plant ({len(plant.parts)} scheduling component(s), theta from the {plant.theta['kind']})"
-    return "linear plant"
+    threshold)`` or ``LPV plant (1 scheduling component, theta from the state)``: its kind's
+    :attr:`~uiofmu.plant_kinds.PlantKind.describe`."""
+    return kind_of(plant).describe(plant)
 
 
 def build_plant(plant: Plant, name: str, output, step: float | None = None, backend: str | None = None,

@@ -7,7 +7,7 @@ once: FMUs of one runtime share the package in a process, and the folder it was 
 from may be gone by the time a later module would be needed.
 """
 
-from . import (card, delayed, errors, files, fmu_model, lpv, matrices, mujoco_runtime, observer,  # noqa: F401
-               parametric_plant, plant_runtime, registry, schedules, state, stepping, switching, text, tolerances,
-               window)
+from . import (card, checks, delayed, errors, files, fmu_model, kernels, lpv, matrices, models,  # noqa: F401
+               mujoco_runtime, observer, observer_models, parametric_plant, plant_kinds, plant_runtime, registry,
+               schedules, state, stepping, switching, text, tolerances, window)
 from .observer import Runtime, RuntimeInputError  # noqa: F401

@@ -14,31 +14,22 @@ from pathlib import Path
 
 import numpy as np
 
+from .checks import (MAX_DIM, MAX_INTERVALS, MAX_MODES, MAX_POWER, MAX_TEXT, MAX_WINDOW, choice as _choice,
+                     integer as _integer, kind_of as _kind, number as _number, table as _table, text as _text)
 from .errors import CardError
 from .files import parse_json, read_text, write_atomic
+from .kernels import CORE, DEFAULT, DHAT, KERNELS, RUNTIME_SHAPES, SCHEDULES, Kernel, card_kernel
 from .labels import check_labels
-from .matrices import as_array, as_scalar, as_vector
-from .ports import check_declared, delayed_ports, observer_ports, window_ports
+from .matrices import as_vector
+from .ports import check_declared
 from .registry import KNOWN
-from .schedules import AXES
-from .text import check_name, check_text
+from .text import check_name
 from .tolerances import STEP_RTOL
 
 FORMAT = "uiofmu.design"
 VERSION = 1
 REQUIRED = ("format", "version", "family", "name", "dims", "time", "dt", "schedule", "matrices",
             "initial", "certificate", "problem")
-
-#: Matrices of the runtime and their shapes in terms of the dims (before any schedule axes).
-RUNTIME_SHAPES = {
-    "N": ("nz", "nz"), "L": ("nz", "p"), "G": ("nz", "m"), "c": ("nz",),
-    "Xz": ("n", "nz"), "Xy": ("n", "p"), "C": ("p", "n"),
-    "Dy": ("q", "p"), "Yx": ("p", "n"), "Yu": ("p", "m"), "Yc": ("p",),
-}
-#: Matrices every card has; the ``Dy, Yx, Yu, Yc`` group is present when ``dhat`` is estimated.
-CORE = ("N", "L", "G", "c", "Xz", "Xy", "C")
-DHAT = ("Dy", "Yx", "Yu", "Yc")
-
 
 def to_lists(value):
     """Arrays (and complex numbers) to nested lists of floats, recursively."""
@@ -125,8 +116,13 @@ class Card:
 
     @property
     def kernel(self) -> str:
-        """The runtime kernel that steps the observer (:data:`KERNELS`)."""
-        return self.data.get("kernel", "affine")
+        """The name of the runtime kernel that steps the observer (:data:`uiofmu.runtime.kernels.KERNELS`)."""
+        return self.data.get("kernel", DEFAULT)
+
+    @property
+    def stepper(self) -> Kernel:
+        """The runtime kernel that steps the observer (:class:`uiofmu.runtime.kernels.Kernel`)."""
+        return KERNELS[self.kernel]
 
     @property
     def labels(self) -> dict:
@@ -148,213 +144,25 @@ class Card:
         return write_atomic(path, self.to_json(), "design card")
 
 
-#: Runtime kernels: how an observer steps. ``affine``: ``z+ = N z + L y + G u + c``,
-#: ``xhat = Xz z + Xy y`` with the matrices its schedule picks (:mod:`uiofmu.runtime.observer`).
-#: ``window``: ``gx = sum_t w_t(theta) F_t [y window]`` on the last outputs (:mod:`uiofmu.runtime.window`).
-#: ``delayed``: a continuous-time delayed UIO integrated inside the FMU (:mod:`uiofmu.runtime.delayed`).
-KERNELS = ("affine", "window", "delayed")
-#: The schedule kind of each kernel that has its own (the affine kernel takes every other kind).
-KERNEL_SCHEDULE = {"window": "window", "delayed": "continuous"}
-#: Longest output window of a window kernel, and its largest power of a theta value.
-MAX_WINDOW, MAX_POWER = 1024, 64
-#: Largest dimension a card may declare (states, inputs, outputs, observer states).
-MAX_DIM = 1000
-#: Most design intervals an interval schedule may list.
-MAX_INTERVALS = 256
-#: Keys a schedule may hold, per kind (``step_policy`` and ``step_rtol`` for all).
-SCHEDULE_KEYS = {"constant": {"dt"}, "interval": {"intervals", "h_prev0"}, "geometric": {"alpha", "dt"},
-                 "mode": {"dt", "modes", "mode_prev0"}, "window": {"dt", "length", "delay", "theta", "uses_theta"},
-                 "continuous": {"delays", "max_substep", "sigma_bound", "step", "valid_from", "gamma_bound"}}
-#: Most modes a mode schedule may have (its card holds N^2 step matrices).
-MAX_MODES = 16
-#: The step policies each schedule kind accepts (see :mod:`uiofmu.runtime.schedules`).
-KIND_POLICIES = {"constant": ("error",), "interval": ("error", "nearest"), "geometric": ("error", "count"),
-                 "mode": ("error",), "window": ("error",), "continuous": ("error",)}
-#: Longest free text (``bound``, ``generator``, solver names) a card may hold.
-MAX_TEXT = 1000
-
-
-def _table(value, key: str) -> dict:
-    if not isinstance(value, dict):
-        raise CardError(f"design card {key}: expected an object, found {_kind(value)}")
-    return value
-
-
-def _kind(value) -> str:
-    if isinstance(value, bool):
-        return f"the boolean {str(value).lower()}"
-    if isinstance(value, str):
-        return f"the string {value[:40]!r}" + ("..." if len(value) > 40 else "")
-    if value is None:
-        return "null"
-    return {"list": "a list", "dict": "an object", "int": f"the integer {value}",
-            "float": f"the number {value!r}"}.get(type(value).__name__, type(value).__name__)
-
-
-def _integer(value, key: str, low: int, high: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise CardError(f"design card {key}: expected an integer, found {_kind(value)}")
-    if not low <= value <= high:
-        raise CardError(f"design card {key}: expected an integer in [{low}, {high}], found {value}")
-    return value
-
-
-def _number(value, key: str, **bounds) -> float:
-    return as_scalar(value, f"design card {key}", error=CardError, **bounds)
-
-
-def _text(value, key: str, limit: int = MAX_TEXT) -> str:
-    return check_text(value, f"design card {key}", CardError, limit, allow_empty=True)
-
-
-def _choice(value, key: str, options: tuple) -> str:
-    if not isinstance(value, str) or value not in options:
-        raise CardError(f"design card {key}: expected one of {', '.join(map(repr, options))}, found {_kind(value)}")
-    return value
-
-
 def _check_schedule(spec, dt) -> dict:
-    """The ``schedule`` entry: its kind, its data and their ranges."""
+    """The ``schedule`` entry: its kind (:data:`uiofmu.runtime.kernels.SCHEDULES`), its data and their ranges."""
     spec = _table(spec, "schedule")
-    kind = _choice(spec.get("kind"), "schedule.kind", tuple(SCHEDULE_KEYS))
-    unknown = sorted(set(spec) - SCHEDULE_KEYS[kind] - {"kind", "step_policy", "step_rtol"})
+    kind = SCHEDULES[_choice(spec.get("kind"), "schedule.kind", tuple(SCHEDULES))]
+    allowed = kind.keys | {"kind", "step_policy", "step_rtol"}
+    unknown = sorted(set(spec) - allowed)
     if unknown:
-        raise CardError(f"design card schedule.{unknown[0]}: not a key of a {kind} schedule "
-                        f"(known: {', '.join(sorted(SCHEDULE_KEYS[kind] | {'kind', 'step_policy', 'step_rtol'}))})")
-    _choice(spec.get("step_policy", "error"), "schedule.step_policy", KIND_POLICIES[kind])
+        raise CardError(f"design card schedule.{unknown[0]}: not a key of a {kind.name} schedule "
+                        f"(known: {', '.join(sorted(allowed))})")
+    _choice(spec.get("step_policy", "error"), "schedule.step_policy", kind.policies)
     rtol = _number(spec.get("step_rtol", STEP_RTOL), "schedule.step_rtol", low=0.0, high=0.01)
-    if kind in ("constant", "geometric", "mode", "window"):
+    if kind.periodic:
         if "dt" not in spec:
-            raise CardError(f"design card schedule.dt: required for a {kind} schedule")
+            raise CardError(f"design card schedule.dt: required for a {kind.name} schedule")
         step = _number(spec["dt"], "schedule.dt", low=0.0, open_low=True)
         if dt is None or step != dt:
             raise CardError(f"design card schedule.dt = {step!r} differs from dt = {dt!r}")
-    if kind == "geometric":
-        if "alpha" not in spec:
-            raise CardError("design card schedule.alpha: required for a geometric schedule")
-        _number(spec["alpha"], "schedule.alpha", low=0.0, high=1.0, open_low=True, open_high=True)
-    if kind == "continuous":
-        delays = spec.get("delays")
-        if not isinstance(delays, list) or not 1 <= len(delays) <= 16:
-            raise CardError(f"design card schedule.delays: expected a list of 1 to 16 delays, found {_kind(delays)}")
-        values = [_number(t, f"schedule.delays[{i}]", low=0.0, open_low=True) for i, t in enumerate(delays)]
-        if any(b <= a for a, b in zip(values, values[1:])):
-            raise CardError(f"design card schedule.delays: expected increasing delays, found {values}")
-        for key in ("max_substep", "step"):
-            _number(spec.get(key), f"schedule.{key}", low=0.0, open_low=True)
-        _number(spec.get("sigma_bound"), "schedule.sigma_bound", low=0.0)
-        for key in ("valid_from", "gamma_bound"):            # from the premise's start, and its largest Gamma
-            if key in spec:
-                _number(spec[key], f"schedule.{key}", low=0.0, open_low=key == "gamma_bound")
-    if kind == "window":
-        length = _integer(spec.get("length"), "schedule.length", 1, MAX_WINDOW)
-        _integer(spec.get("delay"), "schedule.delay", 0, length - 1)
-        _integer(spec.get("theta"), "schedule.theta", 0, MAX_DIM)
-        if not isinstance(spec.get("uses_theta"), bool):
-            raise CardError("design card schedule.uses_theta: expected true or false, found "
-                            f"{_kind(spec.get('uses_theta'))}")
-    if kind == "mode":
-        modes = _integer(spec.get("modes"), "schedule.modes", 1, MAX_MODES)
-        _integer(spec.get("mode_prev0", 1), "schedule.mode_prev0", 1, modes)
-    if kind == "interval":
-        if "intervals" not in spec:
-            raise CardError("design card schedule.intervals: required for an interval schedule")
-        values = spec["intervals"]
-        if not isinstance(values, list) or not 1 <= len(values) <= MAX_INTERVALS:
-            raise CardError(f"design card schedule.intervals: expected a list of 1 to {MAX_INTERVALS} steps, "
-                            f"found {_kind(values)}" + (f" of {len(values)}" if isinstance(values, list) else ""))
-        hs = [_number(h, f"schedule.intervals[{i}]", low=0.0, open_low=True) for i, h in enumerate(values)]
-        ordered = sorted(hs)
-        for a, b in zip(ordered, ordered[1:]):
-            if b - a <= 2 * rtol * b:
-                raise CardError(f"design card schedule.intervals: {a!r} and {b!r} s are not distinct steps "
-                                f"(step_rtol = {rtol:g})")
-        h0 = _number(spec.get("h_prev0", hs[0]), "schedule.h_prev0", low=0.0, open_low=True)
-        if not any(abs(h0 - h) <= rtol * h for h in hs):
-            raise CardError(f"design card schedule.h_prev0 = {h0!r} s is not one of the design intervals")
+    kind.check(spec, rtol)
     return spec
-
-
-def _any_array(value, key: str) -> None:
-    """A finite numeric array of any shape (nested lists of up to 5 levels)."""
-    depth, probe = 0, value
-    while isinstance(probe, list) and depth < 5:
-        probe, depth = (probe[0] if probe else None), depth + 1
-    as_array(value, key, (None,) * depth, CardError)
-
-
-def _check_window(mats: dict, dims: dict, schedule: dict) -> dict:
-    """The window kernel's ``F`` (terms, d, p L) and ``Fexp`` (terms, L, s; integer powers 0..MAX_POWER)."""
-    L, s = schedule["length"], schedule["theta"]
-    for name in ("F", "Fexp"):
-        if name not in mats:
-            raise CardError(f"design card matrices.{name}: required by the window kernel")
-    F = as_array(mats["F"], "design card matrices.F", (None, None, dims["p"] * L), CardError)
-    if F.shape[0] == 0 or F.shape[1] == 0:
-        raise CardError(f"design card matrices.F: expected at least one term and one row, found shape {F.shape}")
-    exps = as_array(mats["Fexp"], "design card matrices.Fexp", (F.shape[0], L, s), CardError)
-    if np.any(exps < 0) or np.any(exps > MAX_POWER) or np.any(exps != np.round(exps)):
-        raise CardError(f"design card matrices.Fexp: expected integer powers from 0 to {MAX_POWER}")
-    if not schedule["uses_theta"] and np.any(exps):
-        raise CardError("design card matrices.Fexp: the formula uses theta but schedule.uses_theta is false")
-    return {"F": F, "Fexp": exps}
-
-
-def _check_delayed(mats: dict, dims: dict, schedule: dict) -> dict:
-    """The delayed kernel's matrices: the plant's ``Abar, Bbar, Cbar, D0, Dy`` and the gain ``K`` of the
-    augmented system (``len(delays) + 1`` copies)."""
-    n, m, p = dims["n"], dims["m"], dims["p"]
-    c = len(schedule["delays"]) + 1
-    if dims["nz"] != n * c:
-        raise CardError(f"design card dims.nz = {dims['nz']}: the delayed kernel has n (len(delays) + 1) = {n * c}")
-    for name in ("Abar", "Bbar", "Cbar", "D0", "Dy", "K"):
-        if name not in mats:
-            raise CardError(f"design card matrices.{name}: required by the delayed kernel")
-    D0 = as_array(mats["D0"], "design card matrices.D0", (n, None), CardError)
-    shapes = {"Abar": (n, n), "Bbar": (n, m), "Cbar": (p, n), "D0": (n, D0.shape[1]),
-              "Dy": (p, n, D0.shape[1]), "K": (n * c, p * c)}
-    return {name: as_array(mats[name], f"design card matrices.{name}", shape, CardError)
-            for name, shape in shapes.items()}
-
-
-#: The matrices each kernel with its own checks reads (every other matrix: any finite array).
-KERNEL_MATRICES = {"window": (("F", "Fexp"), _check_window), "delayed": (("Abar", "Bbar", "Cbar", "D0", "Dy", "K"),
-                                                                        _check_delayed)}
-
-
-def _check_matrices(mats, dims: dict, kind: str, schedule: dict) -> dict:
-    """Runtime matrices with their exact shapes; every other matrix a finite numeric array."""
-    mats = _table(mats, "matrices")
-    own = {"window": "window", "continuous": "delayed"}.get(kind)
-    if own:
-        names, check = KERNEL_MATRICES[own]
-        for name, value in mats.items():
-            _text(name, "matrices key", 64)
-            if name not in names:
-                _any_array(value, f"design card matrices.{name}")
-        return check(mats, dims, schedule)
-    axes = AXES[kind]
-    count = {"interval": len(schedule.get("intervals", ())), "mode": schedule.get("modes")}.get(kind)
-    out = {}
-    for name, value in mats.items():
-        key = f"design card matrices.{name}"
-        _text(name, "matrices key", 64)
-        if name in RUNTIME_SHAPES:
-            lead = (count,) * axes.get(name, 0)
-            shape = lead + tuple(dims[d] for d in RUNTIME_SHAPES[name])
-            arr = as_array(value, key, shape, CardError)
-            if kind == "geometric" and name in axes and arr.shape[0] == 0:
-                raise CardError(f"{key}: a geometric schedule needs at least one coefficient")
-            out[name] = arr
-        else:
-            _any_array(value, key)
-    absent = [k for k in CORE if k not in out]
-    if absent:
-        raise CardError(f"design card matrices: missing {', '.join(absent)}")
-    partial = [k for k in DHAT if k in out]
-    if partial and len(partial) != len(DHAT):
-        raise CardError(f"design card matrices: dhat needs all of {', '.join(DHAT)}, found only {', '.join(partial)}")
-    return out
 
 
 def check_card(data, require_verified: bool = True) -> dict:
@@ -436,11 +244,10 @@ def check_card(data, require_verified: bool = True) -> dict:
     for key in ("bound", "generator"):
         if key in data:
             _text(data[key], key)
-    kernel = _choice(data.get("kernel", "affine"), "kernel", KERNELS)
-    if KERNEL_SCHEDULE.get(kernel) not in (None, schedule["kind"]) or (
-            schedule["kind"] in KERNEL_SCHEDULE.values() and KERNEL_SCHEDULE.get(kernel) != schedule["kind"]):
-        raise CardError(f"design card kernel {kernel!r} does not step a {schedule['kind']!r} schedule")
-    matrices = _check_matrices(data["matrices"], dims, schedule["kind"], schedule)
+    kernel = KERNELS[_choice(data.get("kernel", DEFAULT), "kernel", tuple(KERNELS))]
+    if not kernel.steps(schedule["kind"]):
+        raise CardError(f"design card kernel {kernel.name!r} does not step a {schedule['kind']!r} schedule")
+    matrices = kernel.check_matrices(data["matrices"], dims, schedule)
     if "ports" in data:
         check_declared(data["ports"], declared_ports(data, matrices))
     return matrices
@@ -461,15 +268,8 @@ def plant_labels(data: dict) -> dict:
 
 
 def declared_ports(data: dict, matrices: dict) -> list:
-    """The ports the card's kernel implements for its dims, schedule and matrices."""
-    if data.get("kernel", "affine") == "window":
-        spec = data["schedule"]
-        return window_ports(data["dims"]["p"], matrices["F"].shape[1], spec["theta"] if spec["uses_theta"] else 0)
-    if data.get("kernel", "affine") == "delayed":
-        d = data["dims"]
-        return delayed_ports(d["n"], d["m"], d["p"], matrices["D0"].shape[1])
-    feeds_y = bool(np.any(np.asarray(matrices["Xy"]) != 0))
-    return observer_ports(data["dims"], data["schedule"]["kind"], "Dy" in matrices, feeds_y)
+    """The ports the card's kernel implements for its dims, schedule and matrices (:attr:`Kernel.declare`)."""
+    return card_kernel(data).declare(data, matrices)
 
 
 def card_from_data(data: dict, require_verified: bool = True) -> Card:
@@ -510,3 +310,8 @@ def read_card(path, require_verified: bool = True) -> Card:
     """
     text = read_text(path, "design card", error=CardError)
     return card_from_data(parse_json(text, f"{path}", error=CardError), require_verified)
+
+
+__all__ = ["CORE", "DHAT", "FORMAT", "MAX_DIM", "MAX_INTERVALS", "MAX_MODES", "MAX_POWER", "MAX_TEXT", "MAX_WINDOW",
+           "RUNTIME_SHAPES", "REQUIRED", "VERSION", "Card", "card_from_data", "check_card", "declared_ports",
+           "plant_labels", "read_card", "to_lists"]

@@ -33,7 +33,6 @@ import math
 
 import numpy as np
 
-from .card import Card
 from .schedules import StepRejected
 from .state import StateReader
 from .stepping import check_step, substeps
@@ -133,7 +132,7 @@ class DelayedRuntime:
         Initial estimate of the plant state (default the card's); the delayed copies start there too.
     """
 
-    def __init__(self, card: Card, xhat0=None):
+    def __init__(self, card, xhat0=None):
         spec, mats = card.schedule, card.matrices
         self.card = card
         self.delays = [float(t) for t in spec["delays"]]

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .card import Card
 from .schedules import ModeRejected, StepRejected, make_schedule
 from .state import StateReader, StateRejected
 from .stepping import RuntimeInputError, check_step
@@ -51,7 +50,7 @@ class Runtime:
     >>> xhat = rt.xhat(); rt.step(0.1)         # doctest: +SKIP
     """
 
-    def __init__(self, card: Card, xhat0=None, h_prev0=None, mode_prev0=None):
+    def __init__(self, card, xhat0=None, h_prev0=None, mode_prev0=None):
         self.card = card
         d = card.dims
         self.n, self.m, self.p, self.q, self.nz = d["n"], d["m"], d["p"], d["q"], d["nz"]

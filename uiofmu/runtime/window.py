@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .card import Card
 from .state import StateReader
 from .stepping import check_step
 from .tolerances import STEP_RTOL
@@ -31,7 +30,7 @@ class WindowRuntime:
         A checked design card of kernel ``window``.
     """
 
-    def __init__(self, card: Card):
+    def __init__(self, card):
         self.card = card
         spec = card.schedule
         self.dt = float(spec["dt"])
