@@ -180,6 +180,7 @@ int uiofmu_expm(const double *M, int k, double *out, double *work, int *piv) {
     for (size_t e = 0; e < kk; e++)
         if (!isfinite(M[e])) return 0;
     double nrm = norm1(M, k);
+    if (!isfinite(nrm)) return 0; /* finite entries whose sums overflow */
     int m = 13, s = 0;
     for (int i = 0; i < 4; i++)
         if (nrm <= THETA[i]) { m = DEGREE[i]; break; }
