@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .matrix_exponential import expm
+from .refusals import refusal
 from .stepping import check_step
 from .schedules import StepRejected, matches
 from .state import StateReader
@@ -67,7 +68,7 @@ class PlantRuntime:
         """
         if not self.continuous:
             if not matches(h, self.dt, STEP_RTOL):
-                raise StepRejected(f"this discrete plant steps at dt = {self.dt!r} s and received h = {h!r} s")
+                raise StepRejected(refusal("plant_off_period", dt=self.dt, h=h))
             return self.A, self.B, self.E, self.w
         hit = self._cache.get(h)
         if hit is None:

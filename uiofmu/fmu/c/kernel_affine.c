@@ -135,12 +135,12 @@ static int interval_index(Instance *s, double h, char *msg, size_t len) {
         return best;
     }
     if (msg) {
-        char b1[32];
-        int off = snprintf(msg, len, "step h = %s s is not one of the design intervals {", uiofmu_num(h, b1));
-        for (int i = 0; i < d->nintervals && off < (int)len; i++)
-            off += snprintf(msg + off, len - off, i ? ", %g" : "%g", d->intervals[i]);
-        if (off < (int)len)
-            snprintf(msg + off, len - off, "} s (tolerance %g relative; step_policy = 'error')", d->step_rtol);
+        char b1[32], listed[512];
+        int off = 0;
+        listed[0] = '\0';
+        for (int i = 0; i < d->nintervals && off < (int)sizeof listed; i++)
+            off += snprintf(listed + off, sizeof listed - off, i ? ", %g" : "%g", d->intervals[i]);
+        snprintf(msg, len, UIOFMU_REFUSAL_NOT_A_DESIGN_INTERVAL, uiofmu_num(h, b1), listed, d->step_rtol);
     }
     return -1;
 }
