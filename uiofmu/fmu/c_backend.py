@@ -5,7 +5,10 @@ card's ports) next to the card's kernel (``c/kernel_affine.c``: the observer mat
 card; ``c/kernel_window.c``: the window formula of a dead-beat functional observer), what the kernels
 share (``c/kernel_util.c``: their checks of design data, inputs and steps, and the pieces of their
 FMU state) and the shared FMI 2.0 Co-Simulation plumbing (``c/fmi2_plumbing.c``: states and legal
-calls, logging, get/set, FMU states, status queries); the system C compiler builds
+calls, logging, get/set, FMU states, status queries). Two headers are generated with it: the kernel's
+ports (``kernel_<name>_ports.h``: ids, names, causalities, types, from :mod:`uiofmu.runtime.ports`)
+and the refusals the kernels share with the Python runtime (``uiofmu_refusals.h``, from
+:mod:`uiofmu.runtime.refusals`). The system C compiler builds
 ``binaries/linux64/<model>.so``. The sources and the FMI headers travel in ``sources/`` with a
 ``<SourceFiles>`` list, so ``fmpy compile`` rebuilds the binary on another platform. The interface
 (names, value references, start values) is the one of the python backend, enumerated from the same
