@@ -25,7 +25,8 @@ from fmpy.fmi2 import fmi2LastSuccessfulTime
 
 from conftest import EXAMPLES, ROOT, run_cli
 from uiofmu.cosim.fmi import Fmu, FmuCallError
-from uiofmu.fmu.c_backend import HERE, c_compiler, fmi_headers
+from uiofmu.fmu.c_backend import (HERE, PLANT_KERNELS, REFUSALS_HEADER, c_compiler, fmi_headers, port_header,
+                                  refusals_header)
 from uiofmu.fmu.export import build_plant
 from uiofmu.plant import Plant
 from uiofmu.problem import load_problem
@@ -279,8 +280,11 @@ def test_the_plant_under_asan_and_ubsan(tmp_path, which, discrete_fmu):
 
 @pytest.mark.parametrize("source", ["kernel_plant.c", "kernel_util.c"])
 def test_the_kernel_compiles_warning_free_with_the_strict_flags(tmp_path, source):
+    kernel = PLANT_KERNELS["linear"]
+    (tmp_path / kernel.ports_header).write_text(port_header(kernel))    # the generated port ids and tables
+    (tmp_path / REFUSALS_HEADER).write_text(refusals_header())          # and refusals
     proc = subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wshadow", "-Wconversion",
-                           "-Wno-sign-conversion", f"-I{HERE}", f"-I{fmi_headers()}", "-c", "-o",
+                           "-Wno-sign-conversion", f"-I{HERE}", f"-I{tmp_path}", f"-I{fmi_headers()}", "-c", "-o",
                            str(tmp_path / "k.o"), str(HERE / source)], capture_output=True, text=True)
     assert proc.returncode == 0 and proc.stderr.strip() == "", proc.stderr
 

@@ -5,7 +5,10 @@ card's ports) next to the card's kernel (``c/kernel_affine.c``: the observer mat
 card; ``c/kernel_window.c``: the window formula of a dead-beat functional observer), what the kernels
 share (``c/kernel_util.c``: their checks of design data, inputs and steps, and the pieces of their
 FMU state) and the shared FMI 2.0 Co-Simulation plumbing (``c/fmi2_plumbing.c``: states and legal
-calls, logging, get/set, FMU states, status queries); the system C compiler builds
+calls, logging, get/set, FMU states, status queries). Two headers are generated with it: the kernel's
+ports (``kernel_<name>_ports.h``: ids, names, causalities, types, from :mod:`uiofmu.runtime.ports`)
+and the refusals the kernels share with the Python runtime (``uiofmu_refusals.h``, from
+:mod:`uiofmu.runtime.refusals`). The system C compiler builds
 ``binaries/linux64/<model>.so``. The sources and the FMI headers travel in ``sources/`` with a
 ``<SourceFiles>`` list, so ``fmpy compile`` rebuilds the binary on another platform. The interface
 (names, value references, start values) is the one of the python backend, enumerated from the same
@@ -18,6 +21,7 @@ import json
 import math
 import platform
 import shutil
+import string
 import subprocess
 import tempfile
 import uuid
@@ -35,9 +39,10 @@ from ..runtime.files import atomic_output, check_output_file
 from ..runtime.kernels import KERNELS
 from ..runtime.plant_kinds import LINEAR, PLANT_KINDS, data_kind
 from ..runtime.schedules import schedule_axes
-from ..runtime.ports import (lpv_plant_ports, model_structure, observer_experiment, plant_ports, plant_spec,
-                             write_experiment)
+from ..runtime.ports import (DESIGN_CAUSALITY, KERNEL_PORTS, lpv_plant_ports, model_structure, observer_experiment,
+                             plant_ports, plant_spec, write_experiment)
 from ..runtime.labels import apply_labels
+from ..runtime.refusals import REFUSALS, fields
 from ..runtime.text import c_string
 from ..runtime.tolerances import STEP_RTOL
 
@@ -56,6 +61,11 @@ PLUMBING_HEADERS = ("fmi2_plumbing.h",)
 KERNEL_UTIL_SOURCES = ("kernel_util.c",)
 KERNEL_UTIL_HEADERS = ("kernel_util.h",)
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+#: The generated header of the refusals the kernels share with the Python runtime (:func:`refusals_header`).
+REFUSALS_HEADER = "uiofmu_refusals.h"
+#: The printf conversion of each kind of field of a refusal (:data:`uiofmu.runtime.refusals.KINDS`): numbers
+#: as the text ``uiofmu_num`` writes (Python's repr), integers, text, ``%g`` and a word in single quotes.
+REFUSAL_CONVERSIONS = {"num": "%s", "int": "%d", "text": "%s", "g": "%g", "quoted": "'%s'"}
 CAUSALITIES = {"parameter": "UIOFMU_PARAMETER", "input": "UIOFMU_INPUT", "output": "UIOFMU_OUTPUT"}
 PORT_TYPES = {"Real": "UIOFMU_REAL", "Integer": "UIOFMU_INTEGER"}
 #: The log categories the plumbing writes under and fmi2SetDebugLogging takes (fmi2OK lines of the
@@ -73,64 +83,46 @@ class CKernel:
         Its files in ``c/`` (``kernel_<name>.c`` and ``.h``).
     symbol : str
         Its ``UiofmuKernel`` (what ``UIOFMU_FMU.kernel`` points at).
-    ports : dict
-        ``{port name: (C enum name, causality, type)}``: every port the kernel implements.
+    ports : str
+        Its ports: the key of :data:`uiofmu.runtime.ports.KERNEL_PORTS` (``"plant"``), whose entries,
+        in order, are its port ids ``UIOFMU_<PORTS>_<KEY>`` (:func:`port_header`).
     """
 
     source: str
     header: str
     symbol: str
-    ports: dict
+    ports: str
+
+    @property
+    def ports_header(self) -> str:
+        """The generated header of its ports (``kernel_<name>_ports.h``, :func:`port_header`), which its
+        header includes."""
+        return f"{Path(self.header).stem}_ports.h"
+
+    @property
+    def prefix(self) -> str:
+        """The prefix of its port ids (``UIOFMU_PLANT``)."""
+        return f"UIOFMU_{self.ports.upper()}"
 
 
 #: The C kernels, by the card's ``kernel``.
 C_KERNELS = {
-    "affine": CKernel("kernel_affine.c", "kernel_affine.h", "UIOFMU_KERNEL_AFFINE", {
-        "xhat0": ("UIOFMU_AFFINE_XHAT0", "parameter", "Real"),
-        "h_prev0": ("UIOFMU_AFFINE_H_PREV0", "parameter", "Real"),
-        "y": ("UIOFMU_AFFINE_Y", "input", "Real"),
-        "u": ("UIOFMU_AFFINE_U", "input", "Real"),
-        "xhat": ("UIOFMU_AFFINE_XHAT", "output", "Real"),
-        "r": ("UIOFMU_AFFINE_R", "output", "Real"),
-        "dhat": ("UIOFMU_AFFINE_DHAT", "output", "Real"),
-        "mode_prev0": ("UIOFMU_AFFINE_MODE_PREV0", "parameter", "Integer"),
-        "mode": ("UIOFMU_AFFINE_MODE", "input", "Integer"),
-    }),
-    "window": CKernel("kernel_window.c", "kernel_window.h", "UIOFMU_KERNEL_WINDOW", {
-        "y": ("UIOFMU_WINDOW_Y", "input", "Real"),
-        "theta": ("UIOFMU_WINDOW_THETA", "input", "Real"),
-        "gx": ("UIOFMU_WINDOW_GX", "output", "Real"),
-        "gx_valid": ("UIOFMU_WINDOW_GX_VALID", "output", "Integer"),
-    }),
+    "affine": CKernel("kernel_affine.c", "kernel_affine.h", "UIOFMU_KERNEL_AFFINE", "affine"),
+    "window": CKernel("kernel_window.c", "kernel_window.h", "UIOFMU_KERNEL_WINDOW", "window"),
 }
 
-
-_PLANT_PORTS = {
-    "x0": ("UIOFMU_PLANT_X0", "parameter", "Real"),
-    "u": ("UIOFMU_PLANT_U", "input", "Real"),
-    "d": ("UIOFMU_PLANT_D", "input", "Real"),
-    "y": ("UIOFMU_PLANT_Y", "output", "Real"),
-    "x": ("UIOFMU_PLANT_X", "output", "Real"),
-}
+_PLANT = CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", "plant")
+_LPV = CKernel("kernel_lpv.c", "kernel_lpv.h", "UIOFMU_KERNEL_LPV", "lpv")
 
 #: The C kernels of plants, by plant kind: linear, and switched by rule (one kernel,
 #: ``c/kernel_plant.c``, whose Integer port ``mode`` is an input for rule ``input``, else an output),
 #: and LPV by the kind of its theta (one kernel, ``c/kernel_lpv.c``, whose port ``theta`` is an input
-#: for kind ``input``, else the output ``T x``).
+#: for kind ``input``, else the output ``T x``): the causality each declaration gives them
+#: (:data:`uiofmu.runtime.ports.DESIGN_CAUSALITY`), which the kernel checks against its design.
 PLANT_KERNELS = {
-    "linear": CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", _PLANT_PORTS),
-    **{f"switched-{rule}": CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", {
-        **_PLANT_PORTS, "seed": ("UIOFMU_PLANT_SEED", "parameter", "Integer"),
-        "mode": ("UIOFMU_PLANT_MODE", "input" if rule == "input" else "output", "Integer")})
-       for rule in ("threshold", "input", "random")},
-    **{f"lpv-{kind}": CKernel("kernel_lpv.c", "kernel_lpv.h", "UIOFMU_KERNEL_LPV", {
-        "x0": ("UIOFMU_LPV_X0", "parameter", "Real"),
-        "u": ("UIOFMU_LPV_U", "input", "Real"),
-        "d": ("UIOFMU_LPV_D", "input", "Real"),
-        "theta": ("UIOFMU_LPV_THETA", kind if kind == "input" else "output", "Real"),
-        "y": ("UIOFMU_LPV_Y", "output", "Real"),
-        "x": ("UIOFMU_LPV_X", "output", "Real")})
-       for kind in ("state", "input")},
+    "linear": _PLANT,
+    **{f"switched-{rule}": _PLANT for rule in ("threshold", "input", "random")},
+    **{f"lpv-{kind}": _LPV for kind in ("state", "input")},
 }
 TIMES = {"discrete": "UIOFMU_DISCRETE", "continuous": "UIOFMU_CONTINUOUS"}
 RULES = {"threshold": "UIOFMU_RULE_THRESHOLD", "input": "UIOFMU_RULE_INPUT", "random": "UIOFMU_RULE_RANDOM"}
@@ -204,21 +196,92 @@ def table_rows(kernel: CKernel, label: str, ports) -> list:
     """The variable table of a declaration ``ports`` (PortSpecs) for ``kernel`` (``label`` names it
     in messages): see :func:`variable_table`."""
     rows = []
+    for port in _checked_ports(kernel, label, ports):
+        enum = f"{kernel.prefix}_{port.key.upper()}"
+        rows += [f"    {{{enum}, {i}, {CAUSALITIES[port.causality]}, {PORT_TYPES[port.type]}}},"
+                 for i in range(port.size)]
+    return rows
+
+
+def _checked_ports(kernel: CKernel, label: str, ports) -> list:
+    """``ports`` when each is one of the kernel's (:data:`uiofmu.runtime.ports.KERNEL_PORTS`, by key)
+    with its name, type and causality (or one of :data:`uiofmu.runtime.ports.DESIGN_CAUSALITY`), a
+    count of elements, and declared once; else FmuError naming the first that is not."""
+    known = {port.key: port for port in KERNEL_PORTS[kernel.ports]}
+    seen = set()
     for port in ports:
-        known = kernel.ports.get(port.name)
-        if known is None:
+        want = known.get(port.key)
+        if want is None:
             raise FmuError(f"the C {label} kernel has no port {str(port.name)[:40]!r} "
-                           f"(it implements {', '.join(kernel.ports)})")
-        enum, causality, kind = known
-        if (port.causality, port.type) != (causality, kind):
+                           f"(it implements {', '.join(p.name for p in known.values())})")
+        causalities = DESIGN_CAUSALITY.get((kernel.ports, port.key), (want.causality,))
+        if port.causality not in causalities or port.type != want.type:
             article = {"parameter": "a", "input": "an", "output": "an"}
             raise FmuError(f"port {port.name}: declared {article.get(port.causality, 'a')} {str(port.causality)[:20]} "
-                           f"{str(port.type)[:20]}, the C {label} kernel implements {article[causality]} "
-                           f"{causality} {kind}")
+                           f"{str(port.type)[:20]}, the C {label} kernel implements "
+                           f"{' or '.join(f'{article[c]} {c}' for c in causalities)} {want.type}")
+        if port.name != want.name or port.key in seen:
+            raise FmuError(f"port {str(port.name)[:40]!r}: the C {label} kernel's port {port.key} is named "
+                           f"{want.name!r} and declared once")
         if not isinstance(port.size, int) or isinstance(port.size, bool) or not 0 <= port.size <= 1 << 24:
             raise FmuError(f"port {port.name}: size {str(port.size)[:20]} is not a count")
-        rows += [f"    {{{enum}, {i}, {CAUSALITIES[causality]}, {PORT_TYPES[kind]}}}," for i in range(port.size)]
-    return rows
+        seen.add(port.key)
+    return list(ports)
+
+
+def port_header(kernel: CKernel, ports=(), label: str | None = None) -> str:
+    """``kernel_<name>_ports.h`` (:attr:`CKernel.ports_header`): the kernel's ports as its code refers
+    to them, generated from :data:`uiofmu.runtime.ports.KERNEL_PORTS`.
+
+    One id per port in the order of its entries (``enum { UIOFMU_PLANT_X0, ..., UIOFMU_PLANT_PORTS }``)
+    and, by id, their names, causalities and types as C initialisers (``UIOFMU_PLANT_PORT_NAMES``,
+    ``_CAUSALITIES``, ``_TYPES``). A port of the declaration ``ports`` (checked as
+    :func:`table_rows` checks it) gives its causality (a switched plant's ``mode`` is an input under
+    rule ``input``); the others keep their entry's. Only the names, keys and words that module defines
+    reach the text: never a card's or a problem's.
+    """
+    label = label or kernel.ports
+    declared = {port.key: port for port in _checked_ports(kernel, label, ports)}
+    entries = [declared.get(port.key, port) for port in KERNEL_PORTS[kernel.ports]]
+    for port in entries:
+        if not port.key.isidentifier() or not port.key.isascii() or port.key.upper() in (
+                "PORTS", "PORT_NAMES", "PORT_CAUSALITIES", "PORT_TYPES"):
+            raise FmuError(f"the {label} kernel's port {port.name!r}: its key {port.key!r} is no C identifier")
+    prefix, guard = kernel.prefix, f"UIOFMU_{kernel.ports_header[:-2].upper()}_H"
+    ids = [f"{prefix}_{port.key.upper()}" for port in entries]
+    if len(set(ids)) != len(ids):
+        raise FmuError(f"the {label} kernel's port keys are not unique: {', '.join(ids)}")
+
+    def initialiser(values) -> str:
+        return "{" + ", ".join(values) + "}"
+
+    return "\n".join([
+        f"/* Generated by uiofmu from uiofmu/runtime/ports.py (KERNEL_PORTS, {kernel.ports}): the ports of "
+        f"{kernel.source}, */",
+        "/* their ids (the variable table's port) and, by id, their names, causalities and types. */",
+        f"#ifndef {guard}", f"#define {guard}", "",
+        "enum {", *(f"    {name}," for name in ids), f"    {prefix}_PORTS", "};", "",
+        f"#define {prefix}_PORT_NAMES {initialiser(c_string(port.name) for port in entries)}",
+        f"#define {prefix}_PORT_CAUSALITIES {initialiser(CAUSALITIES[port.causality] for port in entries)}",
+        f"#define {prefix}_PORT_TYPES {initialiser(PORT_TYPES[port.type] for port in entries)}", "",
+        "#endif", ""])
+
+
+def refusals_header() -> str:
+    """``uiofmu_refusals.h``: each refusal of :data:`uiofmu.runtime.refusals.REFUSALS` as a printf format
+    ``UIOFMU_REFUSAL_<KEY>`` (a literal ``%`` doubled, each field its :data:`REFUSAL_CONVERSIONS`), with
+    its fields in the order the C code passes them. Only the catalogue's own text reaches it."""
+    lines = ["/* Generated by uiofmu from uiofmu/runtime/refusals.py: the refusals the C kernels share with the",
+             "   Python runtime, as printf formats; the arguments are the fields named above each, in order. */",
+             "#ifndef UIOFMU_REFUSALS_H", "#define UIOFMU_REFUSALS_H", ""]
+    for key, text in REFUSALS.items():
+        if not key.isidentifier() or not key.isascii():
+            raise FmuError(f"refusal {key!r}: its key is no C identifier")
+        fmt = "".join(literal.replace("%", "%%") + (REFUSAL_CONVERSIONS[kind] if name is not None else "")
+                      for literal, name, kind, _ in string.Formatter().parse(text))
+        lines += [f"/* {key}: {', '.join(f'{name} ({kind})' for name, kind in fields(key))} */",
+                  f"#define UIOFMU_REFUSAL_{key.upper()} {c_string(fmt)}"]
+    return "\n".join([*lines, "", "#endif", ""])
 
 
 def c_compiler() -> str | None:
@@ -661,12 +724,22 @@ def guid_of(data) -> str:
     return str(uuid.uuid5(uuid.NAMESPACE_URL, "uiofmu:" + json.dumps(data, sort_keys=True)))
 
 
+def declaration(spec: dict) -> list:
+    """The ports (PortSpecs) of the model of ``spec`` (``resources/model.json``: an observer's card or a
+    plant's data), as the python backend declares them."""
+    from ..runtime.fmu_model import make_model
+
+    return [port.spec for port in make_model(spec).ports]
+
+
 def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, description, spec: dict,
                extra_flags=()) -> Path:
-    """Compile and zip one C FMU: the plumbing, what the kernels share, ``kernel`` and the generated
-    ``design`` (the text of ``design_data.c``) into ``binaries/linux64/<identifier>.so``, those
-    sources and the FMI headers into ``sources/``, ``description(sources)`` (the bytes of ``modelDescription.xml``)
-    and ``spec`` as ``resources/model.json``; written atomically to ``output``."""
+    """Compile and zip one C FMU: the plumbing, what the kernels share, ``kernel`` with its port header
+    (:func:`port_header` of the ports of ``spec``'s model, the ones ``modelDescription.xml`` declares) and
+    the generated ``design`` (the text of ``design_data.c``) into ``binaries/linux64/<identifier>.so``,
+    those sources and the FMI headers into ``sources/``, ``description(sources)`` (the bytes of
+    ``modelDescription.xml``) and ``spec`` as ``resources/model.json``; written atomically to ``output``."""
+    header = port_header(kernel, declaration(spec))
     with tempfile.TemporaryDirectory(prefix="uiofmu_c_") as tmp:
         src = Path(tmp) / "sources"
         src.mkdir()
@@ -676,6 +749,8 @@ def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, desc
             shutil.copy2(HERE / name, src / name)
         for name in FMI_HEADERS:
             shutil.copy2(fmi_headers() / name, src / name)
+        (src / kernel.ports_header).write_text(header)
+        (src / REFUSALS_HEADER).write_text(refusals_header())
         (src / "design_data.c").write_text(design)
         lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64", list(extra_flags), sources)
         with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:

@@ -141,7 +141,7 @@ def apply_labels(root: Element, ports, labels: dict) -> None:
     used = []
     for port in ports:
         for i in range(port.size):
-            name, unit = element_label(labels, port.name, i)
+            name, unit = element_label(labels, getattr(port, "key", port.name), i)
             var = variables.get(f"{port.name}[{i + 1}]")
             if var is None:
                 continue

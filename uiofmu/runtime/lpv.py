@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .refusals import refusal
 from .schedules import StepRejected, matches
 from .state import StateReader
 from .stepping import check_step
@@ -64,7 +65,7 @@ class LpvPlantRuntime:
         """Advance by ``dt`` with ``d`` (and theta) held."""
         check_step(h, {"d": self.d, "theta": self.theta_in})
         if not matches(h, self.dt, STEP_RTOL):
-            raise StepRejected(f"this discrete plant steps at dt = {self.dt!r} s and received h = {h!r} s")
+            raise StepRejected(refusal("plant_off_period", dt=self.dt, h=h))
         self.x = self.matrix("A") @ self.x + self.matrix("E") @ self.d
 
     def get_state(self) -> dict:

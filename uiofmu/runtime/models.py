@@ -39,6 +39,7 @@ class Port:
         self.values = values
 
     name = property(lambda self: self.spec.name, doc="The port's name.")
+    key = property(lambda self: self.spec.key, doc="The port in code (:attr:`PortSpec.key`): what ``named`` uses.")
     description = property(lambda self: self.spec.description, doc="What the port carries.")
     causality = property(lambda self: self.spec.causality, doc="parameter, input or output.")
     depends = property(lambda self: self.spec.depends, doc="The input ports an output depends on.")
@@ -54,12 +55,13 @@ class PortsModel:
     references) and by causality (``parameters``, ``inputs``, ``outputs``)."""
 
     def _declare(self, specs: list, arrays: dict) -> None:
-        """Each declared port over its array in ``arrays`` (a new zero vector where none). Values
-        are floats for every type: an Integer port holds integral values (every C int is exact)."""
-        self.ports = [Port(s, np.zeros(s.size) if arrays.get(s.name) is None else arrays[s.name]) for s in specs]
+        """Each declared port over its array in ``arrays`` (by the port's key; a new zero vector where
+        none). Values are floats for every type: an Integer port holds integral values (every C int is
+        exact). ``named`` finds a port by its key (its name unless the declaration renamed it)."""
+        self.ports = [Port(s, np.zeros(s.size) if arrays.get(s.key) is None else arrays[s.key]) for s in specs]
         self.parameters, self.inputs, self.outputs = ([p for p in self.ports if p.causality == c]
                                                       for c in ("parameter", "input", "output"))
-        self.named = {p.name: p for p in self.ports}
+        self.named = {p.key: p for p in self.ports}
 
 
 class StatefulModel(PortsModel):

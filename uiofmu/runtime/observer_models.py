@@ -55,10 +55,11 @@ class ObserverModel(StatefulModel):
 
     def refresh(self) -> None:
         """Recompute the outputs from the current inputs and state."""
-        self.outputs[0].values[:] = self.rt.xhat()
-        self.outputs[1].values[:] = self.rt.residual()
+        named = self.named
+        named["xhat"].values[:] = self.rt.xhat()
+        named["r"].values[:] = self.rt.residual()
         if self.rt.has_dhat:
-            self.outputs[2].values[:] = self.rt.dhat()
+            named["dhat"].values[:] = self.rt.dhat()
         self.dirty = False
 
     def _ports_to_runtime(self) -> None:

@@ -2,51 +2,22 @@
 
 This is what runs inside a plant FMU: a continuous plant is advanced by the exact
 zero-order-hold solution for any step ``h`` whose exponential is finite (the exponential of the
-augmented matrix, inputs held over the step; one that overflows is refused); a discrete plant
-takes steps of its own ``dt`` only. There are no substeps: the exponential takes at most about
-1030 squarings (``log2`` of the largest double), whatever ``h``.
+augmented matrix, inputs held over the step, by the algorithm of the C plant kernel:
+:mod:`uiofmu.runtime.matrix_exponential`; one that overflows is refused); a discrete plant takes
+steps of its own ``dt`` only. There are no substeps: the exponential takes at most about 1030
+squarings (``log2`` of the largest double), whatever ``h``.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from .matrix_exponential import expm
+from .refusals import refusal
 from .stepping import check_step
 from .schedules import StepRejected, matches
 from .state import StateReader
 from .tolerances import STEP_RTOL
-
-
-def expm(M: np.ndarray) -> np.ndarray:
-    """Matrix exponential by scaling and squaring of a Taylor series (numpy only).
-
-    The matrix is scaled by ``2^-s`` until its 1-norm is at most 1/2, where 24 Taylor terms
-    reach double precision (``0.5^25 / 25! < 1e-32``), then squared ``s`` times.
-
-    Parameters
-    ----------
-    M : (k, k) array
-
-    Returns
-    -------
-    (k, k) array
-        Not finite when ``M`` is not (or its exponential overflows).
-    """
-    norm = float(np.abs(M).sum(axis=0).max()) if M.size else 0.0
-    if not math.isfinite(norm):
-        return np.full(M.shape, math.nan)
-    s = max(0, int(math.ceil(math.log2(norm / 0.5)))) if norm > 0.5 else 0
-    X = M / (2.0 ** s)
-    term = np.eye(M.shape[0])
-    out = term.copy()
-    for j in range(1, 25):
-        term = term @ X / j
-        out += term
-    for _ in range(s):
-        out = out @ out
-    return out
 
 
 class PlantRuntime:
@@ -97,7 +68,7 @@ class PlantRuntime:
         """
         if not self.continuous:
             if not matches(h, self.dt, STEP_RTOL):
-                raise StepRejected(f"this discrete plant steps at dt = {self.dt!r} s and received h = {h!r} s")
+                raise StepRejected(refusal("plant_off_period", dt=self.dt, h=h))
             return self.A, self.B, self.E, self.w
         hit = self._cache.get(h)
         if hit is None:

@@ -1,21 +1,27 @@
-"""The ports of an FMU, declared once: the models, ``modelDescription.xml`` and the C table use it.
+"""The ports of an FMU, declared once: the models, ``modelDescription.xml`` and the C tables use it.
 
 A port is a named vector of FMI variables ``name[1..size]`` of one causality and one type. Its
 value references are the positions of its elements in the declaration: the ports in order,
-each element after the other, from 0. An output declares the inputs it depends on at the same
-communication point (``depends``): ``xhat = Xz z + Xy y`` depends on ``y`` when the kernel feeds
-``y`` through, the plant's ``y = C x`` on none; importers that check for algebraic loops read
-it from ``<ModelStructure>``.
+each element after the other, from 0. Its ``key`` names it in code (the models' arrays, the C
+kernels' port ids), its ``name`` in the FMU: a port renamed here (its key kept) is renamed in
+both backends. An output declares the inputs it depends on at the same communication point
+(``depends``): ``xhat = Xz z + Xy y`` depends on ``y`` when the kernel feeds ``y`` through, the
+plant's ``y = C x`` on none; importers that check for algebraic loops read it from
+``<ModelStructure>``.
 
 The declaration of an observer follows from its card (kernel, dims, schedule, dhat) and is
 written into the card by ``uiofmu design``; :func:`check_declared` refuses a card whose
 declaration differs from the one its kernel implements.
+
+The kernels the C backend implements list every port they may have in :data:`KERNEL_PORTS`, in
+the order of their C port ids; their declaration functions pick and size those ports, and the C
+backend generates each kernel's port header (ids, names, causalities, types) from them.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from xml.etree.ElementTree import SubElement
 
 from .errors import CardError
@@ -41,6 +47,9 @@ class PortSpec:
     type : {"Real", "Integer"}
     depends : tuple of str
         Outputs: the input ports they depend on at the same communication point.
+    key : str
+        The port in code: the models' arrays and the C kernel's port id ``UIOFMU_<KERNEL>_<KEY>``
+        (default: the name). Not part of the card.
     """
 
     name: str
@@ -49,6 +58,11 @@ class PortSpec:
     description: str
     type: str = "Real"
     depends: tuple = ()
+    key: str = ""
+
+    def __post_init__(self):
+        if not self.key:
+            object.__setattr__(self, "key", self.name)
 
     def to_data(self) -> dict:
         """The card's JSON form."""
@@ -142,6 +156,66 @@ def model_structure(root, ports) -> None:
             SubElement(init, "Unknown", {"index": str(i)})
 
 
+#: Every port of each kernel the C backend implements, in the order of its C port ids
+#: (``UIOFMU_<KERNEL>_<KEY>``, from 0): sizes 0 here; the declaration functions below pick and size
+#: them, and set what depends on the design (an output's ``depends``, the causality of a switched
+#: plant's ``mode`` and of an LPV plant's ``theta``, given here as the one they have most often).
+KERNEL_PORTS = {
+    "affine": (
+        PortSpec("xhat0", 0, "parameter", "initial state estimate at the start time"),
+        PortSpec("h_prev0", 0, "parameter", "sampling interval assumed before the first step, h_{-1} [s]"),
+        PortSpec("y", 0, "input", "measured outputs at the current communication point"),
+        PortSpec("u", 0, "input", "known inputs at the current communication point"),
+        PortSpec("xhat", 0, "output", "state estimate at the current communication point"),
+        PortSpec("r", 0, "output", "output residual y - C xhat"),
+        PortSpec("dhat", 0, "output", "unknown-input estimate over the last step"),
+        PortSpec("mode_prev0", 0, "parameter", "mode assumed before the first step, alpha_{-1}", type="Integer"),
+        PortSpec("mode", 0, "input", "mode of the plant over the step from the current communication point (1..N)",
+                 type="Integer"),
+    ),
+    "window": (
+        PortSpec("y", 0, "input", "measured outputs at the current communication point"),
+        PortSpec("theta", 0, "input", "scheduling parameter at the current communication point"),
+        PortSpec("gx", 0, "output", "the functional G x at the point delay steps back (0 until valid)"),
+        PortSpec("gx_valid", 0, "output", "1 once the output window is full (gx exact), else 0", type="Integer"),
+    ),
+    "plant": (
+        PortSpec("x0", 0, "parameter", "initial state"),
+        PortSpec("u", 0, "input", "known inputs (held over the step)"),
+        PortSpec("d", 0, "input", "unknown inputs (held over the step)"),
+        PortSpec("y", 0, "output", "measured outputs C x"),
+        PortSpec("x", 0, "output", "true state (for validation)"),
+        PortSpec("seed", 0, "parameter", "seed of the random switching", type="Integer"),
+        PortSpec("mode", 0, "output", "mode of the step from the current point (1..N)", type="Integer"),
+    ),
+    "lpv": (
+        PortSpec("x0", 0, "parameter", "initial state"),
+        PortSpec("u", 0, "input", "known inputs (none: every input of an LPV plant is unknown)"),
+        PortSpec("d", 0, "input", "unknown inputs (held over the step)"),
+        PortSpec("theta", 0, "output", "scheduling parameter T x at the current point"),
+        PortSpec("y", 0, "output", "measured outputs C(theta) x + D(theta) d"),
+        PortSpec("x", 0, "output", "true state (for validation)"),
+    ),
+}
+
+
+#: The ports whose causality a kernel takes from its design, and the causalities it implements
+#: (every other port has the one of :data:`KERNEL_PORTS`): a switched plant's ``mode`` is an input
+#: under rule ``input``, else an output; an LPV plant's ``theta`` an input for kind ``input``, else
+#: the output ``T x``.
+DESIGN_CAUSALITY = {("plant", "mode"): ("input", "output"), ("lpv", "theta"): ("input", "output")}
+
+
+def kernel_port(kernel: str, key: str, size: int, **changes) -> PortSpec:
+    """The port ``key`` of ``kernel`` (:data:`KERNEL_PORTS`) with ``size`` elements and ``changes``
+    (``depends``, ``causality``, ``description``); its ``depends`` given as keys of the kernel's ports,
+    written as their names."""
+    ports = {port.key: port for port in KERNEL_PORTS[kernel]}
+    if "depends" in changes:
+        changes["depends"] = tuple(ports[k].name for k in changes["depends"])
+    return replace(ports[key], size=size, **changes)
+
+
 def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool = True) -> list:
     """The declaration of the affine observer kernel (every family today).
 
@@ -162,22 +236,21 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
     list of PortSpec
     """
     n, m, p, q = dims["n"], dims["m"], dims["p"], dims["q"]
-    through = ("y",) if feeds_y else ()
-    ports = [PortSpec("xhat0", n, "parameter", "initial state estimate at the start time")]
+
+    def port(key, size, **changes):
+        return kernel_port("affine", key, size, **changes)
+
+    ports = [port("xhat0", n)]
     if schedule_kind == "interval":
-        ports.append(PortSpec("h_prev0", 1, "parameter", "sampling interval assumed before the first step, h_{-1} [s]"))
+        ports.append(port("h_prev0", 1))
     if schedule_kind == "mode":
-        ports.append(PortSpec("mode_prev0", 1, "parameter", "mode assumed before the first step, alpha_{-1}",
-                              type="Integer"))
-    ports += [PortSpec("y", p, "input", "measured outputs at the current communication point"),
-              PortSpec("u", m, "input", "known inputs at the current communication point")]
+        ports.append(port("mode_prev0", 1))
+    ports += [port("y", p), port("u", m)]
     if schedule_kind == "mode":
-        ports.append(PortSpec("mode", 1, "input", "mode of the plant over the step from the current communication "
-                              "point (1..N)", type="Integer"))
-    ports += [PortSpec("xhat", n, "output", "state estimate at the current communication point", depends=through),
-              PortSpec("r", p, "output", "output residual y - C xhat", depends=("y",))]
+        ports.append(port("mode", 1))
+    ports += [port("xhat", n, depends=("y",) if feeds_y else ()), port("r", p, depends=("y",))]
     if has_dhat:
-        ports.append(PortSpec("dhat", q, "output", "unknown-input estimate over the last step", depends=("y",)))
+        ports.append(port("dhat", q, depends=("y",)))
     return ports
 
 
@@ -185,14 +258,11 @@ def window_ports(p: int, d: int, s: int) -> list:
     """The declaration of the window kernel (dead-beat functional observers): inputs ``y`` and, when
     the formula uses it, ``theta``; outputs ``gx`` (the functional, depending on both) and the
     Integer ``gx_valid`` (1 once the window is full, 0 before: it depends on no input)."""
-    through = ("y", "theta") if s else ("y",)
-    ports = [PortSpec("y", p, "input", "measured outputs at the current communication point")]
-    if s:
-        ports.append(PortSpec("theta", s, "input", "scheduling parameter at the current communication point"))
-    return ports + [PortSpec("gx", d, "output", "the functional G x at the point delay steps back (0 until valid)",
-                             depends=through),
-                    PortSpec("gx_valid", 1, "output", "1 once the output window is full (gx exact), else 0",
-                             type="Integer")]
+    def port(key, size, **changes):
+        return kernel_port("window", key, size, **changes)
+
+    ports = [port("y", p)] + ([port("theta", s)] if s else [])
+    return ports + [port("gx", d, depends=("y", "theta") if s else ("y",)), port("gx_valid", 1)]
 
 
 def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | None = None) -> list:
@@ -203,19 +273,19 @@ def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | 
     ``mode`` of the step from the current point: an output that depends on no input (rules
     ``threshold``, ``random``; ``random`` also has the Integer parameter ``seed``), or an input
     (rule ``input``)."""
-    ports = [PortSpec("x0", n, "parameter", "initial state")]
+    def port(key, size, **changes):
+        return kernel_port("plant", key, size, **changes)
+
+    ports = [port("x0", n)]
     if switching == "random":
-        ports.append(PortSpec("seed", 1, "parameter", "seed of the random switching", type="Integer"))
+        ports.append(port("seed", 1))
     ports += [PortSpec(name, 1, "parameter", f"physical parameter {what}") for name, what in parameters]
-    ports += [PortSpec("u", m, "input", "known inputs (held over the step)"),
-              PortSpec("d", q, "input", "unknown inputs (held over the step)")]
+    ports += [port("u", m), port("d", q)]
     if switching == "input":
-        ports.append(PortSpec("mode", 1, "input", "mode of the step from the current point (1..N)", type="Integer"))
-    ports += [PortSpec("y", p, "output", "measured outputs C x"),
-              PortSpec("x", n, "output", "true state (for validation)")]
+        ports.append(port("mode", 1, causality="input"))
+    ports += [port("y", p), port("x", n)]
     if switching in ("threshold", "random"):
-        ports.append(PortSpec("mode", 1, "output", "mode of the step from the current point (1..N)",
-                              type="Integer"))
+        ports.append(port("mode", 1, causality="output"))
     return ports
 
 
@@ -223,16 +293,17 @@ def lpv_plant_ports(n: int, p: int, q: int, s: int, kind: str, feeds_d: bool) ->
     """The declaration of an LPV plant (:mod:`uiofmu.runtime.lpv`): parameter ``x0``, inputs ``d`` and,
     for ``kind = "input"``, ``theta``; outputs ``y`` (depending on ``d`` when ``D(theta)`` is not zero, and
     on an input ``theta``), ``x`` and, for ``kind = "state"``, ``theta = T x``."""
+    def port(key, size, **changes):
+        return kernel_port("lpv", key, size, **changes)
+
     depends = (("d",) if feeds_d else ()) + (("theta",) if kind == "input" else ())
-    ports = [PortSpec("x0", n, "parameter", "initial state"),
-             PortSpec("u", 0, "input", "known inputs (none: every input of an LPV plant is unknown)"),
-             PortSpec("d", q, "input", "unknown inputs (held over the step)")]
+    ports = [port("x0", n), port("u", 0), port("d", q)]
     if kind == "input":
-        ports.append(PortSpec("theta", s, "input", "scheduling parameter over the step from the current point"))
-    ports += [PortSpec("y", p, "output", "measured outputs C(theta) x + D(theta) d", depends=depends),
-              PortSpec("x", n, "output", "true state (for validation)")]
+        ports.append(port("theta", s, causality="input",
+                          description="scheduling parameter over the step from the current point"))
+    ports += [port("y", p, depends=depends), port("x", n)]
     if kind == "state":
-        ports.append(PortSpec("theta", s, "output", "scheduling parameter T x at the current point"))
+        ports.append(port("theta", s, causality="output"))
     return ports
 
 

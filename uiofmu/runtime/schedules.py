@@ -43,6 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import CardError
+from .refusals import refusal
 from .tolerances import STEP_RTOL
 
 #: The policies a schedule may record for a step it was not designed for.
@@ -145,8 +146,7 @@ def matches(h: float, H: float, rtol: float) -> bool:
 def _period(schedule, h: float) -> None:
     """Refuse a step other than the schedule's period ``dt`` (:class:`StepRejected`)."""
     if not matches(h, schedule.dt, schedule.step_rtol):
-        raise StepRejected(f"this observer was designed for steps of dt = {schedule.dt!r} s and received "
-                           f"h = {h!r} s (step_policy = {schedule.policy!r})")
+        raise StepRejected(refusal("observer_off_period", dt=schedule.dt, h=h, policy=schedule.policy))
 
 
 class IntervalSchedule:
@@ -174,8 +174,7 @@ class IntervalSchedule:
                 self.notices.append(f"step h = {h!r} s is not a design interval ({listed} s); using the nearest, "
                                     f"{H:g} s, without a certificate (step_policy = 'nearest'; noted once)")
             return best
-        raise StepRejected(f"step h = {h!r} s is not one of the design intervals {{{listed}}} s "
-                           f"(tolerance {self.step_rtol:g} relative; step_policy = 'error')")
+        raise StepRejected(refusal("not_a_design_interval", h=h, listed=listed, rtol=self.step_rtol))
 
     def step_matrices(self, k: int, h: float, h_prev: float, mode=None, mode_prev=None, theta=None) -> dict:
         """The matrices of the step (h_k, h_{k-1})."""

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 
+from .refusals import refusal
+
 
 #: Vectors up to this many floats are checked element by element with :func:`math.isfinite`.
 _SMALL = 16
@@ -40,7 +42,7 @@ def check_step(h, inputs: dict, k: int | None = None) -> None:
         elif np.all(np.isfinite(vec)):
             continue
         i = int(np.flatnonzero(~np.isfinite(vec))[0])
-        raise RuntimeInputError(f"input {name}[{i + 1}] = {vec[i]}{_at(k)} is not finite")
+        raise RuntimeInputError(refusal("input_not_finite", name=name, index=i + 1, value=vec[i], at=_at(k)))
 
 
 def substeps(h: float, longest: float, limit: int, what: str) -> int:

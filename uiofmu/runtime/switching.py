@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .plant_runtime import PlantRuntime
+from .refusals import refusal
 from .schedules import StepRejected, matches, mode_problem
 from .state import StateReader
 from .stepping import RuntimeInputError, check_step
@@ -106,7 +107,7 @@ class SwitchedPlantRuntime(PlantRuntime):
     def matrices(self, h: float):
         """``(A_i, B_i, E_i, w_i)`` of the current mode for a step of ``dt``."""
         if not matches(h, self.dt, STEP_RTOL):
-            raise StepRejected(f"this discrete plant steps at dt = {self.dt!r} s and received h = {h!r} s")
+            raise StepRejected(refusal("plant_off_period", dt=self.dt, h=h))
         return self.modes[self.mode() - 1]
 
     def step(self, h: float) -> None:

@@ -51,6 +51,11 @@
 #define MAX_BLOCKS 16777216
 #define MAX_MODES 4096
 
+/* The ports' names, causalities and types by id (kernel_affine_ports.h, generated). */
+static const char *const PORT_NAME[UIOFMU_AFFINE_PORTS] = UIOFMU_AFFINE_PORT_NAMES;
+static const int PORT_CAUSALITY[UIOFMU_AFFINE_PORTS] = UIOFMU_AFFINE_PORT_CAUSALITIES;
+static const int PORT_TYPE[UIOFMU_AFFINE_PORTS] = UIOFMU_AFFINE_PORT_TYPES;
+
 typedef struct {
     FmuInstance *fmu; /* the plumbing's instance: log lines go through it */
     const UiofmuDesign *d;
@@ -130,12 +135,12 @@ static int interval_index(Instance *s, double h, char *msg, size_t len) {
         return best;
     }
     if (msg) {
-        char b1[32];
-        int off = snprintf(msg, len, "step h = %s s is not one of the design intervals {", uiofmu_num(h, b1));
-        for (int i = 0; i < d->nintervals && off < (int)len; i++)
-            off += snprintf(msg + off, len - off, i ? ", %g" : "%g", d->intervals[i]);
-        if (off < (int)len)
-            snprintf(msg + off, len - off, "} s (tolerance %g relative; step_policy = 'error')", d->step_rtol);
+        char b1[32], listed[512];
+        int off = 0;
+        listed[0] = '\0';
+        for (int i = 0; i < d->nintervals && off < (int)sizeof listed; i++)
+            off += snprintf(listed + off, sizeof listed - off, i ? ", %g" : "%g", d->intervals[i]);
+        snprintf(msg, len, UIOFMU_REFUSAL_NOT_A_DESIGN_INTERVAL, uiofmu_num(h, b1), listed, d->step_rtol);
     }
     return -1;
 }
@@ -355,11 +360,6 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
 static int affine_check_design(char *msg, size_t len) { return check_design_data(&UIOFMU_DESIGN, msg, len); }
 
 static int affine_port(int id, UiofmuPort *out) {
-    static const char *const NAME[UIOFMU_AFFINE_PORTS] = {"xhat0", "h_prev0", "y", "u", "xhat", "r", "dhat",
-                                                           "mode_prev0", "mode"};
-    static const int CAUSALITY[UIOFMU_AFFINE_PORTS] = {UIOFMU_PARAMETER, UIOFMU_PARAMETER, UIOFMU_INPUT, UIOFMU_INPUT,
-                                                       UIOFMU_OUTPUT, UIOFMU_OUTPUT, UIOFMU_OUTPUT, UIOFMU_PARAMETER,
-                                                       UIOFMU_INPUT};
     const UiofmuDesign *d = &UIOFMU_DESIGN;
     int size;
     switch (id) {
@@ -372,10 +372,10 @@ static int affine_port(int id, UiofmuPort *out) {
     case UIOFMU_AFFINE_MODE_PREV0: case UIOFMU_AFFINE_MODE: size = d->kind == UIOFMU_MODE ? 1 : 0; break;
     default: return 0;
     }
-    out->name = NAME[id];
+    out->name = PORT_NAME[id];
     out->size = size;
-    out->causality = CAUSALITY[id];
-    out->type = id >= UIOFMU_AFFINE_MODE_PREV0 ? UIOFMU_INTEGER : UIOFMU_REAL;
+    out->causality = PORT_CAUSALITY[id];
+    out->type = PORT_TYPE[id];
     return 1;
 }
 
@@ -443,21 +443,22 @@ static void affine_reset(void *self) {
 static UiofmuResult affine_exit_initialization(void *self) {
     Instance *s = (Instance *)self;
     char msg[512], b1[32];
-    if (!uiofmu_parameter_finite(s->fmu, "xhat0", s->xhat0, s->d->n)) return UIOFMU_REFUSED;
+    if (!uiofmu_parameter_finite(s->fmu, PORT_NAME[UIOFMU_AFFINE_XHAT0], s->xhat0, s->d->n)) return UIOFMU_REFUSED;
     if (s->d->kind == UIOFMU_INTERVAL) {
         /* step_policy 'nearest' maps any number to an interval; a step must still be one */
         if (s->d->policy == UIOFMU_POLICY_NEAREST && !(isfinite(s->h_prev0) && s->h_prev0 > 0)) {
-            uiofmu_log(s->fmu, fmi2Error, "parameter h_prev0 = %s s: expected a step > 0", uiofmu_num(s->h_prev0, b1));
+            uiofmu_log(s->fmu, fmi2Error, "parameter %s = %s s: expected a step > 0", PORT_NAME[UIOFMU_AFFINE_H_PREV0],
+                       uiofmu_num(s->h_prev0, b1));
             return UIOFMU_REFUSED;
         }
         if (interval_index(s, s->h_prev0, msg, sizeof msg) < 0) {
-            uiofmu_log(s->fmu, fmi2Error, "parameter h_prev0: %s", msg);
+            uiofmu_log(s->fmu, fmi2Error, "parameter %s: %s", PORT_NAME[UIOFMU_AFFINE_H_PREV0], msg);
             return UIOFMU_REFUSED;
         }
     }
     if (s->d->kind == UIOFMU_MODE && !(s->mode_prev0 >= 1 && s->mode_prev0 <= s->d->modes)) {
-        uiofmu_log(s->fmu, fmi2Error, "parameter mode_prev0 = %d is not a mode of this observer's plant (expected an "
-                   "integer from 1 to %d)", s->mode_prev0, s->d->modes);
+        uiofmu_log(s->fmu, fmi2Error, "parameter %s = %d is not a mode of this observer's plant (expected an integer "
+                   "from 1 to %d)", PORT_NAME[UIOFMU_AFFINE_MODE_PREV0], s->mode_prev0, s->d->modes);
         return UIOFMU_REFUSED;
     }
     reset_state(s);
@@ -489,7 +490,7 @@ static double affine_get_real(void *self, int port, int index) {
 
 static void affine_set_real(void *self, int port, int index, double value) {
     Instance *s = (Instance *)self;
-    double *v = port < UIOFMU_AFFINE_XHAT ? element(s, port, index) : NULL; /* parameters and inputs only */
+    double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element(s, port, index) : NULL; /* parameters and inputs */
     if (!v) return;
     *v = value;
     s->dirty = 1;
@@ -516,15 +517,16 @@ static UiofmuResult affine_step(void *self, double t, double h) {
     Instance *s = (Instance *)self;
     const UiofmuDesign *d = s->d;
     char msg[512], bt[32];
-    if (!uiofmu_inputs_finite(s->fmu, t, s->k, s->y, d->p, "y") ||
-        !uiofmu_inputs_finite(s->fmu, t, s->k, s->u, d->m, "u"))
+    if (!uiofmu_inputs_finite(s->fmu, t, s->k, s->y, d->p, PORT_NAME[UIOFMU_AFFINE_Y]) ||
+        !uiofmu_inputs_finite(s->fmu, t, s->k, s->u, d->m, PORT_NAME[UIOFMU_AFFINE_U]))
         return UIOFMU_REFUSED;
     int i = 0, j = 0;
     if (d->kind == UIOFMU_MODE) {
         /* the mode first, as the reference runtime: a bad one is an input error, not a step rejected */
         if (!(s->mode >= 1 && s->mode <= d->modes)) {
-            uiofmu_log(s->fmu, fmi2Error, "t = %s: input mode = %d is not a mode of this observer's plant (expected an "
-                       "integer from 1 to %d) at step k = %ld", uiofmu_num(t, bt), s->mode, d->modes, s->k);
+            uiofmu_log(s->fmu, fmi2Error, "t = %s: input %s = %d is not a mode of this observer's plant (expected an "
+                       "integer from 1 to %d) at step k = %ld", uiofmu_num(t, bt), PORT_NAME[UIOFMU_AFFINE_MODE], s->mode,
+                       d->modes, s->k);
             return UIOFMU_REFUSED;
         }
         i = s->mode - 1;

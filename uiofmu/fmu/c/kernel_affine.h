@@ -24,13 +24,11 @@
 /* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.observer_ports):
    xhat0[n] parameter, h_prev0[1] parameter (interval schedules), y[p] and u[m] inputs,
    xhat[n], r[p] and dhat[q] (with Dy) outputs, all Real; mode schedules add the Integer
-   parameter mode_prev0[1] and the Integer input mode[1]. The ids are the kernel's own: the
-   variable table lists them in the order of the card's ports. */
-enum {
-    UIOFMU_AFFINE_XHAT0, UIOFMU_AFFINE_H_PREV0, UIOFMU_AFFINE_Y, UIOFMU_AFFINE_U,
-    UIOFMU_AFFINE_XHAT, UIOFMU_AFFINE_R, UIOFMU_AFFINE_DHAT, UIOFMU_AFFINE_MODE_PREV0, UIOFMU_AFFINE_MODE,
-    UIOFMU_AFFINE_PORTS
-};
+   parameter mode_prev0[1] and the Integer input mode[1]. Their ids (UIOFMU_AFFINE_XHAT0 ...
+   UIOFMU_AFFINE_PORTS), names, causalities and types are generated at build time from
+   uiofmu/runtime/ports.py (KERNEL_PORTS["affine"]); the variable table lists them in the order of
+   the card's ports. */
+#include "kernel_affine_ports.h"
 
 typedef struct {
     int count;

@@ -46,6 +46,11 @@
 #define MAX_DIM 2048
 #define MAX_NUMBERS 67108864 /* doubles of one array */
 
+/* The ports' names, causalities and types by id (kernel_lpv_ports.h, generated). */
+static const char *const PORT_NAME[UIOFMU_LPV_PORTS] = UIOFMU_LPV_PORT_NAMES;
+static const int PORT_CAUSALITY[UIOFMU_LPV_PORTS] = UIOFMU_LPV_PORT_CAUSALITIES;
+static const int PORT_TYPE[UIOFMU_LPV_PORTS] = UIOFMU_LPV_PORT_TYPES;
+
 typedef struct {
     FmuInstance *fmu;
     const UiofmuLpv *d;
@@ -111,6 +116,10 @@ static int lpv_check_design(char *msg, size_t len) {
     if (!uiofmu_check_dims(msg, len, "plant ", 4, dims, dim_name, low, MAX_DIM)) return 0;
     if (d->kind != UIOFMU_THETA_STATE && d->kind != UIOFMU_THETA_INPUT)
         return uiofmu_design_error(msg, len, "theta kind %d is neither state (0) nor input (1)", d->kind);
+    if ((PORT_CAUSALITY[UIOFMU_LPV_THETA] == UIOFMU_INPUT) != (d->kind == UIOFMU_THETA_INPUT))
+        return uiofmu_design_error(msg, len, "port %s is declared with causality %d, theta kind %d needs %s",
+                                   PORT_NAME[UIOFMU_LPV_THETA], PORT_CAUSALITY[UIOFMU_LPV_THETA], d->kind,
+                                   d->kind == UIOFMU_THETA_INPUT ? "an input" : "an output");
     if (!uiofmu_check_period(msg, len, d->dt, d->step_rtol)) return 0;
     size_t blocks = 1 + (size_t)d->s;
     const char *const name[6] = {"A", "E", "C", "D", "T", "x0"};
@@ -142,9 +151,6 @@ static int lpv_check_design(char *msg, size_t len) {
 /* The kernel's operations (UiofmuKernel)                                                    */
 
 static int lpv_port(int id, UiofmuPort *out) {
-    static const char *const NAME[UIOFMU_LPV_PORTS] = {"x0", "u", "d", "theta", "y", "x"};
-    static const int CAUSALITY[UIOFMU_LPV_PORTS] = {UIOFMU_PARAMETER, UIOFMU_INPUT, UIOFMU_INPUT, UIOFMU_INPUT,
-                                                    UIOFMU_OUTPUT, UIOFMU_OUTPUT};
     const UiofmuLpv *d = &UIOFMU_LPV;
     int size;
     switch (id) {
@@ -155,10 +161,10 @@ static int lpv_port(int id, UiofmuPort *out) {
     case UIOFMU_LPV_Y: size = d->p; break;
     default: return 0;
     }
-    out->name = NAME[id];
+    out->name = PORT_NAME[id];
     out->size = size;
-    out->causality = id == UIOFMU_LPV_THETA && d->kind == UIOFMU_THETA_STATE ? UIOFMU_OUTPUT : CAUSALITY[id];
-    out->type = UIOFMU_REAL;
+    out->causality = PORT_CAUSALITY[id];
+    out->type = PORT_TYPE[id];
     return 1;
 }
 
@@ -213,7 +219,7 @@ static void lpv_free(void *self) {
 
 static UiofmuResult lpv_exit_initialization(void *self) {
     Lpv *s = (Lpv *)self;
-    if (!uiofmu_parameter_finite(s->fmu, "x0", s->x0, s->d->n)) return UIOFMU_REFUSED;
+    if (!uiofmu_parameter_finite(s->fmu, PORT_NAME[UIOFMU_LPV_X0], s->x0, s->d->n)) return UIOFMU_REFUSED;
     memcpy(s->x, s->x0, (size_t)s->d->n * sizeof(double));
     s->dirty = 1;
     return UIOFMU_DONE;
@@ -250,9 +256,7 @@ static double lpv_get_real(void *self, int port, int index) {
 
 static void lpv_set_real(void *self, int port, int index, double value) {
     Lpv *s = (Lpv *)self;
-    int settable = port == UIOFMU_LPV_X0 || port == UIOFMU_LPV_D ||
-                   (port == UIOFMU_LPV_THETA && s->d->kind == UIOFMU_THETA_INPUT); /* parameters and inputs */
-    double *v = settable ? element(s, port, index) : NULL;
+    double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element(s, port, index) : NULL; /* parameters and inputs */
     if (!v) return;
     *v = value;
     s->dirty = 1;
@@ -262,8 +266,8 @@ static UiofmuResult lpv_step(void *self, double t, double h) {
     Lpv *s = (Lpv *)self;
     const UiofmuLpv *d = s->d;
     int n = d->n, q = d->q;
-    if (!uiofmu_inputs_finite(s->fmu, t, -1, s->dv, q, "d") ||
-        !uiofmu_inputs_finite(s->fmu, t, -1, s->theta_in, d->s, "theta"))
+    if (!uiofmu_inputs_finite(s->fmu, t, -1, s->dv, q, PORT_NAME[UIOFMU_LPV_D]) ||
+        !uiofmu_inputs_finite(s->fmu, t, -1, s->theta_in, d->s, PORT_NAME[UIOFMU_LPV_THETA]))
         return UIOFMU_REFUSED;
     if (uiofmu_off_period(s->fmu, t, h, d->dt, d->step_rtol, 0)) return UIOFMU_DISCARDED;
     current_theta(s);

@@ -22,10 +22,10 @@
 
 /* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.lpv_plant_ports):
    x0[n] parameter, u[0] and d[q] inputs (held over the step), theta[s] (an input for kind input,
-   an output T x for kind state), y[p] and x[n] outputs; all Real. */
-enum {
-    UIOFMU_LPV_X0, UIOFMU_LPV_U, UIOFMU_LPV_D, UIOFMU_LPV_THETA, UIOFMU_LPV_Y, UIOFMU_LPV_X, UIOFMU_LPV_PORTS
-};
+   an output T x for kind state), y[p] and x[n] outputs; all Real. Their ids, names, causalities
+   (the one of theta as the FMU declares it) and types are generated at build time from
+   uiofmu/runtime/ports.py (KERNEL_PORTS["lpv"]). */
+#include "kernel_lpv_ports.h"
 
 enum { UIOFMU_THETA_STATE = 0, UIOFMU_THETA_INPUT = 1 };
 

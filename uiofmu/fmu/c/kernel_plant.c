@@ -69,6 +69,11 @@
 #define CACHE_SIZE 16
 #define MAX_MODES 4096
 
+/* The ports' names, causalities and types by id (kernel_plant_ports.h, generated). */
+static const char *const PORT_NAME[UIOFMU_PLANT_PORTS] = UIOFMU_PLANT_PORT_NAMES;
+static const int PORT_CAUSALITY[UIOFMU_PLANT_PORTS] = UIOFMU_PLANT_PORT_CAUSALITIES;
+static const int PORT_TYPE[UIOFMU_PLANT_PORTS] = UIOFMU_PLANT_PORT_TYPES;
+
 typedef struct {
     double h;
     int valid;
@@ -175,6 +180,7 @@ int uiofmu_expm(const double *M, int k, double *out, double *work, int *piv) {
     for (size_t e = 0; e < kk; e++)
         if (!isfinite(M[e])) return 0;
     double nrm = norm1(M, k);
+    if (!isfinite(nrm)) return 0; /* finite entries whose sums overflow */
     int m = 13, s = 0;
     for (int i = 0; i < 4; i++)
         if (nrm <= THETA[i]) { m = DEGREE[i]; break; }
@@ -274,6 +280,10 @@ static int plant_check_design(char *msg, size_t len) {
         return uiofmu_design_error(msg, len, "plant rule = %d does not go with %d modes", d->rule, d->modes);
     if (d->modes && d->time != UIOFMU_DISCRETE)
         return uiofmu_design_error(msg, len, "a switched plant is discrete, found time = %d", d->time);
+    if (d->modes && (PORT_CAUSALITY[UIOFMU_PLANT_MODE] == UIOFMU_INPUT) != (d->rule == UIOFMU_RULE_INPUT))
+        return uiofmu_design_error(msg, len, "port %s is declared with causality %d, rule %d needs %s",
+                                   PORT_NAME[UIOFMU_PLANT_MODE], PORT_CAUSALITY[UIOFMU_PLANT_MODE], d->rule,
+                                   d->rule == UIOFMU_RULE_INPUT ? "an input" : "an output");
     if (!switching_ok(d, msg, len)) return 0;
     size_t blocks = d->modes ? (size_t)d->modes : 1;
     struct { const char *name; const double *data; size_t length, want; } M[6] = {
@@ -293,9 +303,6 @@ static int plant_check_design(char *msg, size_t len) {
 }
 
 static int plant_port(int id, UiofmuPort *out) {
-    static const char *const NAME[UIOFMU_PLANT_PORTS] = {"x0", "u", "d", "y", "x", "seed", "mode"};
-    static const int CAUSALITY[UIOFMU_PLANT_PORTS] = {UIOFMU_PARAMETER, UIOFMU_INPUT, UIOFMU_INPUT, UIOFMU_OUTPUT,
-                                                      UIOFMU_OUTPUT, UIOFMU_PARAMETER, UIOFMU_OUTPUT};
     const UiofmuPlant *d = &UIOFMU_PLANT;
     int size;
     switch (id) {
@@ -307,10 +314,10 @@ static int plant_port(int id, UiofmuPort *out) {
     case UIOFMU_PLANT_MODE: size = d->modes ? 1 : 0; break;
     default: return 0;
     }
-    out->name = NAME[id];
+    out->name = PORT_NAME[id];
     out->size = size;
-    out->causality = id == UIOFMU_PLANT_MODE && d->rule == UIOFMU_RULE_INPUT ? UIOFMU_INPUT : CAUSALITY[id];
-    out->type = id >= UIOFMU_PLANT_SEED ? UIOFMU_INTEGER : UIOFMU_REAL;
+    out->causality = PORT_CAUSALITY[id];
+    out->type = PORT_TYPE[id];
     return 1;
 }
 
@@ -421,7 +428,7 @@ static void plant_free(void *self) {
 
 static UiofmuResult plant_exit_initialization(void *self) {
     Plant *s = (Plant *)self;
-    if (!uiofmu_parameter_finite(s->fmu, "x0", s->x0, s->d->n)) return UIOFMU_REFUSED;
+    if (!uiofmu_parameter_finite(s->fmu, PORT_NAME[UIOFMU_PLANT_X0], s->x0, s->d->n)) return UIOFMU_REFUSED;
     memcpy(s->x, s->x0, (size_t)s->d->n * sizeof(double));
     restart(s);
     s->dirty = 1;
@@ -459,7 +466,8 @@ static double plant_get_real(void *self, int port, int index) {
 }
 
 static void plant_set_real(void *self, int port, int index, double value) {
-    double *v = port <= UIOFMU_PLANT_D ? element((Plant *)self, port, index) : NULL; /* parameters and inputs */
+    double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element((Plant *)self, port, index) : NULL; /* parameters
+                                                                                                        and inputs */
     if (v) *v = value;
 }
 
@@ -517,12 +525,13 @@ static UiofmuResult plant_step(void *self, double t, double h) {
     const UiofmuPlant *d = s->d;
     int n = d->n, m = d->m, q = d->q;
     char bt[32];
-    if (!uiofmu_inputs_finite(s->fmu, t, -1, s->u, m, "u") || !uiofmu_inputs_finite(s->fmu, t, -1, s->dv, q, "d"))
+    if (!uiofmu_inputs_finite(s->fmu, t, -1, s->u, m, PORT_NAME[UIOFMU_PLANT_U]) ||
+        !uiofmu_inputs_finite(s->fmu, t, -1, s->dv, q, PORT_NAME[UIOFMU_PLANT_D]))
         return UIOFMU_REFUSED;
     int mode = current_mode(s);
     if (!(mode >= 1 && mode <= (d->modes ? d->modes : 1))) { /* only an input can be out of range */
-        uiofmu_log(s->fmu, fmi2Error, "t = %s: input mode = %d is not a mode of this plant (expected an integer from 1 "
-                   "to %d)", uiofmu_num(t, bt), mode, d->modes);
+        uiofmu_log(s->fmu, fmi2Error, "t = %s: input %s = %d is not a mode of this plant (expected an integer from 1 "
+                   "to %d)", uiofmu_num(t, bt), PORT_NAME[UIOFMU_PLANT_MODE], mode, d->modes);
         return UIOFMU_REFUSED;
     }
     double *xn = s->tmp;

@@ -24,11 +24,10 @@
 /* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.plant_ports):
    x0[n] parameter, u[m] and d[q] inputs (held over the step), y[p] = C x and x[n] outputs; all Real.
    A switched plant adds the Integer mode[1]: an input (rule input) or an output (rules threshold
-   and random), and rule random the Integer parameter seed[1]. */
-enum {
-    UIOFMU_PLANT_X0, UIOFMU_PLANT_U, UIOFMU_PLANT_D, UIOFMU_PLANT_Y, UIOFMU_PLANT_X, UIOFMU_PLANT_SEED,
-    UIOFMU_PLANT_MODE, UIOFMU_PLANT_PORTS
-};
+   and random), and rule random the Integer parameter seed[1]. Their ids, names, causalities
+   (the one of mode as the FMU declares it) and types are generated at build time from
+   uiofmu/runtime/ports.py (KERNEL_PORTS["plant"]). */
+#include "kernel_plant_ports.h"
 
 enum { UIOFMU_DISCRETE = 0, UIOFMU_CONTINUOUS = 1 };
 enum { UIOFMU_RULE_NONE = 0, UIOFMU_RULE_THRESHOLD = 1, UIOFMU_RULE_INPUT = 2, UIOFMU_RULE_RANDOM = 3 };

@@ -59,7 +59,7 @@ int uiofmu_inputs_finite(FmuInstance *fmu, double t, long k, const double *v, in
     for (int i = 0; i < len; i++)
         if (!isfinite(v[i])) {
             if (k >= 0) snprintf(at, sizeof at, " at step k = %ld", k);
-            uiofmu_log(fmu, fmi2Error, "t = %s: input %s[%d] = %s%s is not finite", uiofmu_num(t, bt), name, i + 1,
+            uiofmu_log(fmu, fmi2Error, "t = %s: " UIOFMU_REFUSAL_INPUT_NOT_FINITE, uiofmu_num(t, bt), name, i + 1,
                        isnan(v[i]) ? "nan" : (v[i] > 0 ? "inf" : "-inf"), at);
             return 0;
         }
@@ -70,12 +70,11 @@ int uiofmu_off_period(FmuInstance *fmu, double t, double h, double dt, double st
     char bt[32], bh[32], bd[32];
     if (!(fabs(h - dt) > step_rtol * dt)) return 0;
     if (observer)
-        uiofmu_log(fmu, fmi2Discard,
-                   "t = %s: this observer was designed for steps of dt = %s s and received h = %s s "
-                   "(step_policy = 'error')", uiofmu_num(t, bt), uiofmu_num(dt, bd), uiofmu_num(h, bh));
+        uiofmu_log(fmu, fmi2Discard, "t = %s: " UIOFMU_REFUSAL_OBSERVER_OFF_PERIOD, uiofmu_num(t, bt),
+                   uiofmu_num(dt, bd), uiofmu_num(h, bh), "error");
     else
-        uiofmu_log(fmu, fmi2Discard, "t = %s: this discrete plant steps at dt = %s s and received h = %s s",
-                   uiofmu_num(t, bt), uiofmu_num(dt, bd), uiofmu_num(h, bh));
+        uiofmu_log(fmu, fmi2Discard, "t = %s: " UIOFMU_REFUSAL_PLANT_OFF_PERIOD, uiofmu_num(t, bt),
+                   uiofmu_num(dt, bd), uiofmu_num(h, bh));
     return 1;
 }
 

@@ -14,6 +14,9 @@
 #include <stdint.h>
 
 #include "fmi2_plumbing.h"
+/* The refusals shared with the Python runtime (UIOFMU_REFUSAL_*: printf formats), generated at build
+   time from uiofmu/runtime/refusals.py. */
+#include "uiofmu_refusals.h"
 
 /* ---------------------------------------------------------------------------------------- */
 /* The design, checked once at fmi2Instantiate (check_design)                                */

@@ -43,6 +43,11 @@
 #define MAX_TERMS 1048576
 #define MAX_NUMBERS 67108864 /* doubles of F, ints of Fexp */
 
+/* The ports' names, causalities and types by id (kernel_window_ports.h, generated). */
+static const char *const PORT_NAME[UIOFMU_WINDOW_PORTS] = UIOFMU_WINDOW_PORT_NAMES;
+static const int PORT_CAUSALITY[UIOFMU_WINDOW_PORTS] = UIOFMU_WINDOW_PORT_CAUSALITIES;
+static const int PORT_TYPE[UIOFMU_WINDOW_PORTS] = UIOFMU_WINDOW_PORT_TYPES;
+
 typedef struct {
     FmuInstance *fmu; /* the plumbing's instance: log lines go through it */
     const UiofmuWindow *d;
@@ -172,8 +177,6 @@ static int check_design_data(const UiofmuWindow *d, char *msg, size_t len) {
 static int window_check_design(char *msg, size_t len) { return check_design_data(&UIOFMU_WINDOW, msg, len); }
 
 static int window_port(int id, UiofmuPort *out) {
-    static const char *const NAME[UIOFMU_WINDOW_PORTS] = {"y", "theta", "gx", "gx_valid"};
-    static const int CAUSALITY[UIOFMU_WINDOW_PORTS] = {UIOFMU_INPUT, UIOFMU_INPUT, UIOFMU_OUTPUT, UIOFMU_OUTPUT};
     const UiofmuWindow *d = &UIOFMU_WINDOW;
     int size;
     switch (id) {
@@ -183,10 +186,10 @@ static int window_port(int id, UiofmuPort *out) {
     case UIOFMU_WINDOW_GX_VALID: size = 1; break;
     default: return 0;
     }
-    out->name = NAME[id];
+    out->name = PORT_NAME[id];
     out->size = size;
-    out->causality = CAUSALITY[id];
-    out->type = id == UIOFMU_WINDOW_GX_VALID ? UIOFMU_INTEGER : UIOFMU_REAL;
+    out->causality = PORT_CAUSALITY[id];
+    out->type = PORT_TYPE[id];
     return 1;
 }
 
@@ -258,7 +261,7 @@ static double window_get_real(void *self, int port, int index) {
 
 static void window_set_real(void *self, int port, int index, double value) {
     Window *s = (Window *)self;
-    double *v = port == UIOFMU_WINDOW_Y || port == UIOFMU_WINDOW_THETA ? element(s, port, index) : NULL; /* inputs */
+    double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element(s, port, index) : NULL; /* inputs */
     if (!v) return;
     *v = value;
     s->dirty = 1;
@@ -281,8 +284,8 @@ static UiofmuResult window_step(void *self, double t, double h) {
     Window *s = (Window *)self;
     const UiofmuWindow *d = s->d;
     /* the inputs first, as the reference runtime: a bad one is an input error, not a step rejected */
-    if (!uiofmu_inputs_finite(s->fmu, t, s->k, s->y, d->p, "y") ||
-        !uiofmu_inputs_finite(s->fmu, t, s->k, s->theta, d->s, "theta"))
+    if (!uiofmu_inputs_finite(s->fmu, t, s->k, s->y, d->p, PORT_NAME[UIOFMU_WINDOW_Y]) ||
+        !uiofmu_inputs_finite(s->fmu, t, s->k, s->theta, d->s, PORT_NAME[UIOFMU_WINDOW_THETA]))
         return UIOFMU_REFUSED;
     if (uiofmu_off_period(s->fmu, t, h, d->dt, d->step_rtol, 1)) return UIOFMU_DISCARDED;
     if (s->W > 0) { /* the current point replaces the oldest */

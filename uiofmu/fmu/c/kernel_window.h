@@ -21,8 +21,9 @@
 
 /* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.window_ports):
    y[p] and, when the formula uses theta, theta[s] inputs (Real); gx[d] output (Real) and
-   gx_valid[1] output (Integer). */
-enum { UIOFMU_WINDOW_Y, UIOFMU_WINDOW_THETA, UIOFMU_WINDOW_GX, UIOFMU_WINDOW_GX_VALID, UIOFMU_WINDOW_PORTS };
+   gx_valid[1] output (Integer). Their ids, names, causalities and types are generated at build
+   time from uiofmu/runtime/ports.py (KERNEL_PORTS["window"]). */
+#include "kernel_window_ports.h"
 
 #define UIOFMU_WINDOW_MAX_POWER 64 /* uiofmu/runtime/card.py MAX_POWER */
 
