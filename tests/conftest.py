@@ -74,3 +74,26 @@ def building_card(building_path, tmp_path_factory):
 def ltv_card(tmp_path_factory):
     """The designed LTV card of seed 000 Example 1 (paper parameters)."""
     return designed(EXAMPLES / "seed000_example1_ltv.toml", tmp_path_factory, "ltv")
+
+
+@pytest.fixture(scope="session")
+def setup2_card(tmp_path_factory):
+    """The designed switched card of seed 002, setup 2 (two modes, dead-beat)."""
+    return designed(EXAMPLES / "seed002_setup2.toml", tmp_path_factory, "setup2")
+
+
+@pytest.fixture(scope="session")
+def needs_theta_card(tmp_path_factory):
+    """The designed dead-beat functional card of seed 003 whose formula takes theta as an input."""
+    return designed(EXAMPLES / "seed003_needs_theta.toml", tmp_path_factory, "needs_theta")
+
+
+@pytest.fixture(scope="session")
+def delayed_card(tmp_path_factory):
+    """The designed delayed UIO of seed 001 with a delay of 0.1 s (``SHORT`` of test_delayed_fmus.py: valid
+    estimates within 0.3 s), designed once per session."""
+    from test_delayed_fmus import SHORT
+
+    problem = tmp_path_factory.mktemp("delayed") / "problem.toml"
+    problem.write_text(SHORT, encoding="utf-8")
+    return designed(problem, tmp_path_factory, "delayed_short")

@@ -38,11 +38,11 @@ from fmpy import read_model_description
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from cfmu import (DISCARD, ERROR, NEEDS_CC, check_restores, check_sanitized, discarded, refused,  # noqa: E402
+from cfmu import (NEEDS_CC, check_restores, check_sanitized, discarded, random_calls, refused,  # noqa: E402
                   refused_edits, run_plant, script_main)
 from test_c_hardening import _layout, _with_double  # noqa: E402
 from test_deadbeat_functional import EXAMPLE, THETA_PLANT  # noqa: E402
-from uiofmu.cosim.fmi import Fmu, FmuCallError  # noqa: E402
+from uiofmu.cosim.fmi import Fmu  # noqa: E402
 from uiofmu.cosim.inputs import CsvInputs  # noqa: E402
 from uiofmu.cosim.master import cosimulate  # noqa: E402
 from uiofmu.fmu import c_backend  # noqa: E402
@@ -265,51 +265,6 @@ def check_plant(path, data: dict) -> None:
         assert np.array_equal(fmu.get("x"), x)
         fmu.step(0.0, h)
     random_calls(path, data["dt"], 2)
-
-
-# -- random call sequences --------------------------------------------------------------------------
-
-#: The values a random sequence sets: ordinary, extreme and non-finite.
-ODD_VALUES = (0.0, 1.0, -1.0, 0.3, math.nan, math.inf, -math.inf, 1e308, -1e308, 5e-324)
-
-
-def random_calls(path, h: float, seed: int, calls: int = 400) -> None:
-    """``calls`` random FMI calls on the FMU at ``path`` of period ``h`` (inputs set to odd values, steps of odd
-    lengths, outputs read, states saved, restored, serialised, byte-flipped and deserialised,
-    resets, calls in the wrong instance state): each returns a status from fmi2OK to fmi2Error,
-    never fmi2Fatal, and (under the sanitizers) nothing reads or writes out of bounds."""
-    rng = np.random.default_rng(seed)
-    with Fmu(path, "fuzz") as fmu:
-        inputs, outputs = list(fmu.ports("input")), list(fmu.ports("output"))
-        blobs, t = [], 0.0
-        for _ in range(calls):
-            op = int(rng.integers(0, 9))
-            try:
-                if op == 0 and inputs:
-                    name = inputs[int(rng.integers(len(inputs)))]
-                    fmu.set(name, [ODD_VALUES[int(rng.integers(len(ODD_VALUES)))] for _ in fmu.refs(name)])
-                elif op in (1, 2):
-                    step = h if op == 1 else float(rng.choice([h / 2, 2 * h, 0.0, -h, math.nan, math.inf]))
-                    fmu.step(t, step)
-                    t += h
-                elif op == 3:
-                    for name in outputs:
-                        fmu.get(name)
-                elif op == 4:
-                    blobs.append(fmu.serialize(fmu.get_state()))
-                elif op == 5 and blobs:
-                    blob = bytearray(blobs[int(rng.integers(len(blobs)))])
-                    for _ in range(int(rng.integers(1, 4))):
-                        blob[int(rng.integers(len(blob)))] = int(rng.integers(256))
-                    fmu.set_state(fmu.deserialize(bytes(blob[:int(rng.integers(len(blob) // 2, len(blob) + 1))])))
-                elif op == 6 and blobs:
-                    fmu.set_state(fmu.deserialize(blobs[int(rng.integers(len(blobs)))]))
-                elif op == 7:
-                    fmu.reset()
-                else:
-                    fmu.initialize(t)
-            except FmuCallError as exc:
-                assert exc.status in (1, 2, DISCARD, ERROR), exc
 
 
 # -- the tests --------------------------------------------------------------------------------------

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -63,10 +64,10 @@ def _cli(*argv):
 
 
 @pytest.fixture(scope="module")
-def built(tmp_path_factory):
-    """Both problems designed, and their observer and plant FMUs built by the command line with the default
-    backend: ``{"example": {...}, "short": {...}}`` with ``toml``, ``card``, ``obs``, ``plant`` and the
-    command lines' output ``build_out``, ``plant_out``."""
+def built(tmp_path_factory, delayed_card):
+    """Both problems designed (``SHORT`` once per session: conftest's ``delayed_card``), and their observer
+    and plant FMUs built by the command line with the default backend: ``{"example": {...}, "short": {...}}``
+    with ``toml``, ``card``, ``obs``, ``plant`` and the command lines' output ``build_out``, ``plant_out``."""
     root = tmp_path_factory.mktemp("delayed_fmus")
     out = {}
     for key, text in (("example", EXAMPLE), ("short", SHORT)):
@@ -75,7 +76,10 @@ def built(tmp_path_factory):
         paths = {"toml": folder / "problem.toml", "card": folder / "card.json", "obs": folder / "observer.fmu",
                  "plant": folder / "plant.fmu"}
         paths["toml"].write_text(text, encoding="utf-8")
-        _cli("design", paths["toml"], "-o", paths["card"])
+        if key == "short":
+            paths["card"].write_bytes(Path(delayed_card[1]).read_bytes())
+        else:
+            _cli("design", paths["toml"], "-o", paths["card"])
         paths["build_out"] = _cli("build", paths["card"], "-o", paths["obs"]).out
         paths["plant_out"] = _cli("plant", paths["toml"], "-o", paths["plant"]).out
         out[key] = paths
