@@ -97,3 +97,21 @@ def delayed_card(tmp_path_factory):
     problem = tmp_path_factory.mktemp("delayed") / "problem.toml"
     problem.write_text(SHORT, encoding="utf-8")
     return designed(problem, tmp_path_factory, "delayed_short")
+
+
+@pytest.fixture(scope="session")
+def observer_fmus(request, tmp_path_factory):
+    """``observer_fmus(name, backend)``: ``(card, observer FMU path)`` of the session card fixture ``name``
+    (``example1_card``, say) on ``backend``, built once per session; tests that edit an FMU copy it first."""
+    from uiofmu.fmu.export import build_observer
+
+    made: dict = {}
+
+    def get(name: str, backend: str):
+        if (name, backend) not in made:
+            card = request.getfixturevalue(name)[0]
+            path = tmp_path_factory.mktemp("observers") / f"{name}-{backend}.fmu"
+            made[name, backend] = card, build_observer(card, path, backend=backend)
+        return made[name, backend]
+
+    return get

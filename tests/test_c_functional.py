@@ -278,24 +278,41 @@ def lpv_plant(name: str):
     return problem_from_data(copy.deepcopy(PROBLEMS[name])).plant
 
 
+@pytest.fixture(scope="module")
+def fmus(cards, tmp_path_factory):
+    """``fmus(kind, name)``: the C observer (kind ``"observer"``) or LPV plant (``"plant"``) FMU of a design of
+    :data:`PROBLEMS`, built once per module (the tests that edit one unzip a copy)."""
+    root = tmp_path_factory.mktemp("c_functional")
+    made: dict = {}
+
+    def get(kind: str, name: str):
+        if (kind, name) not in made:
+            path = root / f"{kind}-{name}.fmu"
+            made[kind, name] = (build_observer(cards[name], path, backend="c") if kind == "observer"
+                                else build_plant(lpv_plant(name), "lpv", path, backend="c"))
+        return made[kind, name]
+
+    return get
+
+
 def test_the_designs_are_the_two_kinds(cards):
     assert not cards["example"].schedule["uses_theta"] and cards["theta-plant"].schedule["uses_theta"]
     assert cards["theta-plant"].matrices["Fexp"].any()
     assert lpv_plant("example").theta["kind"] == "state" and lpv_plant("theta-plant").theta["kind"] == "input"
 
 
-@pytest.mark.parametrize("name", list(PROBLEMS))
-def test_the_c_window_observer_equals_the_runtime(cards, tmp_path, name):
+@pytest.mark.parametrize("name", ["example"])      # theta as an input (and the sanitized runs): test_conformance.py
+def test_the_c_window_observer_equals_the_runtime(cards, fmus, name):
     card = cards[name]
-    path = build_observer(card, tmp_path / "o.fmu", backend="c")
+    path = fmus("observer", name)
     with zipfile.ZipFile(path) as z:
         assert "sources/kernel_window.c" in z.namelist()
         assert b"kernel_affine" not in z.read("modelDescription.xml")
     check_observer(path, card)
 
 
-def test_a_state_of_another_design_is_refused(cards, tmp_path):
-    paths = {name: build_observer(card, tmp_path / f"{name}.fmu", backend="c") for name, card in cards.items()}
+def test_a_state_of_another_design_is_refused(cards, fmus):
+    paths = {name: fmus("observer", name) for name in cards}
     with Fmu(paths["example"], "a") as a, Fmu(paths["theta-plant"], "b") as b:
         a.initialize(0.0)
         b.initialize(0.0)
@@ -304,9 +321,9 @@ def test_a_state_of_another_design_is_refused(cards, tmp_path):
 
 
 @pytest.mark.parametrize("name", list(PROBLEMS))
-def test_the_c_lpv_plant_equals_the_runtime(tmp_path, name):
+def test_the_c_lpv_plant_equals_the_runtime(fmus, name):
     plant = lpv_plant(name)
-    path = build_plant(plant, "lpv", tmp_path / "p.fmu", backend="c")
+    path = fmus("plant", name)
     md = read_model_description(str(path))
     assert "LPV plant" in md.description
     with zipfile.ZipFile(path) as z:
@@ -334,12 +351,11 @@ def test_the_d_feedthrough_of_an_lpv_plant(tmp_path):
 
 
 @pytest.mark.parametrize("name,steps", [("example", 8), ("theta-plant", STEPS)])
-def test_closed_loop_gives_g_x_from_the_first_full_window(cards, tmp_path, name, steps):
+def test_closed_loop_gives_g_x_from_the_first_full_window(cards, fmus, tmp_path, name, steps):
     card = cards[name]
     plant = lpv_plant(name)
     h, delay, L = card.schedule["dt"], card.schedule["delay"], card.schedule["length"]
-    obs = build_observer(card, tmp_path / "o.fmu", backend="c")
-    pl = build_plant(plant, "lpv", tmp_path / "p.fmu", backend="c")
+    obs, pl = fmus("observer", name), fmus("plant", name)
     rng = np.random.default_rng(21)
     by_input = plant.theta["kind"] == "input"
     rows = ["time,d[1]" + (",theta[1]" if by_input else "")]
@@ -378,13 +394,11 @@ LPV_EDITS = [(".s = 1", ".s = 2", "plant A: 3 blocks of 3 x 3 need 27 numbers"),
              ("m_T[] = {0.0, 0.0, 0.0}", "m_T[] = {1.0, 0.0, 0.0}", "but theta is an input")]
 
 
-def test_instantiate_refuses_inconsistent_design_data(cards, tmp_path):
+def test_instantiate_refuses_inconsistent_design_data(cards, fmus, tmp_path):
     card = cards["theta-plant"]
-    refused_edits(build_observer(card, tmp_path / "o.fmu", backend="c"), c_backend.c_kernel(card), WINDOW_EDITS,
-                  tmp_path, "window")
+    refused_edits(fmus("observer", "theta-plant"), c_backend.c_kernel(card), WINDOW_EDITS, tmp_path, "window")
     plant = lpv_plant("theta-plant")
-    refused_edits(build_plant(plant, "lpv", tmp_path / "p.fmu", backend="c"), c_backend.plant_kernel(plant.to_data()),
-                  LPV_EDITS, tmp_path, "lpv")
+    refused_edits(fmus("plant", "theta-plant"), c_backend.plant_kernel(plant.to_data()), LPV_EDITS, tmp_path, "lpv")
 
 
 @pytest.mark.skipif(not shutil.which("gcc"), reason="the sanitizers need gcc")

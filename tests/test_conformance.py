@@ -102,28 +102,21 @@ REFUSED_PAIRS = [pytest.param(case, "c", id=f"{case}-c-{NO_C_KERNEL[kernel].repl
 @pytest.fixture(scope="module")
 def cards(request):
     """``cards(case)``: the designed card of a case (a session fixture of conftest.py)."""
-    made: dict = {}
-
     def get(case: str):
-        if case not in made:
-            made[case] = request.getfixturevalue(SOURCE[case])[0]
-            assert made[case].kernel == KIND[case][0] and made[case].schedule["kind"] == KIND[case][1]
-        return made[case]
+        card = request.getfixturevalue(SOURCE[case])[0]
+        assert card.kernel == KIND[case][0] and card.schedule["kind"] == KIND[case][1], case
+        return card
 
     return get
 
 
 @pytest.fixture(scope="module")
-def fmus(cards, tmp_path_factory):
-    """``fmus(case, backend)``: ``(card, observer FMU path)``, built once per module."""
-    root = tmp_path_factory.mktemp("conformance")
-    made: dict = {}
-
+def fmus(cards, observer_fmus):
+    """``fmus(case, backend)``: ``(card, observer FMU path)``, built once per session (conftest's
+    ``observer_fmus``: the family tests run the same FMUs)."""
     def get(case: str, backend: str):
-        if (case, backend) not in made:
-            card = cards(case)
-            made[case, backend] = card, build_observer(card, root / f"{case}-{backend}.fmu", backend=backend)
-        return made[case, backend]
+        cards(case)
+        return observer_fmus(SOURCE[case], backend)
 
     return get
 
@@ -389,10 +382,13 @@ def no_sanitizer_report(res) -> None:
     assert not any(mark in text for mark in cfuzz.SANITIZER_MARKS), text[-3000:]
 
 
-def fuzz_with_the_c_fuzzer(card, work: Path) -> None:
-    """The fuzzer built warning-free with the FMU's own sources; its scenarios, each plumbing scenario on
-    its own, and a random run of 3 s: no failed check, no sanitizer report."""
-    target = cfuzz.prepare(card.name, card, work)
+def fuzz_with_the_c_fuzzer(name: str, path: Path, work: Path) -> None:
+    """The fuzzer built warning-free with the sources of the C FMU at ``path``; its scenarios, each plumbing
+    scenario on its own, and a random run of 3 s: no failed check, no sanitizer report."""
+    with zipfile.ZipFile(path) as z:
+        z.extractall(work, [n for n in z.namelist() if n.startswith("sources/")])
+    target = cfuzz.Target(name, work / "fmu_fuzz", work / "sources", fmu=path)
+    target.warnings = cfuzz.compile_fuzzer(target.sources, target.exe)
     assert target.warnings == ""
     res = cfuzz.run_scenarios(target)
     no_sanitizer_report(res)
@@ -426,6 +422,6 @@ def fuzz_with_the_c_fuzzer(card, work: Path) -> None:
 def test_the_call_fuzzers_short_run(fmus, tmp_path, case):
     card, path = fmus(case, "c")
     if card.schedule["kind"] in FUZZER_KINDS:
-        fuzz_with_the_c_fuzzer(card, tmp_path)
+        fuzz_with_the_c_fuzzer(case, path, tmp_path)
     else:
         random_calls(path, card.dt, seed=1)
