@@ -1,8 +1,9 @@
 """Every runtime kernel on every backend: one observer FMU per kernel and schedule kind, held to one contract.
 
 The table below names, for each kernel, its reference runtime, its output ports (how the runtime gives
-each) and one example problem per schedule kind it steps; the backends build each card's observer FMU
-(once per module). Each pair is checked the same way:
+each) and one example card per schedule kind it steps; the backends build each card's observer FMU
+(once per session: conftest's ``observer_fmus``, which the family tests share). Each pair is checked the
+same way:
 
 - the model description: fmpy's ``validate_fmu`` finds nothing, the FMU can get, set and serialise its
   state, its outputs are the kernel's; a C FMU needs no tool and carries its sources;
@@ -46,7 +47,6 @@ from uiofmu.runtime.observer import Runtime
 from uiofmu.runtime.window import WindowRuntime
 
 
-
 @dataclass(frozen=True)
 class Kernel:
     """What the suite knows of a runtime kernel: its reference runtime, its outputs (each as the runtime
@@ -76,7 +76,7 @@ CASES = [
     ("geometric", "affine", "geometric", "ltv_card"),          # examples/seed000_example1_ltv.toml
     ("modes", "affine", "mode", "setup2_card"),                # examples/seed002_setup2.toml
     ("window", "window", "window", "needs_theta_card"),        # examples/seed003_needs_theta.toml
-    ("delayed", "delayed", "continuous", "delayed_card"),      # test_delayed_fmus.SHORT: valid from 0.1 s
+    ("delayed", "delayed", "continuous", "delayed_card"),      # conftest.DELAYED_SHORT: valid from 0.1 s
 ]
 BACKENDS = ("c", "python")
 #: The kernels a backend has none for, and why (the pair checks the refusal instead).
