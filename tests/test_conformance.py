@@ -38,6 +38,7 @@ from fmpy.validation import validate_fmu
 
 import cfuzz
 from cfmu import DISCARD, ERROR, NEEDS_CC, check_restores, random_calls
+from test_c_hardening import _layout
 from uiofmu.cosim.fmi import Fmu, FmuCallError
 from uiofmu.fmu import c_backend
 from uiofmu.fmu.export import build_observer
@@ -277,6 +278,7 @@ def test_a_saved_state_restores_the_same_continuation(fmus, case, backend):
         blob, after = check_restores(a, b, lambda fmu: drive(fmu, None, card, rest, t)[0], restored)
         assert np.ptp(after) > 0
         if backend == "c":
+            assert _layout(blob)[0] == read_model_description(str(path)).guid   # the image names its FMU
             state = a.get_state()
             before = a.serialize(state)
             drive(a, None, card, rest, t)
