@@ -8,12 +8,14 @@
 - :func:`refused`, :func:`discarded`: a call that returns fmi2Error (fmi2Discard) with a log line;
 - :func:`run_plant`: a plant FMU's run against its reference runtime;
 - :func:`check_restores`: a saved FMU state restores the same run, in the instance and in another;
-- :func:`refused_edits`: hand edits of an FMU's design_data.c, each refused by fmi2Instantiate.
+- :func:`refused_edits`: hand edits of an FMU's design_data.c, each refused by fmi2Instantiate;
+- :func:`random_calls`: random FMI call sequences through fmpy, never answered with fmi2Fatal.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -135,6 +137,52 @@ def refused_edits(path: Path, kernel, edits, tmp_path: Path, tag: str) -> None:
         with pytest.raises(c_backend.FmuError) as info:
             Fmu(broken, "o")
         assert "inconsistent" in str(info.value) and words in str(info.value), str(info.value)
+
+
+#: The values a random sequence sets: ordinary, extreme and non-finite.
+ODD_VALUES = (0.0, 1.0, -1.0, 0.3, math.nan, math.inf, -math.inf, 1e308, -1e308, 5e-324)
+#: The values a random sequence sets on an Integer input (a mode, say): in range, out of it, the ends of fmi2Integer.
+ODD_INTEGERS = (0, 1, 2, 3, -1, 17, 2 ** 31 - 1, -2 ** 31)
+
+
+def random_calls(path, h: float, seed: int, calls: int = 400) -> None:
+    """``calls`` random FMI calls on the FMU at ``path`` of period ``h`` (inputs set to odd values, steps of odd
+    lengths, outputs read, states saved, restored, serialised, byte-flipped and deserialised,
+    resets, calls in the wrong instance state): each returns a status from fmi2OK to fmi2Error,
+    never fmi2Fatal, and (under the sanitizers) nothing reads or writes out of bounds."""
+    rng = np.random.default_rng(seed)
+    with Fmu(path, "fuzz") as fmu:
+        inputs, outputs = list(fmu.ports("input")), list(fmu.ports("output"))
+        blobs, t = [], 0.0
+        for _ in range(calls):
+            op = int(rng.integers(0, 9))
+            try:
+                if op == 0 and inputs:
+                    name = inputs[int(rng.integers(len(inputs)))]
+                    odd = ODD_INTEGERS if fmu.integer(name) else ODD_VALUES
+                    fmu.set(name, [odd[int(rng.integers(len(odd)))] for _ in fmu.refs(name)])
+                elif op in (1, 2):
+                    step = h if op == 1 else float(rng.choice([h / 2, 2 * h, 0.0, -h, math.nan, math.inf]))
+                    fmu.step(t, step)
+                    t += h
+                elif op == 3:
+                    for name in outputs:
+                        fmu.get(name)
+                elif op == 4:
+                    blobs.append(fmu.serialize(fmu.get_state()))
+                elif op == 5 and blobs:
+                    blob = bytearray(blobs[int(rng.integers(len(blobs)))])
+                    for _ in range(int(rng.integers(1, 4))):
+                        blob[int(rng.integers(len(blob)))] = int(rng.integers(256))
+                    fmu.set_state(fmu.deserialize(bytes(blob[:int(rng.integers(len(blob) // 2, len(blob) + 1))])))
+                elif op == 6 and blobs:
+                    fmu.set_state(fmu.deserialize(blobs[int(rng.integers(len(blobs)))]))
+                elif op == 7:
+                    fmu.reset()
+                else:
+                    fmu.initialize(t)
+            except FmuCallError as exc:
+                assert exc.status in (1, 2, DISCARD, ERROR), exc
 
 
 def run_sanitized(script: str, kind: str, fmu: Path, data: dict, work: Path) -> None:

@@ -1,4 +1,5 @@
-"""Shared fixtures: paths of the examples and an in-process command runner."""
+"""Shared fixtures: paths of the examples, an in-process command runner, the example cards designed once per
+session and their observer FMUs built once per session (``observer_fmus``)."""
 
 from __future__ import annotations
 
@@ -33,6 +34,37 @@ def pytest_collection_modifyitems(config, items):
             for item in items:
                 if mark in item.keywords:
                     item.add_marker(skip)
+
+#: The delayed UIO of seed 001 as the paper gives it (Fouka et al.), for test_delayed_fmus.py.
+DELAYED_EXAMPLE = """\
+name = "fouka-example"
+[plant]
+time = "continuous"
+A = [[-30.0, 12.0, -20.0], [-50.0, -13.0, 0.0], [10.0, 2.0, -14.0]]
+B = [[1.5], [0.0], [2.0]]
+C = [[1.0, 0.0, 0.0], [0.0, 1.0, -2.0]]
+[plant.parameters]
+theta = [1.0, 2.0, 0.5]
+[[plant.parameters.Dy]]
+output = 1
+D = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]
+[[plant.parameters.Dy]]
+output = 2
+D = [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+[observer]
+family = "delayed-uio"
+delays = [0.5]
+decay = 1.0
+premise = { signals = "u", count = 6, samples = 300, seed = 1 }
+[signals]
+u = [[{kind = "sine", amplitude = 20.0, frequency_hz = 0.5},
+      {kind = "sine", amplitude = 10.0, frequency_hz = 1.3},
+      {kind = "sine", amplitude = 5.0, frequency_hz = 3.1}]]
+"""
+#: The example with a delay of 0.1 s, valid from it (premise.start = tau: the start-up transient designed in), so that
+#: runs of 0.3 s have valid estimates.
+DELAYED_SHORT = DELAYED_EXAMPLE.replace("delays = [0.5]", "delays = [0.1]").replace("seed = 1 }",
+                                                                                  "seed = 1, start = 0.1 }")
 
 
 @dataclass
@@ -96,3 +128,42 @@ def building_card(building_path, tmp_path_factory):
 def ltv_card(tmp_path_factory):
     """The designed LTV card of seed 000 Example 1 (paper parameters)."""
     return designed(EXAMPLES / "seed000_example1_ltv.toml", tmp_path_factory, "ltv")
+
+
+@pytest.fixture(scope="session")
+def setup2_card(tmp_path_factory):
+    """The designed switched card of seed 002, setup 2 (two modes, dead-beat)."""
+    return designed(EXAMPLES / "seed002_setup2.toml", tmp_path_factory, "setup2")
+
+
+@pytest.fixture(scope="session")
+def needs_theta_card(tmp_path_factory):
+    """The designed dead-beat functional card of seed 003 whose formula takes theta as an input."""
+    return designed(EXAMPLES / "seed003_needs_theta.toml", tmp_path_factory, "needs_theta")
+
+
+@pytest.fixture(scope="session")
+def delayed_card(tmp_path_factory):
+    """The designed delayed UIO of seed 001 with a delay of 0.1 s (:data:`DELAYED_SHORT`: valid estimates
+    within 0.3 s), designed once per session."""
+    problem = tmp_path_factory.mktemp("delayed") / "problem.toml"
+    problem.write_text(DELAYED_SHORT, encoding="utf-8")
+    return designed(problem, tmp_path_factory, "delayed_short")
+
+
+@pytest.fixture(scope="session")
+def observer_fmus(request, tmp_path_factory):
+    """``observer_fmus(name, backend)``: ``(card, observer FMU path)`` of the session card fixture ``name``
+    (``example1_card``, say) on ``backend``, built once per session; tests that edit an FMU copy it first."""
+    from uiofmu.fmu.export import build_observer
+
+    made: dict = {}
+
+    def get(name: str, backend: str):
+        if (name, backend) not in made:
+            card = request.getfixturevalue(name)[0]
+            path = tmp_path_factory.mktemp("observers") / f"{name}-{backend}.fmu"
+            made[name, backend] = card, build_observer(card, path, backend=backend)
+        return made[name, backend]
+
+    return get

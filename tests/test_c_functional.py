@@ -38,11 +38,11 @@ from fmpy import read_model_description
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from cfmu import (DISCARD, ERROR, NEEDS_CC, check_restores, check_sanitized, discarded, refused,  # noqa: E402
+from cfmu import (NEEDS_CC, check_restores, check_sanitized, discarded, random_calls, refused,  # noqa: E402
                   refused_edits, run_plant, script_main)
 from test_c_hardening import _layout, _with_double  # noqa: E402
 from test_deadbeat_functional import EXAMPLE, THETA_PLANT  # noqa: E402
-from uiofmu.cosim.fmi import Fmu, FmuCallError  # noqa: E402
+from uiofmu.cosim.fmi import Fmu  # noqa: E402
 from uiofmu.cosim.inputs import CsvInputs  # noqa: E402
 from uiofmu.cosim.master import cosimulate  # noqa: E402
 from uiofmu.fmu import c_backend  # noqa: E402
@@ -267,51 +267,6 @@ def check_plant(path, data: dict) -> None:
     random_calls(path, data["dt"], 2)
 
 
-# -- random call sequences --------------------------------------------------------------------------
-
-#: The values a random sequence sets: ordinary, extreme and non-finite.
-ODD_VALUES = (0.0, 1.0, -1.0, 0.3, math.nan, math.inf, -math.inf, 1e308, -1e308, 5e-324)
-
-
-def random_calls(path, h: float, seed: int, calls: int = 400) -> None:
-    """``calls`` random FMI calls on the FMU at ``path`` of period ``h`` (inputs set to odd values, steps of odd
-    lengths, outputs read, states saved, restored, serialised, byte-flipped and deserialised,
-    resets, calls in the wrong instance state): each returns a status from fmi2OK to fmi2Error,
-    never fmi2Fatal, and (under the sanitizers) nothing reads or writes out of bounds."""
-    rng = np.random.default_rng(seed)
-    with Fmu(path, "fuzz") as fmu:
-        inputs, outputs = list(fmu.ports("input")), list(fmu.ports("output"))
-        blobs, t = [], 0.0
-        for _ in range(calls):
-            op = int(rng.integers(0, 9))
-            try:
-                if op == 0 and inputs:
-                    name = inputs[int(rng.integers(len(inputs)))]
-                    fmu.set(name, [ODD_VALUES[int(rng.integers(len(ODD_VALUES)))] for _ in fmu.refs(name)])
-                elif op in (1, 2):
-                    step = h if op == 1 else float(rng.choice([h / 2, 2 * h, 0.0, -h, math.nan, math.inf]))
-                    fmu.step(t, step)
-                    t += h
-                elif op == 3:
-                    for name in outputs:
-                        fmu.get(name)
-                elif op == 4:
-                    blobs.append(fmu.serialize(fmu.get_state()))
-                elif op == 5 and blobs:
-                    blob = bytearray(blobs[int(rng.integers(len(blobs)))])
-                    for _ in range(int(rng.integers(1, 4))):
-                        blob[int(rng.integers(len(blob)))] = int(rng.integers(256))
-                    fmu.set_state(fmu.deserialize(bytes(blob[:int(rng.integers(len(blob) // 2, len(blob) + 1))])))
-                elif op == 6 and blobs:
-                    fmu.set_state(fmu.deserialize(blobs[int(rng.integers(len(blobs)))]))
-                elif op == 7:
-                    fmu.reset()
-                else:
-                    fmu.initialize(t)
-            except FmuCallError as exc:
-                assert exc.status in (1, 2, DISCARD, ERROR), exc
-
-
 # -- the tests --------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -323,24 +278,41 @@ def lpv_plant(name: str):
     return problem_from_data(copy.deepcopy(PROBLEMS[name])).plant
 
 
+@pytest.fixture(scope="module")
+def fmus(cards, tmp_path_factory):
+    """``fmus(kind, name)``: the C observer (kind ``"observer"``) or LPV plant (``"plant"``) FMU of a design of
+    :data:`PROBLEMS`, built once per module (the tests that edit one unzip a copy)."""
+    root = tmp_path_factory.mktemp("c_functional")
+    made: dict = {}
+
+    def get(kind: str, name: str):
+        if (kind, name) not in made:
+            path = root / f"{kind}-{name}.fmu"
+            made[kind, name] = (build_observer(cards[name], path, backend="c") if kind == "observer"
+                                else build_plant(lpv_plant(name), "lpv", path, backend="c"))
+        return made[kind, name]
+
+    return get
+
+
 def test_the_designs_are_the_two_kinds(cards):
     assert not cards["example"].schedule["uses_theta"] and cards["theta-plant"].schedule["uses_theta"]
     assert cards["theta-plant"].matrices["Fexp"].any()
     assert lpv_plant("example").theta["kind"] == "state" and lpv_plant("theta-plant").theta["kind"] == "input"
 
 
-@pytest.mark.parametrize("name", list(PROBLEMS))
-def test_the_c_window_observer_equals_the_runtime(cards, tmp_path, name):
+@pytest.mark.parametrize("name", ["example"])      # theta as an input (and the sanitized runs): test_conformance.py
+def test_the_c_window_observer_equals_the_runtime(cards, fmus, name):
     card = cards[name]
-    path = build_observer(card, tmp_path / "o.fmu", backend="c")
+    path = fmus("observer", name)
     with zipfile.ZipFile(path) as z:
         assert "sources/kernel_window.c" in z.namelist()
         assert b"kernel_affine" not in z.read("modelDescription.xml")
     check_observer(path, card)
 
 
-def test_a_state_of_another_design_is_refused(cards, tmp_path):
-    paths = {name: build_observer(card, tmp_path / f"{name}.fmu", backend="c") for name, card in cards.items()}
+def test_a_state_of_another_design_is_refused(cards, fmus):
+    paths = {name: fmus("observer", name) for name in cards}
     with Fmu(paths["example"], "a") as a, Fmu(paths["theta-plant"], "b") as b:
         a.initialize(0.0)
         b.initialize(0.0)
@@ -349,9 +321,9 @@ def test_a_state_of_another_design_is_refused(cards, tmp_path):
 
 
 @pytest.mark.parametrize("name", list(PROBLEMS))
-def test_the_c_lpv_plant_equals_the_runtime(tmp_path, name):
+def test_the_c_lpv_plant_equals_the_runtime(fmus, name):
     plant = lpv_plant(name)
-    path = build_plant(plant, "lpv", tmp_path / "p.fmu", backend="c")
+    path = fmus("plant", name)
     md = read_model_description(str(path))
     assert "LPV plant" in md.description
     with zipfile.ZipFile(path) as z:
@@ -379,12 +351,11 @@ def test_the_d_feedthrough_of_an_lpv_plant(tmp_path):
 
 
 @pytest.mark.parametrize("name,steps", [("example", 8), ("theta-plant", STEPS)])
-def test_closed_loop_gives_g_x_from_the_first_full_window(cards, tmp_path, name, steps):
+def test_closed_loop_gives_g_x_from_the_first_full_window(cards, fmus, tmp_path, name, steps):
     card = cards[name]
     plant = lpv_plant(name)
     h, delay, L = card.schedule["dt"], card.schedule["delay"], card.schedule["length"]
-    obs = build_observer(card, tmp_path / "o.fmu", backend="c")
-    pl = build_plant(plant, "lpv", tmp_path / "p.fmu", backend="c")
+    obs, pl = fmus("observer", name), fmus("plant", name)
     rng = np.random.default_rng(21)
     by_input = plant.theta["kind"] == "input"
     rows = ["time,d[1]" + (",theta[1]" if by_input else "")]
@@ -423,13 +394,11 @@ LPV_EDITS = [(".s = 1", ".s = 2", "plant A: 3 blocks of 3 x 3 need 27 numbers"),
              ("m_T[] = {0.0, 0.0, 0.0}", "m_T[] = {1.0, 0.0, 0.0}", "but theta is an input")]
 
 
-def test_instantiate_refuses_inconsistent_design_data(cards, tmp_path):
+def test_instantiate_refuses_inconsistent_design_data(cards, fmus, tmp_path):
     card = cards["theta-plant"]
-    refused_edits(build_observer(card, tmp_path / "o.fmu", backend="c"), c_backend.c_kernel(card), WINDOW_EDITS,
-                  tmp_path, "window")
+    refused_edits(fmus("observer", "theta-plant"), c_backend.c_kernel(card), WINDOW_EDITS, tmp_path, "window")
     plant = lpv_plant("theta-plant")
-    refused_edits(build_plant(plant, "lpv", tmp_path / "p.fmu", backend="c"), c_backend.plant_kernel(plant.to_data()),
-                  LPV_EDITS, tmp_path, "lpv")
+    refused_edits(fmus("plant", "theta-plant"), c_backend.plant_kernel(plant.to_data()), LPV_EDITS, tmp_path, "lpv")
 
 
 @pytest.mark.skipif(not shutil.which("gcc"), reason="the sanitizers need gcc")

@@ -1,12 +1,12 @@
 """The C observer FMU refuses foreign and forged states and never reads out of bounds.
 
 (a) The call-sequence fuzzer (tests/c/fmu_fuzz.c, built with the FMU's own sources under
-ASan and UBSan by tests/cfuzz.py): its scenarios and a bounded random run for each schedule
-kind (constant, geometric, interval), and a check that it catches a runtime whose state
-checks are switched off. (b) Through fmpy: a state of another FMU with equal dims, bytes
-with h_prev = 123 or NaN, truncated and extended bytes are refused with fmi2Error and a log
-line saying why, and the instance steps on exactly as an untouched twin. (c) Valid round
-trips stay bit-identical.
+ASan and UBSan by tests/cfuzz.py) with the other step policies ('nearest', 'count'), and a
+check that it catches a runtime whose state checks are switched off (its short run on each
+schedule kind, and valid round trips: tests/test_conformance.py). (b) Through fmpy: a state
+of another FMU with equal dims, bytes with h_prev = 123 or NaN, truncated and extended bytes
+are refused with fmi2Error and a log line saying why, and the instance steps on exactly as an
+untouched twin. (c) A state taken in initialisation mode round-trips.
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ import copy
 import math
 import struct
 import zipfile
-from concurrent.futures import ThreadPoolExecutor
 from ctypes import byref
 from pathlib import Path
 
@@ -30,7 +29,6 @@ from uiofmu.cosim.fmi import Fmu, FmuCallError
 
 import cfuzz
 
-FAMILIES = ("lti-uio", "ltv-auid", "sampled-data")
 SANITIZER = ("AddressSanitizer", "LeakSanitizer", "runtime error:")
 
 
@@ -40,18 +38,10 @@ def cards(example1_card, building_card, ltv_card):
 
 
 @pytest.fixture(scope="module")
-def targets(cards, tmp_path_factory):
-    """The fuzzer built with each family's C FMU sources."""
-    work = tmp_path_factory.mktemp("cfuzz")
-    with ThreadPoolExecutor(max_workers=3) as pool:
-        built = {name: pool.submit(cfuzz.prepare, name, card, work / name) for name, card in cards.items()}
-        return {name: f.result() for name, f in built.items()}
-
-
-@pytest.fixture(scope="module")
-def fmus(targets):
-    """The C FMUs the fuzzers were built from."""
-    return {name: t.fmu for name, t in targets.items()}
+def fmus(observer_fmus):
+    """The C FMU of each family, built once per session."""
+    names = {"lti-uio": "example1_card", "ltv-auid": "ltv_card", "sampled-data": "building_card"}
+    return {family: observer_fmus(name, "c")[1] for family, name in names.items()}
 
 
 def _no_sanitizer_report(res):
@@ -60,45 +50,6 @@ def _no_sanitizer_report(res):
 
 
 # -- (a) the fuzzer --------------------------------------------------------------------------
-
-@pytest.mark.parametrize("family", FAMILIES)
-def test_fuzzer_builds_warning_free(targets, family):
-    assert targets[family].warnings == ""
-
-
-@pytest.mark.parametrize("family", FAMILIES)
-def test_fuzzer_scenarios(targets, family):
-    res = cfuzz.run_scenarios(targets[family])
-    _no_sanitizer_report(res)
-    assert res.returncode == 0, res.stderr[-3000:]
-    assert res.failures == []
-    names = cfuzz.scenario_names(targets[family])
-    assert len(names) >= 12 and res.scenarios == {name: "ok" for name in names}
-    # the refusals were made and seen: forged states refused, valid ones taken
-    for fn in ("fmi2SetFMUstate", "fmi2DeSerializeFMUstate", "fmi2GetFMUstate"):
-        assert res.functions[fn].get("error", 0) > 0 and res.functions[fn].get("ok", 0) > 0, fn
-
-
-PLUMBING_SCENARIOS = ("state-masks", "status-after-discard", "log-categories")
-
-
-@pytest.mark.parametrize("family", FAMILIES)
-@pytest.mark.parametrize("scenario", PLUMBING_SCENARIOS)
-def test_fuzzer_plumbing_scenarios(targets, family, scenario):
-    """The FMI plumbing (fmi2_plumbing.c) under the sanitizers: every fmi2 function in every state an
-    instance can be brought to answers as its state mask says (an illegal call: fmi2Error, a log line
-    naming the state, nothing changed); the status queries after a discarded step, and a twin-equal
-    continuation; log categories switched on and off."""
-    res = cfuzz.run(targets[family], "scenarios", "--scenario", scenario)
-    _no_sanitizer_report(res)
-    assert res.returncode == 0 and res.failures == [] and res.scenarios == {scenario: "ok"}, res.stderr[-3000:]
-    if scenario == "state-masks":
-        for fn in ("fmi2DoStep", "fmi2SetupExperiment", "fmi2Terminate", "fmi2GetStatus", "fmi2SetReal"):
-            assert res.functions[fn].get("error", 0) > 0 and res.functions[fn].get("ok", 0) + \
-                res.functions[fn].get("discard", 0) > 0, fn
-    if scenario == "status-after-discard":
-        assert res.functions["fmi2GetRealStatus"]["ok"] >= 3 and res.functions["fmi2GetStatus"]["discard"] >= 1
-
 
 @pytest.mark.parametrize("family", sorted(cfuzz.VARIANTS))
 def test_fuzzer_scenarios_with_the_other_step_policies(cards, tmp_path, family):
@@ -115,27 +66,13 @@ def test_fuzzer_scenarios_with_the_other_step_policies(cards, tmp_path, family):
     assert res.returncode == 0 and res.failures == [] and res.sequences > 30, res.stderr[-3000:]
 
 
-@pytest.mark.parametrize("family", FAMILIES)
-def test_fuzzer_random_run(targets, family):
-    res = cfuzz.run_random(targets[family], seconds=3.0, seed=11)
-    _no_sanitizer_report(res)
-    assert res.returncode == 0 and res.failures == [], res.stderr[-3000:]
-    assert res.sequences > 100 and res.calls > 50_000
-    assert all(res.statuses.get(k, 0) > 0 for k in ("ok", "discard", "error")), res.statuses
-    assert res.statuses.get("other", 0) == 0 and res.statuses.get("fatal", 0) == 0
-    used = res.functions
-    assert used["fmi2DeSerializeFMUstate"]["ok"] > 100 and used["fmi2DeSerializeFMUstate"]["error"] > 100
-    assert used["fmi2DoStep"]["ok"] > 1000
-
-
-def test_fuzzer_catches_a_runtime_without_state_checks(targets, tmp_path):
+def test_fuzzer_catches_a_runtime_without_state_checks(fmus, tmp_path):
     """The same scenarios against the interval runtime with check_values switched off: the
     forged states are accepted (failed checks, exit 1), and the runtime's own index checks
     still keep every access in bounds (no sanitizer report)."""
+    with zipfile.ZipFile(fmus["sampled-data"]) as z:
+        z.extractall(tmp_path, [n for n in z.namelist() if n.startswith("sources/")])
     src = tmp_path / "sources"
-    src.mkdir()
-    for f in targets["sampled-data"].sources.iterdir():
-        (src / f.name).write_bytes(f.read_bytes())
     text = (src / "kernel_affine.c").read_text()
     head = "static int check_values(Instance *s, const char *ctx, const Byte *v) {\n"
     assert text.count(head) == 1
@@ -182,7 +119,7 @@ def _with_double(blob, index, value):
 
 
 @pytest.fixture(scope="module")
-def twin_fmus(cards, tmp_path_factory):
+def twin_fmus(cards, observer_fmus, tmp_path_factory):
     """The building's FMU and one of a card that differs only in initial.xhat0 (equal dims,
     another GUID)."""
     d = tmp_path_factory.mktemp("twins")
@@ -191,7 +128,7 @@ def twin_fmus(cards, tmp_path_factory):
     data["initial"]["xhat0"] = [v + 1.0 for v in data["initial"]["xhat0"]]
     other = card_from_data(data)
     assert other.dims == card.dims
-    a = build_observer(card, d / "a.fmu", backend="c")
+    _, a = observer_fmus("building_card", "c")
     b = build_observer(other, d / "b.fmu", backend="c")
     guids = (read_model_description(str(a)).guid, read_model_description(str(b)).guid)
     assert guids[0] != guids[1]
@@ -317,34 +254,7 @@ def test_a_state_that_bypasses_initialisation_checks_is_refused(twin_fmus):
         fmu.step(0.0, 600.0)
 
 
-# -- (c) valid round trips -------------------------------------------------------------------
-
-@pytest.mark.parametrize("family", FAMILIES)
-def test_valid_round_trips_are_bit_identical(cards, fmus, family):
-    card, path = cards[family], fmus[family]
-    H = _steps(card)
-    with Fmu(path, "o") as fmu, Fmu(path, "o2") as other:
-        fmu.initialize(0.0)
-        other.initialize(0.0)
-        _drive(fmu, 21, 9, H)
-        state = fmu.get_state()
-        blob = fmu.serialize(state)
-        guid, _ = _layout(blob)
-        assert guid == read_model_description(str(path)).guid
-        first = _drive(fmu, 22, 15, H)
-        fmu.set_state(state)                                     # in memory, same instance
-        assert _drive(fmu, 22, 15, H).tobytes() == first.tobytes()
-        reused = fmu.slave.deSerializeFMUstate(blob, state=state)  # into the reused state
-        fmu.set_state(reused)
-        assert _drive(fmu, 22, 15, H).tobytes() == first.tobytes()
-        other.set_state(other.deserialize(blob))                 # bytes, another instance
-        assert _drive(other, 22, 15, H).tobytes() == first.tobytes()
-        other.set_state(state)                                   # memory, another instance
-        assert _drive(other, 22, 15, H).tobytes() == first.tobytes()
-        again = other.get_state()
-        assert other.serialize(again) == fmu.serialize(fmu.get_state())  # both at the same point
-        fmu.slave.freeFMUstate(state)
-
+# -- (c) a state taken in initialisation mode (valid round trips of running states: test_conformance.py) ---
 
 def test_a_state_taken_in_initialisation_mode_round_trips(cards, fmus):
     """A pending h_prev0 (not yet checked) travels with the state and is checked where it is taken."""

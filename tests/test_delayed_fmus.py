@@ -1,6 +1,6 @@
 """Issue 18, the FMUs of seed 001: the delayed UIO with parameter identification and its plant.
 
-Everything here is real: the problem below (the paper's example) is designed, both FMUs are built with
+Everything here is real: the paper's example (``conftest.DELAYED_EXAMPLE``) is designed, both FMUs are built with
 pythonfmu (the C backend has no kernel for either, and ``--backend c`` says so), run by our master and by
 ecospy, and compared with the reference runtimes (:class:`uiofmu.runtime.delayed.DelayedRuntime`,
 :class:`uiofmu.runtime.parametric_plant.ParametricPlantRuntime`).
@@ -8,7 +8,9 @@ ecospy, and compared with the reference runtimes (:class:`uiofmu.runtime.delayed
 Runs are short: the observer integrates ~20 RK4 substeps per 1 ms communication step (about 4 ms of
 wall time per step). The example's delay is 0.5 s, so its estimates become valid only after 0.5 s of
 simulated time; the tests that compare over 300 steps of 1 ms use the same problem with a delay of
-0.1 s (``SHORT``) so that the delay buffer is full and the estimates valid inside the run.
+0.1 s (``conftest.DELAYED_SHORT``) so that the delay buffer is full and the estimates valid inside the run;
+what every observer FMU owes (its runtime on random steps, state round trips, refusals of NaN inputs and of
+steps too long) is checked on that one by tests/test_conformance.py.
 """
 
 from __future__ import annotations
@@ -19,39 +21,11 @@ import math
 import numpy as np
 import pytest
 
+from conftest import DELAYED_EXAMPLE as EXAMPLE
+from conftest import DELAYED_SHORT as SHORT
 from conftest import run_cli
 from importers import ecospy_equals_master
 
-#: The paper's example (Fouka et al.), as in issue 18.
-EXAMPLE = """\
-name = "fouka-example"
-[plant]
-time = "continuous"
-A = [[-30.0, 12.0, -20.0], [-50.0, -13.0, 0.0], [10.0, 2.0, -14.0]]
-B = [[1.5], [0.0], [2.0]]
-C = [[1.0, 0.0, 0.0], [0.0, 1.0, -2.0]]
-[plant.parameters]
-theta = [1.0, 2.0, 0.5]
-[[plant.parameters.Dy]]
-output = 1
-D = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]
-[[plant.parameters.Dy]]
-output = 2
-D = [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
-[observer]
-family = "delayed-uio"
-delays = [0.5]
-decay = 1.0
-premise = { signals = "u", count = 6, samples = 300, seed = 1 }
-[signals]
-u = [[{kind = "sine", amplitude = 20.0, frequency_hz = 0.5},
-      {kind = "sine", amplitude = 10.0, frequency_hz = 1.3},
-      {kind = "sine", amplitude = 5.0, frequency_hz = 3.1}]]
-"""
-#: The same problem with a delay of 0.1 s: valid estimates within 0.3 s.
-#: The example with a delay of 0.1 s, valid from it (premise.start = tau: the start-up transient designed in), so that
-#: runs of 0.3 s have valid estimates.
-SHORT = EXAMPLE.replace("delays = [0.5]", "delays = [0.1]").replace("seed = 1 }", "seed = 1, start = 0.1 }")
 H = 1e-3
 STEPS = 300
 
@@ -63,10 +37,11 @@ def _cli(*argv):
 
 
 @pytest.fixture(scope="module")
-def built(tmp_path_factory):
+def built(tmp_path_factory, observer_fmus):
     """Both problems designed, and their observer and plant FMUs built by the command line with the default
     backend: ``{"example": {...}, "short": {...}}`` with ``toml``, ``card``, ``obs``, ``plant`` and the
-    command lines' output ``build_out``, ``plant_out``."""
+    command lines' output ``build_out``, ``plant_out``; ``SHORT``'s card and observer are conftest's
+    ``delayed_card`` and its FMU (once per session, the ones tests/test_conformance.py runs)."""
     root = tmp_path_factory.mktemp("delayed_fmus")
     out = {}
     for key, text in (("example", EXAMPLE), ("short", SHORT)):
@@ -75,8 +50,12 @@ def built(tmp_path_factory):
         paths = {"toml": folder / "problem.toml", "card": folder / "card.json", "obs": folder / "observer.fmu",
                  "plant": folder / "plant.fmu"}
         paths["toml"].write_text(text, encoding="utf-8")
-        _cli("design", paths["toml"], "-o", paths["card"])
-        paths["build_out"] = _cli("build", paths["card"], "-o", paths["obs"]).out
+        if key == "short":
+            card, paths["obs"] = observer_fmus("delayed_card", "python")
+            card.write(paths["card"])
+        else:
+            _cli("design", paths["toml"], "-o", paths["card"])
+            paths["build_out"] = _cli("build", paths["card"], "-o", paths["obs"]).out
         paths["plant_out"] = _cli("plant", paths["toml"], "-o", paths["plant"]).out
         out[key] = paths
     return out
@@ -216,25 +195,6 @@ def test_fmu_state_with_a_full_delay_buffer(built):
         assert "buffer" in log and "refused" in log, log
         np.testing.assert_array_equal(np.concatenate([fmu.get(name) for name in OUTPUTS]), before)
         fmu.set_state(after_state)                          # the FMU still works
-
-
-def test_nan_ydot_is_refused_with_an_error_and_a_log_line(built):
-    from uiofmu.cosim.fmi import Fmu, FmuCallError
-
-    short = built["short"]
-    with Fmu(short["obs"], "observer") as fmu:
-        fmu.initialize(0.0)
-        fmu.set("y", [0.1, 0.2])
-        fmu.set("u", [1.0])
-        fmu.set("ydot", [math.nan, 0.0])
-        start = len(fmu.messages)
-        with pytest.raises(FmuCallError) as info:
-            fmu.step(0.0, H)
-        assert info.value.status == 3
-        log = " ".join(fmu.messages[start:])
-        assert "ydot[1] = nan" in log and "not finite" in log, log
-        fmu.set("ydot", [0.0, 0.0])                         # nothing changed: the step goes through now
-        fmu.step(0.0, H)
 
 
 def test_plant_fmu_equals_the_runtime(built):

@@ -321,7 +321,7 @@ def run_child(tmp_path, scenario: str, args: dict, allow_crash: bool = False):
 
 
 @pytest.fixture(scope="module")
-def fmus(building_card, building_path, tmp_path_factory):
+def fmus(building_card, building_path, observer_fmus, tmp_path_factory):
     """The building observer (interval schedule) and, with the same ports, its 'nearest' variant;
     the building's linear plant; the MuJoCo quarter-car plant. All pythonfmu."""
     card, _ = building_card
@@ -329,7 +329,7 @@ def fmus(building_card, building_path, tmp_path_factory):
     data = json.loads(card.to_json())
     data["schedule"]["step_policy"] = "nearest"
     problem = uiofmu.load_problem(building_path)
-    return {"obs": str(build_observer(card, d / "obs.fmu", backend="python")),
+    return {"obs": str(observer_fmus("building_card", "python")[1]),
             "obs_nearest": str(build_observer(card_from_data(data), d / "obs_nearest.fmu", backend="python")),
             "plant": str(build_plant(problem.plant, problem.name, d / "plant.fmu", backend="python")),
             "mj": str(build_mujoco_plant(load_spec(QUARTER_CAR), d / "mj.fmu"))}
