@@ -97,14 +97,14 @@ print(json.dumps(results))
 
 def checklist_files(section: str, steps: tuple) -> set:
     """The file each of ``steps`` of the checklist ``section`` of ``docs/contributing.md`` names first,
-    with ``<name>`` read as the scratch family's module."""
+    with ``<module>`` read as the scratch family's module."""
     text = (ROOT / "docs" / "contributing.md").read_text()
     body = text.split(f"### {section}\n", 1)[1].split("\n### ", 1)[0]
     files = set()
     for step in steps:
         item = re.search(rf"^{step}\. `([^`]+)`", body, re.M)
         assert item, f"step {step} of {section!r} names no file"
-        files.add(item.group(1).replace("<name>", MODULE))
+        files.add(item.group(1).replace("<module>", MODULE))
     return files
 
 
