@@ -6,8 +6,8 @@ module in :mod:`uiofmu.families`), the command line's help, the FMU catalogue's 
 (:data:`uiofmu.catalogue.FAMILIES`) and the random campaign's families
 (:data:`uiofmu.families.random_plants.FAMILY_CODES`). An entry names the runtime kernel of its cards
 (:mod:`uiofmu.runtime.kernels`) and the plant kinds its designs accept (:mod:`uiofmu.plant_kinds`). A new
-family adds one entry here and its module (see the README, "How to add a family"). This module imports
-nothing, so the runtime copy inside FMUs carries it along with the card schema.
+family adds one entry here and its module (the checklist "A family" of ``docs/contributing.md``). This module
+imports nothing, so the runtime copy inside FMUs carries it along with the card schema.
 """
 
 from __future__ import annotations
