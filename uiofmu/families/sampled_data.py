@@ -784,32 +784,25 @@ def _interval_diagnosis(samples, C, t, intervals, alpha: float) -> str:
 
 def _attempts(samples, C, t, plant, gain_cap: float | None = None):
     """The LMI systems a design tries, in order, each built when it is tried, with the map from its
-    point to the stored matrices: for ``p = q``, Corollary 2 on ``ker C`` first (exact there, in
-    ``n - p`` unknowns; :func:`_reduced_lmis`): its optimal overshoot is at most the full LMIs', in the
-    plant's own coordinates, and CLARABEL resolves its margins where the full LMIs' drown in the gains'
-    scale (a campaign plant whose full LMIs certify only alpha = 2.9e-6 gets 0.0916 of the limit 0.0919
-    there); then (15)-(16) in the balanced coordinates of :mod:`uiofmu.scaling`. With ``gain_cap`` only the
-    latter, capped: the reduced LMIs leave the gains to a formula.
+    point to the stored matrices; each is a reduction of (15)-(16). For ``p = q``, Corollary 2 on
+    ``ker C`` first (:class:`KerC`, exact there, in ``n - p`` unknowns): its optimal overshoot is at most
+    the full LMIs', in the plant's own coordinates, and CLARABEL resolves its margins where the full
+    LMIs' drown in the gains' scale (a campaign plant whose full LMIs certify only alpha = 2.9e-6 gets
+    0.0916 of the limit 0.0919 there); then (15)-(16) in the balanced coordinates
+    (:class:`uiofmu.scaling.StateScaling`). With ``gain_cap`` only the latter, capped: the reduced LMIs
+    leave the gains to a formula.
 
     Yields
     ------
     (str, LmiSystem, callable)
         The design method, its system (``certify`` set) and the map to the stored matrices.
     """
-    def full():
-        scaling = StateScaling(t)
-        system, inverse = scaling.apply(PlantLmis(lambda steps, Cs: _lmis(steps, Cs, gain_cap), samples, C))
-        return system, lambda v: observer_matrices(scaling.invert(v, inverse), samples, C)
-
-    def on_ker_c():
-        system, inverse = KerC().apply((samples, C))
-        return system, lambda v: observer_matrices(KerC().invert(v, inverse), samples, C)
-
-    attempts = [("lmi", full)]
+    attempts = [("lmi", StateScaling(t), PlantLmis(lambda steps, Cs: _lmis(steps, Cs, gain_cap), samples, C))]
     if plant.p == plant.q and plant.n > plant.p and gain_cap is None:
-        attempts.insert(0, ("lmi on ker C (p = q)", on_ker_c))
-    for method, build in attempts:
-        system, matrices_at = build()
+        attempts.insert(0, ("lmi on ker C (p = q)", KerC(), (samples, C)))
+    for method, reduction, lmis in attempts:
+        system, inverse = reduction.apply(lmis)
+        matrices_at = lambda v, r=reduction, inv=inverse: observer_matrices(r.invert(v, inv), samples, C)  # noqa: E731
         system.certify = lambda v, prm, at=matrices_at: all(c.holds for c in checks(at(v), np.sqrt(prm["c"])))
         system.figure = lambda v, at=matrices_at: overshoot(list(at(v)["Pl"]))
         yield method, system, matrices_at
