@@ -247,7 +247,7 @@ def test_scaling_maps_the_lmis_by_congruence():
     """An LMI point of the scaled coordinates, mapped back, gives the plant's LMI matrices
     ``D' F D`` with ``D = diag(T^-1, T^-1)``: feasibility is the same in both coordinates."""
     from uiofmu.families import sampled_data as sd
-    from uiofmu.scaling import scaled_output, scaled_step, state_scaling
+    from uiofmu.scaling import PlantLmis, StateScaling, state_scaling
 
     plant = problem_from_data({"name": "p", "plant": _badly_scaled(DC_MOTOR, [0, 3, -2]),
                                "observer": {"family": "sampled-data", "intervals": [0.01, 0.02]}}).plant
@@ -262,11 +262,12 @@ def test_scaling_maps_the_lmis_by_congruence():
         values[f"S{i}"] = rng.standard_normal((3, 2))
         for j in range(2):
             values[f"Q{i}_{j}"] = rng.standard_normal((3, 2))
-    scaled = sd._lmis([scaled_step(s, t) for s in samples], scaled_output(plant.C, t))
+    scaling = StateScaling(t)
+    scaled, inverse = scaling.apply(PlantLmis(sd._lmis, samples, plant.C))
     plain = sd._lmis(samples, plant.C)
     prm = {"c": 0.9}
     Ti = np.diag(1.0 / t)
-    for ms, mp in zip(scaled.evaluate(values, prm), plain.evaluate(sd.in_plant_coordinates(values, t), prm)):
+    for ms, mp in zip(scaled.evaluate(values, prm), plain.evaluate(scaling.invert(values, inverse), prm)):
         if ms.name.startswith("(15)"):
             D = np.kron(np.eye(2), Ti)
             np.testing.assert_allclose(np.asarray(mp.matrix), D.T @ np.asarray(ms.matrix) @ D,

@@ -215,7 +215,9 @@ class LmiSystem:
     name : str
         Shown in messages (e.g. ``"my-family decay"``).
     variables : dict
-        ``name -> ("symmetric", n) | ("matrix", (rows, cols)) | ("scalar",)``.
+        ``name -> ("symmetric", n) | ("matrix", (rows, cols)) | ("scalar",)``, with how the variable maps
+        back under a change of coordinates as an optional last element (:mod:`uiofmu.reductions`:
+        ``symmetric(n)``, ``matrix(shape)``, ``scalar(role)``).
     parameters : dict
         ``name -> initial value`` of the scalar tunables (nonnegative).
     build : callable
@@ -246,7 +248,7 @@ class LmiSystem:
         in this system's variables. :meth:`solve` then solves once more there when the solver gave
         no proof of infeasibility, and re-checks the mapped point here, in these coordinates; when
         it verifies, later solves start in the new coordinates. Only a failed solve costs the extra
-        solve.
+        solve. :meth:`uiofmu.reductions.Recentring.frame` is one.
     figure : callable, optional
         ``figure(values) -> float``: the figure a card reads off a point (its overshoot), which
         :meth:`least_at_margin` reproduces before it counts as the problem's; the objective without it.

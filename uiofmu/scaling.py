@@ -15,6 +15,11 @@ coordinates exactly when feasible in the other. Only the normalisation (``Xs >= 
 ``X >= T^-T T^-1``) and the numbers the solver sees change. The card's matrices are always in
 the plant's coordinates, and the certificate is re-checked there.
 
+The change is the reduction :class:`StateScaling` (:mod:`uiofmu.reductions`): ``apply`` builds the
+LMIs of the scaled plant, ``invert`` maps their point back, each variable as it declares
+(:data:`~uiofmu.reductions.LYAPUNOV` by congruence, :data:`~uiofmu.reductions.PRODUCT` from the left,
+:data:`~uiofmu.reductions.UPPER_BOUND` by ``eig_max(T^-T T^-1)``, scalars unchanged).
+
 ``t`` is the diagonal balancing of ``A`` (the scaling of LAPACK's ``gebal``, which MATLAB's
 ``balance`` uses): powers of two, so the scaling itself is exact in floating point, divided by
 the largest so that 1 is the largest entry. A plant whose rows and columns are already
@@ -23,9 +28,12 @@ balanced gets ``t = 1`` and the design it had without scaling.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
+
+from .reductions import CongruenceData, DiagonalCongruence, Reduction, congruent, roles
 
 #: The values of ``observer.scaling``: balance the states (default), or design as given.
 SCALINGS = ("balance", "none")
@@ -68,16 +76,51 @@ def scaled_output(C, t):
     return np.asarray(C, dtype=float) * np.asarray(t, dtype=float)[None, :]
 
 
-def lyapunov_back(Xs, t):
-    """``T^-T Xs T^-1`` (a Lyapunov matrix of the scaled coordinates in the plant's)."""
-    t = np.asarray(t, dtype=float)
-    return np.asarray(Xs, dtype=float) / np.outer(t, t)
+@dataclass(frozen=True)
+class PlantLmis:
+    """A family's LMIs over a plant, the problem :class:`StateScaling` accepts.
+
+    Attributes
+    ----------
+    make : callable
+        ``make(steps, C) -> LmiSystem``: the LMIs of the sampled steps and the output matrix.
+    steps : list of Sampled
+        The plant over each step (:class:`uiofmu.plant.Sampled`), in the plant's coordinates.
+    C : (p, n) array
+    """
+
+    make: Callable
+    steps: list
+    C: np.ndarray
 
 
-def product_back(Ws, t):
-    """``T^-T Ws`` (a product ``X K`` of the scaled coordinates in the plant's)."""
-    t = np.asarray(t, dtype=float)
-    return np.asarray(Ws, dtype=float) / t[:, None]
+@dataclass(frozen=True)
+class StateScaling(Reduction):
+    """The change of coordinates ``x = diag(t) xs`` of the LMIs of a plant (see the module docstring).
+
+    Parameters
+    ----------
+    t : (n,) array
+        The diagonal of ``T`` (:func:`state_scaling`).
+    """
+
+    t: np.ndarray
+
+    def coordinates(self, steps, C) -> tuple:
+        """The steps and the output matrix in the scaled coordinates: ``T^-1 A T``, ``T^-1 B``,
+        ``T^-1 E``, ``T^-1 w`` and ``C T``."""
+        return [scaled_step(s, self.t) for s in steps], scaled_output(C, self.t)
+
+    def apply(self, problem: PlantLmis) -> tuple:
+        """``(system, inverse_data)``: the LMIs of the scaled plant, and the congruence ``T^-1`` with the roles
+        its variables declare."""
+        system = problem.make(*self.coordinates(problem.steps, problem.C))
+        return system, CongruenceData(DiagonalCongruence(np.asarray(self.t, dtype=float)), roles(system.variables))
+
+    def invert(self, values: dict, inverse_data: CongruenceData) -> dict:
+        """A point of the scaled coordinates in the plant's: ``T^-T Xs T^-1`` for a Lyapunov matrix,
+        ``T^-T Ws`` for a product ``X K`` (whose gain ``K = T Ks`` maps back by itself)."""
+        return congruent(values, inverse_data)
 
 
 def to_data(t, kind: str) -> dict:
@@ -85,3 +128,6 @@ def to_data(t, kind: str) -> dict:
     return {"kind": kind, "state": np.asarray(t, dtype=float).tolist(),
             "rule": "the LMIs were solved in the coordinates xs = diag(state)^-1 x; the matrices are "
                     "in the plant's coordinates"}
+
+
+__all__ = ["PlantLmis", "SCALINGS", "StateScaling", "scaled_output", "scaled_step", "state_scaling", "to_data"]

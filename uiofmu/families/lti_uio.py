@@ -62,13 +62,8 @@ from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list, from_pairs
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..gains import cap_lmis
-from ..scaling import (
-    SCALINGS,
-    lyapunov_back,
-    product_back,
-    scaled_output,
-    state_scaling,
-)
+from ..reductions import UPPER_BOUND, matrix, scalar, symmetric
+from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
 from ..structure import decay_gain
 from ..runtime.tolerances import SEARCH_TOL, ZERO_MARGIN
@@ -179,9 +174,9 @@ def _lmis(PA, C, gain_cap: float | None = None):
             *capped,
         ]
 
-    variables = {"X": ("symmetric", n), "W": ("matrix", (n, p)), "t": ("scalar",)}
+    variables = {"X": symmetric(n), "W": matrix((n, p)), "t": scalar(UPPER_BOUND)}
     if gain_cap is not None:
-        variables["s"] = ("scalar",)
+        variables["s"] = scalar()
     return LmiSystem(f"{NAME} decay", variables, {"rho2": 0.98}, build, objective=lambda v: v["t"], homogeneous=True)
 
 
@@ -315,31 +310,33 @@ def _runtime(s, C, M, X, K) -> dict:
             "E_sampled": s.E, "w_sampled": s.w}
 
 
-def _lmi_runtime(s, C, M, t, values: dict) -> dict:
-    """:func:`_runtime` of an LMI point of the coordinates scaled by ``t``."""
-    X = lyapunov_back(values["X"], t)
-    return _runtime(s, C, M, X, np.linalg.solve(0.5 * (X + X.T), product_back(values["W"], t)))
+def _lmi_runtime(s, C, M, values: dict) -> dict:
+    """:func:`_runtime` of an LMI point in the plant's coordinates (``X`` and ``W = X K``)."""
+    X = values["X"]
+    return _runtime(s, C, M, X, np.linalg.solve(0.5 * (X + X.T), values["W"]))
 
 
 def _tuned(s, C, M, t, largest: float, opts: Options, name: str) -> tuple[Tuned, str, LmiSystem]:
     """The decay and its certificate by the requested method (see the module docstring), and
-    the LMI system (solved in the coordinates scaled by ``t``, :mod:`uiofmu.scaling`): a point is
-    accepted only where the certificate's checks at the runtime's matrices hold too."""
+    the LMI system (solved in the coordinates scaled by ``t``, :class:`uiofmu.scaling.StateScaling`): a point
+    is accepted only where the certificate's checks at the runtime's matrices hold too."""
     PA = (np.eye(len(M)) + M @ C) @ s.A
-    system = _lmis(PA * t[None, :] / t[:, None], scaled_output(C, t), opts.gain_cap)
-    system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(s, C, M, t, v),
+    scaling = StateScaling(t)
+    system, inverse = scaling.apply(PlantLmis(lambda steps, Cs: _lmis(steps[0].A, Cs, opts.gain_cap),
+                                              [replace(s, A=PA)], C))
+    back = lambda v: scaling.invert(v, inverse)                    # noqa: E731
+    system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(s, C, M, back(v)),
                                                                     float(np.sqrt(prm["rho2"]))))
-    system.figure = lambda v: overshoot(lyapunov_back(v["X"], t))
+    system.figure = lambda v: overshoot(back(v)["X"])
     if opts.method == "riccati":
         return _riccati(PA, C, float(opts.decay)), "riccati", system
     try:
         tuned = tune(system, "rho2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
                      safe_end=1.0, tol=SEARCH_TOL, label=f"{name}: fastest decay", transform=lambda r: r * r,
                      name="decay", diagnose=opts.method == "lmi")
-        v = tuned.solution.values
-        back = {**v, "X": lyapunov_back(v["X"], t), "W": product_back(v["W"], t)}
-        back["K"] = _lmi_runtime(s, C, M, t, v)["K"]
-        return replace(tuned, solution=replace(tuned.solution, values=back)), "lmi", system
+        values = back(tuned.solution.values)
+        values["K"] = _lmi_runtime(s, C, M, values)["K"]
+        return replace(tuned, solution=replace(tuned.solution, values=values)), "lmi", system
     except InfeasibleError as exc:
         if opts.method == "lmi" or opts.gain_cap is not None:       # the Riccati gain knows no cap
             raise

@@ -32,7 +32,7 @@ unknown inputs (``p = q``) there is more: ``K_i`` is forced, ``ker C`` is invari
 ``L_ij`` whatever its other gains, and the error there evolves by fixed maps ``F_i``
 (:func:`fixed_error_maps`); when a repeated sequence of intervals multiplies it by 1 or more per
 sample, no exactly-decoupling observer converges for every sequence, and :func:`check` says which.
-Corollary 2 reduces exactly to ``ker C`` there (:func:`_reduced_lmis`), written in increment form
+Corollary 2 reduces exactly to ``ker C`` there (:class:`KerC`, :func:`_reduced_lmis`), written in increment form
 (the decrease ``(1 - alpha) P_j - F_i' P_i F_i`` as an explicit block, which near the limit the Schur
 form loses in the solver's cancellation) and recentred on a refused point when its Lyapunov
 matrices are too ill-conditioned for the solver's tolerance; :func:`check` proves that no
@@ -76,14 +76,8 @@ from ..runtime.errors import InfeasibleError, ProblemError
 from ..structure import kernel_maps, product_radius
 from ..existence import Condition, Existence, complex_list, from_pairs
 from ..lmi import Lmi, LmiSystem, tune
-from ..scaling import (
-    SCALINGS,
-    lyapunov_back,
-    product_back,
-    scaled_output,
-    scaled_step,
-    state_scaling,
-)
+from ..reductions import UPPER_BOUND, Recentring, Reduction, matrix, scalar, symmetric
+from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
 from ..runtime.schedules import STEP_POLICIES
 from ..runtime.tolerances import (
@@ -307,7 +301,7 @@ def _reduced_lmis(F, recentre: bool = True) -> LmiSystem:
     ``P_i`` with ``F_i' P_i F_i < (1 - alpha) P_j`` for all ``i, j``, ``I <= P_i <= mu I``.
 
     Exact for ``p = q``: every certificate of (15)-(16), restricted to ``ker C``, is one of these,
-    and each of these gives one of (15)-(16) (:func:`structural_variables`). Infeasible here
+    and each of these gives one of (15)-(16) (:meth:`KerC.invert`). Infeasible here
     means that no observer of this family can be certified for the intervals.
 
     Each pair is written in increment form, the Schur form ``[[P_i, P_i F_i], [*, (1 - alpha) P_j]]``
@@ -316,7 +310,7 @@ def _reduced_lmis(F, recentre: bool = True) -> LmiSystem:
     which near the limit is a tiny difference of two large matrices, becomes an explicit block
     instead of the solver's cancellation. With ``recentre``, a point the re-check refuses is
     solved again in the coordinates where its mean Lyapunov matrix is the identity
-    (:func:`_recentred_ker_c`).
+    (:func:`_recentring`).
     """
     N, m = len(F), F[0].shape[0]
     G = [np.eye(m) - f for f in F]
@@ -333,9 +327,9 @@ def _reduced_lmis(F, recentre: bool = True) -> LmiSystem:
                                _increment_lmi(P, Y, prm["c"] * v[f"P{j}"], ops)))
         return out
 
-    variables = {"mu": ("scalar",), **{f"P{i}": ("symmetric", m) for i in range(N)}}
+    variables = {"mu": scalar(UPPER_BOUND), **{f"P{i}": symmetric(m) for i in range(N)}}
     return LmiSystem(f"{NAME} (15) on ker C", variables, {"c": 0.99}, build, objective=lambda v: v["mu"],
-                     homogeneous=True, recentre=(lambda values: _recentred_ker_c(F, values)) if recentre else None)
+                     homogeneous=True, recentre=_recentring(F, variables).frame if recentre else None)
 
 
 #: Most recentrings of :func:`best_margin` (it stops earlier once its coordinates settle).
@@ -352,7 +346,7 @@ def best_margin(F, c: float) -> tuple:
     exist exactly when its ``t > 0`` (the LMIs are homogeneous; the sign does not depend on the
     coordinates). Near the edge its optimal ``P_i`` are ill-conditioned and ``t`` is lost in
     the solver's tolerance, so it is solved again in the coordinates where the mean of the last
-    ``P_i`` is the identity (as :func:`_recentred_ker_c`), until they settle (``eig_max / eig_min``
+    ``P_i`` is the identity (as :func:`_recentring`), until they settle (``eig_max / eig_min``
     of that mean below 1.01) or after :data:`MARGIN_RECENTRINGS` solves.
 
     Returns
@@ -401,35 +395,16 @@ def best_margin(F, c: float) -> tuple:
     return t, status, MARGIN_RECENTRINGS
 
 
-def _recentred_ker_c(F, values: dict):
+def _recentring(F, variables: dict) -> Recentring:
     """The LMIs of :func:`_reduced_lmis` in the coordinates ``xi = P0^(1/2) e`` of ``ker C``, ``P0``
-    the mean of a point's ``P_i`` scaled to ``eig_min(P0) = 1``: maps ``P0^(1/2) F_i P0^(-1/2)``,
-    whose Lyapunov matrices near that point are near the identity, so that the solver's relative
-    tolerance resolves all of their directions (a point of :func:`_reduced_lmis` may need
-    ``mu`` of 1e4 in the plant's coordinates where these need 2).
-
-    Returns
-    -------
-    tuple or None
-        ``(system, back)`` for :attr:`uiofmu.lmi.LmiSystem.recentre`: ``back`` maps a point to
-        ``P_i = P0^(1/2) Pt_i P0^(1/2)`` and ``mu = mut eig_max(P0)``, which satisfies every LMI
-        here with at least the margin it had there (``P0 >= I``); None when the mean is not
-        positive definite.
+    the mean of a point's ``P_i`` scaled to ``eig_min(P0) = 1`` (:class:`uiofmu.reductions.Recentring`):
+    maps ``P0^(1/2) F_i P0^(-1/2)``, whose Lyapunov matrices near that point are near the identity, so
+    that the solver's relative tolerance resolves all of their directions (a point of
+    :func:`_reduced_lmis` may need ``mu`` of 1e4 in the plant's coordinates where these need 2). Its
+    points map back to ``P_i = P0^(1/2) Pt_i P0^(1/2)`` and ``mu = mut eig_max(P0)``, which satisfy
+    every LMI there with at least the margin they had here (``P0 >= I``).
     """
-    P0 = sum(0.5 * (np.asarray(values[f"P{i}"]) + np.asarray(values[f"P{i}"]).T) for i in range(len(F))) / len(F)
-    w, V = np.linalg.eigh(P0)
-    if not np.all(np.isfinite(w)) or w[-1] <= 0:
-        return None
-    w = np.maximum(w, 1e-12 * w[-1])
-    w = w / w[0]
-    R, Ri = (V * np.sqrt(w)) @ V.T, (V / np.sqrt(w)) @ V.T          # P0^(1/2), P0^(-1/2)
-
-    def back(v):
-        out = {f"P{i}": R @ v[f"P{i}"] @ R for i in range(len(F))}
-        out["mu"] = np.asarray(float(v["mu"]) * w[-1])
-        return out
-
-    return _reduced_lmis([R @ f @ Ri for f in F], recentre=False), back
+    return Recentring(lambda R, Ri: _reduced_lmis([R @ f @ Ri for f in F], recentre=False), variables)
 
 
 def _increment_lmi(P, Y, Pj, ops):
@@ -444,27 +419,41 @@ def _increment_lmi(P, Y, Pj, ops):
     return ops.bmat([[P, -Y], [-Y.T, Pj - P + Y + Y.T]])
 
 
-def structural_variables(v: dict, samples, C) -> dict:
-    """The variables of (15)-(16) from a point of :func:`_reduced_lmis` (``p = q``).
+class KerC(Reduction):
+    """Corollary 2 on ``ker C`` when ``p = q`` (:func:`_reduced_lmis`), a reduction exact there.
 
-    ``Pl_i = N P_i N' + R R'`` (``N``, ``R`` orthonormal bases of ``ker C`` and its complement),
-    ``S_i = Pl_i K_i`` with the forced ``K_i = E_i (C E_i)^-1``, and ``Q_ij = Pl_i Abar_i C^+``
-    with ``Abar_i = (I - K_i C) A_i``: then ``L_ij = Abar_i (I - C^+ C) = N F_i N'`` and
-    ``(1 - alpha) Pl_j - L_ij' Pl_i L_ij = N ((1 - alpha) P_j - F_i' P_i F_i) N' + (1 - alpha) R R'``.
+    :meth:`apply` takes ``(samples, C)`` to the LMIs of the fixed error maps (:func:`fixed_error_maps`);
+    :meth:`invert` lifts their point to the variables of (15)-(16).
     """
-    p, n = C.shape
-    _, _, vt = np.linalg.svd(C)
-    basis, rest, Cp = vt[p:].T, vt[:p].T, np.linalg.pinv(C)
-    out = {"mu": v["mu"]}
-    for i, s in enumerate(samples):
-        K = s.E @ np.linalg.solve(C @ s.E, np.eye(p))
-        Pl = basis @ v[f"P{i}"] @ basis.T + rest @ rest.T
-        out[f"Pl{i}"] = 0.5 * (Pl + Pl.T)
-        out[f"S{i}"] = out[f"Pl{i}"] @ K
-        Q = out[f"Pl{i}"] @ ((np.eye(n) - K @ C) @ s.A) @ Cp
-        for j in range(len(samples)):
-            out[f"Q{i}_{j}"] = Q
-    return out
+
+    def apply(self, problem: tuple) -> tuple:
+        """``(system, inverse_data)`` of ``problem = (samples, C)``: :func:`_reduced_lmis` of the fixed error
+        maps, and ``(samples, C)``."""
+        samples, C = problem
+        return _reduced_lmis(fixed_error_maps(samples, C)), (samples, C)
+
+    def invert(self, values: dict, inverse_data: tuple) -> dict:
+        """The variables of (15)-(16) from a point of :func:`_reduced_lmis` (``p = q``).
+
+        ``Pl_i = N P_i N' + R R'`` (``N``, ``R`` orthonormal bases of ``ker C`` and its complement),
+        ``S_i = Pl_i K_i`` with the forced ``K_i = E_i (C E_i)^-1``, and ``Q_ij = Pl_i Abar_i C^+``
+        with ``Abar_i = (I - K_i C) A_i``: then ``L_ij = Abar_i (I - C^+ C) = N F_i N'`` and
+        ``(1 - alpha) Pl_j - L_ij' Pl_i L_ij = N ((1 - alpha) P_j - F_i' P_i F_i) N' + (1 - alpha) R R'``.
+        """
+        samples, C = inverse_data
+        p, n = C.shape
+        _, _, vt = np.linalg.svd(C)
+        basis, rest, Cp = vt[p:].T, vt[:p].T, np.linalg.pinv(C)
+        out = {"mu": values["mu"]}
+        for i, s in enumerate(samples):
+            K = s.E @ np.linalg.solve(C @ s.E, np.eye(p))
+            Pl = basis @ values[f"P{i}"] @ basis.T + rest @ rest.T
+            out[f"Pl{i}"] = 0.5 * (Pl + Pl.T)
+            out[f"S{i}"] = out[f"Pl{i}"] @ K
+            Q = out[f"Pl{i}"] @ ((np.eye(n) - K @ C) @ s.A) @ Cp
+            for j in range(len(samples)):
+                out[f"Q{i}_{j}"] = Q
+        return out
 
 
 def _certificate_condition(samples, C, opts, limit: float, solver: bool = True) -> Condition | None:
@@ -568,14 +557,14 @@ def _lmis(samples, C, gain_cap: float | None = None):
                                        for i in range(N)], v["s"], ops)
         return out
 
-    variables = {"mu": ("scalar",)}
+    variables = {"mu": scalar(UPPER_BOUND)}
     for i in range(N):
-        variables[f"Pl{i}"] = ("symmetric", n)
-        variables[f"S{i}"] = ("matrix", (n, p))
+        variables[f"Pl{i}"] = symmetric(n)
+        variables[f"S{i}"] = matrix((n, p))
         for j in range(N):
-            variables[f"Q{i}_{j}"] = ("matrix", (n, p))
+            variables[f"Q{i}_{j}"] = matrix((n, p))
     if gain_cap is not None:
-        variables["s"] = ("scalar",)
+        variables["s"] = scalar()
     return LmiSystem(f"{NAME} (15)-(16)", variables, {"c": 0.99}, build, objective=lambda v: v["mu"],
                      homogeneous=True)
 
@@ -704,13 +693,6 @@ def figures_of(problem, card_data: dict, analysis: Analysis) -> dict:
             "eigenvalues_L_constant": spectrum(N[np.arange(len(N)), np.arange(len(N))])}
 
 
-def in_plant_coordinates(v: dict, t) -> dict:
-    """The LMI variables of the scaled coordinates (:mod:`uiofmu.scaling`) in the plant's:
-    ``Pl_i`` by congruence, ``S_i`` and ``Q_ij`` (products ``Pl K``) from the left."""
-    return {k: lyapunov_back(x, t) if k.startswith("Pl") else product_back(x, t) if k[0] in "SQ" else x
-            for k, x in v.items()}
-
-
 def observer_matrices(v: dict, samples, C) -> dict:
     """The runtime's matrices (and the certificate's) from a point of the LMIs (18)-(19).
 
@@ -777,8 +759,7 @@ def _interval_diagnosis(samples, C, t, intervals, alpha: float) -> str:
     """
     if len(samples) < 2:
         return ""
-    Cs = scaled_output(C, t)
-    steps = [scaled_step(s, t) for s in samples]
+    steps, Cs = StateScaling(t).coordinates(samples, C)
 
     def certifies(ks):
         return _lmis([steps[k] for k in ks], Cs).solve(c=1.0 - alpha).verified
@@ -803,25 +784,25 @@ def _interval_diagnosis(samples, C, t, intervals, alpha: float) -> str:
 
 def _attempts(samples, C, t, plant, gain_cap: float | None = None):
     """The LMI systems a design tries, in order, each built when it is tried, with the map from its
-    point to the stored matrices: for ``p = q``, Corollary 2 on ``ker C`` first (exact there, in
-    ``n - p`` unknowns; :func:`_reduced_lmis`): its optimal overshoot is at most the full LMIs', in the
-    plant's own coordinates, and CLARABEL resolves its margins where the full LMIs' drown in the gains'
-    scale (a campaign plant whose full LMIs certify only alpha = 2.9e-6 gets 0.0916 of the limit 0.0919
-    there); then (15)-(16) in the balanced coordinates of :mod:`uiofmu.scaling`. With ``gain_cap`` only the
-    latter, capped: the reduced LMIs leave the gains to a formula.
+    point to the stored matrices; each is a reduction of (15)-(16). For ``p = q``, Corollary 2 on
+    ``ker C`` first (:class:`KerC`, exact there, in ``n - p`` unknowns): its optimal overshoot is at most
+    the full LMIs', in the plant's own coordinates, and CLARABEL resolves its margins where the full
+    LMIs' drown in the gains' scale (a campaign plant whose full LMIs certify only alpha = 2.9e-6 gets
+    0.0916 of the limit 0.0919 there); then (15)-(16) in the balanced coordinates
+    (:class:`uiofmu.scaling.StateScaling`). With ``gain_cap`` only the latter, capped: the reduced LMIs
+    leave the gains to a formula.
 
     Yields
     ------
     (str, LmiSystem, callable)
         The design method, its system (``certify`` set) and the map to the stored matrices.
     """
-    attempts = [("lmi", lambda: _lmis([scaled_step(s, t) for s in samples], scaled_output(C, t), gain_cap),
-                 lambda v: observer_matrices(in_plant_coordinates(v, t), samples, C))]
+    attempts = [("lmi", StateScaling(t), PlantLmis(lambda steps, Cs: _lmis(steps, Cs, gain_cap), samples, C))]
     if plant.p == plant.q and plant.n > plant.p and gain_cap is None:
-        attempts.insert(0, ("lmi on ker C (p = q)", lambda: _reduced_lmis(fixed_error_maps(samples, C)),
-                            lambda v: observer_matrices(structural_variables(v, samples, C), samples, C)))
-    for method, build, matrices_at in attempts:
-        system = build()
+        attempts.insert(0, ("lmi on ker C (p = q)", KerC(), (samples, C)))
+    for method, reduction, lmis in attempts:
+        system, inverse = reduction.apply(lmis)
+        matrices_at = lambda v, r=reduction, inv=inverse: observer_matrices(r.invert(v, inv), samples, C)  # noqa: E731
         system.certify = lambda v, prm, at=matrices_at: all(c.holds for c in checks(at(v), np.sqrt(prm["c"])))
         system.figure = lambda v, at=matrices_at: overshoot(list(at(v)["Pl"]))
         yield method, system, matrices_at
