@@ -141,7 +141,7 @@ def test_card_records_where_the_design_time_went(building_path, cli, tmp_path):
     card = uiofmu.read_card(tmp_path / "b.json")
     t = card.data["timing"]
     assert t["backend"] == "direct"
-    assert t["solves"] == card.data["search"]["solves"] >= 1
+    assert t["solves"] >= card.data["search"]["solves"] >= 1      # the search's values, then the point kept
     assert 0 < t["solver_s"] and 0 < t["lmi_assembly_s"]
     assert t["solver_s"] + t["lmi_assembly_s"] < t["total_s"]
     assert card.data["search"]["seconds"] < t["total_s"]

@@ -802,8 +802,8 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
         good, bad, best, _, threshold = found
         if not best.verified:
             system.refuse(best, diagnose)
-        best, more = _settled(system, parameter, f(good), best, threshold)
-    return SearchResult(good, best, solves + more, time.perf_counter() - t0, (good, bad), name or parameter)
+        best = _settled(system, parameter, f(good), best, threshold)
+    return SearchResult(good, best, solves, time.perf_counter() - t0, (good, bad), name or parameter)
 
 
 def _passes(sol: LmiSolution, threshold: float) -> bool:
@@ -892,16 +892,16 @@ def held_margin(solution: LmiSolution, threshold: float | None = None) -> float 
 
 
 def _settled(system: LmiSystem, parameter: str, value: float, decided: LmiSolution,
-             threshold: float) -> tuple[LmiSolution, int]:
+             threshold: float) -> LmiSolution:
     """The point a search keeps at the value it found: the least objective at half the search's threshold
     (:meth:`LmiSystem.least_at_margin`, an optimum the problem determines) when that certifies, else the
-    point of largest margin that decided the value; and the number of extra solves."""
+    point of largest margin that decided the value. Its solves are the system's (the card's ``timing``),
+    not the search's: those count the values decided, the same on every machine."""
     held = held_margin(decided, threshold)
     if held is None:
-        return decided, 0
-    before = system.solves
+        return decided
     sol = system.least_at_margin(held, **{parameter: value})
-    return (sol if sol.verified else decided), system.solves - before
+    return sol if sol.verified else decided
 
 
 @dataclass(frozen=True)
