@@ -363,10 +363,11 @@ class LmiSystem:
         return self._recentring(self._margin_in, parameters)
 
     def least_at_margin(self, held: float, **parameters) -> LmiSolution:
-        """The least objective with the margin held at ``held``, scaled to the normalisations and re-checked.
+        """The least objective with the margin held at ``held``, re-checked.
 
-        The problem of :meth:`largest_margin` with ``t`` held (``held`` is relative to the mean eigenvalue
-        of the normalised matrices, as :attr:`LmiSolution.relative_margin`) and the system's own objective
+        The problem of :meth:`largest_margin` with its normalisations' constants kept (``X >= I``), every
+        strict LMI ``>= t I`` with ``t`` held at ``held`` times the mean eigenvalue of the normalised
+        matrices (relative, as :attr:`LmiSolution.relative_margin`), and the system's own objective
         (the least overshoot) minimised: as well scaled as the largest margin, and its optimum, unlike the
         point a plain solve stops at next to the edge, is determined by the problem. A ``"max"`` search
         keeps this point at the value it found, with half the margin it decided that value by.
@@ -712,7 +713,11 @@ class LmiSystem:
 
 @dataclass(frozen=True)
 class SearchResult:
-    """The outcome of :func:`search`: the best verified value and its solution."""
+    """The outcome of :func:`search`: the best verified value and its solution.
+
+    ``solves`` counts the values the search decided (not the solves of the point kept at the end, which the
+    system's ``solves`` include); ``bracket`` is the best value and the nearest refused one.
+    """
 
     value: float
     solution: LmiSolution
