@@ -159,8 +159,8 @@ def overshoot(lyapunov) -> float:
 FIGURE_DIGITS, UNDETERMINED = 4, 0
 
 #: Significant digits of a figure read off the least objective at a held margin and reproduced to
-#: :data:`~uiofmu.runtime.tolerances.HELD_AGREEMENT` (a rounding boundary within that of the value is a chance
-#: of about 1 %).
+#: :data:`~uiofmu.runtime.tolerances.HELD_AGREEMENT` (the last digit is then the problem's unless the value sits
+#: within that agreement of a rounding boundary).
 HELD_FIGURE_DIGITS = 2
 
 

@@ -39,6 +39,9 @@ from .runtime.tolerances import (
     MARGIN_DECISION_RTOL,
     MARGIN_SOLVER_TOL,
     POINT_RTOL,
+    MARGIN_AGREEMENT,
+    MARGIN_NEAR,
+    MARGIN_PROBE,
     SEARCH_MARGIN_CAP,
     SEARCH_MARGIN_FRACTION,
     SEARCH_RESOLUTION,
@@ -375,8 +378,9 @@ class LmiSystem:
         Whether CLARABEL reached that optimum is not read off its word (``optimal`` or
         ``optimal_inaccurate`` moved with the BLAS kernel, on answers equal to 1e-5 and on answers 40 %
         apart alike): the problem is solved once more with the margin held
-        :data:`~uiofmu.runtime.tolerances.HELD_PROBE` higher, and the point's figure (:attr:`figure`, else
-        the objective) is reproduced when the two agree to :data:`~uiofmu.runtime.tolerances.HELD_AGREEMENT`.
+        :data:`~uiofmu.runtime.tolerances.HELD_PROBE` higher (lower, where CLARABEL gives up on that one), and
+        the point's figure (:attr:`figure`, else the objective) is reproduced when the two agree to
+        :data:`~uiofmu.runtime.tolerances.HELD_AGREEMENT`.
 
         Returns
         -------
@@ -389,12 +393,13 @@ class LmiSystem:
         sol = self._held_once(held, parameters)
         if not sol.verified:
             return sol
-        again = self._held_once(held * (1.0 + HELD_PROBE), parameters)
-        if not again.verified:
-            return sol
-        a, b = self._figure_of(sol), self._figure_of(again)
-        same = np.isfinite(a) and np.isfinite(b) and abs(a - b) <= HELD_AGREEMENT * max(abs(a), abs(b))
-        return replace(sol, status=f"{sol.status}, {REPRODUCED}") if same else sol
+        for probe in (HELD_PROBE, -HELD_PROBE):         # a second try where CLARABEL gave up on the first
+            again = self._held_once(held * (1.0 + probe), parameters)
+            if again.verified:
+                a, b = self._figure_of(sol), self._figure_of(again)
+                same = np.isfinite(a) and np.isfinite(b) and abs(a - b) <= HELD_AGREEMENT * max(abs(a), abs(b))
+                return replace(sol, status=f"{sol.status}, {REPRODUCED}") if same else sol
+        return sol
 
     def _figure_of(self, sol: LmiSolution) -> float:
         """The figure :meth:`least_at_margin` compares: :attr:`figure` of the point, else its objective."""
@@ -817,6 +822,23 @@ def _passes(sol: LmiSolution, threshold: float) -> bool:
     return sol.verified and (sol.relative_margin is None or sol.relative_margin >= threshold)
 
 
+def _judged(decide: Callable, parameter: str, value: float, threshold: float) -> LmiSolution:
+    """``decide`` at ``value``; a largest margin within a factor :data:`~uiofmu.runtime.tolerances.MARGIN_NEAR`
+    of ``threshold`` is decided once more at a value :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE` away,
+    and counts only when the two agree to :data:`~uiofmu.runtime.tolerances.MARGIN_AGREEMENT` (else the value
+    is refused: its margin is lost in the solver's rounding, which moves with the BLAS kernel). The solution
+    returned carries the smaller margin."""
+    sol = decide(**{parameter: value})
+    t = sol.relative_margin
+    if t is None or not sol.verified or not threshold / MARGIN_NEAR <= t <= MARGIN_NEAR * threshold:
+        return sol
+    again = decide(**{parameter: value * (1.0 + MARGIN_PROBE)})
+    s = again.relative_margin
+    if s is None or not np.isfinite(s) or abs(t - s) > MARGIN_AGREEMENT * max(abs(t), abs(s)):
+        return replace(sol, verified=False)
+    return replace(sol, relative_margin=min(t, s))
+
+
 def _threshold(first: LmiSolution) -> float:
     """A search's threshold from the first value that passed (see
     :data:`~uiofmu.runtime.tolerances.SEARCH_MARGIN_FRACTION`)."""
@@ -846,9 +868,10 @@ def _bisect(decide: Callable, parameter: str, f: Callable, good: float, bad: flo
     """
     step = min(tol, 0.5 * abs(good - bad))
     near = bad + (step if good > bad else -step)
-    best = decide(**{parameter: f(near)})
+    floor = SEARCH_RESOLUTION * MARGIN_DECISION_RTOL          # theory's limit, with a resolved margin
+    best = _judged(decide, parameter, f(near), floor)
     bar.update()
-    if _passes(best, SEARCH_RESOLUTION * MARGIN_DECISION_RTOL):     # theory's limit, with a resolved margin
+    if _passes(best, floor):
         return near, bad, best, 1, _threshold(best)
     bad, refused, solves = near, best, 2
     best = decide(**{parameter: f(good)})
@@ -867,7 +890,7 @@ def _bisect(decide: Callable, parameter: str, f: Callable, good: float, bad: flo
     threshold = _threshold(best)
     while abs(good - bad) > tol and not _resolved(best, refused, threshold):
         mid = 0.5 * (good + bad)
-        sol = decide(**{parameter: f(mid)})
+        sol = _judged(decide, parameter, f(mid), threshold)
         solves += 1
         bar.update()
         if _passes(sol, threshold):

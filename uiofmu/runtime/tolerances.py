@@ -49,6 +49,19 @@ HELD_PROBE = 1e-6
 #: (printed to 2 significant digits), when they differ by at most this, relative.
 HELD_AGREEMENT = 1e-3
 
+#: A ``"max"`` search decides a value whose largest margin lies within this factor of its threshold (either
+#: side) once more, at a value :data:`MARGIN_PROBE` away, and the value counts only when the two margins agree
+#: to :data:`MARGIN_AGREEMENT`: on plants whose LMIs need gains of 1e8 the margin moved by a factor 8 between
+#: BLAS kernels (1.5e-7 against 1.1e-6), so a threshold between them decided the search by the machine; the
+#: same solve at a value 1e-9 away disagrees as much, and such a value is refused on every machine alike.
+MARGIN_NEAR = 10.0
+
+#: See :data:`MARGIN_NEAR` (relative to the value).
+MARGIN_PROBE = 1e-9
+
+#: See :data:`MARGIN_NEAR` (relative to the larger margin).
+MARGIN_AGREEMENT = 0.5
+
 #: The largest threshold of a ``"max"`` search (see :data:`SEARCH_MARGIN_FRACTION`).
 SEARCH_MARGIN_CAP = 1e-6
 
