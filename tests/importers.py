@@ -9,7 +9,8 @@ message when ecospy's native library does not load), :func:`default_step`, :clas
 :func:`ecospy_equals_master`.
 
 For the tests that drive one FMU through fmpy (:class:`uiofmu.cosim.fmi.Fmu`): :func:`call_error` (the
-error a refused call raises) and :func:`check_state_round_trip` (fmi2GetFMUstate, restore, serialise).
+error a refused call raises) and :func:`check_state_round_trip` (fmi2GetFMUstate, restore, serialise);
+:func:`debug_logging_status` (the status of fmi2SetDebugLogging, fmi2Warning included).
 """
 
 from __future__ import annotations
@@ -44,6 +45,28 @@ def default_step(fmu) -> float:
     if de is None or de.stepSize is None:
         raise ValueError(f"{fmu}: no <DefaultExperiment stepSize>")
     return float(de.stepSize)
+
+
+def debug_logging_status(slave, on: bool, categories) -> int:
+    """The status fmi2SetDebugLogging returns to an fmpy ``FMU2Slave`` (fmpy raises only above fmi2Warning).
+
+    Parameters
+    ----------
+    slave : fmpy.fmi2.FMU2Slave
+        An instantiated FMU.
+    on : bool
+        ``loggingOn``.
+    categories : list of str
+
+    Returns
+    -------
+    int
+        The fmi2Status (0 fmi2OK, 1 fmi2Warning, 3 fmi2Error).
+    """
+    from fmpy.fmi2 import fmi2String
+
+    names = (fmi2String * max(1, len(categories)))(*[c.encode("utf-8") for c in categories])
+    return int(slave.dll.fmi2SetDebugLogging(slave.component, 1 if on else 0, len(categories), names))
 
 
 def call_error(fn, *args):

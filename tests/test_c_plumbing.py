@@ -4,7 +4,7 @@
 (fmi2Discard), the FMI 2.0 status queries after it (never fmi2Error), then valid steps whose
 outputs equal the reference runtime's, as if the refused step had never been asked for.
 (b) fmi2SetDebugLogging honours its categories: a category switched off writes nothing, an
-unknown one is refused with a log line.
+unknown one is ignored with fmi2Warning and a log line (the known ones of the call apply).
 (c) A second model plugged into the same plumbing (tests/c/kernel_toy.c, driven by
 tests/c/plumbing_test.c under ASan and UBSan): Integer get/set, a Real call on an Integer
 variable and the other way round, the error state and every call in it, and broken variable
@@ -39,6 +39,7 @@ from uiofmu.runtime.observer import Runtime
 from uiofmu.runtime.ports import PortSpec
 
 import cfuzz
+from importers import debug_logging_status
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTS_C = ROOT / "tests" / "c"
@@ -226,10 +227,13 @@ def test_debug_logging_honours_its_categories(cfmus):
         assert new_lines(lambda: fmu.setFMUstate(fmu.getFMUstate())) == []
         assert [c for _, c, _ in new_lines(bad_reference)] == ["logStatusError"]
         lines = new_lines(lambda: s.status("setDebugLogging", True, ["logStatusError", "logVerbose"]))
-        assert len(lines) == 1 and lines[0][0] == 3
+        assert len(lines) == 1 and lines[0][:2] == (1, "logStatusWarning")    # fmi2Warning: ignored
         assert 'categories[1] = "logVerbose" is not a log category of this FMU' in lines[0][2]
-        assert s.status("setDebugLogging", True, ["logVerbose"])[0] == 3
-        assert [c for _, c, _ in new_lines(bad_reference)] == ["logStatusError"]   # nothing changed
+        assert new_lines(refused_step) == []                     # the known one applied: only errors
+        assert [c for _, c, _ in new_lines(bad_reference)] == ["logStatusError"]
+        assert new_lines(lambda: s.status("setDebugLogging", True, ["logVerbose"])) == []   # warnings are off
+        assert debug_logging_status(fmu, True, ["logVerbose"]) == 1
+        assert new_lines(bad_reference) == []                    # no known category named: nothing on
         fmu.setDebugLogging(False, [])                           # nothing at all
         assert new_lines(refused_step) == [] and new_lines(bad_reference) == []
         assert new_lines(lambda: s.status("setDebugLogging", True, ["nonsense"])) == []

@@ -355,6 +355,17 @@ static int step_exact(double h) {
     return exact;
 }
 
+/* a step of at most 1e-9 of the shortest design step is rounding: accepted, nothing computed
+   (uiofmu/runtime/step_rules.py; the plumbing applies it before the kernel) */
+static int step_rounding(double h) {
+    double shortest = D->dt;
+    if (INTERVAL) {
+        shortest = D->intervals[0];
+        for (int i = 1; i < D->nintervals; i++) if (D->intervals[i] < shortest) shortest = D->intervals[i];
+    }
+    return isfinite(h) && h > 0 && h <= 1e-9 * shortest;
+}
+
 /* an interval (or the policy 'nearest' maps it to one) */
 static int model_resolves(double h) {
     int exact;
@@ -824,8 +835,9 @@ static void act_step(void) {
         fin = inputs_finite(I);
         if (fin < 0) return;
     }
-    if (I->phase != PH_RUNNING || !isfinite(t) || !(isfinite(h) && h > 0) || !fin) want = fmi2Error;
-    else if (step_exact(h)) want = fmi2OK;
+    int rounding = step_rounding(h);
+    if (I->phase != PH_RUNNING || !isfinite(t) || !(isfinite(h) && h > 0) || (!fin && !rounding)) want = fmi2Error;
+    else if (rounding || step_exact(h)) want = fmi2OK;
     else if (INTERVAL) want = D->policy == UIOFMU_POLICY_NEAREST ? fmi2OK : fmi2Discard;
     else want = D->policy == UIOFMU_POLICY_COUNT ? fmi2OK : fmi2Discard;
     unsigned char *snap = NULL;
@@ -1288,22 +1300,27 @@ static void act_debug_logging(Inst *I) {
                                          "nonsense", ""};
     fmi2String cats[3];
     size_t n = (size_t)below(4);
-    int null = n && chance(0.05), bad = 0, on = chance(0.8);
+    int null = n && chance(0.05), bad = 0, unknown = 0, on = chance(0.8);
     unsigned named = 0;
     for (size_t i = 0; i < n; i++) {
         int r = below(20);
         cats[i] = r < 16 ? names[r % 4] : r < 18 ? names[4 + (r & 1)] : NULL;
-        if (!cats[i] || r >= 16) bad = 1;
+        if (!cats[i]) bad = 1;
+        else if (r >= 16) unknown = 1;
         else named |= 1u << (r % 4 == 0 ? CAT_ERROR : r % 4 == 1 ? CAT_EVENTS : r % 4 == 2 ? CAT_DISCARD : CAT_WARNING);
     }
-    fmi2Status want = null || bad ? fmi2Error : fmi2OK;
+    /* a NULL is refused; an unknown category is ignored with a warning, the known ones applied */
+    fmi2Status want = null || bad ? fmi2Error : unknown ? fmi2Warning : fmi2OK;
     fmi2Status st = CALL(I, F_SetDebugLogging, fmi2SetDebugLogging(I->c, on, n, null ? NULL : cats));
-    if (!expect(I, st, want, "fmi2SetDebugLogging(%d, %zu categories%s)", on, n, null ? ", NULL" : bad ? ", bad" : ""))
+    if (!expect(I, st, want, "fmi2SetDebugLogging(%d, %zu categories%s)", on, n,
+                null || bad ? ", NULL" : unknown ? ", unknown" : ""))
         return;
-    if (st != fmi2OK) {
+    if (st == fmi2Error) {
         if (I->env.cats & (1u << CAT_ERROR)) last_log_has(I, "categor", "fmi2SetDebugLogging refused");
         return;
     }
+    if (st == fmi2Warning && I->env.cats & (1u << CAT_WARNING))
+        last_log_has(I, "not a log category of this FMU", "an unknown category ignored");
     if (!n) I->env.cats = on ? CAT_ALL : 0u;
     else if (on) I->env.cats = named;
     else I->env.cats &= ~named;
@@ -2196,17 +2213,24 @@ static void sc_log_categories(void) {
     /* (fmi2False, [logStatusError]): nothing */
     if (set_logging(I, 0, 1, err, fmi2OK, "false, [logStatusError]")) I->env.cats = 0;
     if (error_line(I, "every category off")) fail("a logStatusError line with it off");
-    /* an unknown or NULL category: refused, nothing changes (still silent) */
-    set_logging(I, 1, 2, unknown, fmi2Error, "true, [logStatusDiscard, logEverything]");
+    /* a NULL category: refused, nothing changes (still silent) */
     set_logging(I, 1, 2, null, fmi2Error, "true, [logEvents, NULL]");
     set_logging(I, 1, 1, NULL, fmi2Error, "true, 1, NULL");
     if (discard_line(I, "after refused settings")) fail("a refused fmi2SetDebugLogging switched a category on");
-    /* (fmi2True, 0): everything, and the refusal of an unknown category says so */
+    /* an unknown category: ignored with fmi2Warning (its line under the categories before: none), the
+       known one applied */
+    if (set_logging(I, 1, 2, unknown, fmi2Warning, "true, [logStatusDiscard, logEverything]"))
+        I->env.cats = 1u << CAT_DISCARD;
+    if (!discard_line(I, "the known category of two")) fail("no logStatusDiscard line: the known category was not applied");
+    if (error_line(I, "the known category of two")) fail("a logStatusError line with only logStatusDiscard on");
+    /* (fmi2True, 0): everything, and the warning of an unknown category says so */
     if (set_logging(I, 1, 0, NULL, fmi2OK, "true, 0")) I->env.cats = CAT_ALL;
     if (!event_line(I, "every category on")) fail("no logEvents line with every category on");
     if (!discard_line(I, "every category on")) fail("no logStatusDiscard line with every category on");
-    set_logging(I, 1, 2, unknown, fmi2Error, "true, [logStatusDiscard, logEverything]");
+    if (set_logging(I, 1, 2, unknown, fmi2Warning, "true, [logStatusDiscard, logEverything]"))
+        I->env.cats = 1u << CAT_DISCARD;
     last_log_has(I, "categories[1] = \"logEverything\" is not a log category", "an unknown category");
+    if (set_logging(I, 1, 0, NULL, fmi2OK, "true, 0")) I->env.cats = CAT_ALL;
     /* (fmi2False, [logEvents, logStatusDiscard]): those off, the rest kept */
     if (set_logging(I, 0, 2, events, fmi2OK, "false, [logEvents, logStatusDiscard]"))
         I->env.cats = CAT_ALL & ~((1u << CAT_EVENTS) | (1u << CAT_DISCARD));

@@ -44,7 +44,8 @@ from ..runtime.ports import (DESIGN_CAUSALITY, KERNEL_PORTS, lpv_plant_ports, mo
 from ..runtime.labels import apply_labels
 from ..runtime.refusals import REFUSALS, fields
 from ..runtime.text import c_string
-from ..runtime.tolerances import STEP_RTOL
+from ..runtime.step_rules import step_rule
+from ..runtime.tolerances import STEP_RTOL, STEP_ULPS
 
 HERE = Path(__file__).parent / "c"
 MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc")
@@ -444,7 +445,23 @@ def fmu_table(guid: str, identifier: str, kernel: CKernel, table: list) -> list:
             f"    .model = {c_string(identifier)},",
             f"    .kernel = &{kernel.symbol},",
             f"    .nvariables = {len(table)}, .variables = variables, .variables_length = UIOFMU_LENGTH(variables),",
+            "    .steps = &UIOFMU_STEPS,",
             "};", ""]
+
+
+def steps_source(spec: dict) -> str:
+    """The end of ``design_data.c``: ``UIOFMU_STEPS``, the :class:`~uiofmu.runtime.step_rules.StepRule` of the
+    FMU's ``model.json`` ``spec`` (the plumbing applies it before the kernel sees a step, as the python
+    backend's slave does)."""
+    rule = step_rule(spec)
+    steps = list(rule.steps)
+    return "\n".join(["", "/* the steps it takes (uiofmu/runtime/step_rules.py) */",
+                      f"static const double admissible_steps[] = {_doubles(steps, 'steps', len(steps))};",
+                      "const UiofmuSteps UIOFMU_STEPS = {",
+                      f"    .tiny = {_double(rule.tiny, 'tiny')}, .ulps = {_double(STEP_ULPS, 'ulps')}, "
+                      f".nsteps = {len(steps)},",
+                      "    .steps = admissible_steps, .steps_length = UIOFMU_LENGTH(admissible_steps),",
+                      "};", ""])
 
 
 def plant_kernel(data: dict) -> CKernel:
@@ -648,7 +665,7 @@ def model_description(card: Card, guid: str, identifier: str, sources: list[str]
     model.refresh()
     return description_xml(identifier, guid, f"{card.family} unknown-input observer of {card.name} "
                            f"(uiofmu {__version__}, C backend)", sources, observer_experiment(card), model.ports,
-                           model.labels)
+                           model.labels, step_rule({"kind": "observer", "card": card.data}).variable)
 
 
 def plant_model_description(spec: dict, description: str, guid: str, identifier: str, sources: list[str]) -> bytes:
@@ -658,15 +675,17 @@ def plant_model_description(spec: dict, description: str, guid: str, identifier:
 
     model = make_model(spec)
     model.refresh()
-    return description_xml(identifier, guid, description, sources, spec.get("experiment"), model.ports, model.labels)
+    return description_xml(identifier, guid, description, sources, spec.get("experiment"), model.ports, model.labels,
+                           step_rule(spec).variable)
 
 
 def description_xml(identifier: str, guid: str, description: str, sources: list[str], experiment: dict | None,
-                    ports, labels: dict | None = None) -> bytes:
+                    ports, labels: dict | None = None, variable_steps: bool = True) -> bytes:
     """The ``modelDescription.xml`` of every C FMU: Co-Simulation without an execution tool, its
     ``<SourceFiles>``, the plumbing's ``<LogCategories>``, ``<DefaultExperiment>`` (when given),
     the variables and structure of ``ports`` (:func:`write_variables`) and their names and units
-    (``labels``: :func:`uiofmu.runtime.labels.apply_labels`)."""
+    (``labels``: :func:`uiofmu.runtime.labels.apply_labels`); ``canHandleVariableCommunicationStepSize``
+    is ``variable_steps`` (:attr:`uiofmu.runtime.step_rules.StepRule.variable`)."""
     root = Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": identifier, "guid": f"{{{guid}}}",
         "description": description,
@@ -674,7 +693,8 @@ def description_xml(identifier: str, guid: str, description: str, sources: list[
         "numberOfEventIndicators": "0"})
     cs = SubElement(root, "CoSimulation", {
         "modelIdentifier": identifier, "needsExecutionTool": "false",
-        "canHandleVariableCommunicationStepSize": "true", "canInterpolateInputs": "false",
+        "canHandleVariableCommunicationStepSize": "true" if variable_steps else "false",
+        "canInterpolateInputs": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false", "canNotUseMemoryManagementFunctions": "true",
         "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true"})
     files = SubElement(cs, "SourceFiles")
@@ -751,7 +771,7 @@ def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, desc
             shutil.copy2(fmi_headers() / name, src / name)
         (src / kernel.ports_header).write_text(header)
         (src / REFUSALS_HEADER).write_text(refusals_header())
-        (src / "design_data.c").write_text(design)
+        (src / "design_data.c").write_text(design + steps_source(spec))
         lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64", list(extra_flags), sources)
         with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
             z.writestr("modelDescription.xml", description(sources))

@@ -22,6 +22,7 @@ from ..runtime.files import atomic_output, check_output_file
 from ..plant import Plant
 from ..plant_kinds import plant_kind as kind_of
 from ..runtime.ports import observer_experiment, plant_experiment, plant_spec
+from ..runtime.step_rules import step_rule
 from ..runtime.text import fill_template, identifier, py_string
 
 #: What an FMU carries: the package :mod:`uiofmu.runtime`, copied whole (numpy only).
@@ -72,7 +73,8 @@ def _build_python(spec: dict, ident: str, description: str, output: Path, extra_
         try:
             built = FmuBuilder.build_FMU(script, dest=Path(tmp) / "out" / f"{ident}.fmu",
                                          project_files=[pkg, src / "model.json", *map(Path, extra_files)],
-                                         canGetAndSetFMUstate=True, canSerializeFMUstate=True)
+                                         canGetAndSetFMUstate=True, canSerializeFMUstate=True,
+                                         canHandleVariableCommunicationStepSize=step_rule(spec).variable)
         finally:
             for key in [k for k in sys.modules if k == module or k.split(".")[0] == package]:
                 sys.modules.pop(key)

@@ -99,6 +99,21 @@ def _no_check(spec: dict, rtol: float) -> None:
     """A schedule kind with no checks beyond its keys, policy and period."""
 
 
+def _period(spec: dict) -> tuple:
+    """The one step of a periodic schedule: its ``dt``."""
+    return (float(spec["dt"]),)
+
+
+def _intervals(spec: dict) -> tuple:
+    """The design intervals of an interval schedule."""
+    return tuple(float(h) for h in spec["intervals"])
+
+
+def _any_step(spec: dict) -> tuple:
+    """Every step h > 0 (a kernel integrated inside the FMU): no step of its own."""
+    return ()
+
+
 @dataclass(frozen=True)
 class ScheduleKind:
     """What a card's ``schedule.kind`` may be (see :mod:`uiofmu.runtime.schedules`).
@@ -115,6 +130,9 @@ class ScheduleKind:
         Whether its schedule holds the design period ``dt`` (equal to the card's ``dt``).
     check : callable
         ``check(spec, step_rtol)``: its own checks of the schedule's values (CardError naming the key).
+    steps : callable
+        ``steps(spec) -> tuple``: the step lengths a schedule of a (checked) card admits under the policy
+        ``error``; empty when it admits every step h > 0 (:mod:`uiofmu.runtime.step_rules`).
     """
 
     name: str
@@ -122,18 +140,20 @@ class ScheduleKind:
     policies: tuple
     periodic: bool
     check: Callable = _no_check
+    steps: Callable = _period
 
 
 #: The schedule kinds, in the order messages list them.
 SCHEDULES = {s.name: s for s in (
     ScheduleKind("constant", frozenset({"dt"}), ("error",), True),
-    ScheduleKind("interval", frozenset({"intervals", "h_prev0"}), ("error", "nearest"), False, _check_interval),
+    ScheduleKind("interval", frozenset({"intervals", "h_prev0"}), ("error", "nearest"), False, _check_interval,
+                 _intervals),
     ScheduleKind("geometric", frozenset({"alpha", "dt"}), ("error", "count"), True, _check_geometric),
     ScheduleKind("mode", frozenset({"dt", "modes", "mode_prev0"}), ("error",), True, _check_mode),
     ScheduleKind("window", frozenset({"dt", "length", "delay", "theta", "uses_theta"}), ("error",), True,
                  _check_window_schedule),
     ScheduleKind("continuous", frozenset({"delays", "max_substep", "sigma_bound", "step", "valid_from",
-                                          "gamma_bound"}), ("error",), False, _check_continuous),
+                                          "gamma_bound"}), ("error",), False, _check_continuous, _any_step),
 )}
 
 

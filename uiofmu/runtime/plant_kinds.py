@@ -55,6 +55,17 @@ def _parametric_ports(rt, physical: list) -> list:
     return parametric_plant_ports(rt.n, rt.m, rt.p, rt.params.size)
 
 
+def _sampled_steps(data: dict) -> tuple:
+    """The one step of a discrete plant (its ``dt``); none of its own for a continuous one, which takes every
+    step h > 0."""
+    return (float(data["dt"]),) if data.get("time") == "discrete" else ()
+
+
+def _any_step(data: dict) -> tuple:
+    """Every step h > 0 (integrated inside the FMU)."""
+    return ()
+
+
 def _no_arrays(rt) -> dict:
     """No arrays besides the plant's own matrices."""
     return {}
@@ -104,6 +115,9 @@ class PlantKind:
         What it is, in a C FMU's description.
     fmu_kind : str
         The ``kind`` of its FMU's ``model.json``.
+    steps : callable
+        ``steps(data) -> tuple``: the step lengths a plant of its data takes; empty when it takes every
+        step h > 0 (:mod:`uiofmu.runtime.step_rules`).
     """
 
     name: str
@@ -117,6 +131,7 @@ class PlantKind:
     python_only: str | None = None
     what: str = "linear plant"
     fmu_kind: str = PLANT_FMU
+    steps: Callable = _sampled_steps
 
 
 #: The plant kinds, in the order a plant's data is tested for their keys (the first that matches).
@@ -131,7 +146,7 @@ PLANT_KINDS = {k.name: k for k in (
     PlantKind("switched", "modes", _plant_runtime(SwitchedPlantRuntime), _switched_ports, _switched_arrays,
               c_kernel="switched", variant=("switching", "rule"), what="switched plant"),
     PlantKind("linear", None, _plant_runtime(PlantRuntime), _linear_ports, c_kernel="linear"),
-    PlantKind("mujoco", "mujoco", _mujoco_runtime, _linear_ports, fmu_kind="mujoco",
+    PlantKind("mujoco", "mujoco", _mujoco_runtime, _linear_ports, fmu_kind="mujoco", steps=_any_step,
               python_only="the C backend has no kernel for a MuJoCo plant (MuJoCo steps it)"),
 )}
 #: The kind of plant data that has none of the kinds' keys.

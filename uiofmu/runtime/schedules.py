@@ -48,6 +48,8 @@ from .tolerances import STEP_RTOL
 
 #: The policies a schedule may record for a step it was not designed for.
 STEP_POLICIES = ("error", "nearest", "count")
+#: The policies under which a schedule takes steps of any length (the nearest design interval; one step k).
+ANY_STEP_POLICIES = ("nearest", "count")
 
 #: Leading schedule axes of each matrix, per schedule kind.
 AXES = {
@@ -316,7 +318,7 @@ def takes_steps(schedule, low: float, high: float) -> bool:
     """Whether ``schedule`` takes every step from ``low`` to ``high`` s: a continuous kernel and the
     policies ``nearest`` and ``count`` take any step; the others only those that :func:`matches` one of
     :meth:`admissible_steps` (as :func:`_period` and ``IntervalSchedule.index`` decide)."""
-    if isinstance(schedule, ContinuousSchedule) or schedule.policy in ("nearest", "count"):
+    if isinstance(schedule, ContinuousSchedule) or schedule.policy in ANY_STEP_POLICIES:
         return True
     return any(matches(low, H, schedule.step_rtol) and matches(high, H, schedule.step_rtol)
                for H in schedule.admissible_steps())

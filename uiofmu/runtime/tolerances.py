@@ -107,6 +107,15 @@ SEARCH_TOL = 1e-4
 #: A communication step h matches a design interval H when ``|h - H| <= STEP_RTOL * H``.
 STEP_RTOL = 1e-6
 
+#: A step h is also the admissible step H when ``|h - H|`` is at most this many units in the last place of the
+#: current time t: a master that computes h as the difference of two times loses that much (at t = 1e7 s the
+#: ulp is 1.9e-9 s, more than STEP_RTOL of a 1 ms step).
+STEP_ULPS = 4
+
+#: A step shorter than this fraction of the smallest admissible step is rounding, not a step (OMSimulator ends a
+#: run with h = 1.4e-12 s to close the gap to its stop time): the FMU accepts it and leaves its state unchanged.
+TINY_STEP_RTOL = 1e-9
+
 #: A continuous-time invariant zero is "stable" when its real part is below ``-ZERO_MARGIN``;
 #: a discrete-time one when its modulus is below ``1 - ZERO_MARGIN``.
 ZERO_MARGIN = 1e-9

@@ -58,8 +58,19 @@
  * logStatusDiscard, logStatusError (the lines of calls returning that status). At
  * fmi2Instantiate the three status categories are on and logEvents follows loggingOn.
  * fmi2SetDebugLogging(on, 0, _) switches every category on or off; (fmi2True, n, cats) logs only
- * the n categories named; (fmi2False, n, cats) switches the named ones off and keeps the rest. An
- * unknown or NULL category refuses the call (fmi2Error, a log line, nothing changed).
+ * the n categories named; (fmi2False, n, cats) switches the named ones off and keeps the rest. A
+ * NULL array or category refuses the call (fmi2Error, a log line, nothing changed). A category
+ * this FMU does not declare is ignored with one fmi2Warning line (under the categories in force
+ * before the call) and the call returns fmi2Warning: FMI 2.0 leaves the allowed categories to the
+ * FMU (<LogCategories>) and keeps fmi2Error for "the simulation cannot be continued", while an
+ * unknown category changes nothing the simulation depends on ("things are not quite right, but
+ * the computation can continue"); the python backend's guard answers alike.
+ *
+ * Steps (UIOFMU_FMU.steps, see UiofmuSteps)
+ * -----------------------------------------
+ * Before the kernel sees a step: a step of at most steps->tiny is rounding (OMSimulator ends a run
+ * with h = 1.4e-12 s): fmi2OK, the kernel is not called, one warning line per instance (until
+ * fmi2Reset); a step within steps->ulps ulps of t of an admissible step is passed on as that step.
  */
 #include <math.h>
 #include <stdarg.h>
@@ -73,6 +84,7 @@
 #define MAX_GUID 255
 #define MAX_VARIABLES 16777216
 #define MAX_PORTS 64
+#define MAX_STEPS 4096
 #define INSTANCE_MAGIC 0x75696e73u /* "uins" */
 
 /* ---------------------------------------------------------------------------------------- */
@@ -164,6 +176,7 @@ struct FmuInstance {
     void *model;    /* the kernel's instance */
     double time;    /* for fmi2LastSuccessfulTime */
     int time_known;
+    int rounding_noted; /* the line of a rounding step was logged (once per instance) */
 };
 
 static unsigned category_of(fmi2Status status) {
@@ -301,6 +314,17 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
         !k->state_shape || !k->save_state || !k->check_state || !k->load_state || k->ports < 1 || k->ports > MAX_PORTS)
         return uiofmu_design_error(msg, len, "the FMU's kernel is incomplete");
     if (!k->check_design(msg, len)) return 0;
+    if (f->steps) {
+        const UiofmuSteps *r = f->steps;
+        if (!(isfinite(r->tiny) && r->tiny >= 0) || !(isfinite(r->ulps) && r->ulps >= 0) || r->nsteps < 0 ||
+            r->nsteps > MAX_STEPS || !r->steps || r->steps_length != (size_t)(r->nsteps ? r->nsteps : 1))
+            return uiofmu_design_error(msg, len, "the step rule (tiny %g, %g ulps, %d steps in a list of %zu) is out of "
+                                       "range", r->tiny, r->ulps, r->nsteps, r->steps ? r->steps_length : 0);
+        for (int i = 0; i < r->nsteps; i++)
+            if (!(isfinite(r->steps[i]) && r->steps[i] > r->tiny))
+                return uiofmu_design_error(msg, len, "admissible step %d = %g: expected a finite step above %g", i,
+                                           r->steps[i], r->tiny);
+    }
     if (f->nvariables < 0 || f->nvariables > MAX_VARIABLES || !f->variables ||
         f->variables_length != (size_t)(f->nvariables ? f->nvariables : 1))
         return uiofmu_design_error(msg, len, "%d variables in a table of %zu", f->nvariables,
@@ -420,22 +444,26 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t n,
     BEGIN(C_SetDebugLogging)
     static const char fn[] = "fmi2SetDebugLogging";
     unsigned named = 0;
+    size_t unknown = 0, first = 0;
     char buf[80];
     if (n && !cats) return refuse(s, fn, "categories is a null pointer, nCategories = %zu", n);
+    for (size_t i = 0; i < n; i++)
+        if (!cats[i]) return refuse(s, fn, "categories[%zu] is a null pointer", i);
     for (size_t i = 0; i < n; i++) {
         unsigned bit = 0;
-        if (!cats[i]) return refuse(s, fn, "categories[%zu] is a null pointer", i);
         for (int k = 0; k < LOG_COUNT; k++)
             if (strcmp(cats[i], CATEGORY[k]) == 0) bit = 1u << k;
-        if (!bit)
-            return refuse(s, fn, "categories[%zu] = \"%s\" is not a log category of this FMU (logEvents, "
-                          "logStatusWarning, logStatusDiscard, logStatusError)", i, shown(cats[i], buf, sizeof buf));
+        if (!bit && unknown++ == 0) first = i;
         named |= bit;
     }
+    if (unknown)
+        uiofmu_log(s, fmi2Warning, "%s: categories[%zu] = \"%s\"%s %s not a log category of this FMU (logEvents, "
+                   "logStatusWarning, logStatusDiscard, logStatusError): ignored", fn, first,
+                   shown(cats[first], buf, sizeof buf), unknown > 1 ? " and others" : "", unknown > 1 ? "are" : "is");
     if (n == 0) s->log = loggingOn ? LOG_ALL : 0u;
     else if (loggingOn) s->log = named;
     else s->log &= ~named;
-    return fmi2OK;
+    return unknown ? fmi2Warning : fmi2OK;
 }
 
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolDefined, fmi2Real tol, fmi2Real start,
@@ -478,6 +506,7 @@ fmi2Status fmi2Reset(fmi2Component c) {
     s->state = INSTANTIATED;
     s->time = 0.0;
     s->time_known = 1;
+    s->rounding_noted = 0;
     uiofmu_log(s, fmi2OK, "fmi2Reset: instantiated, start values");
     return fmi2OK;
 }
@@ -620,6 +649,28 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     if (!isfinite(t)) return refuse(s, fn, "currentCommunicationPoint t = %s is not a time", uiofmu_num(t, bt));
     if (!(isfinite(h) && h > 0))
         return refuse(s, fn, "t = %s: communication step h = %s: expected h > 0", uiofmu_num(t, bt), uiofmu_num(h, bh));
+    const UiofmuSteps *rule = s->fmu->steps;
+    if (rule && h <= rule->tiny) { /* rounding: accepted, nothing computed */
+        if (!s->rounding_noted) {
+            char bs[32];
+            s->rounding_noted = 1;
+            uiofmu_log(s, fmi2Warning, "t = %s: step h = %s s is rounding (at most %s s, 1e-9 of the shortest step "
+                       "this FMU takes): accepted, the state unchanged (noted once)", uiofmu_num(t, bt),
+                       uiofmu_num(h, bh), uiofmu_num(rule->tiny, bs));
+        }
+        s->state = STEP_COMPLETE;
+        s->time = t + h;
+        s->time_known = 1;
+        return fmi2OK;
+    }
+    if (rule) { /* within a few ulps of t of an admissible step: that step */
+        double slack = rule->ulps * (nextafter(fabs(t), INFINITY) - fabs(t));
+        for (int i = 0; i < rule->nsteps; i++)
+            if (fabs(h - rule->steps[i]) <= slack) {
+                h = rule->steps[i];
+                break;
+            }
+    }
     fmi2Status st = outcome(s, s->kernel->step(s->model, t, h));
     if (st == fmi2OK) {
         s->state = STEP_COMPLETE;

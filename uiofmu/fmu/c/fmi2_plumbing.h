@@ -121,6 +121,19 @@ typedef struct {
     void (*load_state)(void *self, const unsigned char *doubles);
 } UiofmuKernel;
 
+/* The steps the FMU takes, as the plumbing sees them (uiofmu/runtime/step_rules.py, the same
+   rule in the python backend): a step h > 0 of at most `tiny` is rounding (fmi2OK, the kernel is
+   not called, the state unchanged; one warning line per instance); a step within `ulps` units in
+   the last place of t of one of the `nsteps` admissible steps is that step. tiny = 0 and
+   nsteps = 0 when every step h > 0 is admissible (the kernel decides). */
+typedef struct {
+    double tiny;
+    double ulps;
+    int nsteps;
+    const double *steps;
+    size_t steps_length; /* UIOFMU_LENGTH(steps): 1 for an empty list ({0}) */
+} UiofmuSteps;
+
 /* What design_data.c defines. */
 typedef struct {
     const char *guid;  /* "{...}", as in modelDescription.xml */
@@ -129,9 +142,12 @@ typedef struct {
     int nvariables;
     const UiofmuVariable *variables;
     size_t variables_length; /* UIOFMU_LENGTH(variables): 1 for an empty table ({0}) */
+    const UiofmuSteps *steps; /* NULL: no rule of the plumbing's (every step goes to the kernel) */
 } UiofmuFmu;
 
 UIOFMU_INTERNAL extern const UiofmuFmu UIOFMU_FMU;
+/* The steps of a generated FMU (uiofmu's build appends it to design_data.c). */
+UIOFMU_INTERNAL extern const UiofmuSteps UIOFMU_STEPS;
 
 /* ---------------------------------------------------------------------------------------- */
 /* What the plumbing offers kernels                                                         */

@@ -22,7 +22,9 @@
  *                     it (a path, say) must not be formatted again. Lines of status fmi2OK are
  *                     forwarded only while the importer's debug logging is on (and then only
  *                     for the categories it asked for, if any); all others always are, as in
- *                     uiofmu's C backend.
+ *                     uiofmu's C backend. fmi2SetDebugLogging ignores a category that the
+ *                     FMU's <LogCategories> (pythonfmu's, LOG_CATEGORIES below) does not list,
+ *                     with one fmi2Warning line, and returns fmi2Warning, as the C backend does.
  *   pointers          NULL arrays with a positive count, NULL output pointers and FMU states
  *                     that this library did not hand out (or that were freed) are refused
  *                     with a log line and fmi2Error instead of being dereferenced.
@@ -242,8 +244,9 @@ typedef struct {
     fmi2CallbackFunctions cb;       /* handed to pythonfmu (it keeps the pointer) */
     char *name;
     fmi2Boolean logging;            /* the importer's debug logging */
-    char **categories;              /* the importer's categories (none: all) */
+    char **categories;              /* the importer's known categories */
     size_t ncategories;
+    int restricted;                 /* the importer named categories: only those (else all) */
     fmi2Status worst;               /* worst fmi2Discard/fmi2Error/fmi2Fatal line of this call */
     int dead;                       /* pythonfmu returned fmi2Fatal: never call it again */
 } Guard;
@@ -269,8 +272,19 @@ static void say(const fmi2CallbackFunctions *f, fmi2String name, fmi2Status stat
     f->logger(f->componentEnvironment, name ? name : "", status, category_of(status), "%s", line);
 }
 
+/* The <LogCategories> of pythonfmu 0.7.0's modelDescription.xml (Fmi2Slave.log_categories). */
+static const char *const LOG_CATEGORIES[] = {"logStatusWarning", "logStatusDiscard", "logStatusError",
+                                             "logStatusFatal", "logAll"};
+#define N_LOG_CATEGORIES (sizeof LOG_CATEGORIES / sizeof LOG_CATEGORIES[0])
+
+static int known_category(const char *category) {
+    for (size_t i = 0; i < N_LOG_CATEGORIES; i++)
+        if (strcmp(category, LOG_CATEGORIES[i]) == 0) return 1;
+    return 0;
+}
+
 static int category_enabled(const Guard *g, fmi2String category) {
-    if (g->ncategories == 0) return 1;
+    if (!g->restricted) return 1;
     for (size_t i = 0; i < g->ncategories; i++)
         if (category && strcmp(category, g->categories[i]) == 0) return 1;
     return 0;
@@ -641,25 +655,43 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nC
                                const fmi2String categories[]) {
     BEGIN("fmi2SetDebugLogging")
     if (nCategories > 0 && !categories) return refuse(g, "fmi2SetDebugLogging", "a NULL array with nCategories > 0");
+    size_t unknown = 0, first = 0, known = 0;
     for (size_t i = 0; i < nCategories; i++)
         if (!categories[i]) return refuse(g, "fmi2SetDebugLogging", "a NULL category");
-    char **copy = nCategories ? (char **)calloc(nCategories, sizeof *copy) : NULL;
-    if (nCategories && !copy) return refuse(g, "fmi2SetDebugLogging", "out of memory");
     for (size_t i = 0; i < nCategories; i++) {
-        copy[i] = strdup(categories[i]);
-        if (!copy[i]) {
-            for (size_t k = 0; k < i; k++) free(copy[k]);
+        if (known_category(categories[i])) known++;
+        else if (unknown++ == 0) first = i;
+    }
+    char **copy = known ? (char **)calloc(known, sizeof *copy) : NULL;
+    if (known && !copy) return refuse(g, "fmi2SetDebugLogging", "out of memory");
+    for (size_t i = 0, j = 0; i < nCategories; i++) {
+        if (!known_category(categories[i])) continue;
+        copy[j] = strdup(categories[i]);
+        if (!copy[j]) {
+            for (size_t k = 0; k < j; k++) free(copy[k]);
             free(copy);
             return refuse(g, "fmi2SetDebugLogging", "out of memory");
         }
+        j++;
+    }
+    if (unknown) {       /* under the categories in force before the call, as the C backend */
+        char shown[64];
+        snprintf(shown, sizeof shown, "%s", categories[first]);
+        for (char *p = shown; *p; p++)
+            if (*p < 0x20 || *p > 0x7e) *p = '?';
+        say(&g->user, g->name, fmi2Warning, "fmi2SetDebugLogging: categories[%zu] = \"%s\"%s %s not a log category of "
+            "this FMU (logStatusWarning, logStatusDiscard, logStatusError, logStatusFatal, logAll): ignored", first,
+            shown, unknown > 1 ? " and others" : "", unknown > 1 ? "are" : "is");
     }
     for (size_t i = 0; i < g->ncategories; i++) free(g->categories[i]);
     free(g->categories);
     g->categories = copy;
-    g->ncategories = nCategories;
+    g->ncategories = known;
+    g->restricted = nCategories > 0;
     g->logging = loggingOn;
     /* pythonfmu keeps logging everything to the guard, which filters. */
-    return finish(g, real.SetDebugLogging(g->inner, fmi2True, 0, NULL));
+    fmi2Status status = finish(g, real.SetDebugLogging(g->inner, fmi2True, 0, NULL));
+    return unknown && status == fmi2OK ? fmi2Warning : status;
 }
 
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
