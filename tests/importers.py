@@ -10,17 +10,76 @@ message when ecospy's native library does not load), :func:`default_step`, :clas
 
 For the tests that drive one FMU through fmpy (:class:`uiofmu.cosim.fmi.Fmu`): :func:`call_error` (the
 error a refused call raises) and :func:`check_state_round_trip` (fmi2GetFMUstate, restore, serialise);
-:func:`debug_logging_status` (the status of fmi2SetDebugLogging, fmi2Warning included).
+:func:`debug_logging_status` (the status of fmi2SetDebugLogging, fmi2Warning included); :class:`Slave` (one
+instance through fmpy's ``FMU2Slave`` with its log lines in :data:`LINES`).
 """
 
 from __future__ import annotations
 
+from ctypes import byref
+
 import numpy as np
 import pytest
+from fmpy import calloc, extract, free, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
+                       fmi2CallbackLoggerTYPE)
 
 from uiofmu.cosim.importers import (EcospyRun, EcospyUnavailable, FmpyStalled, integer_variables,  # noqa: F401
                                     ports, preload_libpython, run_ecospy, run_fmpy_default)
 from uiofmu.cosim.importers import import_ecospy as _import_ecospy
+
+
+#: Every line any :class:`Slave` logged: (instance, status, category, message). fmpy's native
+#: proxy, which formats the FMU's variadic message, holds one Python callback for the process; this
+#: one stays alive with the module (the next uiofmu Fmu points the proxy back at its own).
+LINES: list = []
+
+
+def _log(environment, instance, status, category, message):
+    LINES.append((instance.decode(), status, category.decode(), message.decode("utf-8", "replace")))
+
+
+_LOGGER = fmi2CallbackLoggerTYPE(_log)
+
+
+class Slave:
+    """One FMU instance driven through fmpy's FMU2Slave, its log lines kept with their categories."""
+
+    def __init__(self, path, name: str, logging_on: bool = True):
+        from fmpy.logging import addLoggerProxy
+
+        self.name = name
+        self.md = read_model_description(str(path))
+        self.refs = {v.name: v.valueReference for v in self.md.modelVariables}
+        self.callbacks = fmi2CallbackFunctions()
+        self.callbacks.logger = _LOGGER
+        self.callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        self.callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        addLoggerProxy(byref(self.callbacks))
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=extract(str(path)),
+                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
+        self.fmu.instantiate(callbacks=self.callbacks, loggingOn=logging_on)
+
+    def vector(self, name):
+        refs, i = [], 1
+        while f"{name}[{i}]" in self.refs:
+            refs.append(self.refs[f"{name}[{i}]"])
+            i += 1
+        return refs
+
+    def lines(self):
+        return [line[1:] for line in LINES if line[0] == self.name]
+
+    def status(self, call, *args):
+        """(fmi2 status, value) of a call that may raise (fmpy raises above fmi2Warning: a warning is 0)."""
+        try:
+            return 0, getattr(self.fmu, call)(*args)
+        except FMICallException as exc:
+            return exc.status, None
+
+    def close(self):
+        self.fmu.freeInstance()
 
 
 def default_step(fmu) -> float:

@@ -19,15 +19,12 @@ from __future__ import annotations
 import dataclasses
 import re
 import subprocess
-from ctypes import byref
 from pathlib import Path
 
 import numpy as np
 import pytest
-from fmpy import calloc, extract, free, read_model_description
-from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
-                       fmi2CallbackLoggerTYPE, fmi2DoStepStatus, fmi2LastSuccessfulTime, fmi2PendingStatus,
+from fmpy import read_model_description
+from fmpy.fmi2 import (fmi2DoStepStatus, fmi2LastSuccessfulTime, fmi2PendingStatus,
                        fmi2Terminated)
 
 from uiofmu.fmu.c_backend import HERE, LOG_CATEGORIES, c_sources, design_source, fmi_headers, variable_table
@@ -39,62 +36,10 @@ from uiofmu.runtime.observer import Runtime
 from uiofmu.runtime.ports import PortSpec
 
 import cfuzz
-from importers import debug_logging_status
+from importers import LINES, Slave, debug_logging_status
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTS_C = ROOT / "tests" / "c"
-
-#: Every line any slave of this module logged: (instance, status, category, message). fmpy's native
-#: proxy, which formats the FMU's variadic message, holds one Python callback for the process; this
-#: one stays alive with the module (the next uiofmu Fmu points the proxy back at its own).
-LINES: list = []
-
-
-def _log(environment, instance, status, category, message):
-    LINES.append((instance.decode(), status, category.decode(), message.decode("utf-8", "replace")))
-
-
-_LOGGER = fmi2CallbackLoggerTYPE(_log)
-
-
-class Slave:
-    """One FMU instance driven through fmpy's FMU2Slave, its log lines kept with their categories."""
-
-    def __init__(self, path, name: str, logging_on: bool = True):
-        from fmpy.logging import addLoggerProxy
-
-        self.name = name
-        self.md = read_model_description(str(path))
-        self.refs = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.callbacks = fmi2CallbackFunctions()
-        self.callbacks.logger = _LOGGER
-        self.callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        self.callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        addLoggerProxy(byref(self.callbacks))
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=extract(str(path)),
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
-        self.fmu.instantiate(callbacks=self.callbacks, loggingOn=logging_on)
-
-    def vector(self, name):
-        refs, i = [], 1
-        while f"{name}[{i}]" in self.refs:
-            refs.append(self.refs[f"{name}[{i}]"])
-            i += 1
-        return refs
-
-    def lines(self):
-        return [line[1:] for line in LINES if line[0] == self.name]
-
-    def status(self, call, *args):
-        """(fmi2 status, value) of a call that may raise."""
-        try:
-            return 0, getattr(self.fmu, call)(*args)
-        except FMICallException as exc:
-            return exc.status, None
-
-    def close(self):
-        self.fmu.freeInstance()
-
 
 @pytest.fixture(scope="module")
 def cfmus(example1_card, building_card, tmp_path_factory):

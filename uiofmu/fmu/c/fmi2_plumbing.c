@@ -60,7 +60,7 @@
  * fmi2SetDebugLogging(on, 0, _) switches every category on or off; (fmi2True, n, cats) logs only
  * the n categories named; (fmi2False, n, cats) switches the named ones off and keeps the rest. A
  * NULL array or category refuses the call (fmi2Error, a log line, nothing changed). A category
- * this FMU does not declare is ignored with one fmi2Warning line (under the categories in force
+ * this FMU does not declare is ignored with one fmi2Warning line (under the categories that were on
  * before the call) and the call returns fmi2Warning: FMI 2.0 leaves the allowed categories to the
  * FMU (<LogCategories>) and keeps fmi2Error for "the simulation cannot be continued", while an
  * unknown category changes nothing the simulation depends on ("things are not quite right, but

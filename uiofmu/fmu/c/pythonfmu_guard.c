@@ -674,7 +674,7 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nC
         }
         j++;
     }
-    if (unknown) {       /* under the categories in force before the call, as the C backend */
+    if (unknown) {       /* under the categories that were on before the call, as the C backend */
         char shown[64];
         snprintf(shown, sizeof shown, "%s", categories[first]);
         for (char *p = shown; *p; p++)
