@@ -90,6 +90,7 @@ def test_take_snaps_within_ulps_of_t_and_passes_rounding():
     assert rule.take(t, off) == 0.1 and rule.take(t, 0.3 - 2 * math.ulp(t)) == 0.3
     assert rule.take(t, 0.1 + (STEP_ULPS + 1) * math.ulp(t)) == 0.1 + (STEP_ULPS + 1) * math.ulp(t)
     assert rule.take(0.0, 0.1 + 1e-12) == 0.1 + 1e-12       # at t = 0 only the model's tolerance applies
+    assert rule.take(1e16, 0.5) == 0.5 and rule.take(1e308, 0.2) == 0.2   # a time that does not resolve the step
     assert rule.take(5.0, 1e-12) is None and rule.take(5.0, 1e-10) is None
     assert rule.take(5.0, 2e-10) == 2e-10                   # above 1e-9 of the shortest step: a step
     assert StepRule((), True).take(5.0, 1e-12) == 1e-12     # a kernel of any step takes it as a step

@@ -45,7 +45,7 @@ from ..runtime.labels import apply_labels
 from ..runtime.refusals import REFUSALS, fields
 from ..runtime.text import c_string
 from ..runtime.step_rules import step_rule
-from ..runtime.tolerances import STEP_RTOL, STEP_ULPS
+from ..runtime.tolerances import STEP_RTOL, STEP_ULPS, STEP_ULPS_LIMIT
 
 HERE = Path(__file__).parent / "c"
 MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc")
@@ -459,7 +459,7 @@ def steps_source(spec: dict) -> str:
                       f"static const double admissible_steps[] = {_doubles(steps, 'steps', len(steps))};",
                       "const UiofmuSteps UIOFMU_STEPS = {",
                       f"    .tiny = {_double(rule.tiny, 'tiny')}, .ulps = {_double(STEP_ULPS, 'ulps')}, "
-                      f".nsteps = {len(steps)},",
+                      f".ulps_limit = {_double(STEP_ULPS_LIMIT, 'ulps_limit')}, .nsteps = {len(steps)},",
                       "    .steps = admissible_steps, .steps_length = UIOFMU_LENGTH(admissible_steps),",
                       "};", ""])
 

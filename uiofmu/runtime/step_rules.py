@@ -8,7 +8,8 @@ FMU of uiofmu applies the same :class:`StepRule`, from its ``model.json`` alone:
   (``nearest``, ``count``), a kernel or plant integrated inside the FMU; a schedule of one period under the
   policy ``error`` and a discrete plant declare false;
 - a step within :data:`~uiofmu.runtime.tolerances.STEP_ULPS` units in the last place of the current time t of
-  an admissible step is that step (:meth:`StepRule.take`; within STEP_RTOL of it, the model itself decides so);
+  an admissible step H is that step, where those ulps are at most :data:`~uiofmu.runtime.tolerances.STEP_ULPS_LIMIT`
+  of H (:meth:`StepRule.take`; within STEP_RTOL of it, the model itself decides so);
 - a step of at most :data:`~uiofmu.runtime.tolerances.TINY_STEP_RTOL` of the smallest admissible step is
   rounding (OMSimulator closes the gap to its stop time with h = 1.4e-12 s): it is accepted and leaves the state
   unchanged. A model that takes every step h > 0 has no such threshold: it takes a short step as any other.
@@ -24,7 +25,7 @@ from dataclasses import dataclass
 from .kernels import SCHEDULES, card_kernel
 from .plant_kinds import PLANT_FMU, fmu_kind
 from .schedules import ANY_STEP_POLICIES
-from .tolerances import STEP_ULPS, TINY_STEP_RTOL
+from .tolerances import STEP_ULPS, STEP_ULPS_LIMIT, TINY_STEP_RTOL
 
 
 @dataclass(frozen=True)
@@ -61,15 +62,16 @@ class StepRule:
         Returns
         -------
         float or None
-            None for a step of at most :attr:`tiny` (h > 0: accepted, nothing to compute); the admissible step
-            that ``h`` is within :data:`STEP_ULPS` ulps of ``t`` of; else ``h`` itself (the model decides).
+            None for a step of at most :attr:`tiny` (h > 0: accepted, nothing to compute); the admissible step H
+            that ``h`` is within :data:`STEP_ULPS` ulps of ``t`` of (when those are at most :data:`STEP_ULPS_LIMIT`
+            of H); else ``h`` itself (the model decides).
         """
         if 0.0 < h <= self.tiny:
             return None
         if self.steps and math.isfinite(t) and math.isfinite(h):
             slack = STEP_ULPS * math.ulp(abs(t))
             for H in self.steps:
-                if abs(h - H) <= slack:
+                if abs(h - H) <= slack <= STEP_ULPS_LIMIT * H:
                     return H
         return h
 

@@ -112,6 +112,10 @@ STEP_RTOL = 1e-6
 #: ulp is 1.9e-9 s, more than STEP_RTOL of a 1 ms step).
 STEP_ULPS = 4
 
+#: ... as long as those ulps are at most this fraction of H: where the time no longer resolves the step (t = 1e16 s
+#: has an ulp of 2 s), only STEP_RTOL applies, and a step of any length is not taken for H.
+STEP_ULPS_LIMIT = 1e-3
+
 #: A step shorter than this fraction of the smallest admissible step is rounding, not a step (OMSimulator ends a
 #: run with h = 1.4e-12 s to close the gap to its stop time): the FMU accepts it and leaves its state unchanged.
 TINY_STEP_RTOL = 1e-9

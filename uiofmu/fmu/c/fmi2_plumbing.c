@@ -70,7 +70,8 @@
  * -----------------------------------------
  * Before the kernel sees a step: a step of at most steps->tiny is rounding (OMSimulator ends a run
  * with h = 1.4e-12 s): fmi2OK, the kernel is not called, one warning line per instance (until
- * fmi2Reset); a step within steps->ulps ulps of t of an admissible step is passed on as that step.
+ * fmi2Reset); a step within steps->ulps ulps of t of an admissible step H is passed on as H (where
+ * those ulps are at most steps->ulps_limit of H: a time that no longer resolves the step snaps nothing).
  */
 #include <math.h>
 #include <stdarg.h>
@@ -316,7 +317,8 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
     if (!k->check_design(msg, len)) return 0;
     if (f->steps) {
         const UiofmuSteps *r = f->steps;
-        if (!(isfinite(r->tiny) && r->tiny >= 0) || !(isfinite(r->ulps) && r->ulps >= 0) || r->nsteps < 0 ||
+        if (!(isfinite(r->tiny) && r->tiny >= 0) || !(isfinite(r->ulps) && r->ulps >= 0) ||
+            !(isfinite(r->ulps_limit) && r->ulps_limit >= 0) || r->nsteps < 0 ||
             r->nsteps > MAX_STEPS || !r->steps || r->steps_length != (size_t)(r->nsteps ? r->nsteps : 1))
             return uiofmu_design_error(msg, len, "the step rule (tiny %g, %g ulps, %d steps in a list of %zu) is out of "
                                        "range", r->tiny, r->ulps, r->nsteps, r->steps ? r->steps_length : 0);
@@ -666,7 +668,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     if (rule) { /* within a few ulps of t of an admissible step: that step */
         double slack = rule->ulps * (nextafter(fabs(t), INFINITY) - fabs(t));
         for (int i = 0; i < rule->nsteps; i++)
-            if (fabs(h - rule->steps[i]) <= slack) {
+            if (fabs(h - rule->steps[i]) <= slack && slack <= rule->ulps_limit * rule->steps[i]) {
                 h = rule->steps[i];
                 break;
             }

@@ -124,11 +124,12 @@ typedef struct {
 /* The steps the FMU takes, as the plumbing sees them (uiofmu/runtime/step_rules.py, the same
    rule in the python backend): a step h > 0 of at most `tiny` is rounding (fmi2OK, the kernel is
    not called, the state unchanged; one warning line per instance); a step within `ulps` units in
-   the last place of t of one of the `nsteps` admissible steps is that step. tiny = 0 and
-   nsteps = 0 when every step h > 0 is admissible (the kernel decides). */
+   the last place of t of one of the `nsteps` admissible steps H is that step, where those ulps are
+   at most ulps_limit * H. tiny = 0 and nsteps = 0 when every step h > 0 is admissible (the kernel
+   decides). */
 typedef struct {
     double tiny;
-    double ulps;
+    double ulps, ulps_limit;
     int nsteps;
     const double *steps;
     size_t steps_length; /* UIOFMU_LENGTH(steps): 1 for an empty list ({0}) */
