@@ -654,11 +654,10 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     const UiofmuSteps *rule = s->fmu->steps;
     if (rule && h <= rule->tiny) { /* rounding: accepted, nothing computed */
         if (!s->rounding_noted) {
-            char bs[32];
             s->rounding_noted = 1;
-            uiofmu_log(s, fmi2Warning, "t = %s: step h = %s s is rounding (at most %s s, 1e-9 of the shortest step "
+            uiofmu_log(s, fmi2Warning, "t = %s: step h = %s s is rounding (at most %.3g s, 1e-9 of the shortest step "
                        "this FMU takes): accepted, the state unchanged (noted once)", uiofmu_num(t, bt),
-                       uiofmu_num(h, bh), uiofmu_num(rule->tiny, bs));
+                       uiofmu_num(h, bh), rule->tiny);
         }
         s->state = STEP_COMPLETE;
         s->time = t + h;
