@@ -20,6 +20,7 @@ import os
 import shutil
 import subprocess
 import zipfile
+from xml.etree import ElementTree
 
 import numpy as np
 import pytest
@@ -249,6 +250,22 @@ def test_an_unknown_log_category_is_ignored_with_a_warning(fmus, backend):
         assert s.status("doStep", 0.0, 0.25)[0] == 2             # refused: its discard line is still logged
         assert any(line[0] == 2 for line in s.lines()[lines:])
         assert debug_logging_status(s.fmu, True, ["logStatusError"]) == 0
+    finally:
+        s.close()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_every_declared_log_category_is_known(fmus, backend):
+    path = fmus["fixed", backend]
+    with zipfile.ZipFile(path) as z:
+        root = ElementTree.fromstring(z.read("modelDescription.xml"))
+    declared = [c.get("name") for c in root.iter("Category")]
+    assert len(declared) >= 4
+    s = Slave(path, f"declared-{backend}")
+    try:
+        for name in declared:
+            assert debug_logging_status(s.fmu, True, [name]) == 0, name
+        assert debug_logging_status(s.fmu, True, declared) == 0
     finally:
         s.close()
 
