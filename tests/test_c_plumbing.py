@@ -219,12 +219,19 @@ def test_a_second_kernel_plugs_into_the_plumbing(tmp_path):
     assert "plumbing_test run: 0 failed checks" in proc.stdout
 
 
+def test_the_plumbing_applies_the_step_rule(tmp_path):
+    proc = _run(_toy(tmp_path), "steps")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "plumbing_test steps: 0 failed checks" in proc.stdout
+
+
 @pytest.mark.parametrize("table,fragment", [
     (1, "value reference 2: element 1 of port u, expected element 0"),
     (2, "value reference 1 (mode[1]) is listed as an input Real, the kernel's port is an input Integer"),
     (3, "value reference 5: port 8 is none of the toy kernel's"),
     (4, "port u has 2 elements in this design, the variable table lists 1"),
     (5, "value reference 4: element 2 of port u, which has 2 in this design"),
+    (6, "admissible step 1 = 1e-12: expected a finite step above 2.5e-10"),
 ])
 def test_instantiate_refuses_a_broken_variable_table(tmp_path, table, fragment):
     proc = _run(_toy(tmp_path, table), "refused", fragment)

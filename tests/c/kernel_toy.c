@@ -218,9 +218,21 @@ static const UiofmuVariable variables[] = {
 #endif
 };
 
+/* the plumbing's step rule: steps of 0.25, 0.5 and 1 (the toy itself takes any step); TOY_TABLE 6 breaks it */
+#if TOY_TABLE == 6
+static const double toy_steps[] = {0.25, 1e-12, 1.0};
+#else
+static const double toy_steps[] = {0.25, 0.5, 1.0};
+#endif
+const UiofmuSteps UIOFMU_STEPS = {
+    .tiny = 0.25e-9, .ulps = 4.0, .ulps_limit = 1e-3, .nsteps = 3,
+    .steps = toy_steps, .steps_length = UIOFMU_LENGTH(toy_steps),
+};
+
 const UiofmuFmu UIOFMU_FMU = {
     .guid = "{00000000-0000-0000-0000-00000000707f}",
     .model = "toy",
     .kernel = &TOY_KERNEL,
     .nvariables = (int)UIOFMU_LENGTH(variables), .variables = variables, .variables_length = UIOFMU_LENGTH(variables),
+    .steps = &UIOFMU_STEPS,
 };

@@ -234,7 +234,48 @@ int run(void) {
     return failures ? 1 : 0;
 }
 
+/* The plumbing's step rule (UIOFMU_STEPS of kernel_toy.c): a rounding step is accepted without the
+   kernel, logged once per instance (again after fmi2Reset); a step within 4 ulps of a large t of 0.5 is
+   0.5 for the kernel; one beyond 1e-3 of the step in ulps is passed on as it is. */
+int steps(void) {
+    on = 15u;
+    fmi2Component c = make(1);
+    CHECK(c != NULL, "fmi2Instantiate");
+    if (!c) return 1;
+    for (int round = 0; round < 2; round++) {
+        double t0 = 1e9; /* ulp(t0) = 1.19e-7 */
+        STATUS(fmi2SetupExperiment(c, fmi2False, 0, t0, fmi2False, 0), fmi2OK, NULL);
+        STATUS(fmi2EnterInitializationMode(c), fmi2OK, NULL);
+        STATUS(fmi2ExitInitializationMode(c), fmi2OK, NULL);
+        set_u(c, 1.0, 1.0);
+        double h = 0.5 + 3 * (nextafter(t0, INFINITY) - t0);
+        STATUS(fmi2DoStep(c, t0, h, fmi2True), fmi2OK, NULL);
+        CHECK(get_real(c, VR_X) == 2.0 && get_int(c, VR_COUNT) == 1, "the kernel took 0.5: x = %.17g", get_real(c, VR_X));
+        int before = lines;
+        for (int i = 0; i < 3; i++) {
+            STATUS(fmi2DoStep(c, t0 + 0.5, i ? 1e-12 : 0.25e-9, fmi2True), fmi2OK, NULL);
+            CHECK(get_real(c, VR_X) == 2.0 && get_int(c, VR_COUNT) == 1, "a rounding step reached the kernel");
+        }
+        CHECK(lines == before + 1 && strstr(last, "is rounding") && !strcmp(last_category, "logStatusWarning"),
+              "one warning line for the rounding steps of an instance (%d lines)", lines - before);
+        fmi2Real got;
+        STATUS(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &got), fmi2OK, NULL);
+        CHECK(got == t0 + 0.5 + 1e-12, "fmi2LastSuccessfulTime after a rounding step = %.17g", got);
+        STATUS(fmi2DoStep(c, 1e16, 0.5 + 4.0, fmi2True), fmi2OK, NULL); /* ulp(1e16) = 2: not taken for 0.5 */
+        CHECK(get_real(c, VR_X) == 2.0 + 4.5 * 2.0, "a step 4 s off at t = 1e16 was snapped: x = %.17g",
+              get_real(c, VR_X));
+        STATUS(fmi2Reset(c), fmi2OK, NULL);
+    }
+    fmi2FreeInstance(c);
+    return failures ? 1 : 0;
+}
+
 int main(int argc, char **argv) {
+    if (argc >= 2 && !strcmp(argv[1], "steps")) {
+        int status = steps();
+        printf("plumbing_test steps: %d failed checks\n", failures);
+        return status;
+    }
     if (argc >= 2 && !strcmp(argv[1], "run")) {
         int status = run();
         printf("plumbing_test run: %d failed checks\n", failures);
@@ -249,6 +290,6 @@ int main(int argc, char **argv) {
         printf("plumbing_test refused: %d failed checks\n", failures);
         return failures ? 1 : 0;
     }
-    fprintf(stderr, "usage: %s run | refused FRAGMENT\n", argv[0]);
+    fprintf(stderr, "usage: %s run | steps | refused FRAGMENT\n", argv[0]);
     return 2;
 }
