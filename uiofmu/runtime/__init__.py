@@ -9,5 +9,5 @@ from may be gone by the time a later module would be needed.
 
 from . import (card, checks, delayed, errors, files, fmu_model, kernels, lpv, matrices, models,  # noqa: F401
                mujoco_runtime, observer, observer_models, parametric_plant, plant_kinds, plant_runtime, registry,
-               schedules, state, stepping, switching, text, tolerances, window)
+               schedules, state, step_rules, stepping, switching, text, tolerances, window)
 from .observer import Runtime, RuntimeInputError  # noqa: F401
