@@ -2221,7 +2221,8 @@ static void sc_log_categories(void) {
        known one applied */
     if (set_logging(I, 1, 2, unknown, fmi2Warning, "true, [logStatusDiscard, logEverything]"))
         I->env.cats = 1u << CAT_DISCARD;
-    if (!discard_line(I, "the known category of two")) fail("no logStatusDiscard line: the known category was not applied");
+    if (!discard_line(I, "the known category of two"))
+        fail("no logStatusDiscard line: the known category was not applied");
     if (error_line(I, "the known category of two")) fail("a logStatusError line with only logStatusDiscard on");
     /* (fmi2True, 0): everything, and the warning of an unknown category says so */
     if (set_logging(I, 1, 0, NULL, fmi2OK, "true, 0")) I->env.cats = CAT_ALL;

@@ -250,7 +250,8 @@ int steps(void) {
         set_u(c, 1.0, 1.0);
         double h = 0.5 + 3 * (nextafter(t0, INFINITY) - t0);
         STATUS(fmi2DoStep(c, t0, h, fmi2True), fmi2OK, NULL);
-        CHECK(get_real(c, VR_X) == 2.0 && get_int(c, VR_COUNT) == 1, "the kernel took 0.5: x = %.17g", get_real(c, VR_X));
+        CHECK(get_real(c, VR_X) == 2.0 && get_int(c, VR_COUNT) == 1, "the kernel took 0.5: x = %.17g",
+              get_real(c, VR_X));
         int before = lines;
         for (int i = 0; i < 3; i++) {
             STATUS(fmi2DoStep(c, t0 + 0.5, i ? 1e-12 : 0.25e-9, fmi2True), fmi2OK, NULL);

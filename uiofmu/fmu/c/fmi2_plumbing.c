@@ -320,8 +320,8 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
         if (!(isfinite(r->tiny) && r->tiny >= 0) || !(isfinite(r->ulps) && r->ulps >= 0) ||
             !(isfinite(r->ulps_limit) && r->ulps_limit >= 0) || r->nsteps < 0 ||
             r->nsteps > MAX_STEPS || !r->steps || r->steps_length != (size_t)(r->nsteps ? r->nsteps : 1))
-            return uiofmu_design_error(msg, len, "the step rule (tiny %g, %g ulps, %d steps in a list of %zu) is out of "
-                                       "range", r->tiny, r->ulps, r->nsteps, r->steps ? r->steps_length : 0);
+            return uiofmu_design_error(msg, len, "the step rule (tiny %g, %g ulps, %d steps in a list of %zu) is "
+                                       "out of range", r->tiny, r->ulps, r->nsteps, r->steps ? r->steps_length : 0);
         for (int i = 0; i < r->nsteps; i++)
             if (!(isfinite(r->steps[i]) && r->steps[i] > r->tiny))
                 return uiofmu_design_error(msg, len, "admissible step %d = %g: expected a finite step above %g", i,
