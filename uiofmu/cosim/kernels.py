@@ -24,12 +24,14 @@ from ..runtime.window import WindowRuntime
 from .comparison import Validation, compare
 from .fmi import Fmu
 from .result import CosimResult, run_result
+from .roundoff import roundoff_floor
 
 
 # -- the results of a run ----------------------------------------------------------------------
 def _affine_result(card, T, steps, X, Y, U, D, H, MODE, theta_true) -> CosimResult:
     """The run of an affine-kernel observer: the state error metrics, the certified bound where the card has
-    one (:func:`uiofmu.families.certified_bound`), and the modes of a switched plant."""
+    one (:func:`uiofmu.families.certified_bound`) with the floor round-off carries
+    (:func:`~uiofmu.cosim.roundoff.roundoff_floor`), and the modes of a switched plant."""
     XH, R = H["xhat"], H["r"]
     DH = H.get("dhat", np.zeros((len(T), 0)))
     bound = certified_bound(card, X[0] - XH[0], D)
@@ -39,8 +41,10 @@ def _affine_result(card, T, steps, X, Y, U, D, H, MODE, theta_true) -> CosimResu
         if card.data.get("overshoot_bound") is not None:
             text = (text.replace("overshoot_bound", overshoot_text(card.data))
                     .replace("decay_bound**k", f"{card.data['decay_bound']:.6g}^k"))
+    leaks = roundoff_floor(card, steps, X, XH, Y, U, D, MODE) if bound is not None else None
     return run_result(T, steps, X, XH, Y, U, D, R, DH, card=card, mode=MODE, bound=bound,
-                      decay=card.data.get("decay_bound"), overshoot=card.data.get("overshoot_bound"), bound_text=text)
+                      decay=card.data.get("decay_bound"), overshoot=card.data.get("overshoot_bound"), bound_text=text,
+                      roundoff=leaks)
 
 
 def _functional_result(card, T, steps, X, Y, U, D, H, MODE, theta_true) -> CosimResult:
