@@ -177,10 +177,10 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
 
 
 def _with_plant(result: CosimResult, plant_path, card: Card) -> CosimResult:
-    """The result with ``metrics["plant_is_design_model"]`` (:func:`plant_is_design_model`) where it checks a
+    """The result with ``metrics["plant"]["is_design_model"]`` (:func:`plant_is_design_model`) where it checks a
     bound."""
     if "bound_respected" in result.metrics:
-        result.metrics["plant_is_design_model"] = plant_is_design_model(plant_path, card)
+        result.metrics["plant"] = {"is_design_model": plant_is_design_model(plant_path, card)}
     return result
 
 

@@ -69,7 +69,8 @@ def _floor_words(metrics: dict) -> str:
 def _why_not(metrics: dict) -> str:
     """Why a bound may fail, by what the run knows of its plant: a plant other than the design model has a
     mismatch floor; the design's own plant does not, and its leaks say whether round-off explains the run."""
-    if not metrics.get("plant_is_design_model"):
+    plant = metrics.get("plant")
+    if not (isinstance(plant, dict) and plant.get("is_design_model")):
         return "a plant other than the design model has a mismatch floor"
     leaks = metrics.get("roundoff_floor")
     if leaks is None:
