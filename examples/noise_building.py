@@ -24,7 +24,7 @@ def main():
     for std in (0.01, 0.05, 0.2):
         result = cosimulate(plant, obs, steps, noise=f"y={std},1")
         m = result.metrics
-        rms = ", ".join(f"{v:.3g}" for v in m["noise"]["rms_error"])
+        rms = ", ".join(f"{v:.3g}" for v in m["noise_rms_error"])
         verdict = {True: "respected", False: "FALSE CERTIFICATE", None: "no certificate to compare"}
         print(f"noise std {std:g} K: measured gain {m['noise_gain_measured']:.4g} "
               f"({verdict[m['noise_gain_respected']]}), rms error {rms} K over the second half, "

@@ -217,3 +217,49 @@ def test_a_violation_on_the_design_plant_never_blames_a_mismatch():
         print_summary({**metrics, "plant": {"is_design_model": design}}, file=out)
         assert said in out.getvalue()
         assert ("has a mismatch floor" in out.getvalue()) is not design
+
+
+def test_a_campaign_along_noise_y_measures_every_run_and_replays_the_worst(example1, tmp_path):
+    """Sensor noise per row (one std for all outputs, three levels, one of them none), each row with its own
+    seed: no run measures a gain above the true one certified, and the worst ratio's row replays bit for bit."""
+    from uiofmu.cosim.campaign import read_table
+
+    card, d, gain = example1
+    obs = build_observer(with_noise_gain(card, 1.001 * gain), tmp_path / "obs.fmu", backend="c")
+    spec = tmp_path / "campaign.toml"
+    spec.write_text(f'[campaign]\nobserver = "{obs}"\nplant = "{d / "plant-c.fmu"}"\nruns = 24\nseed = 3\n'
+                    't_end = 20.0\n[axes]\nsteps = "fixed:0.1"\nxhat0_error = {kind = "normal", std = 1.0}\n'
+                    "noise_y = [0.0, 0.01, 0.1]\n")
+    out = tmp_path / "out"
+    res = run_cli("campaign", spec, "--out", out, "--workers", "1")
+    assert res.code == 0, res.err
+    table = read_table(out / "campaign.csv")
+    assert len(table) == 24 and all(r["status"] == "ok" for r in table)
+    noisy = [r for r in table if float(r["noise_y[1]"]) > 0]
+    assert noisy and len(noisy) < 24 and all(r["noise_gain_respected"] == "true" for r in noisy)
+    assert len({r["noise_seed"] for r in table}) == 24
+    assert all(r["noise_gain_measured"] == "" for r in table if float(r["noise_y[1]"]) == 0)
+    summary = json.loads((out / "summary.json").read_text())
+    worst = summary["worst_noise_gain_ratio"]
+    ratios = [float(r["noise_gain_ratio"]) for r in noisy]
+    assert worst["value"] == max(ratios) <= 1.0 and summary["noise_gain_violations"] == 0
+    assert summary["quantiles"]["noise_rms_error"]["count"] == len(noisy)
+    assert "rms_error" in summary["quantiles"]
+    row = worst["row"]
+    replay = run_cli("campaign", spec, "--out", out, "--replay", str(row))
+    assert replay.code == 0, replay.err
+    assert f"measured {float(table[row]['noise_gain_measured']):.4g}" in replay.out
+    assert (out / "campaign.png").stat().st_size > 10_000
+
+
+def test_a_noise_axis_takes_standard_deviations_only(example1, tmp_path):
+    card, d, _ = example1
+    obs = build_observer(card, tmp_path / "obs.fmu", backend="c")
+    for axis, message in (('{kind = "normal", std = 1.0}', "a normal draw is not always"),
+                          ("[0.1, -0.1]", "axes.noise_y[1]: a standard deviation is >= 0, found -0.1"),
+                          ("[[0.1, 0.2]]", "axes.noise_y[0]: expected 1 value(s)")):
+        spec = tmp_path / "campaign.toml"
+        spec.write_text(f'[campaign]\nobserver = "{obs}"\nplant = "{d / "plant-c.fmu"}"\nruns = 2\n'
+                        f"[axes]\nnoise_y = {axis}\n")
+        res = run_cli("campaign", spec, "--out", tmp_path / "out")
+        assert res.code == 2 and message in res.err, res.err

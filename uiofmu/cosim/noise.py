@@ -170,10 +170,11 @@ def noise_metrics(card, noise: Noise, v: np.ndarray, estimate: np.ndarray, twin:
     dict
         ``noise_gain_certified`` (the card's ``noise.gain_y`` or None), ``noise_gain_measured``
         (``||e - e_twin||_2 / ||v||_2``, sums over the points), ``noise_gain_respected`` (measured <=
-        certified (1 + :data:`GAIN_RTOL`); None without a certified gain), ``noise_gain_ratio`` and
-        ``noise``: the std per output, the seed, its text, ``rms_error`` and ``dhat_rms_error`` of the
-        observer fed the noisy ``y`` over the second half of the run (per element), ``rms_error_noise_free``
-        (the twin's, the same half) and what the bound check is made on.
+        certified (1 + :data:`GAIN_RTOL`); None without a certified gain), ``noise_gain_ratio``,
+        ``noise_std_norm`` (``||sigma||`` of the std per output), ``noise_rms_error`` and
+        ``noise_dhat_rms_error`` (of the observer fed the noisy ``y``, over the second
+        half of the run, per element), and ``noise``: the std per output, the seed, its text, the norm of the
+        noise, ``rms_error_noise_free`` (the twin's, the same half) and what the bound check is made on.
     """
     diff = np.asarray(estimate, dtype=float) - np.asarray(twin, dtype=float)
     rows = np.all(np.isfinite(diff), axis=1)
@@ -185,14 +186,14 @@ def noise_metrics(card, noise: Noise, v: np.ndarray, estimate: np.ndarray, twin:
     err_twin = np.asarray(twin, dtype=float) - np.asarray(true, dtype=float)
     valid = np.all(np.isfinite(err), axis=1)
     out = {"noise_gain_certified": certified, "noise_gain_measured": measured, "noise_gain_respected": respected,
-           "noise_gain_ratio": None if certified in (None, 0.0) or measured is None else measured / certified}
-    section = {"signal": "y", "std": noise.stds(v.shape[1]).tolist(), "seed": noise.seed, "text": noise.text(),
-               "noise_norm": v_norm, "rms_error": _second_half_rms(err[valid]),
-               "rms_error_noise_free": _second_half_rms(err_twin[valid]),
-               "bound_checked_on": "the noise-free twin (the certified bound is one of noise-free outputs)"}
+           "noise_gain_ratio": None if certified in (None, 0.0) or measured is None else measured / certified,
+           "noise_std_norm": float(np.linalg.norm(noise.stds(v.shape[1]))),
+           "noise_rms_error": _second_half_rms(err[valid])}
     if dhat is not None and d is not None and np.size(dhat) and len(d) > 1:
-        section["dhat_rms_error"] = _second_half_rms(np.asarray(dhat)[1:] - np.asarray(d)[:-1])
-    out["noise"] = section
+        out["noise_dhat_rms_error"] = _second_half_rms(np.asarray(dhat)[1:] - np.asarray(d)[:-1])
+    out["noise"] = {"signal": "y", "std": noise.stds(v.shape[1]).tolist(), "seed": noise.seed, "text": noise.text(),
+                    "noise_norm": v_norm, "rms_error_noise_free": _second_half_rms(err_twin[valid]),
+                    "bound_checked_on": "the noise-free twin (the certified bound is one of noise-free outputs)"}
     return out
 
 

@@ -776,6 +776,7 @@ def _with_noise(result, columns: dict, path, metrics: dict, where):
                     "twin_error": result.xhat - result.x}
     result.metrics.update({k: _number(metrics, (k,), where, optional=True)
                            for k in ("noise_gain_certified", "noise_gain_measured", "noise_gain_ratio")})
+    result.metrics["noise_rms_error"] = metrics.get("noise_rms_error")
     respected = metrics.get("noise_gain_respected")
     result.metrics["noise_gain_respected"] = respected if isinstance(respected, bool) else None
     result.metrics["noise"] = section

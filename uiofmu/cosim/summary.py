@@ -96,7 +96,7 @@ def _print_noise(metrics: dict, p) -> None:
         else:
             p(f"  noise gain           FALSE CERTIFICATE: measured {shown} > certified {certified:.4g} "
               f"(ratio {metrics['noise_gain_ratio']:.3g}): the card's noise.gain_y does not hold")
-        p("  rms error with noise " + ", ".join(f"{v:.4g}" for v in nz["rms_error"])
+        p("  rms error with noise " + ", ".join(f"{v:.4g}" for v in metrics["noise_rms_error"])
           + " (second half; noise-free twin " + ", ".join(f"{v:.3g}" for v in nz["rms_error_noise_free"]) + ")")
     if "w" in nz:
         p(f"  process noise        {nz['w']['text']}")

@@ -34,10 +34,10 @@ def cell(value) -> str:
 def axis_columns(campaign: Campaign, setup: Setup) -> list:
     """The axis columns of the table: ``steps``, ``steps_seed``, then one per component."""
     cols = ["steps", "steps_seed"]
-    sizes = {"xhat0_error": setup.n, **{f"plant.{k}": v for k, v in setup.parameters.items()}}
+    sizes = {"xhat0_error": setup.n, "noise_y": setup.p, **{f"plant.{k}": v for k, v in setup.parameters.items()}}
     for name, _ in campaign.named_axes():
         cols += [name] if name == "d_scale" else [f"{name}[{i + 1}]" for i in range(sizes[name])]
-    return cols
+    return cols + (["noise_seed"] if campaign.noise_y is not None else [])
 
 
 def flat(sc: dict) -> dict:
