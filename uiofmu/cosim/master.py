@@ -177,9 +177,9 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
 
 
 def _with_plant(result: CosimResult, plant_path, card: Card) -> CosimResult:
-    """The result with ``metrics["plant"]["is_design_model"]`` (:func:`plant_is_design_model`) where it checks a
-    bound."""
-    if "bound_respected" in result.metrics:
+    """The result with ``metrics["plant"]["is_design_model"]`` (:func:`plant_is_design_model`) where its bound
+    is violated (what the summary's explanation needs)."""
+    if result.metrics.get("bound_respected") is False:
         result.metrics["plant"] = {"is_design_model": plant_is_design_model(plant_path, card)}
     return result
 

@@ -28,22 +28,31 @@ LEAK_EPS = 1e-12
 
 
 def _largest_gain(mats: dict) -> float:
-    """The largest 2-norm of a step's matrices (at least 1)."""
-    norms = [float(np.linalg.norm(np.atleast_2d(np.asarray(v, dtype=float)), 2))
-             for v in mats.values() if np.ndim(v) == 2 and np.size(v)]
+    """The largest Frobenius norm (at least the 2-norm) of a step's matrices (at least 1)."""
+    norms = [float(np.sqrt(np.sum(np.square(v)))) for v in mats.values() if np.ndim(v) == 2 and np.size(v)]
     return max([1.0, *norms])
 
 
 def _step_matrices(card, steps: np.ndarray, mode) -> list | None:
     """The card's step matrices of every step of the run (None where the schedule cannot give them
-    from the run's steps and modes alone, or they have no ``N``)."""
+    from the run's steps and modes alone, or they have no ``N``).
+
+    A schedule that gives the very same matrices for a step's ``(h, h_prev, mode, mode_prev)`` at two
+    different k (a table of them) is asked once more per such key, not at every step."""
     rt = Runtime(card)
-    schedule, h_prev, mode_prev = rt.schedule, rt.h_prev0, rt.mode_prev0
-    out = []
+    schedule, h_prev, mode_prev = rt.schedule, rt.h_prev0, rt.mode_prev0 if mode is not None else None
+    out, seen = [], {}
     try:
         for k, h in enumerate(np.asarray(steps, dtype=float).tolist()):
             m = int(mode[k]) if mode is not None else None
-            out.append(schedule.step_matrices(k, h, h_prev, m, mode_prev if mode is not None else None))
+            key = (h, h_prev, m, mode_prev)
+            known = seen.get(key)
+            if known is not None and known[1]:
+                mats = known[0]
+            else:
+                mats = schedule.step_matrices(k, h, h_prev, m, mode_prev)
+                seen[key] = (mats, known is not None and known[0] is mats)
+            out.append(mats)
             h_prev, mode_prev = h, m
     except (StepRejected, ValueError, TypeError, KeyError):
         return None                       # a step or mode the schedule refuses: no floor beyond the fixed one
