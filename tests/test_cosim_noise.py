@@ -131,7 +131,8 @@ def test_noise_splits_exactly_and_respects_a_true_gain(example1, backend, cli):
     with open(run / "results.csv") as f:
         rows = list(csv.DictReader(f))
     v = np.array([[float(r["v[1]"])] for r in rows])
-    np.testing.assert_array_equal(v, Noise("y", (0.05,), 3).samples(len(rows), 1))
+    # v[i] is what the observer received beyond y: the seeded samples, to the round-off of y + v - y
+    np.testing.assert_allclose(v, Noise("y", (0.05,), 3).samples(len(rows), 1), rtol=0, atol=1e-15)
     diff = np.array([[float(r[f"xhat_noisy[{i}]"]) - float(r[f"xhat[{i}]"]) for i in (1, 2)] for r in rows])
     # the noise's part by the card's own recursion: z_0 takes -Xy v_0, xhat_0 is xhat0 for both observers
     mats = card.matrices
@@ -264,3 +265,32 @@ def test_a_noise_axis_takes_standard_deviations_only(example1, tmp_path):
                         f"[axes]\nnoise_y = {axis}\n")
         res = run_cli("campaign", spec, "--out", tmp_path / "out")
         assert res.code == 2 and message in res.err, res.err
+
+
+def test_quantized_outputs_are_measured_like_noise(example1, tmp_path):
+    """A quantum of 0.05 with no noise: the observer receives y rounded, the twin y; the gain is measured on the
+    rounding error (at most Q/2 per output) and stays under the true gain; a campaign along quantization too."""
+    from uiofmu.cosim.campaign import read_table
+
+    card, d, gain = example1
+    obs = build_observer(with_noise_gain(card, 1.001 * gain), tmp_path / "obs.fmu", backend="c")
+    result = cosimulate(d / "plant-c.fmu", obs, np.full(400, 0.1), quantization=0.05)
+    m = result.metrics
+    v = result.noise["v"]
+    assert 0 < np.abs(v).max() <= 0.025 * (1 + 1e-12)
+    assert m["noise"]["quantum"] == 0.05 and m["noise"]["text"] is None
+    assert m["noise_std_norm"] == pytest.approx(0.05 / np.sqrt(12))
+    assert 0 < m["noise_gain_measured"] <= m["noise_gain_certified"] and m["noise_gain_respected"] is True
+    with pytest.raises(ProblemError, match="a finite number > 0"):
+        cosimulate(d / "plant-c.fmu", obs, np.full(10, 0.1), quantization=-1.0)
+    spec = tmp_path / "campaign.toml"
+    spec.write_text(f'[campaign]\nobserver = "{obs}"\nplant = "{d / "plant-c.fmu"}"\nruns = 6\nseed = 1\n'
+                    'grid = true\n'
+                    't_end = 10.0\n[axes]\nsteps = "fixed:0.1"\nquantization = [0.0, 0.02, 0.2]\n')
+    res = run_cli("campaign", spec, "--out", tmp_path / "out", "--workers", "1")
+    assert res.code == 0, res.err
+    table = read_table(tmp_path / "out" / "campaign.csv")
+    assert {r["quantization"] for r in table} == {"0.0", "0.02", "0.2"} and "noise_seed" not in table[0]
+    assert all((r["noise_gain_respected"] == "true") == (float(r["quantization"]) > 0) for r in table)
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["noise_gain_violations"] == 0 and summary["worst_noise_gain_ratio"]["value"] <= 1.0

@@ -79,7 +79,8 @@ def default_inputs(card: Card):
 @single_blas_thread
 def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, plant_x0=None, xhat0=None,
                plant_parameters: dict | None = None, show_progress: bool | None = None,
-               instances=None, card: Card | None = None, noise=None) -> CosimResult:
+               instances=None, card: Card | None = None, noise=None, quantization: float | None = None
+               ) -> CosimResult:
     """Run the plant and observer FMUs together on the given communication steps.
 
     Parameters
@@ -118,6 +119,9 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         ``w`` (refused for a plant without one). The result is the twin's run (its bound check, the
         certified bound being one of noise-free outputs) with the noisy observer in ``result.noise`` and
         the metrics of :func:`uiofmu.cosim.noise.noise_metrics`. With ``instances``, a third one is the twin.
+    quantization : float, optional
+        An output quantum Q > 0: the observer receives ``Q round((y + v) / Q)`` (after the noise), the twin
+        still the plant's own ``y``; the noise gain is then measured on what the observer received minus ``y``.
 
     Returns
     -------
@@ -144,11 +148,12 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
     steps = np.asarray(steps, dtype=float)
     K = len(steps)
     noise = noises(noise)
+    quantum = check_quantum(quantization)
     if "w" in noise and "w" not in vector_sizes(read_description(plant_path).modelVariables, "input"):
         raise ProblemError(f"--noise {noise['w'].text()}: the plant FMU {plant_path} takes no process noise (it has "
                            "no input w: its problem declares no [plant] W)")
-    if noise:
-        return _timed(_noisy_run(plant_path, observer_path, card, steps, inputs, noise, plant_x0, xhat0,
+    if noise or quantum:
+        return _timed(_noisy_run(plant_path, observer_path, card, steps, inputs, noise, quantum, plant_x0, xhat0,
                                  plant_parameters, show_progress, instances), {}, cpu0)
     if instances is not None:
         for fmu in instances:
@@ -200,8 +205,19 @@ def plant_is_design_model(plant_path, card: Card) -> bool:
     return {k: v for k, v in plant.items() if k != "x0"} == {k: v for k, v in design.items() if k != "x0"}
 
 
-def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs, noise: dict, plant_x0, xhat0,
-               plant_parameters, show_progress, instances) -> CosimResult:
+def check_quantum(quantization) -> float | None:
+    """An output quantum: None (none) or a finite number > 0 (raises :class:`ProblemError` naming it)."""
+    if quantization is None:
+        return None
+    if (isinstance(quantization, bool) or not isinstance(quantization, (int, float))
+            or not math.isfinite(quantization) or quantization <= 0):
+        raise ProblemError(f"quantization: expected an output quantum, a finite number > 0, found {quantization!r}"
+                           [:200])
+    return float(quantization)
+
+
+def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs, noise: dict, quantum, plant_x0,
+               xhat0, plant_parameters, show_progress, instances) -> CosimResult:
     """:func:`cosimulate` with noise: the plant, the observer fed the noisy ``y`` and its noise-free twin
     (:func:`uiofmu.cosim.twin.run_twin_loop`); the twin's result, with the noisy run in ``result.noise``."""
     K = len(steps)
@@ -226,9 +242,14 @@ def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs,
                        + [n for n in sourced if obs.integer(n)])
         p = len(plant.refs("y"))
         v = noise["y"].samples(K + 1, p) if "y" in noise else np.zeros((K + 1, p))
+
+        def measured(k, y):
+            noisy = y + v[k]
+            return quantum * np.round(noisy / quantum) if quantum else noisy
+
         with progress(total=K, desc="co-simulation with noise", unit="step", enabled=show_progress) as bar:
-            recorded, H, H_twin = run_twin_loop(plant, obs, twin, plant_inputs, fed, sourced, source, v, T, steps,
-                                                bar)
+            recorded, H, H_twin = run_twin_loop(plant, obs, twin, plant_inputs, fed, sourced, source, measured, T,
+                                                steps, bar)
     X, Y = recorded["x"], recorded["y"]
     U = source["u"] if "u" in source else np.zeros((K + 1, 0))
     D = source["d"] if "d" in source else np.zeros((K + 1, 0))
@@ -238,13 +259,16 @@ def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs,
     kernel = cosim_kernel(card)
     result = _with_plant(kernel.result(card, T, steps, X, Y, U, D, H_twin, MODE, theta_true), plant_path, card)
     noisy = kernel.result(card, T, steps, X, Y, U, D, H, MODE, theta_true)
-    if "y" in noise:
+    if "y" in noise or quantum:
         truth = X if kernel.estimate == "xhat" else noisy.functional["true"]
         dhat = H.get("dhat")
-        result.metrics.update(noise_metrics(card, noise["y"], v, kernel.estimate_of(noisy), kernel.estimate_of(result),
-                                            truth, dhat if dhat is not None and dhat.size else None, D))
-        result.noise = {"v": v, "std": noise["y"].stds(p), "estimate": kernel.estimate_of(noisy),
-                        "error": kernel.estimate_of(noisy) - truth, "twin_error": kernel.estimate_of(result) - truth}
+        v = recorded["y_measured"] - Y                 # what the observer received beyond the plant's y
+        result.metrics.update(noise_metrics(card, v, kernel.estimate_of(noisy), kernel.estimate_of(result), truth,
+                                            dhat if dhat is not None and dhat.size else None, D,
+                                            noise=noise.get("y"), quantum=quantum))
+        result.noise = {"v": v, "std": np.asarray(result.metrics["noise"]["effective_std"]),
+                        "estimate": kernel.estimate_of(noisy), "error": kernel.estimate_of(noisy) - truth,
+                        "twin_error": kernel.estimate_of(result) - truth}
     if "w" in noise:
         result.metrics.setdefault("noise", {})["w"] = {"std": noise["w"].stds(sizes["w"]).tolist(),
                                                       "seed": noise["w"].seed, "text": noise["w"].text()}

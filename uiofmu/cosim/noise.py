@@ -147,23 +147,26 @@ def _second_half_rms(err: np.ndarray) -> list:
     return np.sqrt(np.mean(half * half, axis=0)).tolist() if len(half) else []
 
 
-def noise_metrics(card, noise: Noise, v: np.ndarray, estimate: np.ndarray, twin: np.ndarray,
-                  true: np.ndarray, dhat=None, d=None) -> dict:
-    """The metrics of a run with measurement noise.
+def noise_metrics(card, v: np.ndarray, estimate: np.ndarray, twin: np.ndarray, true: np.ndarray, dhat=None,
+                  d=None, *, noise: Noise | None = None, quantum: float | None = None) -> dict:
+    """The metrics of a run with measurement noise (or an output quantum).
 
     Parameters
     ----------
     card : Card
-    noise : Noise
-        The measurement noise.
     v : (K+1, p) array
-        Its samples, added to ``y`` at every point.
+        What the observer received beyond the plant's ``y`` at every point (the noise, and the
+        quantisation's error).
     estimate, twin : (K+1, .) arrays
         The estimate of the observer fed the noisy ``y`` and of its noise-free twin.
     true : (K+1, .) array
         What they estimate (``x``; NaN rows, as a functional observer's first ones, are left out).
     dhat, d : arrays, optional
         The noisy observer's unknown-input estimate and the input held over each step.
+    noise : Noise, optional
+        The white noise added to ``y``.
+    quantum : float, optional
+        The output quantum Q (``y`` rounded to multiples of it after the noise).
 
     Returns
     -------
@@ -171,11 +174,15 @@ def noise_metrics(card, noise: Noise, v: np.ndarray, estimate: np.ndarray, twin:
         ``noise_gain_certified`` (the card's ``noise.gain_y`` or None), ``noise_gain_measured``
         (``||e - e_twin||_2 / ||v||_2``, sums over the points), ``noise_gain_respected`` (measured <=
         certified (1 + :data:`GAIN_RTOL`); None without a certified gain), ``noise_gain_ratio``,
-        ``noise_std_norm`` (``||sigma||`` of the std per output), ``noise_rms_error`` and
+        ``noise_std_norm`` (``||sigma||`` of the effective std per output, ``sqrt(std^2 + Q^2 / 12)``: a
+        quantum's rounding error as uniform noise), ``noise_rms_error`` and
         ``noise_dhat_rms_error`` (of the observer fed the noisy ``y``, over the second
-        half of the run, per element), and ``noise``: the std per output, the seed, its text, the norm of the
-        noise, ``rms_error_noise_free`` (the twin's, the same half) and what the bound check is made on.
+        half of the run, per element), and ``noise``: the std per output, the seed and its text (with noise),
+        the quantum (or None), the effective std, the norm of ``v``, ``rms_error_noise_free`` (the twin's,
+        the same half) and what the bound check is made on.
     """
+    std = noise.stds(v.shape[1]) if noise is not None else np.zeros(v.shape[1])
+    effective = np.sqrt(std ** 2 + (quantum or 0.0) ** 2 / 12)
     diff = np.asarray(estimate, dtype=float) - np.asarray(twin, dtype=float)
     rows = np.all(np.isfinite(diff), axis=1)
     v_norm = float(np.sqrt(np.sum(v * v)))
@@ -187,12 +194,14 @@ def noise_metrics(card, noise: Noise, v: np.ndarray, estimate: np.ndarray, twin:
     valid = np.all(np.isfinite(err), axis=1)
     out = {"noise_gain_certified": certified, "noise_gain_measured": measured, "noise_gain_respected": respected,
            "noise_gain_ratio": None if certified in (None, 0.0) or measured is None else measured / certified,
-           "noise_std_norm": float(np.linalg.norm(noise.stds(v.shape[1]))),
+           "noise_std_norm": float(np.linalg.norm(effective)),
            "noise_rms_error": _second_half_rms(err[valid])}
     if dhat is not None and d is not None and np.size(dhat) and len(d) > 1:
         out["noise_dhat_rms_error"] = _second_half_rms(np.asarray(dhat)[1:] - np.asarray(d)[:-1])
-    out["noise"] = {"signal": "y", "std": noise.stds(v.shape[1]).tolist(), "seed": noise.seed, "text": noise.text(),
-                    "noise_norm": v_norm, "rms_error_noise_free": _second_half_rms(err_twin[valid]),
+    out["noise"] = {"signal": "y", "std": std.tolist(), "seed": None if noise is None else noise.seed,
+                    "text": None if noise is None else noise.text(), "quantum": quantum,
+                    "effective_std": effective.tolist(), "noise_norm": v_norm,
+                    "rms_error_noise_free": _second_half_rms(err_twin[valid]),
                     "bound_checked_on": "the noise-free twin (the certified bound is one of noise-free outputs)"}
     return out
 

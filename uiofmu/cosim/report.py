@@ -265,7 +265,8 @@ def plot_noise(ax, t, unit: str, result) -> None:
     bottom = max(float(drawn.max()), 1e-300) * 1e-9
     ax.semilogy(t, np.maximum(error, bottom), lw=1.2, label="||e|| of the observer fed y + v")
     ax.semilogy(t, np.maximum(part, bottom), lw=1.0, alpha=0.8, label="||e - e_twin||: the noise's part")
-    ax.axhline(level, color="k", ls=":", lw=1.2, label=f"noise std ||sigma|| = {level:.3g}")
+    ax.axhline(level, color="k", ls=":", lw=1.2, label=f"noise std ||sigma|| = {level:.3g}"
+               + (" (with the quantum's Q/sqrt(12))" if (m.get("noise") or {}).get("quantum") else ""))
     certified, measured = m.get("noise_gain_certified"), m.get("noise_gain_measured")
     if certified is not None:
         ax.axhline(certified * level, color="tab:red", ls="--", lw=1.2,
@@ -768,7 +769,8 @@ def _with_noise(result, columns: dict, path, metrics: dict, where):
     if "v[1]" not in columns or not isinstance(section, dict) or "std" not in section:
         return result
     v, estimate = _vector(columns, "v", path), _vector(columns, "xhat_noisy", path)
-    std = np.asarray(section["std"], dtype=float) if isinstance(section["std"], list) else None
+    level = section.get("effective_std", section["std"])
+    std = np.asarray(level, dtype=float) if isinstance(level, list) else None
     if estimate.shape != result.x.shape or std is None or std.shape != (v.shape[1],):
         raise ProblemError(f"{where}: noise.std and the columns v[i], xhat_noisy[i] of {path} do not match its "
                            "x and y")

@@ -84,8 +84,12 @@ def _print_noise(metrics: dict, p) -> None:
     one (a false certificate loudly), the error with noise."""
     nz = metrics["noise"]
     if "std" in nz:
-        p(f"  noise                {nz['text']} (white, std per output "
-          + ", ".join(f"{s:.3g}" for s in nz["std"]) + ", added between the plant and the observer)")
+        if nz.get("text"):
+            p(f"  noise                {nz['text']} (white, std per output "
+              + ", ".join(f"{s:.3g}" for s in nz["std"]) + ", added between the plant and the observer)")
+        if nz.get("quantum"):
+            p(f"  quantization         outputs rounded to multiples of {nz['quantum']:.6g} on their way to the "
+              "observer")
         measured, certified = metrics["noise_gain_measured"], metrics["noise_gain_certified"]
         shown = "none" if measured is None else f"{measured:.4g}"
         if certified is None:

@@ -24,8 +24,8 @@ def _step(fmu: Fmu, who: str, k: int, t: float, h: float) -> None:
 
 
 def run_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: list, sourced: list, source: dict,
-                  v: np.ndarray, times: np.ndarray, steps: np.ndarray, bar) -> tuple:
-    """Step the plant, the observer fed ``y + v`` and its noise-free twin over every point.
+                  measured, times: np.ndarray, steps: np.ndarray, bar) -> tuple:
+    """Step the plant, the observer fed the measured ``y`` and its noise-free twin over every point.
 
     Parameters
     ----------
@@ -37,8 +37,8 @@ def run_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: list
         The observer inputs the plant feeds and those the source does (:func:`~uiofmu.cosim.master.routes`).
     source : dict of str to numpy.ndarray
         The source's values at every point.
-    v : (K+1, p) array
-        The noise added to ``y`` at every point.
+    measured : callable
+        ``measured(k, y)``: what the observer receives at point k for the plant's ``y`` (noisy, quantised).
     times, steps : arrays
         The communication points and the steps.
     bar
@@ -47,21 +47,24 @@ def run_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: list
     Returns
     -------
     (dict, dict, dict)
-        The plant's recorded outputs (``x``, ``y`` and those it feeds), the observer's outputs and the twin's,
-        by name, one row per point.
+        The plant's recorded outputs (``x``, ``y`` and those it feeds, and ``y_measured``: what the observer
+        received), the observer's outputs and the twin's, by name, one row per point.
     """
     K = len(steps)
     outputs = plant.ports("output")
     recorded = {name: np.zeros((K + 1, outputs[name])) for name in dict.fromkeys(["x", "y", *fed]) if name in outputs}
+    recorded["y_measured"] = np.zeros_like(recorded["y"])
     H = {name: np.zeros((K + 1, size)) for name, size in obs.ports("output").items()}
     H_twin = {name: np.zeros((K + 1, size)) for name, size in twin.ports("output").items()}
     for k in range(K + 1):
         for name in plant_inputs:
             plant.set(name, source[name][k])
-        for name, history in recorded.items():
-            history[k] = plant.get(name)
+        for name in outputs:
+            if name in recorded:
+                recorded[name][k] = plant.get(name)
+        recorded["y_measured"][k] = measured(k, recorded["y"][k])
         for name in fed:
-            obs.set(name, recorded[name][k] + v[k] if name == "y" else recorded[name][k])
+            obs.set(name, recorded["y_measured"][k] if name == "y" else recorded[name][k])
             twin.set(name, recorded[name][k])
         for name in sourced:
             obs.set(name, source[name][k])

@@ -18,6 +18,7 @@ File format (every key is checked; an unknown key is an error naming it)::
     d_scale = {kind = "uniform", low = 0.5, high = 1.5}      # scales the problem's [signals] d
     plant_parameters = {x0 = {kind = "normal", mean = 22.0, std = 1.0}}   # by the plant FMU's names
     noise_y = [0.0, 0.01, 0.05]                              # sensor noise std per output (cosim --noise)
+    quantization = [0.0, 0.1]                                # output quantum (0: none)
 
 An axis value is a number (constant), a list (one entry drawn per run; with ``grid = true`` each
 entry is a grid point; for a vector an entry may be a list of its size), or a table with ``kind``:
@@ -28,6 +29,8 @@ takes fmi2Integers only (:data:`uiofmu.cosim.fmi.FMI2_INTEGER`; a number or a li
 ``noise_y`` is the std of white sensor noise per output (a number for all, or one per output; 0: none),
 so at least 0: a constant, a choice or a uniform draw with ``low >= 0``; each row's noise has its own seed
 (the column ``noise_seed``), and the run measures its noise gain (:mod:`uiofmu.cosim.noise`).
+``quantization`` is an output quantum Q >= 0 (0: none): the observer receives ``y`` rounded to multiples
+of Q, after the noise, and the run measures the noise gain on what it received.
 """
 
 from __future__ import annotations
@@ -53,7 +56,7 @@ AXIS_LIMIT = 1e100
 KINDS = ("constant", "choice", "normal", "uniform")
 #: Keys of the [campaign] and [axes] tables.
 CAMPAIGN_KEYS = ("problem", "observer", "plant", "runs", "seed", "t_end", "grid", "backend", "batch")
-AXES_KEYS = ("steps", "xhat0_error", "d_scale", "plant_parameters", "noise_y")
+AXES_KEYS = ("steps", "xhat0_error", "d_scale", "plant_parameters", "noise_y", "quantization")
 
 
 @dataclass(frozen=True)
@@ -163,6 +166,8 @@ class Campaign:
         The file's text (its digest names the built FMUs).
     noise_y : Axis or None
         The std of the sensor noise per output.
+    quantization : Axis or None
+        The output quantum.
     """
 
     path: Path
@@ -181,6 +186,7 @@ class Campaign:
     plant_parameters: tuple = ()
     text: str = ""
     noise_y: Axis | None = None
+    quantization: Axis | None = None
 
     def grid_axes(self) -> list:
         """The axes a grid enumerates, as ``(name, number of values)`` in the order of the file."""
@@ -200,7 +206,7 @@ class Campaign:
         """``(column name, Axis)`` of the numeric axes, in draw order."""
         out = [(name, a) for name, a in (("xhat0_error", self.xhat0_error), ("d_scale", self.d_scale)) if a]
         out += [(f"plant.{name}", a) for name, a in self.plant_parameters]
-        return out + ([("noise_y", self.noise_y)] if self.noise_y else [])
+        return out + [(name, a) for name, a in (("noise_y", self.noise_y), ("quantization", self.quantization)) if a]
 
 
 
@@ -315,13 +321,15 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
     xhat0_error = parse_axis(axes.get("xhat0_error"), "axes.xhat0_error") if axes.has("xhat0_error") else None
     d_scale = parse_axis(axes.get("d_scale"), "axes.d_scale") if axes.has("d_scale") else None
     plant_parameters = _plant_axes(axes)
-    noise_y = _std_axis(parse_axis(axes.get("noise_y"), "axes.noise_y")) if axes.has("noise_y") else None
+    noise_y, quantization = (_std_axis(parse_axis(axes.get(key), f"axes.{key}")) if axes.has(key) else None
+                             for key in ("noise_y", "quantization"))
     axes.done()
 
     runs = settings.pop("runs")
     campaign = Campaign(path=path, problem=problem, observer=observer, plant=plant, runs=runs or 0,
                         steps=tuple(steps), xhat0_error=xhat0_error, d_scale=d_scale,
-                        plant_parameters=tuple(plant_parameters), text=text, noise_y=noise_y, **settings)
+                        plant_parameters=tuple(plant_parameters), text=text, noise_y=noise_y,
+                        quantization=quantization, **settings)
     return replace(campaign, runs=_runs(campaign, runs))
 
 
@@ -419,7 +427,7 @@ def _plant_axes(axes: Table) -> list:
 
 
 def _std_axis(axis: Axis) -> Axis:
-    """A standard deviation's axis: every value it can give at least 0 (no normal draw)."""
+    """A standard deviation's (or a quantum's) axis: every value it can give at least 0 (no normal draw)."""
     if axis.kind == "normal":
         raise ProblemError(f"{axis.key}: a standard deviation is >= 0, and a normal draw is not always; give a "
                            "number, a list or a uniform draw with low >= 0")

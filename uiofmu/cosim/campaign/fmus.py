@@ -142,6 +142,8 @@ def prepare(campaign: Campaign, out=None, say=None) -> Setup:
     p = vector_sizes(variables, "output").get("y", 0)
     if campaign.noise_y is not None:
         campaign.noise_y.check_size(p)
+    if campaign.quantization is not None:
+        campaign.quantization.check_size(1)
     plant_bytes = read_bytes(plant, "plant FMU", error=FmuError)
     observer_bytes = read_bytes(observer, "observer FMU", error=FmuError)
     t_end = campaign.t_end if campaign.t_end is not None else default_t_end(card)

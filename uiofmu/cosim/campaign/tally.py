@@ -138,7 +138,7 @@ def summary(campaign: Campaign, setup: Setup, tally: Tally, cancelled: bool = Fa
         out["bound_violations"] = tally.violations
     else:
         out["worst_max_bound_ratio"] = None
-    if campaign.noise_y is not None:
+    if campaign.noise_y is not None or campaign.quantization is not None:
         worst = tally.worst_noise
         out["worst_noise_gain_ratio"] = None if worst is None else {
             "value": worst[0], "row": worst[1], "scenario": scenario(campaign, setup, worst[1]),
