@@ -294,3 +294,25 @@ def test_quantized_outputs_are_measured_like_noise(example1, tmp_path):
     assert all((r["noise_gain_respected"] == "true") == (float(r["quantization"]) > 0) for r in table)
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["noise_gain_violations"] == 0 and summary["worst_noise_gain_ratio"]["value"] <= 1.0
+
+
+def test_a_functional_observer_s_noise_part_is_its_window_formula(tmp_path, cli):
+    """gx at point k is 11 y_(k-1) + 2 y_k (G x of one step back): its noise part is 11 v_(k-1) + 2 v_k exactly."""
+    from tests.conftest import EXAMPLES
+
+    problem = EXAMPLES / "seed003_example.toml"
+    assert cli("design", problem, "-o", tmp_path / "card.json").code == 0
+    assert cli("build", tmp_path / "card.json", "-o", tmp_path / "obs.fmu", "--backend", "c").code == 0
+    assert cli("plant", problem, "-o", tmp_path / "plant.fmu", "--backend", "c").code == 0
+    res = cli("cosim", "--plant", tmp_path / "plant.fmu", "--observer", tmp_path / "obs.fmu", "--noise", "y=0.01,2",
+              "--out", tmp_path / "run", "--no-report")
+    assert res.code == 0, res.err
+    assert "noise gain           measured" in res.out and "the card certifies none" in res.out
+    with open(tmp_path / "run" / "results.csv") as f:
+        rows = list(csv.DictReader(f))
+    v = np.array([float(r["v[1]"]) for r in rows])
+    valid = np.array([float(r["gx_valid"]) for r in rows]) > 0.5
+    diff = np.array([float(r["gx_noisy[1]"]) - float(r["gx[1]"]) for r in rows])
+    k = np.flatnonzero(valid)
+    assert k.size > 5
+    np.testing.assert_allclose(diff[k], 11 * v[k - 1] + 2 * v[k], rtol=1e-12, atol=1e-14)

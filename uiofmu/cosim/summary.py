@@ -21,6 +21,8 @@ def print_summary(metrics: dict, paths: dict | None = None, file=None) -> None:
           + (" (the first full window)" if metrics["exact_from_first_full_window"] else ""))
         if metrics["max_relative_error_when_valid"] is not None:
             p(f"  largest error        {metrics['max_relative_error_when_valid']:.3g} relative, once valid")
+        if "noise" in metrics:
+            _print_noise(metrics, p)
         for key, path in (paths or {}).items():
             p(f"  {key:20s} {path}")
         return
