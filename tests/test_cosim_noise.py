@@ -4,6 +4,7 @@ both backends driven by fmpy."""
 from __future__ import annotations
 
 import csv
+import io
 import json
 
 import numpy as np
@@ -14,6 +15,7 @@ from uiofmu.cosim.master import cosimulate, default_steps, plant_is_design_model
 from uiofmu.cosim.metrics import error_metrics
 from uiofmu.cosim.noise import Noise, parse_noise
 from uiofmu.cosim.steps import step_sequence
+from uiofmu.cosim.summary import print_summary
 from uiofmu.fmu.export import build_observer
 from uiofmu.runtime.card import card_from_data
 from uiofmu.runtime.errors import ProblemError
@@ -82,6 +84,10 @@ def test_dc_motor_bound_is_respected_with_the_round_off_floor_stated(dc_motor, b
     bare = error_metrics(result.times, result.h, result.x, result.xhat, result.bound, m["certified_decay"],
                          m["certified_overshoot"])
     assert bare["bound_respected"] is False
+    said = io.StringIO()
+    print_summary(m, file=said)
+    assert "bound respected      yes" in said.getvalue()
+    assert f"carried by the certified decay, {leaks['carried']:.3g}" in said.getvalue(), said.getvalue()
     res = cli("cosim", "--plant", plant, "--observer", obs, "--t-end", "5", "--out", d / f"run-{backend}",
               "--no-report")
     assert res.code == 0, res.err
@@ -204,10 +210,6 @@ def test_parse_noise_reads_lists_and_refuses_long_texts():
 
 
 def test_a_violation_on_the_design_plant_never_blames_a_mismatch():
-    import io
-
-    from uiofmu.cosim.summary import print_summary
-
     metrics = {"steps": 10, "step_min": 0.1, "step_max": 0.1, "t_end": 1.0, "initial_error_norm": 1.0,
                "final_error_norm": 1e-3, "steps_to_1pct": None, "bound_formula": "b", "certified_decay": 0.5,
                "certified_overshoot": 1.0, "bound_respected": False, "first_bound_violation": 3,
