@@ -28,6 +28,7 @@ def test_demo(cli, tmp_path):
 @pytest.mark.parametrize("script,outputs", [
     ("seed000_example1.py", ["figure1_classical.png", "report.png", "metrics.json"]),
     ("two_room_building.py", ["figure1.png", "figure2.png", "report.png", "metrics.json"]),
+    ("noise_building.py", ["report.png", "metrics.json", "results.csv"]),
     pytest.param("quarter_car.py", ["dhat_vs_d.png", "quarter-car/report.png", "quarter-car-ltv/metrics.json"],
                  marks=pytest.mark.mujoco),
     ("seed000_ltv_vs_classical.py", ["fig1_x2_estimates.png", "fig2_eigenvalues.png", "fig6_alpha.png",

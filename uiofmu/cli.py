@@ -204,6 +204,7 @@ def _cmd_linearize(args) -> int:
 def _cmd_cosim(args) -> int:
     from .cosim.master import (check_format, cosimulate, default_steps, default_t_end, load_inputs, observer_card,
                                step_sequence, write_outputs)
+    from .cosim.noise import noises
     from .cosim.steps import short_spec
     from .cosim.summary import print_summary
 
@@ -214,7 +215,8 @@ def _cmd_cosim(args) -> int:
     t_end = args.t_end if args.t_end is not None else default_t_end(card)
     steps = step_sequence(spec, t_end, seed=args.seed)
     inputs = load_inputs(args.inputs, args.plant, args.observer) if args.inputs else None
-    result = cosimulate(args.plant, args.observer, steps, inputs)
+    noise = noises(args.noise)
+    result = cosimulate(args.plant, args.observer, steps, inputs, noise=list(noise.values()))
     paths = write_outputs(result, args.out, title=f"{card.name}: {card.family} observer, steps {short_spec(spec)}",
                           report=not args.no_report, fmt=args.format)
     print(f"{card.name}: co-simulation of {Path(args.observer).name} against {Path(args.plant).name}")
@@ -446,6 +448,12 @@ def _add_cosim(sub) -> None:
     p.add_argument("--seed", type=_count(0), default=0, help="seed of random step kinds (default 0)")
     p.add_argument("--inputs", metavar="CSV", help="input table instead of the problem's [signals]")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--noise", action="append", metavar="SIGNAL=STD[,SEED]",
+                   help="white Gaussian noise, seeded (default seed 0): y=STD adds it to the plant's outputs on "
+                        "their way to the observer (STD one number, or [S1,S2,...] per output) and runs a "
+                        "noise-free twin of the observer alongside, to measure the noise gain against the card's "
+                        "noise.gain_y; w=STD feeds a plant's process-noise input w (only where it has one). "
+                        "Once per signal")
     p.add_argument("--no-report", action="store_true",
                    help="do not draw DIR/report.png (saves matplotlib's import and the drawing)")
     p.add_argument("--format", default="csv", metavar="FORMAT",

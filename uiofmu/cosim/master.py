@@ -27,6 +27,8 @@ from ..runtime.files import atomic_output, check_output_dir, write_atomic
 from .fmi import Fmu, FmuCallError, first_non_integer, not_an_integer, read_description, read_model_json, vector_sizes
 from .inputs import CsvInputs, SignalInputs, values_at
 from .kernels import cosim_kernel
+from .noise import noise_metrics, noises
+from .twin import run_twin_loop
 from .result import CosimResult
 from ..progress import progress
 from ..runtime.observer import Runtime
@@ -77,7 +79,8 @@ def default_inputs(card: Card):
 @single_blas_thread
 def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, plant_x0=None, xhat0=None,
                plant_parameters: dict | None = None, show_progress: bool | None = None,
-               instances=None, card: Card | None = None) -> CosimResult:
+               instances=None, card: Card | None = None, noise=None, quantization: float | None = None
+               ) -> CosimResult:
     """Run the plant and observer FMUs together on the given communication steps.
 
     Parameters
@@ -108,6 +111,17 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         again, and leaves them open (a campaign's worker keeps them for all its runs).
     card : Card, optional
         The observer's card, already read and re-checked (:func:`observer_card`) for these runs.
+    noise : str, Noise or list of them, optional
+        White Gaussian noise (:mod:`uiofmu.cosim.noise`; text ``y=STD[,SEED]``, ``STD`` one number or a list
+        ``[S1,...]`` per output): ``y`` is added to the plant's outputs on their way to the observer (the
+        plant's state stays the truth), and a noise-free twin of the observer (a second instance of its FMU,
+        fed the plant's own ``y``) runs in the same loop; ``w`` feeds a plant FMU's process-noise input
+        ``w`` (refused for a plant without one). The result is the twin's run (its bound check, the
+        certified bound being one of noise-free outputs) with the noisy observer in ``result.noise`` and
+        the metrics of :func:`uiofmu.cosim.noise.noise_metrics`. With ``instances``, a third one is the twin.
+    quantization : float, optional
+        An output quantum Q > 0: the observer receives ``Q round((y + v) / Q)`` (after the noise), the twin
+        still the plant's own ``y``; the noise gain is then measured on what the observer received minus ``y``.
 
     Returns
     -------
@@ -133,6 +147,14 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         inputs = default_inputs(card)
     steps = np.asarray(steps, dtype=float)
     K = len(steps)
+    noise = noises(noise)
+    quantum = check_quantum(quantization)
+    if "w" in noise and "w" not in vector_sizes(read_description(plant_path).modelVariables, "input"):
+        raise ProblemError(f"--noise {noise['w'].text()}: the plant FMU {plant_path} takes no process noise (it has "
+                           "no input w: its problem declares no [plant] W)")
+    if noise or quantum:
+        return _timed(_noisy_run(plant_path, observer_path, card, steps, inputs, noise, quantum, plant_x0, xhat0,
+                                 plant_parameters, show_progress, instances), {}, cpu0)
     if instances is not None:
         for fmu in instances:
             fmu.reset()
@@ -140,7 +162,7 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         # loaded here are closed here, also when the second fails to load; given ones stay open
         plant, obs = instances or (stack.enter_context(Fmu(plant_path, "plant")),
                                    stack.enter_context(Fmu(observer_path, "observer")))
-        fed, sourced, theta_true = _initialize(plant, obs, plant_path, inputs, plant_parameters, plant_x0, xhat0)
+        fed, sourced, theta_true = _initialize(plant, obs, plant_path, inputs.sizes, plant_parameters, plant_x0, xhat0)
         cpu1 = time.process_time()
         T = communication_points(steps)
         plant_inputs = list(plant.ports("input"))
@@ -155,15 +177,111 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         X, Y, U, D, H, MODE = _histories(loop, plant, obs, source, fed, K)
         cpu4 = time.process_time()
     timing = {"steps": cpu4 - cpu1, "loop": cpu3 - cpu2, "fmi_calls_per_step": loop.calls_per_step}
-    return _timed(cosim_kernel(card).result(card, T, steps, X, Y, U, D, H, MODE, theta_true), timing, cpu0)
+    return _timed(_with_plant(cosim_kernel(card).result(card, T, steps, X, Y, U, D, H, MODE, theta_true),
+                              plant_path, card), timing, cpu0)
 
 
-def _initialize(plant: Fmu, obs: Fmu, plant_path, inputs, plant_parameters, plant_x0, xhat0) -> tuple:
-    """Route the signals and initialise both FMUs: ``(fed, sourced)`` of :func:`routes` and the plant's
-    true ``theta`` (None for a plant without one)."""
+def _with_plant(result: CosimResult, plant_path, card: Card) -> CosimResult:
+    """The result with ``metrics["plant"]["is_design_model"]`` (:func:`plant_is_design_model`) where its bound
+    is violated (what the summary's explanation needs)."""
+    if result.metrics.get("bound_respected") is False:
+        result.metrics["plant"] = {"is_design_model": plant_is_design_model(plant_path, card)}
+    return result
+
+
+def plant_is_design_model(plant_path, card: Card) -> bool:
+    """Whether the plant FMU simulates the design's own problem: a plant FMU built by uiofmu whose model
+    (``resources/model.json``) is the plant of the card's problem, all but its initial state."""
+    from ..problem import problem_from_data
+
+    try:
+        spec = read_model_json(plant_path)
+        design = problem_from_data(card.data["problem"], default_name=card.name).plant.to_data()
+    except (FmuError, ProblemError, KeyError, TypeError, ValueError):
+        return False
+    plant = spec.get("plant") if spec.get("kind") == "plant" else None
+    if not isinstance(plant, dict):
+        return False
+    return {k: v for k, v in plant.items() if k != "x0"} == {k: v for k, v in design.items() if k != "x0"}
+
+
+def check_quantum(quantization) -> float | None:
+    """An output quantum: None (none) or a finite number > 0 (raises :class:`ProblemError` naming it)."""
+    if quantization is None:
+        return None
+    if (isinstance(quantization, bool) or not isinstance(quantization, (int, float))
+            or not math.isfinite(quantization) or quantization <= 0):
+        raise ProblemError(f"quantization: expected an output quantum, a finite number > 0, found {quantization!r}"
+                           [:200])
+    return float(quantization)
+
+
+def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs, noise: dict, quantum, plant_x0,
+               xhat0, plant_parameters, show_progress, instances) -> CosimResult:
+    """:func:`cosimulate` with noise: the plant, the observer fed the noisy ``y`` and its noise-free twin
+    (:func:`uiofmu.cosim.twin.run_twin_loop`); the twin's result, with the noisy run in ``result.noise``."""
+    K = len(steps)
+    T = communication_points(steps)
+    with contextlib.ExitStack() as stack:
+        if instances is not None:
+            for fmu in instances:
+                fmu.reset()
+        plant, obs = instances[:2] if instances else (stack.enter_context(Fmu(plant_path, "plant")),
+                                                       stack.enter_context(Fmu(observer_path, "observer")))
+        twin = (instances[2] if instances and len(instances) > 2
+                else stack.enter_context(Fmu(observer_path, "observer-noise-free")))
+        source = values_at(inputs, T)
+        sizes = dict(inputs.sizes)
+        if "w" in noise:
+            sizes["w"] = plant.ports("input")["w"]
+            source["w"] = noise["w"].samples(K + 1, sizes["w"])
+        fed, sourced, theta_true = _initialize(plant, obs, plant_path, sizes, plant_parameters, plant_x0, xhat0)
+        twin.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
+        plant_inputs = list(plant.ports("input"))
+        check_integers(inputs, source, T, [n for n in plant_inputs if plant.integer(n)]
+                       + [n for n in sourced if obs.integer(n)])
+        p = len(plant.refs("y"))
+        v = noise["y"].samples(K + 1, p) if "y" in noise else np.zeros((K + 1, p))
+
+        def measured(k, y):
+            noisy = y + v[k]
+            return quantum * np.round(noisy / quantum) if quantum else noisy
+
+        with progress(total=K, desc="co-simulation with noise", unit="step", enabled=show_progress) as bar:
+            recorded, H, H_twin = run_twin_loop(plant, obs, twin, plant_inputs, fed, sourced, source, measured, T,
+                                                steps, bar)
+    X, Y = recorded["x"], recorded["y"]
+    U = source["u"] if "u" in source else np.zeros((K + 1, 0))
+    D = source["d"] if "d" in source else np.zeros((K + 1, 0))
+    MODE = None
+    if obs.has("mode"):
+        MODE = recorded["mode"][:, 0].copy() if "mode" in fed else np.round(source["mode"])[:, 0]
+    kernel = cosim_kernel(card)
+    result = _with_plant(kernel.result(card, T, steps, X, Y, U, D, H_twin, MODE, theta_true), plant_path, card)
+    noisy = kernel.result(card, T, steps, X, Y, U, D, H, MODE, theta_true)
+    if "y" in noise or quantum:
+        truth = X if kernel.estimate == "xhat" else noisy.functional["true"]
+        dhat = H.get("dhat")
+        v = recorded["y_measured"] - Y                 # what the observer received beyond the plant's y
+        result.metrics.update(noise_metrics(card, v, kernel.estimate_of(noisy), kernel.estimate_of(result), truth,
+                                            dhat if dhat is not None and dhat.size else None, D,
+                                            noise=noise.get("y"), quantum=quantum))
+        result.noise = {"v": v, "std": np.asarray(result.metrics["noise"]["effective_std"]),
+                        "estimate": kernel.estimate_of(noisy), "error": kernel.estimate_of(noisy) - truth,
+                        "twin_error": kernel.estimate_of(result) - truth}
+    if "w" in noise:
+        result.metrics.setdefault("noise", {})["w"] = {"std": noise["w"].stds(sizes["w"]).tolist(),
+                                                      "seed": noise["w"].seed, "text": noise["w"].text()}
+    return result
+
+
+
+def _initialize(plant: Fmu, obs: Fmu, plant_path, sizes: dict, plant_parameters, plant_x0, xhat0) -> tuple:
+    """Route the signals (``sizes``: the vectors the source offers) and initialise both FMUs: ``(fed, sourced)``
+    of :func:`routes` and the plant's true ``theta`` (None for a plant without one)."""
     if not plant.has("x"):
         raise FmuError(f"{plant_path}: the plant FMU has no x[...] outputs; the error needs the true state")
-    fed, sourced = routes(plant, obs, inputs.sizes)
+    fed, sourced = routes(plant, obs, sizes)
     plant.initialize(0.0, {**(plant_parameters or {}), **({"x0": plant_x0} if plant_x0 is not None else {})})
     obs.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
     # the true parameters of a plant with unknown ones, as the plant FMU simulates them

@@ -35,7 +35,7 @@ def allowance(bound: np.ndarray, rtol: float, floor: float) -> np.ndarray:
 def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.ndarray,
                   bound: np.ndarray | None = None, decay: float | None = None, overshoot: float | None = None,
                   d: np.ndarray | None = None, dhat: np.ndarray | None = None,
-                  bound_rtol: float = BOUND_RTOL) -> dict:
+                  bound_rtol: float = BOUND_RTOL, roundoff: dict | None = None) -> dict:
     """The SPEC metrics of one run.
 
     Parameters
@@ -60,6 +60,11 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
         where it began: a certified bound is one of exact arithmetic, and falls below what a run in
         double precision can reach); ``max_bound_ratio`` is the largest ratio of the error to that
         allowance.
+    roundoff : dict, optional
+        The run's leaks against the card's error recursion (:func:`uiofmu.cosim.roundoff.roundoff_floor`):
+        when they are round-off, the floor grows by ``(1 + rtol) carried`` (the largest leak carried by the
+        certified decay), so a correct observer in double precision is not reported as violating its
+        bound; ``roundoff_floor`` reports them either way.
 
     Returns
     -------
@@ -68,9 +73,10 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
         ``steps_to_1pct``, ``time_to_1pct``, and when certified ``certified_decay``,
         ``certified_overshoot``, ``bound_respected``, ``max_bound_ratio`` (from k = 1 on) and the step
         it is at, ``max_bound_ratio_step`` (:func:`bound_ratio_step`), ``first_bound_violation``,
-        ``bound_rtol``, ``bound_floor`` (``rtol ||e_0||``) and ``points_on_floor`` (the points where the
-        error exceeds the bound itself and is accepted only as round-off below the floor);
-        ``dhat_rms_error`` with an unknown-input estimate.
+        ``bound_rtol``, ``bound_floor`` (``rtol ||e_0||``, plus the carried leaks when they are round-off)
+        and ``points_on_floor`` (the points where the error exceeds the bound itself and is accepted only
+        as round-off below the floor), ``roundoff_floor`` (with ``roundoff``); ``dhat_rms_error`` with an
+        unknown-input estimate.
     """
     e = x - xhat
     norms = np.linalg.norm(e, axis=1)
@@ -90,6 +96,8 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
     }
     if bound is not None:
         floor = bound_rtol * norms[0]
+        if roundoff is not None and roundoff["roundoff"]:
+            floor += (1 + bound_rtol) * roundoff["carried"]
         slack = allowance(bound, bound_rtol, floor)
         with np.errstate(over="ignore", divide="ignore"):
             ratio = np.divide(norms, slack, out=np.zeros_like(norms), where=slack > 0)
@@ -103,6 +111,8 @@ def error_metrics(times: np.ndarray, steps: np.ndarray, x: np.ndarray, xhat: np.
                     "bound_at_first_violation": float(bound[bad[0]]) if bad.size else None,
                     "final_bound": float(bound[-1]), "bound_rtol": bound_rtol, "bound_floor": float(floor),
                     "points_on_floor": int(np.count_nonzero((norms > bound * (1 + bound_rtol)) & (norms <= slack)))})
+        if roundoff is not None:
+            out["roundoff_floor"] = dict(roundoff)
     if d is not None and dhat is not None and dhat.size and len(d) > 1:
         err = dhat[1:] - d[:-1]
         out["dhat_rms_error"] = np.sqrt(np.mean(err * err, axis=0)).tolist()

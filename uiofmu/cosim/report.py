@@ -233,7 +233,13 @@ def plot_report(result, path, title: str | None = None) -> Path:
     plt, colors = pyplot()
     scale, unit = time_unit(float(result.times[-1]))
     t = result.times / scale
-    fig, axes = plt.subplots(2, 2, figsize=(12, 8.5), constrained_layout=True)
+    noisy = result.noise is not None
+    fig, axes = plt.subplots(3 if noisy else 2, 2, figsize=(12, 12.5 if noisy else 8.5), constrained_layout=True)
+    if noisy:
+        grid = axes[2, 0].get_gridspec()
+        for ax in axes[2]:
+            ax.remove()
+        plot_noise(fig.add_subplot(grid[2, :]), t, unit, result)
     _plot_states(axes[0, 0], t, result, colors, "true state (solid) and estimate (dashed)")
     _plot_error(axes[0, 1], t, unit, result)
     if result.mode is not None:
@@ -245,6 +251,35 @@ def plot_report(result, path, title: str | None = None) -> Path:
         ax.set_xlabel(f"time [{unit}]")
         ax.grid(alpha=0.3, which="both" if ax.get_yscale() == "log" else "major")
     return _save(plt, fig, path, title)
+
+
+def plot_noise(ax, t, unit: str, result) -> None:
+    """The error of the observer fed the noisy outputs, its noise part (against its noise-free twin) and the
+    noise level: ``||e_k||``, ``||e_k - e_twin,k||``, the noise's std ``||sigma||`` and, with a certified
+    gain, that gain times it; the title gives the measured and certified gains and the verdict."""
+    nz, m = result.noise, result.metrics
+    part = np.linalg.norm(nz["error"] - nz["twin_error"], axis=1)
+    error = np.linalg.norm(nz["error"], axis=1)
+    level = float(np.linalg.norm(nz["std"]))
+    drawn = np.concatenate([error[np.isfinite(error)], part[np.isfinite(part)], [level]])
+    bottom = max(float(drawn.max()), 1e-300) * 1e-9
+    ax.semilogy(t, np.maximum(error, bottom), lw=1.2, label="||e|| of the observer fed y + v")
+    ax.semilogy(t, np.maximum(part, bottom), lw=1.0, alpha=0.8, label="||e - e_twin||: the noise's part")
+    ax.axhline(level, color="k", ls=":", lw=1.2, label=f"noise std ||sigma|| = {level:.3g}"
+               + (" (with the quantum's Q/sqrt(12))" if (m.get("noise") or {}).get("quantum") else ""))
+    certified, measured = m.get("noise_gain_certified"), m.get("noise_gain_measured")
+    if certified is not None:
+        ax.axhline(certified * level, color="tab:red", ls="--", lw=1.2,
+                   label=f"certified gain x noise std = {certified * level:.3g}")
+    verdict = ("no certified gain in the card" if certified is None else
+               "respected" if m.get("noise_gain_respected") else "FALSE CERTIFICATE: measured above certified")
+    shown = "none" if measured is None else f"{measured:.4g}"
+    ax.set_title(f"sensor noise: measured l2 gain {shown}"
+                 + ("" if certified is None else f", certified {certified:.4g}") + f" ({verdict})", fontsize=10)
+    ax.set_xlabel(f"time [{unit}]")
+    ax.set_ylabel("error norm")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8, loc="upper right", ncol=2)
 
 
 def _plot_error(ax, t, unit: str, result) -> None:
@@ -286,7 +321,9 @@ def _plot_error(ax, t, unit: str, result) -> None:
 def _bound_verdict(m: dict, points: int, unit: str, t) -> str:
     """What the bound check compared and what it found, in words (the error panel's title)."""
     rtol = f"{m['bound_rtol']:.0e}".replace("e-0", "e-")
-    check = (f"checked at all {points} points: ||e_k|| <= bound_k·(1 + {rtol}) + {rtol}·||e_0|| "
+    leaks = m.get("roundoff_floor")
+    carried = " + carried leaks" if leaks and leaks["roundoff"] and leaks["carried"] > 0 else ""
+    check = (f"checked at all {points} points: ||e_k|| <= bound_k·(1 + {rtol}) + {rtol}·||e_0||{carried} "
              f"(round-off floor {m['bound_floor']:.2g})")
     if not m["bound_respected"]:
         k = m["first_bound_violation"]
@@ -709,7 +746,43 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
     if bound is not None:
         decay = _number(metrics, ("certified_decay",), where)
         overshoot = _number(metrics, ("certified_overshoot",), where, optional=True)
-    return run_result(*args, bound=bound, decay=decay, overshoot=overshoot, mode=mode, names=names)
+    result = run_result(*args, bound=bound, decay=decay, overshoot=overshoot, mode=mode, names=names,
+                        roundoff=_roundoff(metrics, where) if bound is not None else None)
+    return _with_noise(result, columns, path, metrics, where)
+
+
+def _roundoff(metrics: dict, where) -> dict | None:
+    """The run's ``roundoff_floor`` read back (its carried leaks enter the bound check again), or None."""
+    leaks = metrics.get("roundoff_floor")
+    if leaks is None:
+        return None
+    if not isinstance(leaks, dict) or not isinstance(leaks.get("roundoff"), bool):
+        raise ProblemError(f"{where}: roundoff_floor: expected a table with roundoff true or false")
+    return {"roundoff": leaks["roundoff"],
+            **{k: _number(leaks, (k,), f"{where}: roundoff_floor") for k in ("carried", "worst_leak", "leak_eps")}}
+
+
+def _with_noise(result, columns: dict, path, metrics: dict, where):
+    """A run read back with its noise columns (``v[i]``, ``xhat_noisy[i]``) and its metrics' noise section:
+    ``result.noise`` and the noise metrics, for the report's noise panel."""
+    section = metrics.get("noise")
+    if "v[1]" not in columns or not isinstance(section, dict) or "std" not in section:
+        return result
+    v, estimate = _vector(columns, "v", path), _vector(columns, "xhat_noisy", path)
+    level = section.get("effective_std", section["std"])
+    std = np.asarray(level, dtype=float) if isinstance(level, list) else None
+    if estimate.shape != result.x.shape or std is None or std.shape != (v.shape[1],):
+        raise ProblemError(f"{where}: noise.std and the columns v[i], xhat_noisy[i] of {path} do not match its "
+                           "x and y")
+    result.noise = {"v": v, "std": std, "estimate": estimate, "error": estimate - result.x,
+                    "twin_error": result.xhat - result.x}
+    result.metrics.update({k: _number(metrics, (k,), where, optional=True)
+                           for k in ("noise_gain_certified", "noise_gain_measured", "noise_gain_ratio")})
+    result.metrics["noise_rms_error"] = metrics.get("noise_rms_error")
+    respected = metrics.get("noise_gain_respected")
+    result.metrics["noise_gain_respected"] = respected if isinstance(respected, bool) else None
+    result.metrics["noise"] = section
+    return result
 
 
 def _functional_run(columns: dict, path, metrics: dict, where) -> dict:

@@ -34,6 +34,7 @@ class CosimResult:
     functional: dict | None = None
     delayed: dict | None = None
     timing: dict = field(default_factory=dict)
+    noise: dict | None = None      # a run with measurement noise: v, its std, the noisy estimate and both errors
     names: dict | None = None      # the names and units when there is no card (a run read back from its files)
 
     @property
@@ -62,6 +63,8 @@ class CosimResult:
                 cols[f"gx[{i + 1}]"], cols[f"gx_true[{i + 1}]"] = f["gx"][:, i], f["true"][:, i]
             cols["gx_valid"] = f["valid"]
             cols["error_norm"] = np.linalg.norm(f["gx"] - f["true"], axis=1)
+            if self.noise is not None:
+                self._noise_columns(cols, "gx")
             return cols
         cols["error_norm"] = np.linalg.norm(self.x - self.xhat, axis=1)
         if self.bound is not None:
@@ -73,12 +76,26 @@ class CosimResult:
             if dl["theta"] is not None:
                 cols["theta_error_norm"] = np.linalg.norm(dl["thetahat"] - dl["theta"], axis=1)
             cols["sigma_min"], cols["valid"] = dl["sigma_min"], dl["valid"]
+        if self.noise is not None:
+            self._noise_columns(cols, "xhat")
         return cols
+
+    def _noise_columns(self, cols: dict, estimate: str) -> None:
+        """The columns of a run with measurement noise: the noise ``v[i]`` added to ``y[i]``, the estimate of
+        the observer fed the noisy outputs (``xhat_noisy[i]``, or ``gx_noisy[i]``) and its error norm
+        (``error_norm_noisy``)."""
+        nz = self.noise
+        for i in range(nz["v"].shape[1]):
+            cols[f"v[{i + 1}]"] = nz["v"][:, i]
+        for i in range(nz["estimate"].shape[1]):
+            cols[f"{estimate}_noisy[{i + 1}]"] = nz["estimate"][:, i]
+        cols["error_norm_noisy"] = np.linalg.norm(nz["error"], axis=1)
 
 
 def run_result(times, h, x, xhat, y, u, d, r, dhat, *, mode=None, bound=None, decay=None, overshoot=None,
                functional: dict | None = None, window: tuple | None = None, formula: str = "",
-               delayed: dict | None = None, bound_text: str | None = None, **known) -> CosimResult:
+               delayed: dict | None = None, bound_text: str | None = None, roundoff: dict | None = None,
+               **known) -> CosimResult:
     """A run's :class:`CosimResult` with its metrics computed from its histories (:mod:`uiofmu.cosim.metrics`).
 
     Parameters
@@ -100,6 +117,8 @@ def run_result(times, h, x, xhat, y, u, d, r, dhat, *, mode=None, bound=None, de
     bound_text : str, optional
         The card's bound in words: of a delayed observer, for its metrics; else ``metrics["bound_formula"]``
         (with a bound only).
+    roundoff : dict, optional
+        With ``bound``: the run's leaks and the floor they carry (:func:`uiofmu.cosim.roundoff.roundoff_floor`).
     **known
         ``card`` or ``names`` (:class:`CosimResult`).
 
@@ -124,7 +143,7 @@ def run_result(times, h, x, xhat, y, u, d, r, dhat, *, mode=None, bound=None, de
     estimated = dhat.shape[1] > 0
     result = CosimResult(*args, bound=bound, mode=mode, **known)
     result.metrics = error_metrics(times, h, x, xhat, bound, decay, overshoot, d if estimated else None,
-                                   dhat if estimated else None)
+                                   dhat if estimated else None, roundoff=roundoff)
     if bound is not None and bound_text is not None:
         result.metrics["bound_formula"] = bound_text
     if mode is not None:

@@ -21,6 +21,8 @@ def print_summary(metrics: dict, paths: dict | None = None, file=None) -> None:
           + (" (the first full window)" if metrics["exact_from_first_full_window"] else ""))
         if metrics["max_relative_error_when_valid"] is not None:
             p(f"  largest error        {metrics['max_relative_error_when_valid']:.3g} relative, once valid")
+        if "noise" in metrics:
+            _print_noise(metrics, p)
         for key, path in (paths or {}).items():
             p(f"  {key:20s} {path}")
         return
@@ -39,19 +41,71 @@ def print_summary(metrics: dict, paths: dict | None = None, file=None) -> None:
             p(f"  bound respected      yes at every step (largest ratio {metrics['max_bound_ratio']:.4g})")
             if metrics.get("points_on_floor"):
                 p(f"                       checked ||e_k|| <= bound_k (1 + {metrics['bound_rtol']:g}) + "
-                  f"{metrics['bound_floor']:.3g} (round-off floor, {metrics['bound_rtol']:g} ||e_0||): above the "
+                  f"{metrics['bound_floor']:.3g} ({_floor_words(metrics)}): above the "
                   f"bound itself at {metrics['points_on_floor']} of {metrics['steps'] + 1} points, under the floor")
         else:
             p(f"  bound respected      NO: first at step {metrics['first_bound_violation']}, error "
               f"{metrics['error_at_first_violation']:.3g} > bound {metrics['bound_at_first_violation']:.3g}; the error "
-              f"settles at {metrics['error_floor']:.3g} (a plant other than the design model has a mismatch floor)")
+              f"settles at {metrics['error_floor']:.3g} ({_why_not(metrics)})")
     if "dhat_rms_error" in metrics:
         p("  dhat rms error       " + ", ".join(f"{v:.4g}" for v in metrics["dhat_rms_error_second_half"])
           + " (second half of the run)")
+    if "noise" in metrics:
+        _print_noise(metrics, p)
     if "validity" in metrics:                      # a delayed observer with parameter identification
         _print_delayed(metrics, p)
     for key, path in (paths or {}).items():
         p(f"  {key:20s} {path}")
+
+
+def _floor_words(metrics: dict) -> str:
+    """What the bound check's floor is made of, in words."""
+    words = f"round-off floor, {metrics['bound_rtol']:g} ||e_0||"
+    leaks = metrics.get("roundoff_floor")
+    if leaks and leaks["roundoff"] and leaks["carried"] > 0:
+        words += (f" + the leaks of each step (at most {leaks['worst_leak']:.2g} of its magnitudes) carried by the "
+                  f"certified decay, {leaks['carried']:.3g}")
+    return words
+
+
+def _why_not(metrics: dict) -> str:
+    """Why a bound may fail, by what the run knows of its plant: a plant other than the design model has a
+    mismatch floor; the design's own plant does not, and its leaks say whether round-off explains the run."""
+    plant = metrics.get("plant")
+    if not (isinstance(plant, dict) and plant.get("is_design_model")):
+        return "a plant other than the design model has a mismatch floor"
+    leaks = metrics.get("roundoff_floor")
+    if leaks is None:
+        return "the plant FMU is the design's own model: this is no model mismatch"
+    return (f"the plant FMU is the design's own model, so no model mismatch; its steps leak up to "
+            f"{leaks['worst_leak']:.2g} of their magnitudes, above round-off's {leaks['leak_eps']:g}")
+
+
+def _print_noise(metrics: dict, p) -> None:
+    """The lines of :func:`print_summary` for a run with noise: the measured noise gain against the certified
+    one (a false certificate loudly), the error with noise."""
+    nz = metrics["noise"]
+    if "std" in nz:
+        if nz.get("text"):
+            p(f"  noise                {nz['text']} (white, std per output "
+              + ", ".join(f"{s:.3g}" for s in nz["std"]) + ", added between the plant and the observer)")
+        if nz.get("quantum"):
+            p(f"  quantization         outputs rounded to multiples of {nz['quantum']:.6g} on their way to the "
+              "observer")
+        measured, certified = metrics["noise_gain_measured"], metrics["noise_gain_certified"]
+        shown = "none" if measured is None else f"{measured:.4g}"
+        if certified is None:
+            p(f"  noise gain           measured {shown} (||e - e_twin|| / ||v||); the card certifies none")
+        elif metrics["noise_gain_respected"]:
+            p(f"  noise gain           measured {shown} <= certified {certified:.4g}: respected "
+              f"(ratio {metrics['noise_gain_ratio']:.3g})")
+        else:
+            p(f"  noise gain           FALSE CERTIFICATE: measured {shown} > certified {certified:.4g} "
+              f"(ratio {metrics['noise_gain_ratio']:.3g}): the card's noise.gain_y does not hold")
+        p("  rms error with noise " + ", ".join(f"{v:.4g}" for v in metrics["noise_rms_error"])
+          + " (second half; noise-free twin " + ", ".join(f"{v:.3g}" for v in nz["rms_error_noise_free"]) + ")")
+    if "w" in nz:
+        p(f"  process noise        {nz['w']['text']}")
 
 
 def _print_delayed(metrics: dict, p) -> None:

@@ -17,6 +17,8 @@ File format (every key is checked; an unknown key is an error naming it)::
     xhat0_error = {kind = "normal", std = 2.0}               # added to the observer's xhat0
     d_scale = {kind = "uniform", low = 0.5, high = 1.5}      # scales the problem's [signals] d
     plant_parameters = {x0 = {kind = "normal", mean = 22.0, std = 1.0}}   # by the plant FMU's names
+    noise_y = [0.0, 0.01, 0.05]                              # sensor noise std per output (cosim --noise)
+    quantization = [0.0, 0.1]                                # output quantum (0: none)
 
 An axis value is a number (constant), a list (one entry drawn per run; with ``grid = true`` each
 entry is a grid point; for a vector an entry may be a list of its size), or a table with ``kind``:
@@ -24,6 +26,11 @@ entry is a grid point; for a vector an entry may be a list of its size), or a ta
 ``constant`` (``value``). The random kinds draw every component of a vector independently. Every
 number of an axis is at most :data:`AXIS_LIMIT` in magnitude; a plant parameter of type Integer
 takes fmi2Integers only (:data:`uiofmu.cosim.fmi.FMI2_INTEGER`; a number or a list, no random draw).
+``noise_y`` is the std of white sensor noise per output (a number for all, or one per output; 0: none),
+so at least 0: a constant, a choice or a uniform draw with ``low >= 0``; each row's noise has its own seed
+(the column ``noise_seed``), and the run measures its noise gain (:mod:`uiofmu.cosim.noise`).
+``quantization`` is an output quantum Q >= 0 (0: none): the observer receives ``y`` rounded to multiples
+of Q, after the noise, and the run measures the noise gain on what it received.
 """
 
 from __future__ import annotations
@@ -39,7 +46,7 @@ from ...runtime.files import parse_toml, read_text
 from ...table import Table
 
 #: Most runs of one campaign. What grows with the runs in the command's process is 8 bytes per
-#: finished run for each of the :data:`QUANTILE_KEYS` (at most 480 MB at this limit): the rows go
+#: finished run for each of the :data:`QUANTILE_KEYS` (at most 800 MB at this limit): the rows go
 #: to a file as they finish (twice its size on disk until the table is written).
 MAX_RUNS = 10_000_000
 #: Largest magnitude of a number of an axis (a value, mean, std, low, high): draws, their squares
@@ -49,7 +56,7 @@ AXIS_LIMIT = 1e100
 KINDS = ("constant", "choice", "normal", "uniform")
 #: Keys of the [campaign] and [axes] tables.
 CAMPAIGN_KEYS = ("problem", "observer", "plant", "runs", "seed", "t_end", "grid", "backend", "batch")
-AXES_KEYS = ("steps", "xhat0_error", "d_scale", "plant_parameters")
+AXES_KEYS = ("steps", "xhat0_error", "d_scale", "plant_parameters", "noise_y", "quantization")
 
 
 @dataclass(frozen=True)
@@ -157,6 +164,10 @@ class Campaign:
     plant_parameters : tuple of (str, Axis)
     text : str
         The file's text (its digest names the built FMUs).
+    noise_y : Axis or None
+        The std of the sensor noise per output.
+    quantization : Axis or None
+        The output quantum.
     """
 
     path: Path
@@ -174,6 +185,8 @@ class Campaign:
     d_scale: Axis | None
     plant_parameters: tuple = ()
     text: str = ""
+    noise_y: Axis | None = None
+    quantization: Axis | None = None
 
     def grid_axes(self) -> list:
         """The axes a grid enumerates, as ``(name, number of values)`` in the order of the file."""
@@ -192,7 +205,8 @@ class Campaign:
     def named_axes(self) -> list:
         """``(column name, Axis)`` of the numeric axes, in draw order."""
         out = [(name, a) for name, a in (("xhat0_error", self.xhat0_error), ("d_scale", self.d_scale)) if a]
-        return out + [(f"plant.{name}", a) for name, a in self.plant_parameters]
+        out += [(f"plant.{name}", a) for name, a in self.plant_parameters]
+        return out + [(name, a) for name, a in (("noise_y", self.noise_y), ("quantization", self.quantization)) if a]
 
 
 
@@ -307,12 +321,15 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
     xhat0_error = parse_axis(axes.get("xhat0_error"), "axes.xhat0_error") if axes.has("xhat0_error") else None
     d_scale = parse_axis(axes.get("d_scale"), "axes.d_scale") if axes.has("d_scale") else None
     plant_parameters = _plant_axes(axes)
+    noise_y, quantization = (_std_axis(parse_axis(axes.get(key), f"axes.{key}")) if axes.has(key) else None
+                             for key in ("noise_y", "quantization"))
     axes.done()
 
     runs = settings.pop("runs")
     campaign = Campaign(path=path, problem=problem, observer=observer, plant=plant, runs=runs or 0,
                         steps=tuple(steps), xhat0_error=xhat0_error, d_scale=d_scale,
-                        plant_parameters=tuple(plant_parameters), text=text, **settings)
+                        plant_parameters=tuple(plant_parameters), text=text, noise_y=noise_y,
+                        quantization=quantization, **settings)
     return replace(campaign, runs=_runs(campaign, runs))
 
 
@@ -407,6 +424,20 @@ def _plant_axes(axes: Table) -> list:
             raise ProblemError(f"axes.plant_parameters.{str(name)[:64]}: not a parameter name")
         plant_parameters.append((name, parse_axis(ptable.get(name), ptable.key(name))))
     return plant_parameters
+
+
+def _std_axis(axis: Axis) -> Axis:
+    """A standard deviation's (or a quantum's) axis: every value it can give at least 0 (no normal draw)."""
+    if axis.kind == "normal":
+        raise ProblemError(f"{axis.key}: a standard deviation is >= 0, and a normal draw is not always; give a "
+                           "number, a list or a uniform draw with low >= 0")
+    if axis.kind == "uniform" and axis.params["low"] < 0:
+        raise ProblemError(f"{axis.key}: a standard deviation is >= 0, found low = {axis.params['low']:g}")
+    for where, v in axis.entries():
+        for x in v if isinstance(v, tuple) else (v,):
+            if x < 0:
+                raise ProblemError(f"{where}: a standard deviation is >= 0, found {x:g}")
+    return axis
 
 
 def _runs(campaign: Campaign, runs: int | None) -> int:

@@ -36,6 +36,8 @@ class Setup:
         The plant parameters of the axes that are FMI Integers (their drawn values are ints).
     plant_path, observer_path : Path
         Where the FMUs are on the machine that prepared them.
+    p : int
+        The plant's number of outputs (of ``y``: the sensor noise axis has one std per output).
     """
 
     plant_bytes: bytes
@@ -50,6 +52,7 @@ class Setup:
     integers: tuple = ()
     plant_path: Path = field(default=None, repr=False)
     observer_path: Path = field(default=None, repr=False)
+    p: int = 0
 
     def __getstate__(self):
         state = dict(self.__dict__)
@@ -136,13 +139,18 @@ def prepare(campaign: Campaign, out=None, say=None) -> Setup:
     integers = _check_plant_axes(campaign, parameters, _vector_types(variables, "parameter"))
     if campaign.d_scale is not None:
         campaign.d_scale.check_size(1)
+    p = vector_sizes(variables, "output").get("y", 0)
+    if campaign.noise_y is not None:
+        campaign.noise_y.check_size(p)
+    if campaign.quantization is not None:
+        campaign.quantization.check_size(1)
     plant_bytes = read_bytes(plant, "plant FMU", error=FmuError)
     observer_bytes = read_bytes(observer, "observer FMU", error=FmuError)
     t_end = campaign.t_end if campaign.t_end is not None else default_t_end(card)
     check_steps_axis(campaign.steps, card, t_end)
     return Setup(plant_bytes, observer_bytes, _digest(plant_bytes, observer_bytes), t_end, n, parameters,
                  default_steps(card), card.name, has_xhat0, integers=integers, plant_path=Path(plant),
-                 observer_path=Path(observer))
+                 observer_path=Path(observer), p=p)
 
 
 def _seconds(low: float, high: float) -> str:

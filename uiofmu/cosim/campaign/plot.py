@@ -37,9 +37,21 @@ def _hist(ax, values, color, marks: tuple = ()) -> int:
     return values.size
 
 
+def _plot_noise(ax, tally: Tally) -> None:
+    """The error of each run with sensor noise (rms over its second half) against its noise level."""
+    level, error = (np.frombuffer(a, dtype=float) for a in tally.noise_pairs)
+    ax.loglog(np.maximum(level, 1e-300), np.maximum(error, 1e-300), ".", alpha=0.6)
+    ax.set_xlabel("sensor noise std ||sigma||")
+    ax.set_ylabel("rms error with noise (second half)")
+    ax.set_title(f"error against the noise level ({len(level)} noisy run(s); "
+                 f"{tally.noise_violations} above the certified gain)", fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+
+
 def plot_campaign(tally: Tally, worst_result, worst: dict | None, path, title: str = "") -> Path:
     """``campaign.png``: distributions of the convergence time and of the bound ratio (their finite
-    values), and the worst run's error against its certified bound.
+    values), the worst run's error against its certified bound, and with sensor noise each noisy run's
+    error against its noise level.
 
     Parameters
     ----------
@@ -60,7 +72,10 @@ def plot_campaign(tally: Tally, worst_result, worst: dict | None, path, title: s
     from ..report import pyplot
 
     plt = pyplot()[0]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    noisy = len(tally.noise_pairs[0]) > 0
+    fig, axes = plt.subplots(1, 4 if noisy else 3, figsize=(20 if noisy else 15, 4.2))
+    if noisy:
+        _plot_noise(axes[3], tally)
     conv = tally.values["time_to_1pct"]
     never = tally.present["time_to_1pct"] - len(conv)
     ax = axes[0]

@@ -11,6 +11,7 @@ from pathlib import Path
 from ...runtime.files import atomic_output
 from .file import Campaign
 from .fmus import Setup
+from .sampling import SCALAR_AXES
 
 #: Columns of every campaign table, before the axes.
 HEAD = ["row"]
@@ -34,10 +35,10 @@ def cell(value) -> str:
 def axis_columns(campaign: Campaign, setup: Setup) -> list:
     """The axis columns of the table: ``steps``, ``steps_seed``, then one per component."""
     cols = ["steps", "steps_seed"]
-    sizes = {"xhat0_error": setup.n, **{f"plant.{k}": v for k, v in setup.parameters.items()}}
+    sizes = {"xhat0_error": setup.n, "noise_y": setup.p, **{f"plant.{k}": v for k, v in setup.parameters.items()}}
     for name, _ in campaign.named_axes():
-        cols += [name] if name == "d_scale" else [f"{name}[{i + 1}]" for i in range(sizes[name])]
-    return cols
+        cols += [name] if name in SCALAR_AXES else [f"{name}[{i + 1}]" for i in range(sizes[name])]
+    return cols + (["noise_seed"] if campaign.noise_y is not None else [])
 
 
 def flat(sc: dict) -> dict:

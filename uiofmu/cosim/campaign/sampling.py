@@ -12,6 +12,10 @@ from .file import Campaign
 from .fmus import Setup
 
 
+#: The axes whose value is one number (a column each).
+SCALAR_AXES = ("d_scale", "quantization")
+
+
 def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
     """The scenario of one row: a function of the campaign seed and the row index only.
 
@@ -27,7 +31,8 @@ def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
     -------
     dict
         ``row``, ``steps`` (a SPEC), ``steps_seed``, and per axis its drawn value: ``xhat0_error``
-        (a list), ``d_scale`` (a float), ``plant.NAME`` (lists).
+        (a list), ``d_scale`` (a float), ``plant.NAME`` (lists), ``noise_y`` (a list) with ``noise_seed``
+        (drawn last: the other axes draw what they draw without it), ``quantization`` (a float).
     """
     if not 0 <= row < campaign.runs:
         raise ProblemError(f"--replay: row {row} is not a row of the campaign (0 to {campaign.runs - 1})")
@@ -40,13 +45,16 @@ def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
             index, picks[name] = divmod(index, count)
     spec = specs[picks["steps"]] if "steps" in picks else specs[int(rng.integers(len(specs)))]
     out = {"row": row, "steps": spec, "steps_seed": int(rng.integers(2**32))}
-    sizes = {"xhat0_error": setup.n, "d_scale": 1, **{f"plant.{k}": v for k, v in setup.parameters.items()}}
+    sizes = {"xhat0_error": setup.n, "d_scale": 1, "noise_y": setup.p, "quantization": 1,
+             **{f"plant.{k}": v for k, v in setup.parameters.items()}}
     integers = {f"plant.{k}" for k in setup.integers}
     for name, axis in campaign.named_axes():
         size = sizes[name]
         value = axis.value(axis.params["values"][picks[name]], size) if name in picks else axis.draw(rng, size)
         kind = int if name in integers else float
-        out[name] = float(value[0]) if name == "d_scale" else [kind(v) for v in value]
+        out[name] = float(value[0]) if name in SCALAR_AXES else [kind(v) for v in value]
+    if campaign.noise_y is not None:
+        out["noise_seed"] = int(rng.integers(2**32))
     return out
 
 
@@ -108,4 +116,4 @@ def scaled_inputs(inputs, scale: float):
     return SignalInputs(signals["u"], d, signals.get("mode", ()), signals.get("theta", ()))
 
 
-__all__ = ["batches", "scaled_inputs", "scenario", "scenarios"]
+__all__ = ["SCALAR_AXES", "batches", "scaled_inputs", "scenario", "scenarios"]

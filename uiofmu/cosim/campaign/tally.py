@@ -18,7 +18,8 @@ from .sampling import scenario
 MAX_REASONS = 1000
 #: Metrics whose quantiles the summary gives.
 QUANTILE_KEYS = ("steps_to_1pct", "time_to_1pct", "final_error_norm", "max_bound_ratio", "dhat_rms_error",
-                 "dhat_rms_error_second_half")
+                 "dhat_rms_error_second_half", "rms_error", "noise_rms_error", "noise_gain_measured",
+                 "noise_gain_ratio")
 QUANTILES = (0.0, 0.05, 0.25, 0.5, 0.75, 0.95, 1.0)
 
 
@@ -48,6 +49,9 @@ class Tally:
         self.finished = self.ok = self.violations = self.other_reasons = self.ratios = self.ratios_at_start = 0
         self.reasons: dict = {}
         self.worst: tuple | None = None
+        self.worst_noise: tuple | None = None       # (noise gain ratio, row, respected)
+        self.noise_violations = 0
+        self.noise_pairs = (array("d"), array("d"))   # a noisy run's ||sigma|| and its error, for the figure
         self.values = {key: array("d") for key in QUANTILE_KEYS}
         self.present = dict.fromkeys(QUANTILE_KEYS, 0)
 
@@ -70,6 +74,13 @@ class Tally:
             if self.worst is None or ratio > self.worst[0]:
                 self.worst = (ratio, row, result.get("bound_respected"), result.get("max_bound_ratio_step"))
         self.violations += result.get("bound_respected") is False
+        ratio = result.get("noise_gain_ratio")
+        if ratio is not None and not math.isnan(ratio) and (self.worst_noise is None or ratio > self.worst_noise[0]):
+            self.worst_noise = (ratio, row, result.get("noise_gain_respected"))
+        self.noise_violations += result.get("noise_gain_respected") is False
+        if result.get("noise_std_norm") is not None and result.get("noise_rms_error") is not None:
+            self.noise_pairs[0].append(result["noise_std_norm"])
+            self.noise_pairs[1].append(result["noise_rms_error"])
 
     def _failure(self, row: int, result: dict) -> None:
         kind = (result["status"], reason_kind(result["reason"]))
@@ -108,8 +119,10 @@ def summary(campaign: Campaign, setup: Setup, tally: Tally, cancelled: bool = Fa
             elapsed: float | None = None, workers: int | None = None, startup_s: float | None = None) -> dict:
     """``summary.json``: runs, failures and their reasons by kind, the worst bound ratio with its row,
     step and scenario (``every_run_at_bound_start``: every run's largest ratio is at k = 1, the first
-    step it is measured at, so the worst row stands out by that step alone), quantiles of the
-    convergence figures; ``elapsed_s`` and ``runs_per_s`` count from the
+    step it is measured at, so the worst row stands out by that step alone), with a ``noise_y`` axis the
+    worst measured-over-certified noise gain ratio with its row and scenario (``worst_noise_gain_ratio``)
+    and the runs whose certified noise gain failed, quantiles of the convergence and error figures;
+    ``elapsed_s`` and ``runs_per_s`` count from the
     cluster's start (``cluster_startup_s`` before it) to the last row."""
     ranked = sorted(tally.reasons.values(), key=lambda e: -e["count"])
     out = {"campaign": str(campaign.path), "observer": setup.name, "runs": campaign.runs,
@@ -125,6 +138,12 @@ def summary(campaign: Campaign, setup: Setup, tally: Tally, cancelled: bool = Fa
         out["bound_violations"] = tally.violations
     else:
         out["worst_max_bound_ratio"] = None
+    if campaign.noise_y is not None or campaign.quantization is not None:
+        worst = tally.worst_noise
+        out["worst_noise_gain_ratio"] = None if worst is None else {
+            "value": worst[0], "row": worst[1], "scenario": scenario(campaign, setup, worst[1]),
+            "noise_gain_respected": worst[2]}
+        out["noise_gain_violations"] = tally.noise_violations
     out["quantiles"] = tally.quantiles()
     if elapsed is not None:
         out["elapsed_s"] = elapsed

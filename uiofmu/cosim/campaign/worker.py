@@ -18,6 +18,7 @@ import numpy as np
 from ...runtime.errors import UserError
 from ...threads import single_blas_thread
 from .fmus import Setup
+from ..noise import Noise
 from .sampling import scaled_inputs
 
 
@@ -34,13 +35,16 @@ class Loaded:
     card: object = None
     instances: tuple | None = None
 
-    def fmus(self) -> tuple:
-        """The plant and observer instances of this process (loaded on first use)."""
-        if self.instances is None:
-            from ..fmi import Fmu
+    def fmus(self, twin: bool = False) -> tuple:
+        """The plant and observer instances of this process (loaded on first use), and with ``twin`` the
+        observer's noise-free twin (a second instance of its FMU, for a run with sensor noise)."""
+        from ..fmi import Fmu
 
+        if self.instances is None:
             self.instances = (Fmu(self.plant, "plant"), Fmu(self.observer, "observer"))
-        return self.instances
+        if twin and len(self.instances) < 3:
+            self.instances = (*self.instances, Fmu(self.observer, "observer-noise-free"))
+        return self.instances if twin else self.instances[:2]
 
 
 _LOADED: dict = {}
@@ -99,8 +103,11 @@ def run_scenario(setup: Setup, sc: dict):
     inputs = scaled_inputs(loaded.inputs, sc["d_scale"]) if "d_scale" in sc else loaded.inputs
     xhat0 = loaded.xhat0 + np.asarray(sc["xhat0_error"]) if "xhat0_error" in sc else None
     params = {k[6:]: v for k, v in sc.items() if k.startswith("plant.")}
+    noise = Noise("y", tuple(sc["noise_y"]), sc["noise_seed"]) if any(s > 0 for s in sc.get("noise_y", ())) else None
+    quantum = sc.get("quantization") or None
     return cosimulate(loaded.plant, loaded.observer, steps, inputs, xhat0=xhat0, plant_parameters=params or None,
-                      show_progress=False, instances=loaded.fmus(), card=loaded.card)
+                      show_progress=False, instances=loaded.fmus(twin=bool(noise or quantum)), card=loaded.card,
+                      noise=noise, quantization=quantum)
 
 
 def scalar_metrics(metrics: dict) -> dict:
