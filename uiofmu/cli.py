@@ -95,6 +95,7 @@ def design_summary(card, timing: bool = True) -> list[str]:
     """
     from .certificate import overshoot_text
     from .gains import gain_lines
+    from .noise import noise_lines
 
     lines = []
     for key, digits in (("decay_bound", 6), ("overshoot_bound", 0), ("alpha", 6)):
@@ -110,6 +111,7 @@ def design_summary(card, timing: bool = True) -> list[str]:
         lines.append(f"  search           {search['parameter']} over {search['solves']} solve(s)"
                      + (f" in {search['seconds']:.3f} s" if timing else ""))
     lines += gain_lines(card.data, figures=timing)
+    lines += noise_lines(card.data)
     cert = card.data["certificate"]
     if cert["verified"]:
         found = "re-checked at the stored matrices" + (", point from CLARABEL" if cert["solver"] == "CLARABEL" else "")

@@ -62,6 +62,7 @@ from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list, from_pairs
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..gains import cap_lmis
+from ..noise import NORM, certified, recheck, section
 from ..reductions import UPPER_BOUND, matrix, scalar, symmetric
 from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
@@ -208,9 +209,34 @@ def checks(matrices: dict, rho: float) -> list:
 
 
 def verify(card) -> list:
-    """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims."""
+    """Re-check a card's certificate from its matrices alone (no solver), the overshoot and the noise gain it claims."""
     d = card.data
-    return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
+    return (checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
+            + recheck(d.get("noise"), *error_system(d["matrices"])))
+
+
+def error_system(matrices: dict) -> tuple:
+    """The error system from measurement noise ``v`` (``y = C x + v``) at the stored matrices:
+    ``eps+ = N eps - L v``, ``e = eps - Xy v``, with ``eps = P x - z`` (``PA - NP - LC = 0``, ``PE = 0`` and
+    ``Xz = I``, which :func:`checks` re-checks; the known input and the affine term cancel as in ``e+ = N e``)."""
+    g = {k: np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy")}
+    return g["N"], -g["L"], np.eye(len(g["N"])), -g["Xy"]
+
+
+#: Why an lti-uio card has no process-noise and no dhat gain.
+NO_W = "gain_w: the problem declares no process noise"
+NO_DHAT = "gain_dhat_y: dhat is not certified against noise (it reads the next output)"
+
+
+def noise_section(matrices: dict) -> dict:
+    """The card's ``noise`` section (:mod:`uiofmu.noise`): ``gain_y`` by the bounded real lemma at the stored
+    matrices."""
+    gain, extra, why = certified(*error_system(matrices))
+    reasons = [why] if why else []
+    reasons.append(NO_W)
+    if matrices.get("Dy") is not None:
+        reasons.append(NO_DHAT)
+    return section(gain, "; ".join(reasons), **extra)
 
 
 def gain_figures(card_data: dict) -> tuple:
@@ -244,7 +270,9 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
             "M": conditioned(decoupling_gain(C, s.E), condition(C @ s.E)), **dhat}
     requested = {} if opts.decay == "max" else {"decay_bound": float(opts.decay)}     # a fixed decay is the card's
+    noise = {"noise.norm": NORM, "noise.gain_w": None, "noise.gain_dhat_y": None}      # gain_y: verify re-checks it
     return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "decay": card_data["decay_bound"], **requested,
+            **noise,
             **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
 
 
@@ -378,5 +406,6 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "search": searched,
         "design_method": method,
         "scaling": scaling_data(t if method == "lmi" else np.ones(plant.n), opts.scaling),
+        "noise": noise_section(matrices),
     }
     return DesignResult(plant.n, opts.dt, _schedule(opts), matrices, cert, results, system, opts.xhat0)

@@ -67,9 +67,15 @@ from ..existence import Condition, Existence, complex_list, format_complex, from
 from ..lmi import Lmi, LmiSystem, held_margin, tune
 from ..structure import unobservable_modes
 from ..runtime.tolerances import LMI_MARGIN, SEARCH_TOL, ZERO_MARGIN
+from ..noise import section as noise_section
 from . import Analysis, DesignResult
 
 NAME = "ltv-auid"
+
+#: Why the card has no noise gain (:mod:`uiofmu.noise`).
+NOISE_REASON = ("gain_y: not certified for this family: its error system varies along the schedule (N_k tends to "
+                "N_inf) and its certificate bounds the decay only")
+
 #: Strictness margin of the least-overshoot solve: its optimum sits on the boundary of (33)/(34),
 #: where a margin of ``LMI_MARGIN`` left points the re-check refused on some BLAS kernels.
 LEAST_OVERSHOOT_MARGIN = 10 * LMI_MARGIN
@@ -339,7 +345,8 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
                                                  two(A1), n),
                "eigenvalues_N_k0": spectrum(A1 - T1 @ C), "eigenvalues_N_inf": spectrum(A2 - T2 @ C),
                "norm_MCE": Determined(two(MCE), two(M) * two(C) * two(s.E))}
-    return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "alpha": opts.alpha, "eta": opts.eta,
+    return {"noise": noise_section(None, NOISE_REASON),
+            "dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "alpha": opts.alpha, "eta": opts.eta,
             "mu": mu, "tau1": tau1, "tau2": tau2, "decay_bound": float(np.sqrt(1 - tau2)),
             "initial_decay_bound": float(np.sqrt(1 - tau1)), **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
 
@@ -405,7 +412,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
     if not existence.holds("rank(CE) = q"):
         for k in ("Dy", "Yx", "Yu", "Yc"):
             matrices.pop(k)
-    results = {**{k: data[k] for k in ("alpha", "eta", "mu", "tau1", "tau2")}, "gamma": gamma}
+    results = {"noise": noise_section(None, NOISE_REASON),
+               **{k: data[k] for k in ("alpha", "eta", "mu", "tau1", "tau2")}, "gamma": gamma}
     cert = certificate(sol, checks({"matrices": matrices, **results}), f"{NAME} design of {problem.name}")
     N0 = A1 - T1 @ C                                   # N_k at k = 0 (a = 1)
     results.update({

@@ -52,9 +52,15 @@ from ..runtime.errors import ProblemError
 from ..runtime.tolerances import RANK_RTOL, SEARCH_TOL, ZERO_MARGIN
 from ..structure import kernel_maps, product_radius, rank, unobservable_modes
 from ..switched_plant import as_switched
+from ..noise import section as noise_section
 from . import Analysis, DesignResult
 
 NAME = "switched"
+
+#: Why the card has no noise gain (:mod:`uiofmu.noise`).
+NOISE_REASON = ("gain_y: not certified for this family: its error system switches with the mode, which needs a "
+                "bounded real lemma over every switching sequence (not yet designed)")
+
 #: Design methods: dead-beat where every mode allows it, else the LMI; or one of them.
 METHODS = ("auto", "lmi", "deadbeat")
 
@@ -369,7 +375,8 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     size = max(float(np.linalg.norm(md.A, 2)) for md in modes)
     figures = {f"fixed_eigenvalues[{i}]": computed_values(md.fixed, size, n)
                for i, md in enumerate(analysis.data["modes"])}
-    return {"dt": plant.dt, "schedule": _schedule(plant, opts), "bound": BOUND, "modes": plant.N,
+    return {"noise": noise_section(None, NOISE_REASON),
+            "dt": plant.dt, "schedule": _schedule(plant, opts), "bound": BOUND, "modes": plant.N,
             "decay": float(card_data["decay_bound"]), "matrices.C": C,
             **{f"matrices.{k}": v for k, v in mats.items()}, **figures,
             "largest_fixed_modulus": Determined(analysis.data["largest"], 1.0, eigen_rtol(n)),
@@ -437,6 +444,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         method, solver = "lmi", "CLARABEL"
     cert = certificate(sol, checks(mats, lam), f"{NAME} design of {problem.name}", solver=solver)
     results = {
+        "noise": noise_section(None, NOISE_REASON),
         "decay": lam,
         "decay_bound": lam,
         "overshoot_bound": bound,

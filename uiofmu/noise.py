@@ -1,0 +1,266 @@
+"""What sensor noise does to the estimate: the certified l2 noise gains of a card.
+
+Every card has a ``noise`` section of the same shape::
+
+    "noise": {"norm": "l2", "gain_y": float or null, "gain_w": float or null, "gain_dhat_y": float or null,
+              "reason": str or null, ...}
+
+``gain_y`` bounds the l2 gain from a measurement noise ``v`` (added to ``y`` at the observer's input)
+to the estimation error ``e = x - xhat``, with the initial-condition term kept::
+
+    ||e||_2 <= gain_y ||v||_2 + initial_term ||e_0||
+
+``gain_w`` does the same for process noise and ``gain_dhat_y`` for the error of ``dhat``; a gain that
+is null comes with ``reason``, which says why (the family's structure, no process noise declared, ...).
+
+A discrete error system ``eps+ = A eps + B v``, ``e = C eps + D v`` is certified by the bounded real
+lemma at the card's stored matrices: with ``X > 0``::
+
+    [[X - A'XA - C'C,   -(A'XB + C'D)],
+     [-(B'XA + D'C),    gamma^2 I - B'XB - D'D]]  > 0
+
+summed along a run gives ``||e||^2 <= gamma^2 ||v||^2 + eps_0' X eps_0``, so ``initial_term`` is
+``sqrt(eig_max(X))``. Both inequalities are decided as the decay is (:func:`uiofmu.certificate.definite_check`:
+a verdict that no BLAS kernel's rounding can change). ``gamma`` is the H-infinity norm of the error
+system (a frequency sweep refined around its peaks), times ``1 + NOISE_MARGIN``, rounded up to
+:data:`NOISE_DIGITS` significant digits; ``X`` is the stabilising solution of the bounded real
+Riccati equation at that ``gamma`` (no solver). The card records the ``gamma`` the re-check proves.
+
+A finite-impulse-response error (the dead-beat functional observer: ``sum_j K_j v_{k-j}``) is certified
+alike on its shift-register realisation (:func:`fir_system`), and its peak-to-peak gain is the sum of the
+coefficients' norms (:func:`peak_to_peak`).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+from .certificate import Check, definite_check, figure_text, round_up
+
+#: The norm every gain of a card's ``noise`` section is in.
+NORM = "l2"
+
+#: The keys every ``noise`` section has.
+KEYS = ("norm", "gain_y", "gain_w", "gain_dhat_y", "reason")
+
+#: Significant digits of a certified gain (rounded up): the problem determines them on every machine.
+NOISE_DIGITS = 3
+
+#: Relative margin added to the H-infinity norm before it is rounded up and certified.
+NOISE_MARGIN = 1e-3
+
+#: Points of the frequency sweep on [0, pi] (besides the angles of the error system's poles).
+SWEEP_POINTS = 512
+
+#: Tries at a larger gamma (each ``GROWTH`` times the previous) when the re-check refuses a certificate.
+TRIES, GROWTH = 12, 1.1
+
+
+def section(gain_y=None, reason=None, gain_w=None, gain_dhat_y=None, **extra) -> dict:
+    """A ``noise`` section: the gains (None where not certified), why some are None, and what re-checks them."""
+    out = {"norm": NORM, "gain_y": gain_y, "gain_w": gain_w, "gain_dhat_y": gain_dhat_y, "reason": reason}
+    out.update(extra)
+    return out
+
+
+def _response(A, B, C, D, w: np.ndarray) -> np.ndarray:
+    """The largest singular value of ``C (e^{jw} I - A)^-1 B + D`` at each angle ``w``."""
+    n = len(A)
+    out = np.empty(len(w))
+    for i, angle in enumerate(w):
+        H = D + C @ np.linalg.solve(np.exp(1j * angle) * np.eye(n) - A, B) if n else D
+        out[i] = np.linalg.norm(H, 2) if H.size else 0.0
+    return out
+
+
+def hinf_norm(A, B, C, D) -> float:
+    """The H-infinity norm of the discrete system ``(A, B, C, D)`` (``A`` Schur stable).
+
+    A sweep of :data:`SWEEP_POINTS` angles on [0, pi] and the angles of the poles, then a bounded scalar
+    search around the three largest; a value below the true norm is caught by the certificate's re-check.
+    """
+    from scipy.optimize import minimize_scalar
+
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    poles = np.abs(np.angle(np.linalg.eigvals(A))) if len(A) else np.zeros(0)
+    w = np.unique(np.concatenate([np.linspace(0.0, np.pi, SWEEP_POINTS), poles]))
+    g = _response(A, B, C, D, w)
+    best = float(g.max())
+    step = np.pi / (SWEEP_POINTS - 1)
+    for i in np.argsort(g)[-3:]:
+        lo, hi = max(0.0, w[i] - step), min(np.pi, w[i] + step)
+        found = minimize_scalar(lambda a: -_response(A, B, C, D, np.array([a]))[0], bounds=(lo, hi),
+                                method="bounded", options={"xatol": 1e-12})
+        best = max(best, float(-found.fun))
+    return best
+
+
+def scaled_definite_check(name: str, Q: np.ndarray, terms: np.ndarray, length: int) -> Check:
+    """``Q > 0`` decided on ``D Q D``, ``D = diag(terms)^(-1/2)``, with margin over its own rounding.
+
+    A positive diagonal congruence keeps the sign of ``Q``; evaluated in double precision it adds two roundings
+    to each entry (``length + 2``), and it brings the rounding floor of a badly scaled ``Q`` (an error system with
+    gains of 1e6 next to entries of 1e-6) down to the size of its entries (:func:`uiofmu.certificate.definite_check`,
+    no margin beyond the rounding: the gain's rounding up is the margin).
+    """
+    scale = np.diag(terms).copy()
+    d = 1.0 / np.sqrt(np.where(scale > 0, scale, 1.0))
+    return definite_check(name, d[:, None] * Q * d[None, :], d[:, None] * terms * d[None, :], length + 2, margin=0.0)
+
+
+def brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> list:
+    """The bounded real lemma at stored matrices: ``X > 0`` and the BRL matrix ``> 0`` (see the module),
+    each decided with margin over its own rounding (:func:`scaled_definite_check`)."""
+    A, B, C, D, X = (np.asarray(m, dtype=float) for m in (A, B, C, D, X))
+    aA, aB, aC, aD, aX = (np.abs(m) for m in (A, B, C, D, X))
+    g2 = float(gamma) ** 2
+    eye = np.eye(B.shape[1])
+    Q = np.block([[X - A.T @ X @ A - C.T @ C, -(A.T @ X @ B + C.T @ D)],
+                  [-(B.T @ X @ A + D.T @ C), g2 * eye - B.T @ X @ B - D.T @ D]])
+    terms = np.block([[aX + aA.T @ aX @ aA + aC.T @ aC, aA.T @ aX @ aB + aC.T @ aD],
+                      [aB.T @ aX @ aA + aD.T @ aC, g2 * eye + aB.T @ aX @ aB + aD.T @ aD]])
+    length = 2 * len(A) + C.shape[0] + 2
+    return [scaled_definite_check(f"noise {label}: eig_min(X)", 0.5 * (X + X.T), aX, 1),
+            scaled_definite_check(f"noise {label}: bounded real lemma at gamma = {figure_text(gamma, NOISE_DIGITS)}",
+                                  0.5 * (Q + Q.T), terms, length)]
+
+
+def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
+    """The stabilising solution of the bounded real Riccati equation at ``gamma``, with ``delta I`` added to
+    ``C'C`` (the strictness the re-check needs)."""
+    from scipy.linalg import solve_discrete_are
+
+    n, m = B.shape
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        X = solve_discrete_are(A, B, C.T @ C + delta * np.eye(n), D.T @ D - gamma * gamma * np.eye(m), s=C.T @ D)
+    return 0.5 * (X + X.T)
+
+
+def brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
+    """The least certified l2 gain of ``eps+ = A eps + B v``, ``e = C eps + D v`` to :data:`NOISE_DIGITS`.
+
+    The Riccati equation is solved in the coordinates that balance ``A`` (powers of 2, exact:
+    ``scipy.linalg.matrix_balance``), where a plant with gains of 1e6 still has an accurate solution, and its
+    ``X`` is mapped back; the checks are at the given matrices.
+
+    Returns
+    -------
+    dict
+        ``gamma`` (the gain the re-check proves), ``X``, ``initial_term`` (``sqrt(eig_max(X))``),
+        ``hinf_norm`` (the sweep's) and the checks; ``gamma`` None (with ``why``) when no try certifies.
+    """
+    from scipy.linalg import matrix_balance
+
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    norm = hinf_norm(A, B, C, D)
+    s = matrix_balance(A, permute=False, separate=True)[1][0] if len(A) else np.ones(0)
+    Ab, Bb, Cb = A * s[None, :] / s[:, None], B / s[:, None], C * s[None, :]      # eps = diag(s) eps_b
+    # delta I added to C'C raises the gain by at most delta h^2 / (2 gamma), h = ||(zI - A)^-1 B||_inf.
+    h = hinf_norm(Ab, Bb, np.eye(len(A)), np.zeros_like(B))
+    gamma = round_up(max(norm, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
+    for _ in range(TRIES):
+        delta = (0.1 * (gamma - norm) * gamma) / max(h * h, 1e-300) if gamma > norm else 0.0
+        try:
+            Xb = _riccati(Ab, Bb, Cb, D, gamma, delta)
+        except (ValueError, np.linalg.LinAlgError):
+            pass
+        else:
+            X = Xb / s[:, None] / s[None, :]
+            checks = brl_checks(A, B, C, D, X, gamma, label)
+            if np.all(np.isfinite(X)) and all(c.holds for c in checks):
+                return {"gamma": gamma, "X": X, "initial_term": float(np.sqrt(np.linalg.eigvalsh(X)[-1])),
+                        "hinf_norm": norm, "checks": checks}
+        last, gamma = gamma, round_up(gamma * GROWTH, NOISE_DIGITS)
+    return {"gamma": None, "hinf_norm": norm,
+            "why": f"no bounded real lemma certificate up to gamma = {figure_text(last, NOISE_DIGITS)} survives the "
+                   "re-check at the stored matrices"}
+
+
+def fir_system(coefficients) -> tuple:
+    """The filter ``e_k = sum_j K_j v_(k-j)`` as a state-space system ``(A, B, C, D)``: a shift register of the
+    last ``len(coefficients) - 1`` samples (``A`` nilpotent).
+
+    Parameters
+    ----------
+    coefficients : sequence of (r, p) arrays
+        ``K_0, K_1, ...`` (at least one).
+    """
+    K = [np.asarray(k, dtype=float) for k in coefficients]
+    r, p = K[0].shape
+    n = (len(K) - 1) * p
+    A = np.zeros((n, n))
+    if n > p:
+        A[p:, :n - p] = np.eye(n - p)
+    B = np.eye(n, p)
+    C = np.hstack(K[1:]) if n else np.zeros((r, 0))
+    return A, B, C, K[0]
+
+
+def peak_to_peak(coefficients) -> float:
+    """``sum_j ||K_j||_2`` rounded up to :data:`NOISE_DIGITS`: the peak-to-peak gain of the filter
+    ``e_k = sum_j K_j v_(k-j)`` (``max_k |e_k| <= gain max_k |v_k|``, Euclidean norms of the samples)."""
+    return round_up(sum(float(np.linalg.norm(np.asarray(k, dtype=float), 2)) for k in coefficients), NOISE_DIGITS)
+
+
+def gain_text(value) -> str:
+    """A gain as printed: :data:`NOISE_DIGITS` significant digits, or ``none``."""
+    return "none" if value is None else figure_text(float(value), NOISE_DIGITS)
+
+
+def recheck(noise: dict, A, B, C, D, key: str = "gain_y") -> list:
+    """The re-check of a card's ``noise.<key>`` (its certificate stored as ``noise.certificate``) at the error
+    system ``(A, B, C, D)`` of its stored matrices: none when the gain is null (a card claims nothing then)."""
+    if not isinstance(noise, dict) or noise.get(key) is None:
+        return []
+    X = np.asarray(noise["certificate"]["X"], dtype=float)
+    return brl_checks(A, B, C, D, X, float(noise[key]), key) + [initial_check(noise, X)]
+
+
+def certified(A, B, C, D, label: str = "gain_y") -> tuple:
+    """``brl_certificate`` as the card stores it: (gain or None, the section's extra keys, why it is None)."""
+    cert = brl_certificate(A, B, C, D, label)
+    if cert["gamma"] is None:
+        return None, {}, f"{label}: not certified ({cert['why']})"
+    extra = {"initial_term": cert["initial_term"],
+             "certificate": {"method": "bounded real lemma (discrete, at the stored matrices)",
+                             "hinf_norm": cert["hinf_norm"], "margin": NOISE_MARGIN, "X": cert["X"],
+                             "checks": {c.name: c.to_data() for c in cert["checks"]}}}
+    return cert["gamma"], extra, None
+
+
+def noise_lines(card_data: dict) -> list[str]:
+    """The lines ``uiofmu design`` prints of the card's noise gains (the same on every machine)."""
+    noise = card_data.get("noise")
+    if not isinstance(noise, dict):
+        return []
+    lines = [f"  noise gain y->e  {gain_text(noise.get('gain_y'))} (l2"
+             + (f"; peak-to-peak {gain_text(noise['peak_to_peak_y'])}" if noise.get("peak_to_peak_y") is not None
+                else "") + ")"]
+    if noise.get("gain_dhat_y") is not None:
+        lines.append(f"  noise gain y->dhat {gain_text(noise['gain_dhat_y'])} (l2)")
+    if noise.get("gain_w") is not None:
+        lines.append(f"  noise gain w->e  {gain_text(noise['gain_w'])} (l2)")
+    if noise.get("reason"):
+        lines.append(f"  noise note       {noise['reason']}")
+    return lines
+
+
+def initial_check(noise: dict, X) -> Check:
+    """``initial_term >= sqrt(eig_max(X))`` (up to the rounding of the eigenvalue): the term of ``||e_0||``."""
+    top = float(np.linalg.eigvalsh(0.5 * (np.asarray(X, dtype=float) + np.asarray(X, dtype=float).T))[-1])
+    try:
+        value = float(noise.get("initial_term"))
+    except (TypeError, ValueError):
+        value = math.nan
+    needed = math.sqrt(max(top * (1.0 - 8.0 * len(X) * np.finfo(float).eps), 0.0))
+    return Check("noise initial_term >= sqrt(eig_max(X))", value if math.isfinite(value) else -math.inf, needed,
+                 at_most=False)
+
+
+__all__ = ["KEYS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks", "certified", "fir_system",
+           "gain_text", "hinf_norm", "initial_check", "noise_lines", "peak_to_peak", "recheck",
+           "scaled_definite_check", "section"]
