@@ -201,3 +201,53 @@ def test_the_card_schema_checks_the_noise_section(lti_cards, change, match):
     del doc["noise"]["gain_w"]
     with pytest.raises(CardError, match="noise.gain_w: required"):
         card_from_data(doc)
+
+
+def with_process_noise(doc: dict, W) -> dict:
+    doc = copy.deepcopy(doc)
+    doc["plant"]["W"] = W
+    return doc
+
+
+def test_process_noise_declared_by_w_gets_its_certified_gain():
+    """``[plant] W``: the runtime on a plant driven by process noise through ``W`` (the twin's plant without it)
+    stays within ``gain_w``, which bounds the error system's peak; the rows of ``W`` are checked."""
+    doc = with_process_noise(uiofmu.load_problem(ROOT / "examples" / "seed000_example1.toml").data, None)
+    n = len(doc["plant"]["A"])
+    doc["plant"]["W"] = [[1.0 if i == 0 else 0.5] for i in range(n)]
+    card = uiofmu.design(problem_from_data(doc))
+    noise, m = card.data["noise"], card.data["matrices"]
+    A, B = np.asarray(m["N"]), np.asarray(m["P"]) @ np.asarray(m["W_sampled"])
+    peak = sweep_peak(A, B, np.eye(n), np.zeros((n, 1)))
+    assert peak <= noise["gain_w"] <= 1.01 * noise["certificate_w"]["hinf_norm"]
+    assert "gain_w" not in noise["reason"]
+    rng = np.random.default_rng(5)
+    As, Bs, Es, C = (np.asarray(m[k], dtype=float) for k in ("A_sampled", "B_sampled", "E_sampled", "C"))
+    W = np.asarray(m["W_sampled"])
+    x = xt = rng.normal(size=n)
+    noisy, twin = Runtime(card), Runtime(card)
+    w = rng.normal(size=(800, 1))
+    diff = []
+    for k in range(800):
+        u, d = rng.normal(size=Bs.shape[1]), rng.normal(size=Es.shape[1])
+        noisy.set_y(C @ x), noisy.set_u(u), twin.set_y(C @ xt), twin.set_u(u)
+        diff.append((x - noisy.xhat()) - (xt - twin.xhat()))
+        noisy.step(card.dt), twin.step(card.dt)
+        x, xt = As @ x + Bs @ u + Es @ d + W @ w[k], As @ xt + Bs @ u + Es @ d
+    assert np.linalg.norm(diff) <= noise["gain_w"] * np.linalg.norm(w)
+    recheck(card)
+    forged = copy.deepcopy(card.data)
+    forged["noise"]["gain_w"] = 0.5 * forged["noise"]["certificate_w"]["hinf_norm"]
+    _refused(forged, "noise gain_w")
+    forged = copy.deepcopy(card.data)
+    forged["matrices"]["W_sampled"] = (2.0 * np.asarray(m["W_sampled"])).tolist()
+    _refused(forged, "W_sampled")
+    with pytest.raises(uiofmu.ProblemError, match="plant.W: expected"):
+        problem_from_data(with_process_noise(doc, [[1.0]] * (n + 1)))
+
+
+def test_without_w_a_card_cannot_claim_a_process_noise_gain(lti_cards):
+    doc = copy.deepcopy(lti_cards["example1"].data)
+    assert doc["noise"]["gain_w"] is None and "no process noise" in doc["noise"]["reason"]
+    doc["noise"]["gain_w"] = 1.0
+    _refused(doc, "noise.gain_w")

@@ -211,25 +211,36 @@ def gain_text(value) -> str:
     return "none" if value is None else figure_text(float(value), NOISE_DIGITS)
 
 
+def certificate_key(key: str) -> str:
+    """Where a card keeps the certificate of ``noise.<key>``: ``certificate`` for ``gain_y``, ``certificate_w`` for
+    ``gain_w``, ``certificate_dhat_y`` for ``gain_dhat_y``."""
+    return "certificate" if key == "gain_y" else f"certificate_{key[len('gain_'):]}"
+
+
 def recheck(noise: dict, A, B, C, D, key: str = "gain_y") -> list:
-    """The re-check of a card's ``noise.<key>`` (its certificate stored as ``noise.certificate``) at the error
-    system ``(A, B, C, D)`` of its stored matrices: none when the gain is null (a card claims nothing then)."""
+    """The re-check of a card's ``noise.<key>`` (its certificate at :func:`certificate_key`) at the error system
+    ``(A, B, C, D)`` of its stored matrices: none when the gain is null (a card claims nothing then)."""
     if not isinstance(noise, dict) or noise.get(key) is None:
         return []
-    X = np.asarray(noise["certificate"]["X"], dtype=float)
-    return brl_checks(A, B, C, D, X, float(noise[key]), key) + [initial_check(noise, X)]
+    cert = noise[certificate_key(key)]
+    X = np.asarray(cert["X"], dtype=float)
+    return brl_checks(A, B, C, D, X, float(noise[key]), key) + [initial_check(noise if key == "gain_y" else cert, X)]
 
 
-def certified(A, B, C, D, label: str = "gain_y") -> tuple:
-    """``brl_certificate`` as the card stores it: (gain or None, the section's extra keys, why it is None)."""
-    cert = brl_certificate(A, B, C, D, label)
+def certified(A, B, C, D, key: str = "gain_y") -> tuple:
+    """``brl_certificate`` as the card stores it: (gain or None, the section's extra keys, why it is None).
+
+    The extra keys are the certificate (at :func:`certificate_key`: the method, the sweep's H-infinity norm, the
+    margin, ``X`` and the checks) and the ``initial_term`` (top level for ``gain_y``, in its certificate else).
+    """
+    cert = brl_certificate(A, B, C, D, key)
     if cert["gamma"] is None:
-        return None, {}, f"{label}: not certified ({cert['why']})"
-    extra = {"initial_term": cert["initial_term"],
-             "certificate": {"method": "bounded real lemma (discrete, at the stored matrices)",
-                             "hinf_norm": cert["hinf_norm"], "margin": NOISE_MARGIN, "X": cert["X"],
-                             "checks": {c.name: c.to_data() for c in cert["checks"]}}}
-    return cert["gamma"], extra, None
+        return None, {}, f"{key}: not certified ({cert['why']})"
+    record = {"method": "bounded real lemma (discrete, at the stored matrices)", "hinf_norm": cert["hinf_norm"],
+              "margin": NOISE_MARGIN, "X": cert["X"], "checks": {c.name: c.to_data() for c in cert["checks"]}}
+    if key == "gain_y":
+        return cert["gamma"], {"initial_term": cert["initial_term"], "certificate": record}, None
+    return cert["gamma"], {certificate_key(key): {**record, "initial_term": cert["initial_term"]}}, None
 
 
 def noise_lines(card_data: dict) -> list[str]:
@@ -261,6 +272,6 @@ def initial_check(noise: dict, X) -> Check:
                  at_most=False)
 
 
-__all__ = ["KEYS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks", "certified", "fir_system",
-           "gain_text", "hinf_norm", "initial_check", "noise_lines", "peak_to_peak", "recheck",
-           "scaled_definite_check", "section"]
+__all__ = ["KEYS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks", "certificate_key",
+           "certified", "fir_system", "gain_text", "hinf_norm", "initial_check", "noise_lines", "peak_to_peak",
+           "recheck", "scaled_definite_check", "section"]

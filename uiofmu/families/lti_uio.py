@@ -212,7 +212,7 @@ def verify(card) -> list:
     """Re-check a card's certificate from its matrices alone (no solver), the overshoot and the noise gain it claims."""
     d = card.data
     return (checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
-            + recheck(d.get("noise"), *error_system(d["matrices"])))
+            + noise_checks(d))
 
 
 def error_system(matrices: dict) -> tuple:
@@ -223,20 +223,42 @@ def error_system(matrices: dict) -> tuple:
     return g["N"], -g["L"], np.eye(len(g["N"])), -g["Xy"]
 
 
+def process_error_system(matrices: dict) -> tuple:
+    """The error system from process noise ``w`` (``x+ = ... + W_sampled w``): ``eps+ = N eps + P W_sampled w``,
+    ``e = eps``."""
+    N, P, W = (np.asarray(matrices[k], dtype=float) for k in ("N", "P", "W_sampled"))
+    return N, P @ W, np.eye(len(N)), np.zeros((len(N), W.shape[1]))
+
+
 #: Why an lti-uio card has no process-noise and no dhat gain.
 NO_W = "gain_w: the problem declares no process noise"
 NO_DHAT = "gain_dhat_y: dhat is not certified against noise (it reads the next output)"
 
 
+def noise_checks(card_data: dict) -> list:
+    """The re-check of the noise gains a card states, at its stored matrices."""
+    noise, m = card_data.get("noise"), card_data["matrices"]
+    out = recheck(noise, *error_system(m))
+    if isinstance(noise, dict) and noise.get("gain_w") is not None:
+        out += recheck(noise, *process_error_system(m), key="gain_w")
+    return out
+
+
 def noise_section(matrices: dict) -> dict:
-    """The card's ``noise`` section (:mod:`uiofmu.noise`): ``gain_y`` by the bounded real lemma at the stored
-    matrices."""
+    """The card's ``noise`` section (:mod:`uiofmu.noise`): ``gain_y``, and ``gain_w`` where the problem declares
+    ``[plant] W``, each by the bounded real lemma at the stored matrices."""
     gain, extra, why = certified(*error_system(matrices))
     reasons = [why] if why else []
-    reasons.append(NO_W)
+    gain_w = None
+    if matrices.get("W_sampled") is not None and np.shape(matrices["W_sampled"])[1]:
+        gain_w, extra_w, why_w = certified(*process_error_system(matrices), key="gain_w")
+        extra.update(extra_w)
+        reasons += [why_w] if why_w else []
+    else:
+        reasons.append(NO_W)
     if matrices.get("Dy") is not None:
         reasons.append(NO_DHAT)
-    return section(gain, "; ".join(reasons), **extra)
+    return section(gain, "; ".join(reasons) or None, gain_w=gain_w, **extra)
 
 
 def gain_figures(card_data: dict) -> tuple:
@@ -260,9 +282,10 @@ BOUND = "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0||"
 
 
 def determined(problem, card_data, analysis: Analysis) -> dict:
-    """What the card's problem determines: the sampled plant, ``M = -E (CE)^+``, dhat's matrices
-    (absent unless ``rank(CE) = q``), the step and the schedule; the fixed modes and invariant zeros of
-    its analysis, the eigenvalues of the stored ``N``, and the state scaling of an LMI design."""
+    """What the card's problem determines: the sampled plant (with ``W_sampled`` where it declares ``W``),
+    ``M = -E (CE)^+``, dhat's matrices (absent unless ``rank(CE) = q``), the step and the schedule; the fixed
+    modes and invariant zeros of its analysis, the eigenvalues of the stored ``N``, and the state scaling of an
+    LMI design."""
     plant, opts = problem.plant, problem.options
     s, C = plant.sampled(opts.dt), plant.C
     figures = figures_of(analysis, card_data, problem)
@@ -270,7 +293,11 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
             "M": conditioned(decoupling_gain(C, s.E), condition(C @ s.E)), **dhat}
     requested = {} if opts.decay == "max" else {"decay_bound": float(opts.decay)}     # a fixed decay is the card's
-    noise = {"noise.norm": NORM, "noise.gain_w": None, "noise.gain_dhat_y": None}      # gain_y: verify re-checks it
+    noise = {"noise.norm": NORM, "noise.gain_dhat_y": None}            # the gains: verify re-checks them
+    if plant.r:
+        mats["W_sampled"] = plant.sampled_noise(opts.dt)
+    else:
+        noise["noise.gain_w"] = None
     return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "decay": card_data["decay_bound"], **requested,
             **noise,
             **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
@@ -392,6 +419,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
                        solver="CLARABEL" if method == "lmi" else "none")
     if existence.holds("rank(CE) = q"):
         matrices.update({k: v.value for k, v in _dhat(s, C).items()})
+    if plant.r:
+        matrices["W_sampled"] = plant.sampled_noise(opts.dt)
     eigN = np.linalg.eigvals(N)
     results = {
         "decay": rho,

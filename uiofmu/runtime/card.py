@@ -187,10 +187,11 @@ def _check_noise(value) -> None:
         _text(reason, "noise.reason", MAX_REASON)
     if all(noise[key] is None for key in NOISE_GAINS) and not reason:
         raise CardError("design card noise: every gain is null and noise.reason does not say why")
-    if "certificate" in noise:
-        cert = _table(noise["certificate"], "noise.certificate")
-        if "X" in cert:
-            any_array(cert["X"], "design card noise.certificate.X")
+    for key in ("certificate", "certificate_w", "certificate_dhat_y"):
+        if key in noise:
+            cert = _table(noise[key], f"noise.{key}")
+            if "X" in cert:
+                any_array(cert["X"], f"design card noise.{key}.X")
 
 
 def check_card(data, require_verified: bool = True) -> dict:
