@@ -189,8 +189,9 @@ def test_a_lowered_dead_beat_gain_fails():
 
 @pytest.mark.parametrize("change, match", [
     ({"gain_y": -1.0}, "noise.gain_y"), ({"gain_y": "50"}, "noise.gain_y"), ({"norm": "l1"}, "noise.norm"),
-    ({"gain_y": None, "reason": None}, "does not say why"), ({"reason": "x" * 501}, "noise.reason"),
-    ({"reason": "a\x00b"}, "noise.reason"), ({"initial_term": float("nan")}, "noise.initial_term"),
+    ({"gain_y": None, "gain_dhat_y": None, "reason": None}, "does not say why"),
+    ({"reason": "x" * 501}, "noise.reason"), ({"reason": "a\x00b"}, "noise.reason"),
+    ({"initial_term": float("nan")}, "noise.initial_term"),
 ])
 def test_the_card_schema_checks_the_noise_section(lti_cards, change, match):
     doc = copy.deepcopy(lti_cards["example1"].data)
@@ -220,7 +221,7 @@ def test_process_noise_declared_by_w_gets_its_certified_gain():
     A, B = np.asarray(m["N"]), np.asarray(m["P"]) @ np.asarray(m["W_sampled"])
     peak = sweep_peak(A, B, np.eye(n), np.zeros((n, 1)))
     assert peak <= noise["gain_w"] <= 1.01 * noise["certificate_w"]["hinf_norm"]
-    assert "gain_w" not in noise["reason"]
+    assert noise["reason"] is None
     rng = np.random.default_rng(5)
     As, Bs, Es, C = (np.asarray(m[k], dtype=float) for k in ("A_sampled", "B_sampled", "E_sampled", "C"))
     W = np.asarray(m["W_sampled"])
@@ -251,3 +252,39 @@ def test_without_w_a_card_cannot_claim_a_process_noise_gain(lti_cards):
     assert doc["noise"]["gain_w"] is None and "no process noise" in doc["noise"]["reason"]
     doc["noise"]["gain_w"] = 1.0
     _refused(doc, "noise.gain_w")
+
+
+@pytest.mark.parametrize("name", ["example1", "dc-motor-0.98"])
+def test_the_dhat_gain_bounds_the_runtimes_dhat_under_noise(lti_cards, name):
+    """``dhat`` reads the next output: its error from noise is a system one step ahead, whose certified gain
+    the runtime's ``dhat`` (noisy against its twin) respects under worst-case and random noise."""
+    from uiofmu.families.lti_uio import dhat_error_system
+
+    card = lti_cards[name]
+    gain = card.data["noise"]["gain_dhat_y"]
+    A, B, C, D = dhat_error_system(card.data["matrices"])
+    assert sweep_peak(A, B, C, D) <= gain
+    grid = np.linspace(0.0, np.pi, 4001)
+    responses = [D + C @ np.linalg.solve(np.exp(1j * w) * np.eye(len(A)) - A, B) for w in grid]
+    top = int(np.argmax([np.linalg.norm(H, 2) for H in responses]))
+    direction = np.linalg.svd(responses[top])[2][0].conj()
+    steps, p = 4000, card.dims["p"]
+    worst = np.real(direction[None, :] * np.exp(1j * grid[top] * np.arange(steps))[:, None])
+    for kind, v in (("worst", worst), ("random", np.random.default_rng(2).normal(size=(steps, p)))):
+        v = 1e-3 * v
+        v[0] = 0.0
+        m = card.data["matrices"]
+        As, Bs, Es, Cs = (np.asarray(m[k], dtype=float) for k in ("A_sampled", "B_sampled", "E_sampled", "C"))
+        rng = np.random.default_rng(0)
+        x = rng.normal(size=len(As))
+        noisy, twin = Runtime(card), Runtime(card)
+        diff = []
+        for k in range(steps):
+            u, d = rng.normal(size=Bs.shape[1]), rng.normal(size=Es.shape[1])
+            noisy.set_y(Cs @ x + v[k]), noisy.set_u(u), twin.set_y(Cs @ x), twin.set_u(u)
+            diff.append(noisy.dhat() - twin.dhat())
+            noisy.step(card.dt), twin.step(card.dt)
+            x = As @ x + Bs @ u + Es @ d
+        measured = np.linalg.norm(diff) / np.linalg.norm(v)
+        assert measured <= gain
+        assert kind == "random" or measured >= 0.9 * gain, (measured, gain)

@@ -244,19 +244,19 @@ def certified(A, B, C, D, key: str = "gain_y") -> tuple:
 
 
 def noise_lines(card_data: dict) -> list[str]:
-    """The lines ``uiofmu design`` prints of the card's noise gains (the same on every machine)."""
+    """The lines ``uiofmu design`` prints of the card's noise gains (the same on every machine: each is the
+    H-infinity norm of an error system rounded up to :data:`NOISE_DIGITS`)."""
     noise = card_data.get("noise")
     if not isinstance(noise, dict):
         return []
-    lines = [f"  noise gain y->e  {gain_text(noise.get('gain_y'))} (l2"
-             + (f"; peak-to-peak {gain_text(noise['peak_to_peak_y'])}" if noise.get("peak_to_peak_y") is not None
-                else "") + ")"]
-    if noise.get("gain_dhat_y") is not None:
-        lines.append(f"  noise gain y->dhat {gain_text(noise['gain_dhat_y'])} (l2)")
-    if noise.get("gain_w") is not None:
-        lines.append(f"  noise gain w->e  {gain_text(noise['gain_w'])} (l2)")
+    peak = noise.get("peak_to_peak_y")
+    lines = [f"  {'noise y->e':16s} {gain_text(noise.get('gain_y'))} (l2 gain"
+             + (f"; peak-to-peak {gain_text(peak)}" if peak is not None else "") + ")"]
+    for key, label in (("gain_dhat_y", "noise y->dhat"), ("gain_w", "noise w->e")):
+        if noise.get(key) is not None:
+            lines.append(f"  {label:16s} {gain_text(noise[key])} (l2 gain)")
     if noise.get("reason"):
-        lines.append(f"  noise note       {noise['reason']}")
+        lines.append(f"  {'noise note':16s} {noise['reason']}")
     return lines
 
 

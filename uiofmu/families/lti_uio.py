@@ -230,9 +230,24 @@ def process_error_system(matrices: dict) -> tuple:
     return N, P @ W, np.eye(len(N)), np.zeros((len(N), W.shape[1]))
 
 
-#: Why an lti-uio card has no process-noise and no dhat gain.
+def dhat_error_system(matrices: dict) -> tuple:
+    """The error system from measurement noise ``v`` to the error of ``dhat``.
+
+    ``dhat_k = Dy (y_(k+1) - Yx xhat_k - Yu u_k - Yc)`` with ``Dy C E = I`` and ``Yx = C A`` gives
+    ``dhat_k - d_k = Dy (Yx e_k + v_(k+1))``: it reads the next sample, so in the time ``j = k + 1`` its state is
+    ``(eps_(j-1), v_(j-1))``, with ``A = [[N, -L], [0, 0]]``, ``B = [0; I]``, ``C = Dy Yx [I, -Xy]``, ``D = Dy``
+    (a shift by one step leaves l2 norms as they are).
+    """
+    N, L, Xy, Dy, Yx = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy", "Dy", "Yx"))
+    n, p = L.shape
+    A = np.block([[N, -L], [np.zeros((p, n)), np.zeros((p, p))]])
+    B = np.vstack([np.zeros((n, p)), np.eye(p)])
+    DyYx = Dy @ Yx
+    return A, B, np.hstack([DyYx, -DyYx @ Xy]), Dy
+
+
+#: Why an lti-uio card has no process-noise gain.
 NO_W = "gain_w: the problem declares no process noise"
-NO_DHAT = "gain_dhat_y: dhat is not certified against noise (it reads the next output)"
 
 
 def noise_checks(card_data: dict) -> list:
@@ -241,6 +256,8 @@ def noise_checks(card_data: dict) -> list:
     out = recheck(noise, *error_system(m))
     if isinstance(noise, dict) and noise.get("gain_w") is not None:
         out += recheck(noise, *process_error_system(m), key="gain_w")
+    if isinstance(noise, dict) and noise.get("gain_dhat_y") is not None:
+        out += recheck(noise, *dhat_error_system(m), key="gain_dhat_y")
     return out
 
 
@@ -256,9 +273,12 @@ def noise_section(matrices: dict) -> dict:
         reasons += [why_w] if why_w else []
     else:
         reasons.append(NO_W)
+    gain_dhat = None
     if matrices.get("Dy") is not None:
-        reasons.append(NO_DHAT)
-    return section(gain, "; ".join(reasons) or None, gain_w=gain_w, **extra)
+        gain_dhat, extra_dhat, why_dhat = certified(*dhat_error_system(matrices), key="gain_dhat_y")
+        extra.update(extra_dhat)
+        reasons += [why_dhat] if why_dhat else []
+    return section(gain, "; ".join(reasons) or None, gain_w=gain_w, gain_dhat_y=gain_dhat, **extra)
 
 
 def gain_figures(card_data: dict) -> tuple:
@@ -293,7 +313,9 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
             "M": conditioned(decoupling_gain(C, s.E), condition(C @ s.E)), **dhat}
     requested = {} if opts.decay == "max" else {"decay_bound": float(opts.decay)}     # a fixed decay is the card's
-    noise = {"noise.norm": NORM, "noise.gain_dhat_y": None}            # the gains: verify re-checks them
+    noise = {"noise.norm": NORM}                                       # the gains: verify re-checks them
+    if dhat["Dy"] is None:
+        noise["noise.gain_dhat_y"] = None
     if plant.r:
         mats["W_sampled"] = plant.sampled_noise(opts.dt)
     else:
