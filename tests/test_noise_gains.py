@@ -288,3 +288,42 @@ def test_the_dhat_gain_bounds_the_runtimes_dhat_under_noise(lti_cards, name):
         measured = np.linalg.norm(diff) / np.linalg.norm(v)
         assert measured <= gain
         assert kind == "random" or measured >= 0.9 * gain, (measured, gain)
+
+
+#: A discrete plant with three outputs and one unknown input: freedom in the gain beyond the decoupling.
+FREE = {"time": "discrete", "dt": 0.1, "E": [[1.0], [0.0], [0.0], [0.0]],
+        "A": [[0.9, 0.2, 0.0, 0.1], [0.0, 0.8, 0.3, 0.0], [0.1, 0.0, 0.7, 0.2], [0.0, 0.1, 0.0, 0.95]],
+        "C": [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]}
+
+
+def _lti(plant: dict, **observer):
+    return uiofmu.design(problem_from_data({"name": "free", "plant": copy.deepcopy(plant),
+                                            "observer": {"family": "lti-uio", **observer}}))
+
+
+def test_noise_min_lowers_the_gain_at_the_same_decay_and_never_raises_it():
+    for decay in (0.1, 0.3, 0.9):
+        default, least = _lti(FREE, decay=decay), _lti(FREE, decay=decay, noise="min")
+        assert least.data["decay_bound"] == default.data["decay_bound"] == decay
+        assert least.data["noise"]["gain_y"] <= default.data["noise"]["gain_y"]
+        recheck(card_from_data(json.loads(least.to_json())))
+    assert least.data["design_method"] == "lmi (least noise gain)" and least.data["overshoot_digits"] == 0
+    assert least.data["noise_design"]["least_gain_y"] < 0.95 * least.data["noise_design"]["default_gain_y"]
+    default, least = _lti(FREE, decay=0.3), _lti(FREE, decay=0.3, noise="min")
+    assert least.data["noise"]["gain_y"] < 0.85 * default.data["noise"]["gain_y"]
+
+
+def test_noise_min_with_decay_max_moves_the_decay_and_keeps_the_default_where_the_lmis_fail():
+    fastest, least = _lti(FREE, decay="max"), _lti(FREE, decay="max", noise="min")
+    rho = fastest.data["decay_bound"]
+    assert least.data["decay_bound"] == pytest.approx(rho + 0.1 * (1 - rho), rel=1e-9)
+    assert least.data["noise"]["gain_y"] < fastest.data["noise"]["gain_y"]
+    motor = uiofmu.design(problem_from_data({**dc_motor(0.98), "observer": {**dc_motor(0.98)["observer"],
+                                                                            "noise": "min"}}))
+    assert motor.data["noise_design"]["kept"] == "default" and motor.data["design_method"] == "lmi"
+    assert motor.data["noise"]["gain_y"] == 1530.0
+    with pytest.raises(uiofmu.ProblemError, match='observer.noise = "min" designs with the LMI'):
+        problem_from_data({"name": "f", "plant": FREE, "observer": {"family": "lti-uio", "decay": 0.5,
+                                                                       "method": "riccati", "noise": "min"}})
+    with pytest.raises(uiofmu.ProblemError, match="observer.noise: expected one of"):
+        problem_from_data({"name": "f", "plant": FREE, "observer": {"family": "lti-uio", "noise": "least"}})
