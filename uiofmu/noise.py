@@ -111,21 +111,101 @@ def scaled_definite_check(name: str, Q: np.ndarray, terms: np.ndarray, length: i
     return definite_check(name, d[:, None] * Q * d[None, :], d[:, None] * terms * d[None, :], length + 2, margin=0.0)
 
 
+def _brl_matrix(A, B, C, D, X_in, X_out, gamma: float) -> tuple:
+    """The bounded real lemma's matrix of one step from storage ``X_in`` to ``X_out``, and its terms' sizes."""
+    aA, aB, aC, aD, aI, aO = (np.abs(m) for m in (A, B, C, D, X_in, X_out))
+    g2 = float(gamma) ** 2
+    eye = np.eye(B.shape[1])
+    Q = np.block([[X_in - A.T @ X_out @ A - C.T @ C, -(A.T @ X_out @ B + C.T @ D)],
+                  [-(B.T @ X_out @ A + D.T @ C), g2 * eye - B.T @ X_out @ B - D.T @ D]])
+    terms = np.block([[aI + aA.T @ aO @ aA + aC.T @ aC, aA.T @ aO @ aB + aC.T @ aD],
+                      [aB.T @ aO @ aA + aD.T @ aC, g2 * eye + aB.T @ aO @ aB + aD.T @ aD]])
+    return 0.5 * (Q + Q.T), terms
+
+
+def _worst(checks: list) -> Check:
+    """The first check that fails, else the one with the least room."""
+    return next((c for c in checks if not c.holds), None) or min(checks, key=lambda c: c.value - c.bound)
+
+
 def brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> list:
     """The bounded real lemma at stored matrices: ``X > 0`` and the BRL matrix ``> 0`` (see the module),
     each decided with margin over its own rounding (:func:`scaled_definite_check`)."""
     A, B, C, D, X = (np.asarray(m, dtype=float) for m in (A, B, C, D, X))
-    aA, aB, aC, aD, aX = (np.abs(m) for m in (A, B, C, D, X))
-    g2 = float(gamma) ** 2
-    eye = np.eye(B.shape[1])
-    Q = np.block([[X - A.T @ X @ A - C.T @ C, -(A.T @ X @ B + C.T @ D)],
-                  [-(B.T @ X @ A + D.T @ C), g2 * eye - B.T @ X @ B - D.T @ D]])
-    terms = np.block([[aX + aA.T @ aX @ aA + aC.T @ aC, aA.T @ aX @ aB + aC.T @ aD],
-                      [aB.T @ aX @ aA + aD.T @ aC, g2 * eye + aB.T @ aX @ aB + aD.T @ aD]])
+    Q, terms = _brl_matrix(A, B, C, D, X, X, gamma)
     length = 2 * len(A) + C.shape[0] + 2
-    return [scaled_definite_check(f"noise {label}: eig_min(X)", 0.5 * (X + X.T), aX, 1),
+    return [scaled_definite_check(f"noise {label}: eig_min(X)", 0.5 * (X + X.T), np.abs(X), 1),
             scaled_definite_check(f"noise {label}: bounded real lemma at gamma = {figure_text(gamma, NOISE_DIGITS)}",
-                                  0.5 * (Q + Q.T), terms, length)]
+                                  Q, terms, length)]
+
+
+def switched_brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> list:
+    """The poly-quadratic bounded real lemma of a switched error system at stored matrices, the worst case
+    over the modes and pairs.
+
+    The step from ``k`` to ``k + 1`` in the mode ``i = alpha_k`` after ``j = alpha_(k-1)`` is
+    ``eps+ = A[i][j] eps + B[i][j] v``, ``e = C[j] eps + D[j] v``; the storage ``eps' X[alpha_(k-1)] eps``
+    goes from ``X[j]`` to ``X[i]``: ``X[i] > 0`` and the lemma's matrix from ``X[j]`` to ``X[i]`` ``> 0`` for every
+    pair (i, j) give the gain under every switching sequence.
+    """
+    A, B, C, D, X = (np.asarray(m, dtype=float) for m in (A, B, C, D, X))
+    modes, n = len(X), X.shape[-1]
+    length = 2 * n + C.shape[1] + 2
+    positive = [scaled_definite_check(f"noise {label}: eig_min(X_{i + 1})", 0.5 * (X[i] + X[i].T), np.abs(X[i]), 1)
+                for i in range(modes)]
+    lemma = [scaled_definite_check(f"noise {label}: bounded real lemma from X_{j + 1} to X_{i + 1} at gamma = "
+                                   f"{figure_text(gamma, NOISE_DIGITS)}",
+                                   *_brl_matrix(A[i, j], B[i, j], C[j], D[j], X[j], X[i], gamma), length)
+             for i in range(modes) for j in range(modes)]
+    return [_worst(positive), _worst(lemma)]
+
+
+def switched_brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
+    """The least certified l2 gain of a switched error system (:func:`switched_brl_checks`) to
+    :data:`NOISE_DIGITS`: the LMIs of the lemma for every pair, with one storage matrix per mode and ``g``
+    bounding ``gamma^2`` minimised (CLARABEL), then ``sqrt(g)`` times ``1 + NOISE_MARGIN`` rounded up and
+    re-checked at the stored matrices with the solver's ``X`` (growing by :data:`GROWTH` where it fails).
+
+    Returns
+    -------
+    dict
+        As :func:`brl_certificate` (``lmi_gamma`` the solver's ``sqrt(g)`` in place of ``hinf_norm``).
+    """
+    from .lmi import Lmi, LmiSystem
+    from .reductions import scalar, symmetric
+
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    modes, n, p, r = A.shape[0], A.shape[-1], B.shape[-1], C.shape[1]
+
+    def build(v, prm, ops):
+        out = []
+        for i in range(modes):
+            Xi = v[f"X{i}"]
+            for j in range(modes):
+                XA, XB = Xi @ A[i, j], Xi @ B[i, j]
+                out.append(Lmi(f"bounded real lemma ({i + 1}, {j + 1})", ops.bmat([
+                    [v[f"X{j}"], ops.zeros((n, p)), XA.T, C[j].T],
+                    [ops.zeros((p, n)), v["g"] * ops.eye(p), XB.T, D[j].T],
+                    [XA, XB, Xi, ops.zeros((n, r))],
+                    [C[j], D[j], ops.zeros((r, n)), ops.eye(r)]])))
+        return out
+
+    variables = {**{f"X{i}": symmetric(n) for i in range(modes)}, "g": scalar()}
+    system = LmiSystem(f"noise {label}", variables, {}, build, objective=lambda v: v["g"])
+    sol = system.solve()
+    if not sol.values:
+        return {"gamma": None, "why": f"the bounded real lemma's LMIs have no solution (CLARABEL: {sol.status})"}
+    X = np.array([0.5 * (sol.values[f"X{i}"] + sol.values[f"X{i}"].T) for i in range(modes)])
+    least = math.sqrt(max(float(sol.values["g"]), 0.0))
+    gamma = round_up(max(least, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
+    for _ in range(TRIES):
+        checks = switched_brl_checks(A, B, C, D, X, gamma, label)
+        if all(c.holds for c in checks):
+            return {"gamma": gamma, "X": X, "initial_term": float(np.sqrt(np.linalg.eigvalsh(X)[:, -1].max())),
+                    "lmi_gamma": least, "checks": checks}
+        last, gamma = gamma, round_up(gamma * GROWTH, NOISE_DIGITS)
+    return {"gamma": None, "why": f"no bounded real lemma certificate up to gamma = {figure_text(last, NOISE_DIGITS)} "
+                                  "survives the re-check at the stored matrices"}
 
 
 def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
@@ -217,26 +297,30 @@ def certificate_key(key: str) -> str:
     return "certificate" if key == "gain_y" else f"certificate_{key[len('gain_'):]}"
 
 
-def recheck(noise: dict, A, B, C, D, key: str = "gain_y") -> list:
+def recheck(noise: dict, A, B, C, D, key: str = "gain_y", switched: bool = False) -> list:
     """The re-check of a card's ``noise.<key>`` (its certificate at :func:`certificate_key`) at the error system
-    ``(A, B, C, D)`` of its stored matrices: none when the gain is null (a card claims nothing then)."""
+    ``(A, B, C, D)`` of its stored matrices (with ``switched``, stacks: :func:`switched_brl_checks`): none when the
+    gain is null (a card claims nothing then)."""
     if not isinstance(noise, dict) or noise.get(key) is None:
         return []
     cert = noise[certificate_key(key)]
     X = np.asarray(cert["X"], dtype=float)
-    return brl_checks(A, B, C, D, X, float(noise[key]), key) + [initial_check(noise if key == "gain_y" else cert, X)]
+    lemma = switched_brl_checks if switched else brl_checks
+    return lemma(A, B, C, D, X, float(noise[key]), key) + [initial_check(noise if key == "gain_y" else cert, X)]
 
 
-def certified(A, B, C, D, key: str = "gain_y") -> tuple:
+def certified(A, B, C, D, key: str = "gain_y", switched: bool = False) -> tuple:
     """``brl_certificate`` as the card stores it: (gain or None, the section's extra keys, why it is None).
 
     The extra keys are the certificate (at :func:`certificate_key`: the method, the sweep's H-infinity norm, the
     margin, ``X`` and the checks) and the ``initial_term`` (top level for ``gain_y``, in its certificate else).
     """
-    cert = brl_certificate(A, B, C, D, key)
+    cert = (switched_brl_certificate if switched else brl_certificate)(A, B, C, D, key)
     if cert["gamma"] is None:
         return None, {}, f"{key}: not certified ({cert['why']})"
-    record = {"method": "bounded real lemma (discrete, at the stored matrices)", "hinf_norm": cert["hinf_norm"],
+    record = {"method": "poly-quadratic bounded real lemma (every switching sequence, at the stored matrices)"
+              if switched else "bounded real lemma (discrete, at the stored matrices)",
+              **{k: cert[k] for k in ("hinf_norm", "lmi_gamma") if k in cert},
               "margin": NOISE_MARGIN, "X": cert["X"], "checks": {c.name: c.to_data() for c in cert["checks"]}}
     if key == "gain_y":
         return cert["gamma"], {"initial_term": cert["initial_term"], "certificate": record}, None
@@ -262,16 +346,17 @@ def noise_lines(card_data: dict) -> list[str]:
 
 def initial_check(noise: dict, X) -> Check:
     """``initial_term >= sqrt(eig_max(X))`` (up to the rounding of the eigenvalue): the term of ``||e_0||``."""
-    top = float(np.linalg.eigvalsh(0.5 * (np.asarray(X, dtype=float) + np.asarray(X, dtype=float).T))[-1])
+    X = np.asarray(X, dtype=float)
+    top = float(np.linalg.eigvalsh(0.5 * (X + np.swapaxes(X, -1, -2)))[..., -1].max())
     try:
         value = float(noise.get("initial_term"))
     except (TypeError, ValueError):
         value = math.nan
-    needed = math.sqrt(max(top * (1.0 - 8.0 * len(X) * np.finfo(float).eps), 0.0))
+    needed = math.sqrt(max(top * (1.0 - 8.0 * X.shape[-1] * np.finfo(float).eps), 0.0))
     return Check("noise initial_term >= sqrt(eig_max(X))", value if math.isfinite(value) else -math.inf, needed,
                  at_most=False)
 
 
 __all__ = ["KEYS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks", "certificate_key",
            "certified", "fir_system", "gain_text", "hinf_norm", "initial_check", "noise_lines", "peak_to_peak",
-           "recheck", "scaled_definite_check", "section"]
+           "recheck", "scaled_definite_check", "section", "switched_brl_certificate", "switched_brl_checks"]
