@@ -172,8 +172,8 @@ def test_a_lowered_initial_term_or_another_cards_certificate_fails(lti_cards):
     _refused(doc, "noise gain_y")
 
 
-def test_a_card_without_a_certificate_cannot_claim_a_gain(building_card):
-    doc = copy.deepcopy(building_card[0].data)
+def test_a_card_without_a_certificate_cannot_claim_a_gain(ltv_card):
+    doc = copy.deepcopy(ltv_card[0].data)
     assert doc["noise"]["gain_y"] is None
     doc["noise"]["gain_y"] = 1.0
     _refused(doc, "noise.gain_y")
@@ -357,6 +357,38 @@ def test_a_switched_cards_gain_holds_under_switching_and_noise(example):
                 rt.set_mode(int(sequence[k]) + 1), rt.set_y(y), rt.set_u(np.zeros(m_in))
             diff.append(twin.xhat() - noisy.xhat())
             noisy.step(card.dt), twin.step(card.dt)
+        assert np.linalg.norm(diff) <= noise["gain_y"] * np.linalg.norm(v)
+    forged = copy.deepcopy(card.data)
+    forged["noise"]["gain_y"] = 0.5 * max(frozen)
+    _refused(forged, "bounded real lemma")
+
+
+@pytest.mark.parametrize("plant", ["quarter_car", "two_room_building"])
+def test_a_sampled_data_cards_gain_holds_for_interval_sequences(plant):
+    """The gain of a sampled-data card bounds every constant interval's peak and the runtime's noise part
+    (the runtime fed the noise against its twin fed zeros) on random sequences of the design intervals."""
+    from uiofmu.families.sampled_data import error_system as sampled_errors
+
+    card = uiofmu.design(uiofmu.load_problem(ROOT / "plants" / plant / "problem.toml"))
+    noise = card.data["noise"]
+    N, B, C, D = sampled_errors(card.data["matrices"])
+    frozen = [sweep_peak(N[i, i], B[i, i], C[i], D[i], 4001) for i in range(len(N))]
+    assert max(frozen) <= noise["gain_y"] <= 10 * max(frozen)
+    intervals = card.data["schedule"]["intervals"]
+    rng = np.random.default_rng(11)
+    p, m_in, steps = card.dims["p"], card.dims["m"], 1200
+    for trial in range(3):
+        sequence = rng.integers(0, len(intervals), size=steps) if trial else np.zeros(steps, dtype=int)
+        v = rng.normal(size=(steps, p))
+        v[0] = 0.0
+        noisy, twin = Runtime(card), Runtime(card)
+        diff = []
+        for k in range(steps):
+            for rt, y in ((noisy, v[k]), (twin, np.zeros(p))):
+                rt.set_y(y), rt.set_u(np.zeros(m_in))
+            diff.append(twin.xhat() - noisy.xhat())
+            h = intervals[int(sequence[k])]
+            noisy.step(h), twin.step(h)
         assert np.linalg.norm(diff) <= noise["gain_y"] * np.linalg.norm(v)
     forged = copy.deepcopy(card.data)
     forged["noise"]["gain_y"] = 0.5 * max(frozen)

@@ -160,11 +160,24 @@ def switched_brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> l
     return [_worst(positive), _worst(lemma)]
 
 
+def pair_error_system(matrices: dict) -> tuple:
+    """The error system from output noise of a runtime whose step ``(i, j)`` (this step's mode or interval, and the
+    previous one) is ``z+ = N_ij z + L_ij y + ...`` with ``xhat = z + Xy_j y`` (``Xz_j = I``), as stacks for
+    :func:`switched_brl_checks`: ``eps+ = N_ij eps - L_ij v``, ``e = eps - Xy_j v``, ``eps`` the error before the
+    new sample's share ``Xy_j v`` (the family's identities, which its certificate re-checks, make the plant's
+    inputs cancel from ``eps`` as they do from ``e``)."""
+    N, L, Xy = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy"))
+    modes, n = N.shape[0], N.shape[-1]
+    return N, -L, np.repeat(np.eye(n)[None], modes, axis=0), -Xy
+
+
 def switched_brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
     """The least certified l2 gain of a switched error system (:func:`switched_brl_checks`) to
     :data:`NOISE_DIGITS`: the LMIs of the lemma for every pair, with one storage matrix per mode and ``g``
-    bounding ``gamma^2`` minimised (CLARABEL), then ``sqrt(g)`` times ``1 + NOISE_MARGIN`` rounded up and
-    re-checked at the stored matrices with the solver's ``X`` (growing by :data:`GROWTH` where it fails).
+    bounding ``(gamma / sigma)^2`` minimised (CLARABEL; ``sigma`` the largest H-infinity norm of a mode held
+    constant, a lower bound of ``gamma``, so that ``g`` is near 1 whatever the gains), then ``sigma sqrt(g)`` times
+    ``1 + NOISE_MARGIN`` rounded up and re-checked at the stored matrices with the solver's ``X`` (times the square
+    of the scale the outputs are divided by), growing by :data:`GROWTH` where it fails.
 
     Returns
     -------
@@ -176,18 +189,21 @@ def switched_brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
 
     A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
     modes, n, p, r = A.shape[0], A.shape[-1], B.shape[-1], C.shape[1]
+    sigma = max(max(hinf_norm(A[i, i], B[i, i], C[i], D[i]) for i in range(modes)), 1e-300)
+    Bs, Ds = B / sigma, D / sigma
+    scale = float(np.max(np.abs(C))) if C.size else 1.0
 
     def build(v, prm, ops):
         out = []
         for i in range(modes):
             Xi = v[f"X{i}"]
             for j in range(modes):
-                XA, XB = Xi @ A[i, j], Xi @ B[i, j]
+                XA, XB = Xi @ A[i, j], Xi @ Bs[i, j]
                 out.append(Lmi(f"bounded real lemma ({i + 1}, {j + 1})", ops.bmat([
-                    [v[f"X{j}"], ops.zeros((n, p)), XA.T, C[j].T],
-                    [ops.zeros((p, n)), v["g"] * ops.eye(p), XB.T, D[j].T],
+                    [v[f"X{j}"], ops.zeros((n, p)), XA.T, C[j].T / scale],
+                    [ops.zeros((p, n)), v["g"] * ops.eye(p), XB.T, Ds[j].T / scale],
                     [XA, XB, Xi, ops.zeros((n, r))],
-                    [C[j], D[j], ops.zeros((r, n)), ops.eye(r)]])))
+                    [C[j] / scale, Ds[j] / scale, ops.zeros((r, n)), ops.eye(r)]])))
         return out
 
     variables = {**{f"X{i}": symmetric(n) for i in range(modes)}, "g": scalar()}
@@ -195,8 +211,10 @@ def switched_brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
     sol = system.solve()
     if not sol.values:
         return {"gamma": None, "why": f"the bounded real lemma's LMIs have no solution (CLARABEL: {sol.status})"}
-    X = np.array([0.5 * (sol.values[f"X{i}"] + sol.values[f"X{i}"].T) for i in range(modes)])
-    least = math.sqrt(max(float(sol.values["g"]), 0.0))
+    # the LMIs are the lemma of (A, B / sigma, C / scale, D / (sigma scale)) for the input sigma v and the output
+    # e / scale: multiplied by scale^2, its storage inequality is the card's at gamma = sigma scale sqrt(g)
+    X = np.array([0.5 * (sol.values[f"X{i}"] + sol.values[f"X{i}"].T) for i in range(modes)]) * scale ** 2
+    least = sigma * scale * math.sqrt(max(float(sol.values["g"]), 0.0))
     gamma = round_up(max(least, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
     for _ in range(TRIES):
         checks = switched_brl_checks(A, B, C, D, X, gamma, label)
@@ -327,11 +345,18 @@ def certified(A, B, C, D, key: str = "gain_y", switched: bool = False) -> tuple:
     return cert["gamma"], {certificate_key(key): {**record, "initial_term": cert["initial_term"]}}, None
 
 
-def noise_lines(card_data: dict) -> list[str]:
-    """The lines ``uiofmu design`` prints of the card's noise gains (the same on every machine: each is the
-    H-infinity norm of an error system rounded up to :data:`NOISE_DIGITS`)."""
+def noise_lines(card_data: dict, figures: bool = True) -> list[str]:
+    """The lines ``uiofmu design`` prints of the card's noise gains.
+
+    Each gain is the least certified gain of the card's error system rounded up to :data:`NOISE_DIGITS`: a figure
+    of the card's matrices. Those of a closed-form design (``certificate.solver`` ``"none"``) are the problem's;
+    those of an LMI design are the solver's point's, which is not unique at the optimum of its objective (a
+    sampled-data design of the robustness sample: 154 under one BLAS kernel, 155 under another; a plant at the
+    edge: certified under one, not under the other), so the text every machine prints alike
+    (``figures=False``) leaves them out, as it does the largest gain (:func:`uiofmu.gains.gain_lines`).
+    """
     noise = card_data.get("noise")
-    if not isinstance(noise, dict):
+    if not isinstance(noise, dict) or not (figures or card_data["certificate"].get("solver") == "none"):
         return []
     peak = noise.get("peak_to_peak_y")
     lines = [f"  {'noise y->e':16s} {gain_text(noise.get('gain_y'))} (l2 gain"
@@ -358,5 +383,6 @@ def initial_check(noise: dict, X) -> Check:
 
 
 __all__ = ["KEYS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks", "certificate_key",
-           "certified", "fir_system", "gain_text", "hinf_norm", "initial_check", "noise_lines", "peak_to_peak",
-           "recheck", "scaled_definite_check", "section", "switched_brl_certificate", "switched_brl_checks"]
+           "certified", "fir_system", "gain_text", "hinf_norm", "initial_check", "noise_lines", "pair_error_system",
+           "peak_to_peak", "recheck", "scaled_definite_check", "section", "switched_brl_certificate",
+           "switched_brl_checks"]

@@ -52,7 +52,7 @@ from ..runtime.errors import ProblemError
 from ..runtime.tolerances import RANK_RTOL, SEARCH_TOL, ZERO_MARGIN
 from ..structure import kernel_maps, product_radius, rank, unobservable_modes
 from ..switched_plant import as_switched
-from ..noise import certified, recheck, section as noise_section
+from ..noise import certified, pair_error_system, recheck, section as noise_section
 from . import Analysis, DesignResult
 
 NAME = "switched"
@@ -354,17 +354,13 @@ def verify(card) -> list:
 
 
 def error_system(matrices: dict) -> tuple:
-    """The error system from output noise ``v`` at the stored matrices, as stacks over the mode ``i = alpha_k``
-    and the previous one ``j`` (:func:`uiofmu.noise.switched_brl_checks`).
+    """The error system from output noise ``v`` at the stored matrices (:func:`uiofmu.noise.pair_error_system`).
 
-    With ``y = C x + v``: ``e_k+1 = Phi_i e_k - K_i v_k - Q_i v_k+1``, so ``eps_k = e_k + Q_j v_k`` (the error
-    before the new sample's share) follows ``eps+ = N_ij eps - L_ij v`` (``N_ij = Phi_i``,
-    ``L_ij = K_i + Phi_i Q_j``) and ``e = eps - Xy_j v`` (``Xy_j = Q_j``, ``Xz_j = I``), the identities
-    :func:`checks` re-checks.
+    With ``y = C x + v``: ``e_k+1 = Phi_i e_k - K_i v_k - Q_i v_k+1``, so ``eps_k = e_k + Q_j v_k`` follows
+    ``eps+ = N_ij eps - L_ij v`` (``N_ij = Phi_i``, ``L_ij = K_i + Phi_i Q_j``) and ``e = eps - Xy_j v``
+    (``Xy_j = Q_j``, ``Xz_j = I``), the identities :func:`checks` re-checks.
     """
-    N, L, Xy = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy"))
-    modes, n = N.shape[0], N.shape[-1]
-    return N, -L, np.repeat(np.eye(n)[None], modes, axis=0), -Xy
+    return pair_error_system(matrices)
 
 
 def noise_of(matrices: dict) -> dict:
