@@ -393,3 +393,15 @@ def test_a_sampled_data_cards_gain_holds_for_interval_sequences(plant):
     forged = copy.deepcopy(card.data)
     forged["noise"]["gain_y"] = 0.5 * max(frozen)
     _refused(forged, "bounded real lemma")
+
+
+def test_a_long_window_states_the_sum_of_its_coefficients_norms():
+    """A formula whose filter has more states than FIR_STATES gets the triangle inequality's bound."""
+    from uiofmu.families.deadbeat_functional import FIR_STATES, noise_of
+
+    length, p = FIR_STATES // 2 + 2, 2
+    F = np.random.default_rng(4).normal(size=(1, 3, p * length))
+    noise = noise_of(F, np.zeros((1, length, 1)), p)
+    K = coefficients(F, p)
+    assert noise["gain_y"] == noise["peak_to_peak_y"] >= sum(np.linalg.norm(k, 2) for k in K)
+    assert "X" not in noise["certificate"] and sweep_peak(*fir_system(K), 2001) <= noise["gain_y"]

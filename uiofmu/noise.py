@@ -55,6 +55,10 @@ NOISE_MARGIN = 1e-3
 #: Points of the frequency sweep on [0, pi] (besides the angles of the error system's poles).
 SWEEP_POINTS = 512
 
+#: Most pairs (modes or intervals squared) whose poly-quadratic lemma a card's gain is certified by: each pair is
+#: one LMI of the solve, as many as the decay design's own.
+MAX_PAIRS = 256
+
 #: Tries at a larger gamma (each ``GROWTH`` times the previous) when the re-check refuses a certificate.
 TRIES, GROWTH = 12, 1.1
 
@@ -189,6 +193,9 @@ def switched_brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
 
     A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
     modes, n, p, r = A.shape[0], A.shape[-1], B.shape[-1], C.shape[1]
+    if modes * modes > MAX_PAIRS:
+        return {"gamma": None, "why": f"{modes} modes or intervals give {modes * modes} pairs, more than the "
+                                      f"{MAX_PAIRS} the lemma is solved for"}
     sigma = max(max(hinf_norm(A[i, i], B[i, i], C[i], D[i]) for i in range(modes)), 1e-300)
     Bs, Ds = B / sigma, D / sigma
     scale = float(np.max(np.abs(C))) if C.size else 1.0
@@ -382,7 +389,7 @@ def initial_check(noise: dict, X) -> Check:
                  at_most=False)
 
 
-__all__ = ["KEYS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks", "certificate_key",
-           "certified", "fir_system", "gain_text", "hinf_norm", "initial_check", "noise_lines", "pair_error_system",
-           "peak_to_peak", "recheck", "scaled_definite_check", "section", "switched_brl_certificate",
-           "switched_brl_checks"]
+__all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks",
+           "certificate_key", "certified", "fir_system", "gain_text", "hinf_norm", "initial_check", "noise_lines",
+           "pair_error_system", "peak_to_peak", "recheck", "scaled_definite_check", "section",
+           "switched_brl_certificate", "switched_brl_checks"]
