@@ -331,7 +331,7 @@ def recheck(noise: dict, A, B, C, D, key: str = "gain_y", switched: bool = False
     cert = noise[certificate_key(key)]
     X = np.asarray(cert["X"], dtype=float)
     lemma = switched_brl_checks if switched else brl_checks
-    return lemma(A, B, C, D, X, float(noise[key]), key) + [initial_check(noise if key == "gain_y" else cert, X)]
+    return lemma(A, B, C, D, X, float(noise[key]), key) + [initial_check(noise if key == "gain_y" else cert, X, key)]
 
 
 def certified(A, B, C, D, key: str = "gain_y", switched: bool = False) -> tuple:
@@ -376,8 +376,9 @@ def noise_lines(card_data: dict, figures: bool = True) -> list[str]:
     return lines
 
 
-def initial_check(noise: dict, X) -> Check:
-    """``initial_term >= sqrt(eig_max(X))`` (up to the rounding of the eigenvalue): the term of ``||e_0||``."""
+def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
+    """``initial_term >= sqrt(eig_max(X))`` (up to the rounding of the eigenvalue): the term of ``||e_0||`` in the
+    bound of ``noise.<key>`` (``noise`` the section, or the certificate that holds the term)."""
     X = np.asarray(X, dtype=float)
     top = float(np.linalg.eigvalsh(0.5 * (X + np.swapaxes(X, -1, -2)))[..., -1].max())
     try:
@@ -385,7 +386,7 @@ def initial_check(noise: dict, X) -> Check:
     except (TypeError, ValueError):
         value = math.nan
     needed = math.sqrt(max(top * (1.0 - 8.0 * X.shape[-1] * np.finfo(float).eps), 0.0))
-    return Check("noise initial_term >= sqrt(eig_max(X))", value if math.isfinite(value) else -math.inf, needed,
+    return Check(f"noise {key}: initial_term >= sqrt(eig_max(X))", value if math.isfinite(value) else -math.inf, needed,
                  at_most=False)
 
 
