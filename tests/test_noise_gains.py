@@ -172,8 +172,8 @@ def test_a_lowered_initial_term_or_another_cards_certificate_fails(lti_cards):
     _refused(doc, "noise gain_y")
 
 
-def test_a_card_without_a_certificate_cannot_claim_a_gain(ltv_card):
-    doc = copy.deepcopy(ltv_card[0].data)
+def test_a_card_without_a_certificate_cannot_claim_a_gain(delayed_card):
+    doc = copy.deepcopy(delayed_card[0].data)
     assert doc["noise"]["gain_y"] is None
     doc["noise"]["gain_y"] = 1.0
     _refused(doc, "noise.gain_y")
@@ -405,3 +405,31 @@ def test_a_long_window_states_the_sum_of_its_coefficients_norms():
     K = coefficients(F, p)
     assert noise["gain_y"] == noise["peak_to_peak_y"] >= sum(np.linalg.norm(k, 2) for k in K)
     assert "X" not in noise["certificate"] and sweep_peak(*fir_system(K), 2001) <= noise["gain_y"]
+
+
+@pytest.mark.parametrize("example", ["seed000_example1_ltv", "seed000_example2_consistent"])
+def test_an_ltv_cards_gain_holds_along_its_schedule(example):
+    """One X at the vertices of (alpha^k, alpha^2k): the gain bounds the limit observer's peak and the runtime's
+    noise part (fed the noise against its twin fed zeros) from k = 0, where the matrices move most."""
+    from uiofmu.families.ltv_auid import noise_steps
+
+    card = uiofmu.design(uiofmu.load_problem(ROOT / "examples" / f"{example}.toml"))
+    noise = card.data["noise"]
+    limit = sweep_peak(*noise_steps(card.data["matrices"])[0][:4], 4001)
+    assert limit <= noise["gain_y"]
+    rng = np.random.default_rng(13)
+    p, m_in = card.dims["p"], card.dims["m"]
+    for steps in (40, 400, 3000):
+        v = rng.normal(size=(steps, p))
+        v[0] = 0.0
+        noisy, twin = Runtime(card), Runtime(card)
+        diff = []
+        for k in range(steps):
+            for rt, y in ((noisy, v[k]), (twin, np.zeros(p))):
+                rt.set_y(y), rt.set_u(np.zeros(m_in))
+            diff.append(twin.xhat() - noisy.xhat())
+            noisy.step(card.dt), twin.step(card.dt)
+        assert np.linalg.norm(diff) <= noise["gain_y"] * np.linalg.norm(v)
+    forged = copy.deepcopy(card.data)
+    forged["noise"]["gain_y"] = 0.5 * limit
+    _refused(forged, "bounded real lemma")

@@ -143,6 +143,30 @@ def brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> list:
                                   Q, terms, length)]
 
 
+def _switched_steps(A, B, C, D) -> list:
+    """The steps of a switched error system (see :func:`switched_brl_checks`) as :func:`lemma_checks` takes them."""
+    modes = len(A)
+    return [(A[i, j], B[i, j], C[j], D[j], j, i, f"from X_{j + 1} to X_{i + 1}")
+            for i in range(modes) for j in range(modes)]
+
+
+def lemma_checks(steps: list, X, gamma: float, label: str = "gain_y") -> list:
+    """The bounded real lemma of every step at stored matrices, the worst case over the storage matrices and the
+    steps: ``X[s] > 0``, and for each step ``(A, B, C, D, s_in, s_out, name)`` the lemma's matrix from ``X[s_in]``
+    to ``X[s_out]`` ``> 0``, each decided with margin over its own rounding (:func:`scaled_definite_check`)."""
+    X = np.asarray(X, dtype=float)
+    n = X.shape[-1]
+    positive = [scaled_definite_check(f"noise {label}: eig_min(X_{s + 1})", 0.5 * (X[s] + X[s].T), np.abs(X[s]), 1)
+                for s in range(len(X))]
+    lemma = []
+    for A, B, C, D, s_in, s_out, name in steps:
+        A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+        lemma.append(scaled_definite_check(
+            f"noise {label}: bounded real lemma {name} at gamma = {figure_text(gamma, NOISE_DIGITS)}",
+            *_brl_matrix(A, B, C, D, X[s_in], X[s_out], gamma), 2 * n + C.shape[0] + 2))
+    return [_worst(positive), _worst(lemma)]
+
+
 def switched_brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> list:
     """The poly-quadratic bounded real lemma of a switched error system at stored matrices, the worst case
     over the modes and pairs.
@@ -152,16 +176,8 @@ def switched_brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> l
     goes from ``X[j]`` to ``X[i]``: ``X[i] > 0`` and the lemma's matrix from ``X[j]`` to ``X[i]`` ``> 0`` for every
     pair (i, j) give the gain under every switching sequence.
     """
-    A, B, C, D, X = (np.asarray(m, dtype=float) for m in (A, B, C, D, X))
-    modes, n = len(X), X.shape[-1]
-    length = 2 * n + C.shape[1] + 2
-    positive = [scaled_definite_check(f"noise {label}: eig_min(X_{i + 1})", 0.5 * (X[i] + X[i].T), np.abs(X[i]), 1)
-                for i in range(modes)]
-    lemma = [scaled_definite_check(f"noise {label}: bounded real lemma from X_{j + 1} to X_{i + 1} at gamma = "
-                                   f"{figure_text(gamma, NOISE_DIGITS)}",
-                                   *_brl_matrix(A[i, j], B[i, j], C[j], D[j], X[j], X[i], gamma), length)
-             for i in range(modes) for j in range(modes)]
-    return [_worst(positive), _worst(lemma)]
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    return lemma_checks(_switched_steps(A, B, C, D), X, gamma, label)
 
 
 def pair_error_system(matrices: dict) -> tuple:
@@ -176,55 +192,66 @@ def pair_error_system(matrices: dict) -> tuple:
 
 
 def switched_brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
-    """The least certified l2 gain of a switched error system (:func:`switched_brl_checks`) to
-    :data:`NOISE_DIGITS`: the LMIs of the lemma for every pair, with one storage matrix per mode and ``g``
-    bounding ``(gamma / sigma)^2`` minimised (CLARABEL; ``sigma`` the largest H-infinity norm of a mode held
-    constant, a lower bound of ``gamma``, so that ``g`` is near 1 whatever the gains), then ``sigma sqrt(g)`` times
-    ``1 + NOISE_MARGIN`` rounded up and re-checked at the stored matrices with the solver's ``X`` (times the square
-    of the scale the outputs are divided by), growing by :data:`GROWTH` where it fails.
+    """The least certified l2 gain of a switched error system (:func:`switched_brl_checks`); see
+    :func:`lemma_certificate`."""
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    modes = len(A)
+    if modes * modes > MAX_PAIRS:
+        return {"gamma": None, "why": f"{modes} modes or intervals give {modes * modes} pairs, more than the "
+                                      f"{MAX_PAIRS} the lemma is solved for"}
+    sigma = max(hinf_norm(A[i, i], B[i, i], C[i], D[i]) for i in range(modes))
+    return lemma_certificate(_switched_steps(A, B, C, D), modes, sigma, label)
+
+
+def lemma_certificate(steps: list, storages: int, sigma: float, label: str = "gain_y") -> dict:
+    """The least l2 gain that the bounded real lemma of every step (:func:`lemma_checks`) certifies, to
+    :data:`NOISE_DIGITS`.
+
+    The LMIs of the lemma for every step, with ``storages`` storage matrices and ``g`` bounding
+    ``(gamma / sigma)^2`` minimised (CLARABEL; ``sigma`` a lower bound of ``gamma``, e.g. the largest H-infinity
+    norm of a mode held constant, and the outputs divided by their largest entry, so that the solver sees
+    numbers near 1 whatever the gains); then ``gamma`` from ``g``, times ``1 + NOISE_MARGIN``, rounded up, and
+    re-checked at the stored matrices with the solver's ``X`` (mapped back), growing by :data:`GROWTH` where it
+    fails.
 
     Returns
     -------
     dict
-        As :func:`brl_certificate` (``lmi_gamma`` the solver's ``sqrt(g)`` in place of ``hinf_norm``).
+        As :func:`brl_certificate` (``lmi_gamma``, the solver's, in place of ``hinf_norm``).
     """
     from .lmi import Lmi, LmiSystem
     from .reductions import scalar, symmetric
 
-    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
-    modes, n, p, r = A.shape[0], A.shape[-1], B.shape[-1], C.shape[1]
-    if modes * modes > MAX_PAIRS:
-        return {"gamma": None, "why": f"{modes} modes or intervals give {modes * modes} pairs, more than the "
-                                      f"{MAX_PAIRS} the lemma is solved for"}
-    sigma = max(max(hinf_norm(A[i, i], B[i, i], C[i], D[i]) for i in range(modes)), 1e-300)
-    Bs, Ds = B / sigma, D / sigma
-    scale = float(np.max(np.abs(C))) if C.size else 1.0
+    steps = [tuple(np.asarray(m, dtype=float) for m in step[:4]) + tuple(step[4:]) for step in steps]
+    n, p, r = steps[0][0].shape[0], steps[0][1].shape[1], steps[0][2].shape[0]
+    sigma = max(float(sigma), 1e-300)
+    scale = max(float(np.abs(step[2]).max()) if step[2].size else 0.0 for step in steps) or 1.0
 
     def build(v, prm, ops):
         out = []
-        for i in range(modes):
-            Xi = v[f"X{i}"]
-            for j in range(modes):
-                XA, XB = Xi @ A[i, j], Xi @ Bs[i, j]
-                out.append(Lmi(f"bounded real lemma ({i + 1}, {j + 1})", ops.bmat([
-                    [v[f"X{j}"], ops.zeros((n, p)), XA.T, C[j].T / scale],
-                    [ops.zeros((p, n)), v["g"] * ops.eye(p), XB.T, Ds[j].T / scale],
-                    [XA, XB, Xi, ops.zeros((n, r))],
-                    [C[j] / scale, Ds[j] / scale, ops.zeros((r, n)), ops.eye(r)]])))
+        for A, B, C, D, s_in, s_out, name in steps:
+            Xo = v[f"X{s_out}"]
+            XA, XB = Xo @ A, Xo @ (B / sigma)
+            Cs, Ds = C / scale, D / (sigma * scale)
+            out.append(Lmi(f"bounded real lemma {name}", ops.bmat([
+                [v[f"X{s_in}"], ops.zeros((n, p)), XA.T, Cs.T],
+                [ops.zeros((p, n)), v["g"] * ops.eye(p), XB.T, Ds.T],
+                [XA, XB, Xo, ops.zeros((n, r))],
+                [Cs, Ds, ops.zeros((r, n)), ops.eye(r)]])))
         return out
 
-    variables = {**{f"X{i}": symmetric(n) for i in range(modes)}, "g": scalar()}
+    variables = {**{f"X{s}": symmetric(n) for s in range(storages)}, "g": scalar()}
     system = LmiSystem(f"noise {label}", variables, {}, build, objective=lambda v: v["g"])
     sol = system.solve()
     if not sol.values:
         return {"gamma": None, "why": f"the bounded real lemma's LMIs have no solution (CLARABEL: {sol.status})"}
     # the LMIs are the lemma of (A, B / sigma, C / scale, D / (sigma scale)) for the input sigma v and the output
     # e / scale: multiplied by scale^2, its storage inequality is the card's at gamma = sigma scale sqrt(g)
-    X = np.array([0.5 * (sol.values[f"X{i}"] + sol.values[f"X{i}"].T) for i in range(modes)]) * scale ** 2
+    X = np.array([0.5 * (sol.values[f"X{s}"] + sol.values[f"X{s}"].T) for s in range(storages)]) * scale ** 2
     least = sigma * scale * math.sqrt(max(float(sol.values["g"]), 0.0))
     gamma = round_up(max(least, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
     for _ in range(TRIES):
-        checks = switched_brl_checks(A, B, C, D, X, gamma, label)
+        checks = lemma_checks(steps, X, gamma, label)
         if all(c.holds for c in checks):
             return {"gamma": gamma, "X": X, "initial_term": float(np.sqrt(np.linalg.eigvalsh(X)[:, -1].max())),
                     "lmi_gamma": least, "checks": checks}
@@ -322,30 +349,41 @@ def certificate_key(key: str) -> str:
     return "certificate" if key == "gain_y" else f"certificate_{key[len('gain_'):]}"
 
 
-def recheck(noise: dict, A, B, C, D, key: str = "gain_y", switched: bool = False) -> list:
+def recheck(noise: dict, A, B, C, D, key: str = "gain_y", switched: bool = False, steps: list | None = None) -> list:
     """The re-check of a card's ``noise.<key>`` (its certificate at :func:`certificate_key`) at the error system
-    ``(A, B, C, D)`` of its stored matrices (with ``switched``, stacks: :func:`switched_brl_checks`): none when the
-    gain is null (a card claims nothing then)."""
+    ``(A, B, C, D)`` of its stored matrices (with ``switched``, stacks: :func:`switched_brl_checks`; with ``steps``,
+    those of :func:`lemma_checks`, ``A`` ... ``D`` unused): none when the gain is null (a card claims nothing then)."""
     if not isinstance(noise, dict) or noise.get(key) is None:
         return []
     cert = noise[certificate_key(key)]
-    X = np.asarray(cert["X"], dtype=float)
-    lemma = switched_brl_checks if switched else brl_checks
-    return lemma(A, B, C, D, X, float(noise[key]), key) + [initial_check(noise if key == "gain_y" else cert, X, key)]
+    X, gamma = np.asarray(cert["X"], dtype=float), float(noise[key])
+    if steps is not None:
+        lemma = lemma_checks(steps, X, gamma, key)
+    else:
+        lemma = (switched_brl_checks if switched else brl_checks)(A, B, C, D, X, gamma, key)
+    return lemma + [initial_check(noise if key == "gain_y" else cert, X, key)]
 
 
 def certified(A, B, C, D, key: str = "gain_y", switched: bool = False) -> tuple:
-    """``brl_certificate`` as the card stores it: (gain or None, the section's extra keys, why it is None).
-
-    The extra keys are the certificate (at :func:`certificate_key`: the method, the sweep's H-infinity norm, the
-    margin, ``X`` and the checks) and the ``initial_term`` (top level for ``gain_y``, in its certificate else).
-    """
+    """``brl_certificate`` (``switched_brl_certificate`` with ``switched``) as the card stores it: (gain or None,
+    the section's extra keys, why it is None); see :func:`stated`."""
     cert = (switched_brl_certificate if switched else brl_certificate)(A, B, C, D, key)
+    method = ("poly-quadratic bounded real lemma (every switching sequence, at the stored matrices)" if switched
+              else "bounded real lemma (discrete, at the stored matrices)")
+    return stated(cert, method, key)
+
+
+def stated(cert: dict, method: str, key: str = "gain_y") -> tuple:
+    """A certificate (:func:`brl_certificate`, :func:`lemma_certificate`) as the card stores it: (gain or None, the
+    section's extra keys, why it is None).
+
+    The extra keys are the certificate (at :func:`certificate_key`: the method, the H-infinity norm or the
+    solver's gamma, the margin, ``X`` and the checks) and the ``initial_term`` (top level for ``gain_y``, in its
+    certificate else).
+    """
     if cert["gamma"] is None:
         return None, {}, f"{key}: not certified ({cert['why']})"
-    record = {"method": "poly-quadratic bounded real lemma (every switching sequence, at the stored matrices)"
-              if switched else "bounded real lemma (discrete, at the stored matrices)",
-              **{k: cert[k] for k in ("hinf_norm", "lmi_gamma") if k in cert},
+    record = {"method": method, **{k: cert[k] for k in ("hinf_norm", "lmi_gamma") if k in cert},
               "margin": NOISE_MARGIN, "X": cert["X"], "checks": {c.name: c.to_data() for c in cert["checks"]}}
     if key == "gain_y":
         return cert["gamma"], {"initial_term": cert["initial_term"], "certificate": record}, None
@@ -391,6 +429,6 @@ def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
 
 
 __all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks",
-           "certificate_key", "certified", "fir_system", "gain_text", "hinf_norm", "initial_check", "noise_lines",
-           "pair_error_system", "peak_to_peak", "recheck", "scaled_definite_check", "section",
-           "switched_brl_certificate", "switched_brl_checks"]
+           "certificate_key", "certified", "fir_system", "gain_text", "hinf_norm", "initial_check",
+           "lemma_certificate", "lemma_checks", "noise_lines", "pair_error_system", "peak_to_peak", "recheck",
+           "scaled_definite_check", "section", "stated", "switched_brl_certificate", "switched_brl_checks"]
