@@ -22,7 +22,7 @@ from uiofmu.fmu.export import build_observer
 from uiofmu.problem import problem_from_data
 from uiofmu.scaling import state_scaling
 from uiofmu.scaling import to_data as scaling_data
-from uiofmu.runtime.card import card_from_data
+from uiofmu.runtime.card import card_from_data, to_lists
 from uiofmu.synthesis import recheck
 from uiofmu.testing import (MAX_SEEDS, assert_bound_respected, assert_converges, assert_exact_functional,
                             assert_matches_runtime, build_fmus, certificate_problem, seeds_from_environment)
@@ -64,7 +64,8 @@ def _perturbed(card, dk: list, plant_too: bool, name: str) -> dict:
     eig = np.linalg.eigvals(m["N"])
     data.update(existence=analysis.existence.to_data(), fixed_modes=complex_list(analysis.data["fixed"]),
                 invariant_zeros=analysis.existence.value("stable invariant zeros", "zeros"),
-                eigenvalues_N=complex_list(eig), spectral_radius_N=float(np.abs(eig).max()))
+                eigenvalues_N=complex_list(eig), spectral_radius_N=float(np.abs(eig).max()),
+                noise=to_lists(lti_uio.noise_section(m)))         # the noise gains of the edited L
     return data
 
 

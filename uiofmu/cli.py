@@ -90,11 +90,13 @@ def design_summary(card, timing: bool = True) -> list[str]:
     is decided by optimal values (largest margins); where a plant's margin is lost in the solver's
     own noise over a range of values, the search ends somewhere in that range, and that value and
     the figures at it can differ between machines. The seconds always differ, and the largest gain
-    (:mod:`uiofmu.gains`), read off the solver's point, can: both are left out with ``timing=False``
-    (the warning about a large gain stays).
+    (:mod:`uiofmu.gains`) and the noise gains of an LMI design (:mod:`uiofmu.noise`), read off the solver's point,
+    can: they are left out with ``timing=False`` (the warning about a large gain stays, and so do the noise
+    gains of a closed-form design).
     """
     from .certificate import overshoot_text
     from .gains import gain_lines
+    from .noise import noise_lines
 
     lines = []
     for key, digits in (("decay_bound", 6), ("overshoot_bound", 0), ("alpha", 6)):
@@ -110,6 +112,7 @@ def design_summary(card, timing: bool = True) -> list[str]:
         lines.append(f"  search           {search['parameter']} over {search['solves']} solve(s)"
                      + (f" in {search['seconds']:.3f} s" if timing else ""))
     lines += gain_lines(card.data, figures=timing)
+    lines += noise_lines(card.data, figures=timing)
     cert = card.data["certificate"]
     if cert["verified"]:
         found = "re-checked at the stored matrices" + (", point from CLARABEL" if cert["solver"] == "CLARABEL" else "")

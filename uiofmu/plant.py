@@ -123,6 +123,9 @@ class Plant:
         Period of a discrete plant.
     x0 : numpy.ndarray
         Initial state (default zeros).
+    W : numpy.ndarray
+        Process-noise input matrix, shape (n, r) (``x+ = ... + W w_k`` or ``x' = ... + W w``; r = 0: none
+        declared). The noise is no input of the design; it is what the card's ``noise.gain_w`` is about.
     """
 
     time: str
@@ -133,6 +136,7 @@ class Plant:
     w: np.ndarray
     dt: float | None
     x0: np.ndarray
+    W: np.ndarray = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -156,13 +160,18 @@ class Plant:
         return self.C.shape[0]
 
     @property
+    def r(self) -> int:
+        """Number of process-noise inputs (columns of ``W``; 0 when none is declared)."""
+        return 0 if self.W is None else self.W.shape[1]
+
+    @property
     def continuous(self) -> bool:
         """True for a continuous-time plant."""
         return self.time == "continuous"
 
     @classmethod
     def create(cls, A, C, E, B=None, *, time: str = "discrete", dt: float | None = None,
-               w=None, x0=None, prefix: str = "plant") -> "Plant":
+               w=None, x0=None, W=None, prefix: str = "plant") -> "Plant":
         """Check and normalise a plant.
 
         Parameters
@@ -179,6 +188,8 @@ class Plant:
             Constant affine term of a discrete plant (default zeros).
         x0 : array_like, optional
             Initial state (default zeros).
+        W : array_like, optional
+            Process-noise input matrix, n rows (default none).
         prefix : str
             Key prefix used in error messages (``"plant"`` gives ``plant.A``).
 
@@ -213,9 +224,10 @@ class Plant:
             raise ProblemError(f"{prefix}.w: the affine term is defined for discrete plants only")
         w = freeze(np.zeros(n)) if w is None else as_vector(w, f"{prefix}.w", size=n)
         x0 = freeze(np.zeros(n)) if x0 is None else as_vector(x0, f"{prefix}.x0", size=n)
+        W = freeze(np.zeros((n, 0))) if W is None else as_matrix(W, f"{prefix}.W", rows=n)
         check_entries({f"{prefix}.{key}": M for key, M in (("A", A), ("B", B), ("E", E), ("C", C), ("w", w),
-                                                            ("x0", x0))})
-        return cls(time=time, A=A, B=B, E=E, C=C, w=w, dt=dt, x0=x0)
+                                                            ("x0", x0), ("W", W))})
+        return cls(time=time, A=A, B=B, E=E, C=C, w=w, dt=dt, x0=x0, W=W)
 
     def sampled(self, h: float | None = None) -> Sampled:
         """The plant over one step of length ``h``.
@@ -243,10 +255,20 @@ class Plant:
                                        freeze(np.zeros(self.n)), key)
         return self._cache[key]
 
+    def sampled_noise(self, h: float | None = None) -> np.ndarray:
+        """``W`` over one step of length ``h``: a discrete plant's own, a continuous plant's sampled as ``E`` is
+        (the noise held over the step; ``integral_0^h e^(A s) ds W``)."""
+        W = np.zeros((self.n, 0)) if self.W is None else self.W
+        if not self.continuous or not W.shape[1]:
+            return np.asarray(W)
+        return discretize(self.A, W, float(h))[1]
+
     def to_data(self) -> dict:
         """The plant as the ``[plant]`` table of a problem file (plain lists)."""
         data = {"time": self.time, "A": self.A.tolist(), "B": self.B.tolist(), "E": self.E.tolist(),
                 "C": self.C.tolist(), "x0": self.x0.tolist()}
+        if self.r:
+            data["W"] = self.W.tolist()
         if not self.continuous:
             data["dt"] = self.dt
             data["w"] = self.w.tolist()

@@ -14,7 +14,9 @@ A family module (named in :data:`uiofmu.runtime.registry.FAMILIES`) provides:
     :func:`uiofmu.verify` recomputes.
 ``design(problem, analysis) -> DesignResult``
     Solve and certify (``analysis.existence`` holds); :func:`uiofmu.synthesis.design` times
-    it, fills in the defaults and assembles the card.
+    it, fills in the defaults and assembles the card. Its ``results`` hold the card's ``noise`` section
+    (:mod:`uiofmu.noise`: the certified noise gains, or the reason there are none), which ``determined``
+    and ``verify`` account for (what the problem determines of it, the re-check of each gain it states).
 ``determined(problem, card_data, analysis) -> dict``
     What the card's problem, its analysis (``analyse(problem, solver=False)``) and its certified
     variables (e.g. a gain) determine of the card: dotted card paths to values (the plant's

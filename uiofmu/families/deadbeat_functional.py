@@ -46,6 +46,7 @@ import numpy as np
 from ..certificate import Check
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lpv_plant import LpvPlant
+from ..noise import certified, fir_system, peak_to_peak, recheck, section as noise_section
 from ..polynomials import PolyMatrix, TooLarge, hstack, shifted, stack, work_limit
 from ..runtime.card import MAX_POWER
 from ..runtime.errors import InfeasibleError, ProblemError
@@ -566,7 +567,7 @@ def checks(matrices: dict, schedule: dict, seed: int = 0) -> list:
 
 def verify(card) -> list:
     """Re-check a card's identity on fresh simulations of its plant matrices (no solver)."""
-    return checks(card.data["matrices"], card.data["schedule"], seed=1)
+    return checks(card.data["matrices"], card.data["schedule"], seed=1) + noise_checks(card.data)
 
 
 def gain_figures(card_data: dict) -> tuple:
@@ -581,6 +582,49 @@ def _parts(plant) -> dict:
     """The plant's matrices as the re-check simulates them: ``X_parts[0]`` the constant part, then
     one per scheduling component."""
     return {f"{k}_parts": np.array([getattr(plant, k)] + [part[k] for part in plant.parts]) for k in "AECD"}
+
+
+#: Above this many states of the filter's realisation (outputs times the window), ``gain_y`` is the sum of the
+#: coefficients' norms, which bounds it without a Riccati equation of that size.
+FIR_STATES = 120
+
+#: Why a formula with theta terms has no noise gain, and what the process noise's gain is not.
+THETA_NOISE = ("gain_y: not certified: the formula's coefficients depend on theta, so its gain does too (the "
+               "problem bounds no theta)")
+NO_W = "gain_w: the problem declares no process noise"
+
+
+def coefficients(F: np.ndarray, p: int) -> list:
+    """The window formula's coefficients of a theta-free formula, newest output first: ``K_j`` multiplies
+    ``y_(k-j)`` of the window (``F`` lists the outputs oldest first)."""
+    L = F.shape[2] // p
+    return [F[0][:, (L - 1 - j) * p:(L - j) * p] for j in range(L)]
+
+
+def noise_of(F: np.ndarray, exps: np.ndarray, p: int) -> dict:
+    """The card's ``noise`` section. A noise ``v`` on the outputs reaches the formula's value as the filter
+    ``gx_k - G x_(k-delay) = sum_j K_j v_(k-j)`` of its coefficients (:func:`coefficients`): its l2 gain is
+    certified by the bounded real lemma on the filter's realisation (:func:`uiofmu.noise.fir_system`), its
+    peak-to-peak gain is ``sum_j ||K_j||_2``; a formula with theta terms has neither."""
+    if exps.any():
+        return noise_section(None, f"{THETA_NOISE}; {NO_W}")
+    K = coefficients(F, p)
+    peak = peak_to_peak(K)
+    if (len(K) - 1) * p > FIR_STATES:        # the triangle inequality: ||sum_j K_j v_(k-j)||_2 <= sum_j ||K_j|| ||v||_2
+        gain, why, extra = peak, None, {"certificate": {"method": "sum of the coefficients' 2-norms"}}
+    else:
+        gain, extra, why = certified(*fir_system(K))
+    return noise_section(gain, "; ".join(([why] if why else []) + [NO_W]), error="gx_k - G x_(k-delay)",
+                         peak_to_peak_y=peak, **extra)
+
+
+def noise_checks(card_data: dict) -> list:
+    """The re-check of the l2 gain a theta-free formula's card states, at its stored coefficients."""
+    F, exps = (np.asarray(card_data["matrices"][k], dtype=float) for k in ("F", "Fexp"))
+    noise = card_data.get("noise")
+    if exps.any() or not isinstance(noise, dict) or "X" not in (noise.get("certificate") or {}):
+        return []                                    # none, or the sum of norms (what the problem determines)
+    return recheck(noise, *fir_system(coefficients(F, int(card_data["dims"]["p"]))))
 
 
 def _schedule(plant, length: int, delay: int, uses_theta: bool) -> dict:
@@ -609,8 +653,14 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     return {"dt": plant.dt, "schedule": _schedule(plant, length, delay, bool(exps.any())), "window": length, **found,
             "delay": delay, "bound": _bound(length, delay),
             "formula": describe(F, exps, plant.p, length, delay), "decay_bound": None, "overshoot_bound": None,
-            "matrices.C": plant.C, "matrices.G": problem.options.G,
+            **_noise_figures(noise_of(F, exps, plant.p)), "matrices.C": plant.C, "matrices.G": problem.options.G,
             **{f"matrices.{k}": v for k, v in _parts(plant).items()}}
+
+
+def _noise_figures(noise: dict) -> dict:
+    """What a card's problem determines of its ``noise`` section: everything but the certificate's point
+    (re-checked by :func:`verify`) and its rounding."""
+    return {f"noise.{k}": v for k, v in noise.items() if k not in ("certificate", "initial_term")}
 
 
 def design(problem, analysis: Analysis) -> DesignResult:
@@ -642,7 +692,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     results = {"r": inv.r, "K": K, "nilpotency_class": analysis.data["t"], "window": L, "delay": delay,
                "formula": describe(Fm, exps, plant.p, L, delay),
                "decay_bound": None, "overshoot_bound": None,
-               "bound": _bound(L, delay)}
+               "bound": _bound(L, delay), "noise": noise_of(Fm, exps, plant.p)}
     return DesignResult(0, plant.dt, schedule, matrices, cert, results, None, None)
 
 

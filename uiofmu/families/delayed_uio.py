@@ -59,9 +59,14 @@ from ..runtime.parametric_plant import ParametricPlantRuntime
 from ..runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, ROUNDING_FACTOR, SEARCH_TOL, VERIFY_FRACTION
 from ..structure import rank
 from ..table import Table
+from ..noise import section as noise_section
 from . import Analysis, DesignResult
 
 NAME = "delayed-uio"
+
+#: Why the card has no noise gain (:mod:`uiofmu.noise`).
+NOISE_REASON = ("gain_y: not certified for this family: in continuous time noise also enters through the measured "
+                "derivative of y and the premises the gain is scheduled on")
 
 
 @dataclass(frozen=True)
@@ -480,7 +485,8 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     from the premise grid)."""
     plant, opts = problem.plant, problem.options
     schedule = card_data["schedule"]
-    return {"schedule": {"kind": "continuous", "delays": list(opts.delays), "step": opts.step, "step_policy": "error",
+    return {"noise": noise_section(None, NOISE_REASON),
+            "schedule": {"kind": "continuous", "delays": list(opts.delays), "step": opts.step, "step_policy": "error",
                          "max_substep": schedule.get("max_substep"), "sigma_bound": schedule.get("sigma_bound"),
                          "gamma_bound": schedule.get("gamma_bound"), "valid_from": opts.premise.start},
             **{f"premise.{k}": v for k, v in opts.premise.to_data().items()},
@@ -731,6 +737,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
                 "sigma_bound": fig["schedule.sigma_bound"], "gamma_bound": fig["schedule.gamma_bound"],
                 "valid_from": opts.premise.start, "step": opts.step, "step_policy": "error"}
     results = {
+        "noise": noise_section(None, NOISE_REASON),
         "decay_rate": beta,
         "decay_bound": None, "overshoot_bound": None,
         "overshoot": fig["overshoot"],

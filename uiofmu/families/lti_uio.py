@@ -43,6 +43,7 @@ from ..certificate import (
     identity_check,
     lyapunov_check,
     magnitude,
+    UNDETERMINED,
     figure_digits,
     overshoot,
     overshoot_check,
@@ -62,7 +63,8 @@ from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list, from_pairs
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..gains import cap_lmis
-from ..reductions import UPPER_BOUND, matrix, scalar, symmetric
+from ..noise import NORM, certified, hinf_norm, recheck, section
+from ..reductions import LYAPUNOV, UPPER_BOUND, matrix, scalar, symmetric
 from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
 from ..structure import decay_gain
@@ -91,6 +93,8 @@ class Options:
         The coordinates the LMI is solved in (:mod:`uiofmu.scaling`).
     gain_cap : float or None
         Bound on ``||K||_2`` (:mod:`uiofmu.gains`), None for none.
+    noise : {"default", "min"}
+        ``"min"``: the gain that minimises the noise gain ``gain_y`` at the decay (see :func:`_least_noise`).
     """
 
     decay: object
@@ -99,6 +103,7 @@ class Options:
     method: str = "auto"
     scaling: str = "balance"
     gain_cap: float | None = None
+    noise: str = "default"
 
     @property
     def step(self) -> float:
@@ -113,7 +118,7 @@ METHODS = ("auto", "lmi", "riccati")
 
 def parse_options(table, plant) -> Options:
     """Read ``[observer]``: ``decay`` (default ``"max"``), ``dt`` (continuous plants), ``xhat0``, ``method``,
-    ``scaling``, ``gain_cap``."""
+    ``scaling``, ``gain_cap``, ``noise``."""
     decay = table.tunable("decay", "max", low=0.0, high=1.0, open_low=True, open_high=True)
     dt = parse_period(table, plant, NAME)
     xhat0 = table.vector("xhat0", plant.n, None)
@@ -122,8 +127,25 @@ def parse_options(table, plant) -> Options:
         raise ProblemError('observer.method = "riccati" needs a number for observer.decay: it has no fastest decay '
                            '(without fixed modes any decay is reached, with gains that grow without bound); use '
                            'method = "auto" or "lmi" for decay = "max"')
+    noise = table.choice("noise", NOISE_OBJECTIVES, "default")
+    if noise == "min" and method == "riccati":
+        raise ProblemError('observer.noise = "min" designs with the LMI: use method = "auto" or "lmi" (the Riccati '
+                           "gain minimises nothing)")
     return Options(decay, dt, xhat0, method, table.choice("scaling", SCALINGS, "balance"),
-                   table.scalar("gain_cap", None, low=0.0, open_low=True))
+                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise)
+
+
+#: The card's ``design_method`` of a least-noise design (its overshoot is not what the LMIs minimise: the problem
+#: does not determine its digits).
+NOISE_METHOD = "lmi (least noise gain)"
+
+#: ``observer.noise``: the default design (least overshoot bound), or the least noise gain at the decay.
+NOISE_OBJECTIVES = ("default", "min")
+
+#: With ``decay = "max"``, ``noise = "min"`` designs at the fastest certified decay moved this fraction of the way
+#: toward 1 (the card's ``decay_bound``): at the edge itself every gain is pinned by the decay, and the least
+#: noise gain there is no less than the default design's.
+NOISE_DECAY_ROOM = 0.1
 
 
 def _analysis(problem):
@@ -180,6 +202,100 @@ def _lmis(PA, C, gain_cap: float | None = None):
     return LmiSystem(f"{NAME} decay", variables, {"rho2": 0.98}, build, objective=lambda v: v["t"], homogeneous=True)
 
 
+def _noise_lmis(PA, C, M, T, sigma: float, gain_cap: float | None = None) -> LmiSystem:
+    """The decay LMI and the bounded real lemma of the error system from output noise, with ``g`` bounding
+    ``(gain_y / sigma)^2`` (minimised), in the coordinates ``x = diag(T) xs`` of ``PA``, ``C`` and ``M``
+    (:class:`uiofmu.scaling.StateScaling`; ``M`` is ``T^-1 M`` of the plant's). The noise is measured in units of
+    ``1 / sigma`` (its column of the lemma divided by ``sigma``, the default design's gain), so that ``g`` is
+    near 1 whatever the plant's gains.
+
+    Each with its own Lyapunov matrix (``X`` for the decay, ``Z`` for the lemma) and a common slack ``G``
+    (de Oliveira, Bernussou and Geromel's extended form: ``G + G' - X <= G X^-1 G'``), the gain
+    ``K = G^-1 F``: ``G N = G PA - F C``, ``G B = -G L = G PAM - F (I + CM)`` (``L = K (I + CM) - PAM``), and
+    ``e = T eps + T M v`` in the plant's units::
+
+        [[rho^2 X, (GN)'], [GN, G + G' - X]] > 0
+        [[Z, 0, (GN)', T], [0, g I, (GB)', (TM)'], [GN, GB, G + G' - Z, 0], [T, TM, 0, I]] > 0
+    """
+    n, p = C.shape[1], C.shape[0]
+    I_CM, PAM, Te, TM = (np.eye(p) + C @ M) / sigma, PA @ M / sigma, np.diag(T), np.diag(T) @ M / sigma
+
+    def build(v, prm, ops):
+        X, Z, G, F, g = v["X"], v["Z"], v["G"], v["F"], v["g"]
+        GN, GB, GG = G @ PA - F @ C, G @ PAM - F @ I_CM, G + G.T
+        capped = [] if gain_cap is None else cap_lmis(gain_cap, [("G", G, [("F", F)])], v["s"], ops)
+        return [
+            Lmi("decay (extended form of N'XN < rho^2 X)", ops.bmat([[prm["rho2"] * X, GN.T], [GN, GG - X]])),
+            Lmi("bounded real lemma (gain_y^2 <= g)", ops.bmat([
+                [Z, ops.zeros((n, p)), GN.T, Te],
+                [ops.zeros((p, n)), g * ops.eye(p), GB.T, TM.T],
+                [GN, GB, GG - Z, ops.zeros((n, n))],
+                [Te, TM, ops.zeros((n, n)), ops.eye(n)]])),
+            Lmi("X >= I", X - ops.eye(n), strict=False),
+            *capped,
+        ]
+
+    variables = {"X": symmetric(n), "Z": symmetric(n), "G": matrix((n, n), LYAPUNOV), "F": matrix((n, p)),
+                 "g": scalar()}
+    if gain_cap is not None:
+        variables["s"] = scalar()
+    return LmiSystem(f"{NAME} least noise gain", variables, {"rho2": 0.98}, build, objective=lambda v: v["g"])
+
+
+def _noise_point(values: dict) -> dict:
+    """A point of :func:`_noise_lmis` as the decay design's: ``X`` and ``W = X K``, ``K = G^-1 F``."""
+    X = np.asarray(values["X"], dtype=float)
+    return {"X": X, "W": X @ np.linalg.solve(np.asarray(values["G"], dtype=float), values["F"])}
+
+
+def _least_noise(s, C, M, t, rho: float, sigma: float, opts: Options, name: str) -> tuple[LmiSolution, LmiSystem]:
+    """``observer.noise = "min"``: the gain of least ``gain_y`` at the decay ``rho``, solved in the coordinates
+    scaled by ``t`` as the decay's LMIs are and with the noise in units of ``1 / sigma`` (its point re-checked, and
+    the certificate's checks at the runtime's matrices, as every design's)."""
+    PA = (np.eye(len(M)) + M @ C) @ s.A
+    scaling = StateScaling(t)
+    Ms = M / np.asarray(t, dtype=float)[:, None]
+    system, inverse = scaling.apply(PlantLmis(lambda steps, Cs: _noise_lmis(steps[0].A, Cs, Ms, t, sigma,
+                                                                                      opts.gain_cap),
+                                              [replace(s, A=PA)], C))
+    back = lambda v: _noise_point(scaling.invert(v, inverse))           # noqa: E731
+    system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(s, C, M, back(v)),
+                                                                    float(np.sqrt(prm["rho2"]))))
+    sol = system.solve(rho2=rho * rho)
+    if not sol.verified:
+        raise InfeasibleError(f"{name}: the least noise gain at decay {rho:.6g} (observer.noise = \"min\") has no "
+                              f"certified point (CLARABEL: {sol.status}); a slower decay leaves the LMIs room")
+    values = back(sol.values)
+    values["K"] = _lmi_runtime(s, C, M, values)["K"]
+    return replace(sol, values=values), system
+
+
+def _noise_design(s, C, M, t, rho: float, sol: LmiSolution, system, method: str, opts: Options, name: str) -> tuple:
+    """``observer.noise = "min"`` after the default design ``sol`` at ``rho``: the least-noise design at ``rho``
+    (with ``decay = "max"`` moved :data:`NOISE_DECAY_ROOM` of the way to 1, where the default point certifies
+    too), kept only where its noise gain (the H-infinity norm of its error system) is below the default's.
+
+    Returns
+    -------
+    tuple
+        ``(rho, solution, systems, design_method, record)``, the record saying which design the card holds.
+    """
+    if opts.decay == "max":
+        rho = rho + NOISE_DECAY_ROOM * (1.0 - rho)
+    default = hinf_norm(*error_system(_runtime(s, C, M, sol.values["X"], sol.values["K"])))
+    record = {"objective": "least gain_y at the decay", "decay": rho, "default_gain_y": default}
+    try:
+        least, noise_system = _least_noise(s, C, M, t, rho, max(default, 1.0), opts, name)
+    except InfeasibleError as exc:
+        return rho, sol, system, method, {**record, "kept": "default", "why": str(exc)[:300]}
+    found = hinf_norm(*error_system(_runtime(s, C, M, least.values["X"], least.values["K"])))
+    if not found < default:
+        return rho, sol, (system, noise_system), method, {**record, "kept": "default", "least_gain_y": found,
+                                                           "why": "the least-noise point's gain is not below it"}
+    return rho, least, (system, noise_system), NOISE_METHOD, {**record, "kept": "least noise",
+                                                                          "least_gain_y": found}
+
+
 def checks(matrices: dict, rho: float) -> list:
     """The certificate's checks at the stored matrices (used by the design and by :func:`verify`).
 
@@ -208,9 +324,76 @@ def checks(matrices: dict, rho: float) -> list:
 
 
 def verify(card) -> list:
-    """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims."""
+    """Re-check a card's certificate from its matrices alone (no solver), the overshoot and the noise gain it claims."""
     d = card.data
-    return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
+    return (checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
+            + noise_checks(d))
+
+
+def error_system(matrices: dict) -> tuple:
+    """The error system from measurement noise ``v`` (``y = C x + v``) at the stored matrices:
+    ``eps+ = N eps - L v``, ``e = eps - Xy v``, with ``eps = P x - z`` (``PA - NP - LC = 0``, ``PE = 0`` and
+    ``Xz = I``, which :func:`checks` re-checks; the known input and the affine term cancel as in ``e+ = N e``)."""
+    g = {k: np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy")}
+    return g["N"], -g["L"], np.eye(len(g["N"])), -g["Xy"]
+
+
+def process_error_system(matrices: dict) -> tuple:
+    """The error system from process noise ``w`` (``x+ = ... + W_sampled w``): ``eps+ = N eps + P W_sampled w``,
+    ``e = eps``."""
+    N, P, W = (np.asarray(matrices[k], dtype=float) for k in ("N", "P", "W_sampled"))
+    return N, P @ W, np.eye(len(N)), np.zeros((len(N), W.shape[1]))
+
+
+def dhat_error_system(matrices: dict) -> tuple:
+    """The error system from measurement noise ``v`` to the error of ``dhat``.
+
+    ``dhat_k = Dy (y_(k+1) - Yx xhat_k - Yu u_k - Yc)`` with ``Dy C E = I`` and ``Yx = C A`` gives
+    ``dhat_k - d_k = Dy (Yx e_k + v_(k+1))``: it reads the next sample, so in the time ``j = k + 1`` its state is
+    ``(eps_(j-1), v_(j-1))``, with ``A = [[N, -L], [0, 0]]``, ``B = [0; I]``, ``C = Dy Yx [I, -Xy]``, ``D = Dy``
+    (a shift by one step leaves l2 norms as they are).
+    """
+    N, L, Xy, Dy, Yx = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy", "Dy", "Yx"))
+    n, p = L.shape
+    A = np.block([[N, -L], [np.zeros((p, n)), np.zeros((p, p))]])
+    B = np.vstack([np.zeros((n, p)), np.eye(p)])
+    DyYx = Dy @ Yx
+    return A, B, np.hstack([DyYx, -DyYx @ Xy]), Dy
+
+
+#: Why an lti-uio card has no process-noise gain.
+NO_W = "gain_w: the problem declares no process noise"
+
+
+def noise_checks(card_data: dict) -> list:
+    """The re-check of the noise gains a card states, at its stored matrices."""
+    noise, m = card_data.get("noise"), card_data["matrices"]
+    out = recheck(noise, *error_system(m))
+    if isinstance(noise, dict) and noise.get("gain_w") is not None:
+        out += recheck(noise, *process_error_system(m), key="gain_w")
+    if isinstance(noise, dict) and noise.get("gain_dhat_y") is not None:
+        out += recheck(noise, *dhat_error_system(m), key="gain_dhat_y")
+    return out
+
+
+def noise_section(matrices: dict) -> dict:
+    """The card's ``noise`` section (:mod:`uiofmu.noise`): ``gain_y``, and ``gain_w`` where the problem declares
+    ``[plant] W``, each by the bounded real lemma at the stored matrices."""
+    gain, extra, why = certified(*error_system(matrices))
+    reasons = [why] if why else []
+    gain_w = None
+    if matrices.get("W_sampled") is not None and np.shape(matrices["W_sampled"])[1]:
+        gain_w, extra_w, why_w = certified(*process_error_system(matrices), key="gain_w")
+        extra.update(extra_w)
+        reasons += [why_w] if why_w else []
+    else:
+        reasons.append(NO_W)
+    gain_dhat = None
+    if matrices.get("Dy") is not None:
+        gain_dhat, extra_dhat, why_dhat = certified(*dhat_error_system(matrices), key="gain_dhat_y")
+        extra.update(extra_dhat)
+        reasons += [why_dhat] if why_dhat else []
+    return section(gain, "; ".join(reasons) or None, gain_w=gain_w, gain_dhat_y=gain_dhat, **extra)
 
 
 def gain_figures(card_data: dict) -> tuple:
@@ -234,9 +417,10 @@ BOUND = "||e_k|| <= overshoot_bound * decay_bound**k * ||e_0||"
 
 
 def determined(problem, card_data, analysis: Analysis) -> dict:
-    """What the card's problem determines: the sampled plant, ``M = -E (CE)^+``, dhat's matrices
-    (absent unless ``rank(CE) = q``), the step and the schedule; the fixed modes and invariant zeros of
-    its analysis, the eigenvalues of the stored ``N``, and the state scaling of an LMI design."""
+    """What the card's problem determines: the sampled plant (with ``W_sampled`` where it declares ``W``),
+    ``M = -E (CE)^+``, dhat's matrices (absent unless ``rank(CE) = q``), the step and the schedule; the fixed
+    modes and invariant zeros of its analysis, the eigenvalues of the stored ``N``, and the state scaling of an
+    LMI design."""
     plant, opts = problem.plant, problem.options
     s, C = plant.sampled(opts.dt), plant.C
     figures = figures_of(analysis, card_data, problem)
@@ -244,7 +428,15 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
             "M": conditioned(decoupling_gain(C, s.E), condition(C @ s.E)), **dhat}
     requested = {} if opts.decay == "max" else {"decay_bound": float(opts.decay)}     # a fixed decay is the card's
+    noise = {"noise.norm": NORM}                                       # the gains: verify re-checks them
+    if dhat["Dy"] is None:
+        noise["noise.gain_dhat_y"] = None
+    if plant.r:
+        mats["W_sampled"] = plant.sampled_noise(opts.dt)
+    else:
+        noise["noise.gain_w"] = None
     return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "decay": card_data["decay_bound"], **requested,
+            **noise,
             **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
 
 
@@ -256,7 +448,7 @@ def figures_of(analysis: Analysis, card_data: dict, problem) -> dict:
     A = analysis.data["sampled"].A
     size, n = float(np.linalg.norm(A, 2)), plant.n
     N = np.asarray(card_data["matrices"]["N"], dtype=float)
-    lmi = card_data.get("design_method") == "lmi"
+    lmi = str(card_data.get("design_method")).startswith("lmi")
     return {"fixed_modes": computed_values(analysis.data["fixed"], size, n),
             "invariant_zeros": computed_values(from_pairs(analysis.existence.value("stable invariant zeros", "zeros")),
                                                size, n),
@@ -358,18 +550,24 @@ def design(problem, analysis: Analysis) -> DesignResult:
     tuned, method, system = _tuned(s, C, M, t, largest, opts, problem.name)
     rho, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
+    noise_design = None
+    if opts.noise == "min":
+        rho, sol, system, method, noise_design = _noise_design(s, C, M, t, rho, sol, system, method, opts,
+                                                               problem.name)
     matrices = _runtime(s, C, M, sol.values["X"], sol.values["K"])
     X, N = matrices["X"], matrices["N"]
     cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}",
-                       solver="CLARABEL" if method == "lmi" else "none")
+                       solver="CLARABEL" if method.startswith("lmi") else "none")
     if existence.holds("rank(CE) = q"):
         matrices.update({k: v.value for k, v in _dhat(s, C).items()})
+    if plant.r:
+        matrices["W_sampled"] = plant.sampled_noise(opts.dt)
     eigN = np.linalg.eigvals(N)
     results = {
         "decay": rho,
         "decay_bound": rho,
         "overshoot_bound": overshoot(X),
-        "overshoot_digits": figure_digits(sol),
+        "overshoot_digits": UNDETERMINED if method == NOISE_METHOD else figure_digits(sol),
         "bound": BOUND,
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),
@@ -377,6 +575,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "spectral_radius_N": float(np.abs(eigN).max()),
         "search": searched,
         "design_method": method,
-        "scaling": scaling_data(t if method == "lmi" else np.ones(plant.n), opts.scaling),
+        "scaling": scaling_data(t if method.startswith("lmi") else np.ones(plant.n), opts.scaling),
+        "noise": noise_section(matrices),
+        **({} if noise_design is None else {"noise_design": noise_design}),
     }
     return DesignResult(plant.n, opts.dt, _schedule(opts), matrices, cert, results, system, opts.xhat0)

@@ -67,9 +67,19 @@ from ..existence import Condition, Existence, complex_list, format_complex, from
 from ..lmi import Lmi, LmiSystem, held_margin, tune
 from ..structure import unobservable_modes
 from ..runtime.tolerances import LMI_MARGIN, SEARCH_TOL, ZERO_MARGIN
+from ..noise import hinf_norm, lemma_certificate, recheck, section as noise_section, stated
 from . import Analysis, DesignResult
 
 NAME = "ltv-auid"
+
+#: What an ltv-auid card's noise section says of the gains it has not.
+NO_W = "gain_w: not certified for this family"
+NO_DHAT = "gain_dhat_y: dhat is not certified against noise in this family"
+
+#: The vertices in ``(a, b)`` of a triangle that holds ``(alpha^k, alpha^2k)`` for every k: ``b = a^2`` on [0, 1]
+#: lies above ``b = 0`` and ``b = 2a - 1`` (its tangents at 0 and 1) and below ``b = a``.
+NOISE_VERTICES = ((0.0, 0.0), (1.0, 1.0), (0.5, 0.0))
+
 #: Strictness margin of the least-overshoot solve: its optimum sits on the boundary of (33)/(34),
 #: where a margin of ``LMI_MARGIN`` left points the re-check refused on some BLAS kernels.
 LEAST_OVERSHOOT_MARGIN = 10 * LMI_MARGIN
@@ -288,9 +298,44 @@ def checks(card_data: dict) -> list:
 
 
 def verify(card) -> list:
-    """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims."""
+    """Re-check a card's certificate from its matrices alone (no solver), the overshoot and the noise gain it
+    claims."""
     d = card.data
-    return checks(d) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
+    return (checks(d) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
+            + recheck(d.get("noise"), None, None, None, None, steps=noise_steps(d["matrices"])))
+
+
+def noise_steps(matrices: dict) -> list:
+    """The error system from output noise at the stored matrices, at the vertices :data:`NOISE_VERTICES`.
+
+    The runtime's matrices are polynomials in ``a = alpha^k`` of degree at most 2 (``N``, ``L``, ``Xy``, with
+    ``Xz = I``), evaluated at the same ``a`` for the step and the output of point k: the noise part of the error
+    follows ``eps+ = N(a) eps - L(a) v``, ``e = eps - Xy(a) v``. Read with ``b`` for ``a^2``, each is affine in
+    ``(a, b)``, and so is the bounded real lemma's matrix: the lemma at the three vertices with one ``X`` holds at
+    every ``(alpha^k, alpha^2k)`` inside, hence along the whole schedule (:func:`uiofmu.noise.lemma_checks`).
+    """
+    g = {k: np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy")}
+    if any(len(c) > 3 for c in g.values()):
+        raise ValueError("a runtime polynomial of degree above 2: the noise vertices do not hold it")
+    n = g["N"].shape[-1]
+
+    def at(c, a, b):
+        return sum(m * ci for m, ci in zip((1.0, a, b), c))
+
+    return [(at(g["N"], a, b), -at(g["L"], a, b), np.eye(n), -at(g["Xy"], a, b), 0, 0, f"at (a, a^2) = ({a:g}, {b:g})")
+            for a, b in NOISE_VERTICES]
+
+
+def noise_of(matrices: dict) -> dict:
+    """The card's ``noise`` section: ``gain_y`` along the whole schedule (:func:`noise_steps`), its least value by
+    :func:`uiofmu.noise.lemma_certificate` with one ``X``, scaled by the limit observer's gain (``a = 0``; the gain
+    along the schedule is at least that)."""
+    steps = noise_steps(matrices)
+    limit = hinf_norm(*steps[0][:4])
+    gain, extra, why = stated(lemma_certificate(steps, 1, limit),
+                              "bounded real lemma with one X at the vertices of (alpha^k, alpha^2k)")
+    reasons = ([why] if why else []) + [NO_W] + ([NO_DHAT] if matrices.get("Dy") is not None else [])
+    return noise_section(gain, "; ".join(reasons), **extra)
 
 
 def gain_figures(card_data: dict) -> tuple:
@@ -339,7 +384,8 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
                                                  two(A1), n),
                "eigenvalues_N_k0": spectrum(A1 - T1 @ C), "eigenvalues_N_inf": spectrum(A2 - T2 @ C),
                "norm_MCE": Determined(two(MCE), two(M) * two(C) * two(s.E))}
-    return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "alpha": opts.alpha, "eta": opts.eta,
+    return {"noise.norm": "l2", "noise.gain_w": None, "noise.gain_dhat_y": None,     # gain_y: verify re-checks it
+            "dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "alpha": opts.alpha, "eta": opts.eta,
             "mu": mu, "tau1": tau1, "tau2": tau2, "decay_bound": float(np.sqrt(1 - tau2)),
             "initial_decay_bound": float(np.sqrt(1 - tau1)), **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
 
@@ -421,5 +467,6 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "eigenvalues_N_inf": complex_list(np.linalg.eigvals(A2 - T2 @ C)),
         "norm_MCE": float(np.linalg.norm(M @ C @ s.E, 2)),
         "search": searched,
+        "noise": noise_of(matrices),
     })
     return DesignResult(plant.n, opts.dt, _schedule(opts), matrices, cert, results, (system, least), opts.xhat0)

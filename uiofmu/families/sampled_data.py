@@ -90,9 +90,14 @@ from ..runtime.tolerances import (
     VERIFY_FRACTION,
     ZERO_MARGIN,
 )
+from ..noise import certified, pair_error_system, recheck, section as noise_section
 from . import Analysis, DesignResult
 
 NAME = "sampled-data"
+
+#: What a sampled-data card's noise section says of the gains it has not.
+NO_W = "gain_w: not certified for this family (process noise acts between the samples)"
+NO_DHAT = "gain_dhat_y: dhat is not certified against noise in this family"
 
 
 @dataclass(frozen=True)
@@ -616,9 +621,29 @@ def checks(matrices: dict, decay: float) -> list:
 
 
 def verify(card) -> list:
-    """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims."""
+    """Re-check a card's certificate from its matrices alone (no solver), the overshoot and the noise gain it
+    claims."""
     d = card.data
-    return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], d["matrices"]["Pl"])]
+    return (checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], d["matrices"]["Pl"])]
+            + recheck(d.get("noise"), *error_system(d["matrices"]), switched=True))
+
+
+def error_system(matrices: dict) -> tuple:
+    """The error system from output noise ``v`` (on the samples, ``y_k = C x_k + v_k``) at the stored matrices
+    (:func:`uiofmu.noise.pair_error_system`), the step ``(i, j)`` for the intervals ``(h_k, h_k-1)``.
+
+    ``e_k = eps_k - K_j v_k`` with ``eps_k = (I - K_j C) x_k - z_k``, and by (13), ``G_i = (I - K_i C) B_i`` and (12)
+    (``(I - K_i C) A_i - P_ij C = L_ij (I - K_j C)``), ``eps+ = L_ij eps - P_ij v``: the runtime's ``N_ij = L_ij``,
+    ``L_ij = P_ij`` and ``Xy_j = K_j``.
+    """
+    return pair_error_system(matrices)
+
+
+def noise_of(matrices: dict) -> dict:
+    """The card's ``noise`` section: ``gain_y`` for every sequence of design intervals (:mod:`uiofmu.noise`)."""
+    gain, extra, why = certified(*error_system(matrices), switched=True)
+    reasons = ([why] if why else []) + [NO_W] + ([NO_DHAT] if matrices.get("Dy") is not None else [])
+    return noise_section(gain, "; ".join(reasons), **extra)
 
 
 #: The bound the card states.
@@ -649,7 +674,8 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
         alpha = {"alpha": Determined(1.0 - decay * decay, 1.0)}
     else:                                                   # a fixed alpha is the card's
         alpha = {"alpha": float(opts.alpha), "decay_bound": float(np.sqrt(1.0 - opts.alpha))}
-    return {"dt": None, "schedule": _schedule(opts), "bound": BOUND, "intervals": list(opts.intervals), **alpha,
+    return {"noise.norm": "l2", "noise.gain_w": None, "noise.gain_dhat_y": None,     # gain_y: verify re-checks it
+            "dt": None, "schedule": _schedule(opts), "bound": BOUND, "intervals": list(opts.intervals), **alpha,
             **{f"matrices.{k}": v for k, v in mats.items()}, **figures_of(problem, card_data, analysis)}
 
 
@@ -840,6 +866,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     zeros = existence.value("stable sampled invariant zeros", "per_interval")
     diagonal = matrices["N"][np.arange(N), np.arange(N)]            # L_ii: a constant interval
     results = {
+        "noise": noise_of(matrices),
         "alpha": alpha,
         "decay_bound": decay,
         "overshoot_bound": overshoot(Pl),

@@ -52,9 +52,15 @@ from ..runtime.errors import ProblemError
 from ..runtime.tolerances import RANK_RTOL, SEARCH_TOL, ZERO_MARGIN
 from ..structure import kernel_maps, product_radius, rank, unobservable_modes
 from ..switched_plant import as_switched
+from ..noise import certified, pair_error_system, recheck, section as noise_section
 from . import Analysis, DesignResult
 
 NAME = "switched"
+
+#: What a switched card's noise section says of the gains it has not.
+NO_W = "gain_w: a switched plant declares no process noise"
+NO_DHAT = "gain_dhat_y: dhat is not certified against noise in this family"
+
 #: Design methods: dead-beat where every mode allows it, else the LMI; or one of them.
 METHODS = ("auto", "lmi", "deadbeat")
 
@@ -337,12 +343,31 @@ def checks(matrices: dict, decay: float) -> list:
 
 
 def verify(card) -> list:
-    """Re-check a card's certificate from its matrices alone (no solver), and the overshoot it claims
-    (the ratio of the Lyapunov matrices ``S``; 1 for a dead-beat design, whose bound is ``||Phi_i||``)."""
+    """Re-check a card's certificate from its matrices alone (no solver), the overshoot it claims
+    (the ratio of the Lyapunov matrices ``S``; 1 for a dead-beat design, whose bound is ``||Phi_i||``) and its
+    noise gain."""
     d = card.data
     S = d["matrices"].get("S")
     lyapunov = S if S is not None else [np.eye(len(d["matrices"]["C"][0]))]
-    return checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], lyapunov)]
+    return (checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], lyapunov)]
+            + recheck(d.get("noise"), *error_system(d["matrices"]), switched=True))
+
+
+def error_system(matrices: dict) -> tuple:
+    """The error system from output noise ``v`` at the stored matrices (:func:`uiofmu.noise.pair_error_system`).
+
+    With ``y = C x + v``: ``e_k+1 = Phi_i e_k - K_i v_k - Q_i v_k+1``, so ``eps_k = e_k + Q_j v_k`` follows
+    ``eps+ = N_ij eps - L_ij v`` (``N_ij = Phi_i``, ``L_ij = K_i + Phi_i Q_j``) and ``e = eps - Xy_j v``
+    (``Xy_j = Q_j``, ``Xz_j = I``), the identities :func:`checks` re-checks.
+    """
+    return pair_error_system(matrices)
+
+
+def noise_of(matrices: dict) -> dict:
+    """The card's ``noise`` section: ``gain_y`` for every switching sequence (:mod:`uiofmu.noise`)."""
+    gain, extra, why = certified(*error_system(matrices), switched=True)
+    reasons = ([why] if why else []) + [NO_W] + ([NO_DHAT] if matrices.get("Dy") is not None else [])
+    return noise_section(gain, "; ".join(reasons), **extra)
 
 
 #: The bound the card states.
@@ -369,7 +394,8 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     size = max(float(np.linalg.norm(md.A, 2)) for md in modes)
     figures = {f"fixed_eigenvalues[{i}]": computed_values(md.fixed, size, n)
                for i, md in enumerate(analysis.data["modes"])}
-    return {"dt": plant.dt, "schedule": _schedule(plant, opts), "bound": BOUND, "modes": plant.N,
+    return {"noise.norm": "l2", "noise.gain_w": None, "noise.gain_dhat_y": None,     # gain_y: verify re-checks it
+            "dt": plant.dt, "schedule": _schedule(plant, opts), "bound": BOUND, "modes": plant.N,
             "decay": float(card_data["decay_bound"]), "matrices.C": C,
             **{f"matrices.{k}": v for k, v in mats.items()}, **figures,
             "largest_fixed_modulus": Determined(analysis.data["largest"], 1.0, eigen_rtol(n)),
@@ -437,6 +463,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         method, solver = "lmi", "CLARABEL"
     cert = certificate(sol, checks(mats, lam), f"{NAME} design of {problem.name}", solver=solver)
     results = {
+        "noise": noise_of(mats),
         "decay": lam,
         "decay_bound": lam,
         "overshoot_bound": bound,

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .checks import (MAX_DIM, MAX_INTERVALS, MAX_MODES, MAX_POWER, MAX_TEXT, MAX_WINDOW, choice as _choice,
+from .checks import (MAX_DIM, MAX_INTERVALS, MAX_MODES, MAX_POWER, MAX_TEXT, MAX_WINDOW, any_array, choice as _choice,
                      integer as _integer, kind_of as _kind, number as _number, table as _table, text as _text)
 from .errors import CardError
 from .files import parse_json, read_text, write_atomic
@@ -165,6 +165,35 @@ def _check_schedule(spec, dt) -> dict:
     return spec
 
 
+#: The gains of a card's ``noise`` section (each a finite number >= 0, or null), and the other figures it may hold.
+NOISE_GAINS, NOISE_FIGURES = ("gain_y", "gain_w", "gain_dhat_y"), ("peak_to_peak_y", "initial_term")
+#: Longest ``noise.reason``.
+MAX_REASON = 500
+
+
+def _check_noise(value) -> None:
+    """A card's ``noise`` section (:mod:`uiofmu.noise`): ``norm`` "l2", each gain a finite number >= 0 or null,
+    ``reason`` a short text (required when every gain is null), a certificate's ``X`` a finite array."""
+    noise = _table(value, "noise")
+    if noise.get("norm") != "l2":
+        raise CardError(f'design card noise.norm: expected "l2", found {_kind(noise.get("norm"))}')
+    for key in NOISE_GAINS + NOISE_FIGURES:
+        if key not in noise and key in NOISE_GAINS:
+            raise CardError(f"design card noise.{key}: required (a gain, or null)")
+        if noise.get(key) is not None:
+            _number(noise[key], f"noise.{key}", low=0.0)
+    reason = noise.get("reason")
+    if reason is not None:
+        _text(reason, "noise.reason", MAX_REASON)
+    if all(noise[key] is None for key in NOISE_GAINS) and not reason:
+        raise CardError("design card noise: every gain is null and noise.reason does not say why")
+    for key in ("certificate", "certificate_w", "certificate_dhat_y"):
+        if key in noise:
+            cert = _table(noise[key], f"noise.{key}")
+            if "X" in cert:
+                any_array(cert["X"], f"design card noise.{key}.X")
+
+
 def check_card(data, require_verified: bool = True) -> dict:
     """Check a design card document against the card schema, before anything uses it.
 
@@ -244,6 +273,8 @@ def check_card(data, require_verified: bool = True) -> dict:
     for key in ("bound", "generator"):
         if key in data:
             _text(data[key], key)
+    if "noise" in data:
+        _check_noise(data["noise"])
     kernel = KERNELS[_choice(data.get("kernel", DEFAULT), "kernel", tuple(KERNELS))]
     if not kernel.steps(schedule["kind"]):
         raise CardError(f"design card kernel {kernel.name!r} does not step a {schedule['kind']!r} schedule")

@@ -1,0 +1,434 @@
+"""What sensor noise does to the estimate: the certified l2 noise gains of a card.
+
+Every card has a ``noise`` section of the same shape::
+
+    "noise": {"norm": "l2", "gain_y": float or null, "gain_w": float or null, "gain_dhat_y": float or null,
+              "reason": str or null, ...}
+
+``gain_y`` bounds the l2 gain from a measurement noise ``v`` (added to ``y`` at the observer's input)
+to the estimation error ``e = x - xhat``, with the initial-condition term kept::
+
+    ||e||_2 <= gain_y ||v||_2 + initial_term ||e_0||
+
+``gain_w`` does the same for process noise and ``gain_dhat_y`` for the error of ``dhat``; a gain that
+is null comes with ``reason``, which says why (the family's structure, no process noise declared, ...).
+
+A discrete error system ``eps+ = A eps + B v``, ``e = C eps + D v`` is certified by the bounded real
+lemma at the card's stored matrices: with ``X > 0``::
+
+    [[X - A'XA - C'C,   -(A'XB + C'D)],
+     [-(B'XA + D'C),    gamma^2 I - B'XB - D'D]]  > 0
+
+summed along a run gives ``||e||^2 <= gamma^2 ||v||^2 + eps_0' X eps_0``, so ``initial_term`` is
+``sqrt(eig_max(X))``. Both inequalities are decided as the decay is (:func:`uiofmu.certificate.definite_check`:
+a verdict that no BLAS kernel's rounding can change). ``gamma`` is the H-infinity norm of the error
+system (a frequency sweep refined around its peaks), times ``1 + NOISE_MARGIN``, rounded up to
+:data:`NOISE_DIGITS` significant digits; ``X`` is the stabilising solution of the bounded real
+Riccati equation at that ``gamma`` (no solver). The card records the ``gamma`` the re-check proves.
+
+A finite-impulse-response error (the dead-beat functional observer: ``sum_j K_j v_{k-j}``) is certified
+alike on its shift-register realisation (:func:`fir_system`), and its peak-to-peak gain is the sum of the
+coefficients' norms (:func:`peak_to_peak`).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+from .certificate import Check, definite_check, figure_text, round_up
+
+#: The norm every gain of a card's ``noise`` section is in.
+NORM = "l2"
+
+#: The keys every ``noise`` section has.
+KEYS = ("norm", "gain_y", "gain_w", "gain_dhat_y", "reason")
+
+#: Significant digits of a certified gain (rounded up): the problem determines them on every machine.
+NOISE_DIGITS = 3
+
+#: Relative margin added to the H-infinity norm before it is rounded up and certified.
+NOISE_MARGIN = 1e-3
+
+#: Points of the frequency sweep on [0, pi] (besides the angles of the error system's poles).
+SWEEP_POINTS = 512
+
+#: Most pairs (modes or intervals squared) whose poly-quadratic lemma a card's gain is certified by: each pair is
+#: one LMI of the solve, as many as the decay design's own.
+MAX_PAIRS = 256
+
+#: Tries at a larger gamma (each ``GROWTH`` times the previous) when the re-check refuses a certificate.
+TRIES, GROWTH = 12, 1.1
+
+
+def section(gain_y=None, reason=None, gain_w=None, gain_dhat_y=None, **extra) -> dict:
+    """A ``noise`` section: the gains (None where not certified), why some are None, and what re-checks them."""
+    out = {"norm": NORM, "gain_y": gain_y, "gain_w": gain_w, "gain_dhat_y": gain_dhat_y, "reason": reason}
+    out.update(extra)
+    return out
+
+
+def _response(A, B, C, D, w: np.ndarray) -> np.ndarray:
+    """The largest singular value of ``C (e^{jw} I - A)^-1 B + D`` at each angle ``w``."""
+    n = len(A)
+    out = np.empty(len(w))
+    for i, angle in enumerate(w):
+        H = D + C @ np.linalg.solve(np.exp(1j * angle) * np.eye(n) - A, B) if n else D
+        out[i] = np.linalg.norm(H, 2) if H.size else 0.0
+    return out
+
+
+def hinf_norm(A, B, C, D) -> float:
+    """The H-infinity norm of the discrete system ``(A, B, C, D)`` (``A`` Schur stable).
+
+    A sweep of :data:`SWEEP_POINTS` angles on [0, pi] and the angles of the poles, then a bounded scalar
+    search around the three largest; a value below the true norm is caught by the certificate's re-check.
+    """
+    from scipy.optimize import minimize_scalar
+
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    poles = np.abs(np.angle(np.linalg.eigvals(A))) if len(A) else np.zeros(0)
+    w = np.unique(np.concatenate([np.linspace(0.0, np.pi, SWEEP_POINTS), poles]))
+    g = _response(A, B, C, D, w)
+    best = float(g.max())
+    step = np.pi / (SWEEP_POINTS - 1)
+    for i in np.argsort(g)[-3:]:
+        lo, hi = max(0.0, w[i] - step), min(np.pi, w[i] + step)
+        found = minimize_scalar(lambda a: -_response(A, B, C, D, np.array([a]))[0], bounds=(lo, hi),
+                                method="bounded", options={"xatol": 1e-12})
+        best = max(best, float(-found.fun))
+    return best
+
+
+def scaled_definite_check(name: str, Q: np.ndarray, terms: np.ndarray, length: int) -> Check:
+    """``Q > 0`` decided on ``D Q D``, ``D = diag(terms)^(-1/2)``, with margin over its own rounding.
+
+    A positive diagonal congruence keeps the sign of ``Q``; evaluated in double precision it adds two roundings
+    to each entry (``length + 2``), and it brings the rounding floor of a badly scaled ``Q`` (an error system with
+    gains of 1e6 next to entries of 1e-6) down to the size of its entries (:func:`uiofmu.certificate.definite_check`,
+    no margin beyond the rounding: the gain's rounding up is the margin).
+    """
+    scale = np.diag(terms).copy()
+    d = 1.0 / np.sqrt(np.where(scale > 0, scale, 1.0))
+    return definite_check(name, d[:, None] * Q * d[None, :], d[:, None] * terms * d[None, :], length + 2, margin=0.0)
+
+
+def _brl_matrix(A, B, C, D, X_in, X_out, gamma: float) -> tuple:
+    """The bounded real lemma's matrix of one step from storage ``X_in`` to ``X_out``, and its terms' sizes."""
+    aA, aB, aC, aD, aI, aO = (np.abs(m) for m in (A, B, C, D, X_in, X_out))
+    g2 = float(gamma) ** 2
+    eye = np.eye(B.shape[1])
+    Q = np.block([[X_in - A.T @ X_out @ A - C.T @ C, -(A.T @ X_out @ B + C.T @ D)],
+                  [-(B.T @ X_out @ A + D.T @ C), g2 * eye - B.T @ X_out @ B - D.T @ D]])
+    terms = np.block([[aI + aA.T @ aO @ aA + aC.T @ aC, aA.T @ aO @ aB + aC.T @ aD],
+                      [aB.T @ aO @ aA + aD.T @ aC, g2 * eye + aB.T @ aO @ aB + aD.T @ aD]])
+    return 0.5 * (Q + Q.T), terms
+
+
+def _worst(checks: list) -> Check:
+    """The first check that fails, else the one with the least room."""
+    return next((c for c in checks if not c.holds), None) or min(checks, key=lambda c: c.value - c.bound)
+
+
+def brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> list:
+    """The bounded real lemma at stored matrices: ``X > 0`` and the BRL matrix ``> 0`` (see the module),
+    each decided with margin over its own rounding (:func:`scaled_definite_check`)."""
+    A, B, C, D, X = (np.asarray(m, dtype=float) for m in (A, B, C, D, X))
+    Q, terms = _brl_matrix(A, B, C, D, X, X, gamma)
+    length = 2 * len(A) + C.shape[0] + 2
+    return [scaled_definite_check(f"noise {label}: eig_min(X)", 0.5 * (X + X.T), np.abs(X), 1),
+            scaled_definite_check(f"noise {label}: bounded real lemma at gamma = {figure_text(gamma, NOISE_DIGITS)}",
+                                  Q, terms, length)]
+
+
+def _switched_steps(A, B, C, D) -> list:
+    """The steps of a switched error system (see :func:`switched_brl_checks`) as :func:`lemma_checks` takes them."""
+    modes = len(A)
+    return [(A[i, j], B[i, j], C[j], D[j], j, i, f"from X_{j + 1} to X_{i + 1}")
+            for i in range(modes) for j in range(modes)]
+
+
+def lemma_checks(steps: list, X, gamma: float, label: str = "gain_y") -> list:
+    """The bounded real lemma of every step at stored matrices, the worst case over the storage matrices and the
+    steps: ``X[s] > 0``, and for each step ``(A, B, C, D, s_in, s_out, name)`` the lemma's matrix from ``X[s_in]``
+    to ``X[s_out]`` ``> 0``, each decided with margin over its own rounding (:func:`scaled_definite_check`)."""
+    X = np.asarray(X, dtype=float)
+    n = X.shape[-1]
+    positive = [scaled_definite_check(f"noise {label}: eig_min(X_{s + 1})", 0.5 * (X[s] + X[s].T), np.abs(X[s]), 1)
+                for s in range(len(X))]
+    lemma = []
+    for A, B, C, D, s_in, s_out, name in steps:
+        A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+        lemma.append(scaled_definite_check(
+            f"noise {label}: bounded real lemma {name} at gamma = {figure_text(gamma, NOISE_DIGITS)}",
+            *_brl_matrix(A, B, C, D, X[s_in], X[s_out], gamma), 2 * n + C.shape[0] + 2))
+    return [_worst(positive), _worst(lemma)]
+
+
+def switched_brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> list:
+    """The poly-quadratic bounded real lemma of a switched error system at stored matrices, the worst case
+    over the modes and pairs.
+
+    The step from ``k`` to ``k + 1`` in the mode ``i = alpha_k`` after ``j = alpha_(k-1)`` is
+    ``eps+ = A[i][j] eps + B[i][j] v``, ``e = C[j] eps + D[j] v``; the storage ``eps' X[alpha_(k-1)] eps``
+    goes from ``X[j]`` to ``X[i]``: ``X[i] > 0`` and the lemma's matrix from ``X[j]`` to ``X[i]`` ``> 0`` for every
+    pair (i, j) give the gain under every switching sequence.
+    """
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    return lemma_checks(_switched_steps(A, B, C, D), X, gamma, label)
+
+
+def pair_error_system(matrices: dict) -> tuple:
+    """The error system from output noise of a runtime whose step ``(i, j)`` (this step's mode or interval, and the
+    previous one) is ``z+ = N_ij z + L_ij y + ...`` with ``xhat = z + Xy_j y`` (``Xz_j = I``), as stacks for
+    :func:`switched_brl_checks`: ``eps+ = N_ij eps - L_ij v``, ``e = eps - Xy_j v``, ``eps`` the error before the
+    new sample's share ``Xy_j v`` (the family's identities, which its certificate re-checks, make the plant's
+    inputs cancel from ``eps`` as they do from ``e``)."""
+    N, L, Xy = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy"))
+    modes, n = N.shape[0], N.shape[-1]
+    return N, -L, np.repeat(np.eye(n)[None], modes, axis=0), -Xy
+
+
+def switched_brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
+    """The least certified l2 gain of a switched error system (:func:`switched_brl_checks`); see
+    :func:`lemma_certificate`."""
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    modes = len(A)
+    if modes * modes > MAX_PAIRS:
+        return {"gamma": None, "why": f"{modes} modes or intervals give {modes * modes} pairs, more than the "
+                                      f"{MAX_PAIRS} the lemma is solved for"}
+    sigma = max(hinf_norm(A[i, i], B[i, i], C[i], D[i]) for i in range(modes))
+    return lemma_certificate(_switched_steps(A, B, C, D), modes, sigma, label)
+
+
+def lemma_certificate(steps: list, storages: int, sigma: float, label: str = "gain_y") -> dict:
+    """The least l2 gain that the bounded real lemma of every step (:func:`lemma_checks`) certifies, to
+    :data:`NOISE_DIGITS`.
+
+    The LMIs of the lemma for every step, with ``storages`` storage matrices and ``g`` bounding
+    ``(gamma / sigma)^2`` minimised (CLARABEL; ``sigma`` a lower bound of ``gamma``, e.g. the largest H-infinity
+    norm of a mode held constant, and the outputs divided by their largest entry, so that the solver sees
+    numbers near 1 whatever the gains); then ``gamma`` from ``g``, times ``1 + NOISE_MARGIN``, rounded up, and
+    re-checked at the stored matrices with the solver's ``X`` (mapped back), growing by :data:`GROWTH` where it
+    fails.
+
+    Returns
+    -------
+    dict
+        As :func:`brl_certificate` (``lmi_gamma``, the solver's, in place of ``hinf_norm``).
+    """
+    from .lmi import Lmi, LmiSystem
+    from .reductions import scalar, symmetric
+
+    steps = [tuple(np.asarray(m, dtype=float) for m in step[:4]) + tuple(step[4:]) for step in steps]
+    n, p, r = steps[0][0].shape[0], steps[0][1].shape[1], steps[0][2].shape[0]
+    sigma = max(float(sigma), 1e-300)
+    scale = max(float(np.abs(step[2]).max()) if step[2].size else 0.0 for step in steps) or 1.0
+
+    def build(v, prm, ops):
+        out = []
+        for A, B, C, D, s_in, s_out, name in steps:
+            Xo = v[f"X{s_out}"]
+            XA, XB = Xo @ A, Xo @ (B / sigma)
+            Cs, Ds = C / scale, D / (sigma * scale)
+            out.append(Lmi(f"bounded real lemma {name}", ops.bmat([
+                [v[f"X{s_in}"], ops.zeros((n, p)), XA.T, Cs.T],
+                [ops.zeros((p, n)), v["g"] * ops.eye(p), XB.T, Ds.T],
+                [XA, XB, Xo, ops.zeros((n, r))],
+                [Cs, Ds, ops.zeros((r, n)), ops.eye(r)]])))
+        return out
+
+    variables = {**{f"X{s}": symmetric(n) for s in range(storages)}, "g": scalar()}
+    system = LmiSystem(f"noise {label}", variables, {}, build, objective=lambda v: v["g"])
+    sol = system.solve()
+    if not sol.values:
+        return {"gamma": None, "why": f"the bounded real lemma's LMIs have no solution (CLARABEL: {sol.status})"}
+    # the LMIs are the lemma of (A, B / sigma, C / scale, D / (sigma scale)) for the input sigma v and the output
+    # e / scale: multiplied by scale^2, its storage inequality is the card's at gamma = sigma scale sqrt(g)
+    X = np.array([0.5 * (sol.values[f"X{s}"] + sol.values[f"X{s}"].T) for s in range(storages)]) * scale ** 2
+    least = sigma * scale * math.sqrt(max(float(sol.values["g"]), 0.0))
+    gamma = round_up(max(least, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
+    for _ in range(TRIES):
+        checks = lemma_checks(steps, X, gamma, label)
+        if all(c.holds for c in checks):
+            return {"gamma": gamma, "X": X, "initial_term": float(np.sqrt(np.linalg.eigvalsh(X)[:, -1].max())),
+                    "lmi_gamma": least, "checks": checks}
+        last, gamma = gamma, round_up(gamma * GROWTH, NOISE_DIGITS)
+    return {"gamma": None, "why": f"no bounded real lemma certificate up to gamma = {figure_text(last, NOISE_DIGITS)} "
+                                  "survives the re-check at the stored matrices"}
+
+
+def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
+    """The stabilising solution of the bounded real Riccati equation at ``gamma``, with ``delta I`` added to
+    ``C'C`` (the strictness the re-check needs)."""
+    from scipy.linalg import solve_discrete_are
+
+    n, m = B.shape
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        X = solve_discrete_are(A, B, C.T @ C + delta * np.eye(n), D.T @ D - gamma * gamma * np.eye(m), s=C.T @ D)
+    return 0.5 * (X + X.T)
+
+
+def brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
+    """The least certified l2 gain of ``eps+ = A eps + B v``, ``e = C eps + D v`` to :data:`NOISE_DIGITS`.
+
+    The Riccati equation is solved in the coordinates that balance ``A`` (powers of 2, exact:
+    ``scipy.linalg.matrix_balance``), where a plant with gains of 1e6 still has an accurate solution, and its
+    ``X`` is mapped back; the checks are at the given matrices.
+
+    Returns
+    -------
+    dict
+        ``gamma`` (the gain the re-check proves), ``X``, ``initial_term`` (``sqrt(eig_max(X))``),
+        ``hinf_norm`` (the sweep's) and the checks; ``gamma`` None (with ``why``) when no try certifies.
+    """
+    from scipy.linalg import matrix_balance
+
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    norm = hinf_norm(A, B, C, D)
+    s = matrix_balance(A, permute=False, separate=True)[1][0] if len(A) else np.ones(0)
+    Ab, Bb, Cb = A * s[None, :] / s[:, None], B / s[:, None], C * s[None, :]      # eps = diag(s) eps_b
+    # delta I added to C'C raises the gain by at most delta h^2 / (2 gamma), h = ||(zI - A)^-1 B||_inf.
+    h = hinf_norm(Ab, Bb, np.eye(len(A)), np.zeros_like(B))
+    gamma = round_up(max(norm, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
+    for _ in range(TRIES):
+        delta = (0.1 * (gamma - norm) * gamma) / max(h * h, 1e-300) if gamma > norm else 0.0
+        try:
+            Xb = _riccati(Ab, Bb, Cb, D, gamma, delta)
+        except (ValueError, np.linalg.LinAlgError):
+            pass
+        else:
+            X = Xb / s[:, None] / s[None, :]
+            checks = brl_checks(A, B, C, D, X, gamma, label)
+            if np.all(np.isfinite(X)) and all(c.holds for c in checks):
+                return {"gamma": gamma, "X": X, "initial_term": float(np.sqrt(np.linalg.eigvalsh(X)[-1])),
+                        "hinf_norm": norm, "checks": checks}
+        last, gamma = gamma, round_up(gamma * GROWTH, NOISE_DIGITS)
+    return {"gamma": None, "hinf_norm": norm,
+            "why": f"no bounded real lemma certificate up to gamma = {figure_text(last, NOISE_DIGITS)} survives the "
+                   "re-check at the stored matrices"}
+
+
+def fir_system(coefficients) -> tuple:
+    """The filter ``e_k = sum_j K_j v_(k-j)`` as a state-space system ``(A, B, C, D)``: a shift register of the
+    last ``len(coefficients) - 1`` samples (``A`` nilpotent).
+
+    Parameters
+    ----------
+    coefficients : sequence of (r, p) arrays
+        ``K_0, K_1, ...`` (at least one).
+    """
+    K = [np.asarray(k, dtype=float) for k in coefficients]
+    r, p = K[0].shape
+    n = (len(K) - 1) * p
+    A = np.zeros((n, n))
+    if n > p:
+        A[p:, :n - p] = np.eye(n - p)
+    B = np.eye(n, p)
+    C = np.hstack(K[1:]) if n else np.zeros((r, 0))
+    return A, B, C, K[0]
+
+
+def peak_to_peak(coefficients) -> float:
+    """``sum_j ||K_j||_2`` rounded up to :data:`NOISE_DIGITS`: the peak-to-peak gain of the filter
+    ``e_k = sum_j K_j v_(k-j)`` (``max_k |e_k| <= gain max_k |v_k|``, Euclidean norms of the samples)."""
+    return round_up(sum(float(np.linalg.norm(np.asarray(k, dtype=float), 2)) for k in coefficients), NOISE_DIGITS)
+
+
+def gain_text(value) -> str:
+    """A gain as printed: :data:`NOISE_DIGITS` significant digits, or ``none``."""
+    return "none" if value is None else figure_text(float(value), NOISE_DIGITS)
+
+
+def certificate_key(key: str) -> str:
+    """Where a card keeps the certificate of ``noise.<key>``: ``certificate`` for ``gain_y``, ``certificate_w`` for
+    ``gain_w``, ``certificate_dhat_y`` for ``gain_dhat_y``."""
+    return "certificate" if key == "gain_y" else f"certificate_{key[len('gain_'):]}"
+
+
+def recheck(noise: dict, A, B, C, D, key: str = "gain_y", switched: bool = False, steps: list | None = None) -> list:
+    """The re-check of a card's ``noise.<key>`` (its certificate at :func:`certificate_key`) at the error system
+    ``(A, B, C, D)`` of its stored matrices (with ``switched``, stacks: :func:`switched_brl_checks`; with ``steps``,
+    those of :func:`lemma_checks`, ``A`` ... ``D`` unused): none when the gain is null (a card claims nothing then)."""
+    if not isinstance(noise, dict) or noise.get(key) is None:
+        return []
+    cert = noise[certificate_key(key)]
+    X, gamma = np.asarray(cert["X"], dtype=float), float(noise[key])
+    if steps is not None:
+        lemma = lemma_checks(steps, X, gamma, key)
+    else:
+        lemma = (switched_brl_checks if switched else brl_checks)(A, B, C, D, X, gamma, key)
+    return lemma + [initial_check(noise if key == "gain_y" else cert, X, key)]
+
+
+def certified(A, B, C, D, key: str = "gain_y", switched: bool = False) -> tuple:
+    """``brl_certificate`` (``switched_brl_certificate`` with ``switched``) as the card stores it: (gain or None,
+    the section's extra keys, why it is None); see :func:`stated`."""
+    cert = (switched_brl_certificate if switched else brl_certificate)(A, B, C, D, key)
+    method = ("poly-quadratic bounded real lemma (every switching sequence, at the stored matrices)" if switched
+              else "bounded real lemma (discrete, at the stored matrices)")
+    return stated(cert, method, key)
+
+
+def stated(cert: dict, method: str, key: str = "gain_y") -> tuple:
+    """A certificate (:func:`brl_certificate`, :func:`lemma_certificate`) as the card stores it: (gain or None, the
+    section's extra keys, why it is None).
+
+    The extra keys are the certificate (at :func:`certificate_key`: the method, the H-infinity norm or the
+    solver's gamma, the margin, ``X`` and the checks) and the ``initial_term`` (top level for ``gain_y``, in its
+    certificate else).
+    """
+    if cert["gamma"] is None:
+        return None, {}, f"{key}: not certified ({cert['why']})"
+    record = {"method": method, **{k: cert[k] for k in ("hinf_norm", "lmi_gamma") if k in cert},
+              "margin": NOISE_MARGIN, "X": cert["X"], "checks": {c.name: c.to_data() for c in cert["checks"]}}
+    if key == "gain_y":
+        return cert["gamma"], {"initial_term": cert["initial_term"], "certificate": record}, None
+    return cert["gamma"], {certificate_key(key): {**record, "initial_term": cert["initial_term"]}}, None
+
+
+def noise_lines(card_data: dict, figures: bool = True) -> list[str]:
+    """The lines ``uiofmu design`` prints of the card's noise gains.
+
+    Each gain is the least certified gain of the card's error system rounded up to :data:`NOISE_DIGITS`: a figure
+    of the card's matrices. Those of a closed-form design (``certificate.solver`` ``"none"``) are the problem's;
+    those of an LMI design are the solver's point's, which is not unique at the optimum of its objective (a
+    sampled-data design of the robustness sample: 154 under one BLAS kernel, 155 under another; a plant at the
+    edge: certified under one, not under the other), so the text every machine prints alike
+    (``figures=False``) leaves them out, as it does the largest gain (:func:`uiofmu.gains.gain_lines`).
+    """
+    noise = card_data.get("noise")
+    if not isinstance(noise, dict) or not (figures or card_data["certificate"].get("solver") == "none"):
+        return []
+    peak = noise.get("peak_to_peak_y")
+    lines = [f"  {'noise y->e':16s} {gain_text(noise.get('gain_y'))} (l2 gain"
+             + (f"; peak-to-peak {gain_text(peak)}" if peak is not None else "") + ")"]
+    for key, label in (("gain_dhat_y", "noise y->dhat"), ("gain_w", "noise w->e")):
+        if noise.get(key) is not None:
+            lines.append(f"  {label:16s} {gain_text(noise[key])} (l2 gain)")
+    if noise.get("reason"):
+        lines.append(f"  {'noise note':16s} {noise['reason']}")
+    return lines
+
+
+def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
+    """``initial_term >= sqrt(eig_max(X))`` (up to the rounding of the eigenvalue): the term of ``||e_0||`` in the
+    bound of ``noise.<key>`` (``noise`` the section, or the certificate that holds the term)."""
+    X = np.asarray(X, dtype=float)
+    top = float(np.linalg.eigvalsh(0.5 * (X + np.swapaxes(X, -1, -2)))[..., -1].max())
+    try:
+        value = float(noise.get("initial_term"))
+    except (TypeError, ValueError):
+        value = math.nan
+    needed = math.sqrt(max(top * (1.0 - 8.0 * X.shape[-1] * np.finfo(float).eps), 0.0))
+    return Check(f"noise {key}: initial_term >= sqrt(eig_max(X))", value if math.isfinite(value) else -math.inf, needed,
+                 at_most=False)
+
+
+__all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks",
+           "certificate_key", "certified", "fir_system", "gain_text", "hinf_norm", "initial_check",
+           "lemma_certificate", "lemma_checks", "noise_lines", "pair_error_system", "peak_to_peak", "recheck",
+           "scaled_definite_check", "section", "stated", "switched_brl_certificate", "switched_brl_checks"]
