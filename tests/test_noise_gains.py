@@ -172,6 +172,18 @@ def test_a_lowered_initial_term_or_another_cards_certificate_fails(lti_cards):
     _refused(doc, "noise gain_y")
 
 
+def test_a_card_without_a_noise_section_claims_nothing_and_verifies(lti_cards):
+    """A card designed before noise gains were certified has no ``noise``: it verifies (it claims no gain),
+    while a card that keeps the section but drops one of its keys is refused."""
+    doc = copy.deepcopy(lti_cards["example1"].data)
+    doc.pop("noise")
+    assert all(c.holds for c in recheck(card_from_data(json.loads(json.dumps(doc)))))
+    doc = copy.deepcopy(lti_cards["example1"].data)
+    doc["noise"].pop("norm")
+    with pytest.raises(CardError):
+        recheck(card_from_data(json.loads(json.dumps(doc))))
+
+
 def test_a_card_without_a_certificate_cannot_claim_a_gain(delayed_card):
     doc = copy.deepcopy(delayed_card[0].data)
     assert doc["noise"]["gain_y"] is None
