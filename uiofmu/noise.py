@@ -355,7 +355,10 @@ def recheck(noise: dict, A, B, C, D, key: str = "gain_y", switched: bool = False
     those of :func:`lemma_checks`, ``A`` ... ``D`` unused): none when the gain is null (a card claims nothing then)."""
     if not isinstance(noise, dict) or noise.get(key) is None:
         return []
-    cert = noise[certificate_key(key)]
+    cert = noise.get(certificate_key(key))
+    if not isinstance(cert, dict):                  # a gain claimed without the matrices that prove it
+        return [Check(f"noise.{key} claimed without its certificate noise.{certificate_key(key)} (present)", 0.0,
+                      1.0, at_most=False)]
     X, gamma = np.asarray(cert["X"], dtype=float), float(noise[key])
     if steps is not None:
         lemma = lemma_checks(steps, X, gamma, key)
