@@ -25,6 +25,7 @@ from uiofmu.scaling import to_data as scaling_data
 from uiofmu.runtime.card import card_from_data, to_lists
 from uiofmu.synthesis import recheck
 from uiofmu.testing import (MAX_SEEDS, assert_bound_respected, assert_converges, assert_exact_functional,
+                            assert_noise_gain_respected,
                             assert_matches_runtime, build_fmus, certificate_problem, seeds_from_environment)
 
 BACKEND = "python"      # the helpers' logic, away from C compiler timings; the example suite uses the default
@@ -96,6 +97,19 @@ def test_the_helpers_pass_on_the_designed_observer(right, seed):
     assert_matches_runtime(right.observer, seed=seed)
     assert_matches_runtime(right.observer, card=right.card_path, seed=seed)
     assert_matches_runtime(right.observer, card=right.card, steps=50, seed=seed)
+
+
+def test_the_noise_gain_helper_measures_below_the_certified_gain_and_names_a_card_without_one(right, deadbeat,
+                                                                                          tmp_path):
+    run = assert_noise_gain_respected(right.observer, right.plant, noise_std=0.05, seed=3)
+    m = run.result.metrics
+    assert 0 < m["noise_gain_measured"] <= m["noise_gain_certified"] == right.card.data["noise"]["gain_y"]
+    with pytest.raises(ValueError, match="noise_std"):
+        assert_noise_gain_respected(right.observer, right.plant, noise_std=-1.0)
+    data = {k: v for k, v in right.card.data.items() if k != "noise"}        # a card from before noise gains
+    old = build_observer(card_from_data(data), tmp_path / "old.fmu", backend=BACKEND)
+    with pytest.raises(AssertionError, match="certifies none .it has no noise section"):
+        assert_noise_gain_respected(old, right.plant)
 
 
 def test_the_seed_draws_the_initial_error(right):

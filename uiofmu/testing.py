@@ -327,15 +327,15 @@ def run_observer(observer_fmu, plant_fmu, steps=None, t_end: float | None = None
     return _execute(observer_fmu, plant_fmu, card, seq, spec, seed, xhat0)
 
 
-def _execute(observer_fmu, plant_fmu, card: Card, seq: np.ndarray, spec: str, seed: int, xhat0) -> Run:
-    """The run of :func:`run_observer` on checked arguments."""
+def _execute(observer_fmu, plant_fmu, card: Card, seq: np.ndarray, spec: str, seed: int, xhat0, noise=None) -> Run:
+    """The run of :func:`run_observer` on checked arguments (with ``noise``, a ``--noise`` text for the master)."""
     from .cosim.kernels import cosim_kernel
     from .cosim.master import cosimulate
 
     problem = certificate_problem(card)
     try:
         if problem is None:
-            result = cosimulate(plant_fmu, observer_fmu, seq, xhat0=xhat0, show_progress=False)
+            result = cosimulate(plant_fmu, observer_fmu, seq, xhat0=xhat0, show_progress=False, noise=noise)
         elif cosim_kernel(card).random_run:
             result = _stale_run(plant_fmu, observer_fmu, card, seq, xhat0)
         else:
@@ -604,6 +604,49 @@ def assert_bound_respected(observer_fmu, plant_fmu, steps=None, t_end: float | N
         raise AssertionError(f"{name}: expected ||x - xhat|| inside the certified bound ({formula}) at every step; "
                              f"{measured} {run.context()}")
     _require_error(run, norms, "that the error stays inside a bound")
+    return run
+
+
+def assert_noise_gain_respected(observer_fmu, plant_fmu, noise_std: float = 0.01, steps=None,
+                                t_end: float | None = None, seed: int = 0) -> Run:
+    """Assert that sensor noise reaches the estimate with at most the card's certified gain.
+
+    The master adds seeded white noise of ``noise_std`` to every output between the plant and the observer and
+    runs a noise-free twin of the observer in the same loop (``uiofmu cosim --noise``); the measured gain
+    ``||e - e_twin||_2 / ||v||_2`` must be at most the card's ``noise.gain_y``.
+
+    Parameters
+    ----------
+    observer_fmu, plant_fmu : str or Path
+        The FMUs.
+    noise_std : float
+        Standard deviation of the noise on every output (finite, > 0).
+    steps, t_end, seed
+        As for :func:`run_observer`; ``seed`` also seeds the noise.
+
+    Returns
+    -------
+    Run
+
+    Raises
+    ------
+    ValueError
+        For arguments that make no run (those of :func:`run_observer`, ``noise_std`` not finite and > 0).
+    AssertionError
+        When the card certifies no noise gain (its reason is said), or the measured gain exceeds the certified one
+        (both numbers).
+    """
+    noise_std = _real(noise_std, "noise_std")
+    card, seq, spec, seed, xhat0 = _prepare(observer_fmu, steps, t_end, seed, 0.0)
+    name, section = _name(observer_fmu), card.data.get("noise") or {}
+    if section.get("gain_y") is None:
+        raise AssertionError(f"{name}: expected a card with a certified noise gain; the {card.family} card certifies "
+                             f"none ({section.get('reason') or 'it has no noise section'})")
+    run = _execute(observer_fmu, plant_fmu, card, seq, spec, seed, xhat0, noise=f"y={noise_std!r},{seed}")
+    m = run.result.metrics
+    if not m.get("noise_gain_respected"):
+        raise AssertionError(f"{name}: expected a noise gain of at most the certified {section['gain_y']:.6g}; "
+                             f"measured {m.get('noise_gain_measured')!r} with noise std {noise_std:g} {run.context()}")
     return run
 
 
@@ -975,5 +1018,5 @@ if pytest is not None:
 
 
 __all__ = ["CONVERGENCE_TOL", "MAX_SEED", "MAX_SEEDS", "Fmus", "Run", "assert_bound_respected", "assert_converges",
-           "assert_exact_functional", "assert_matches_runtime", "build_fmus", "certificate_problem", "packed_card",
-           "run_observer", "seeds_from_environment"]
+           "assert_exact_functional", "assert_matches_runtime", "assert_noise_gain_respected", "build_fmus",
+           "certificate_problem", "packed_card", "run_observer", "seeds_from_environment"]
