@@ -35,6 +35,22 @@ def pytest_collection_modifyitems(config, items):
                 if mark in item.keywords:
                     item.add_marker(skip)
 
+#: The DC motor whose load torque is the unknown input, with the sampled-data observer on 0.01..0.05 s at
+#: alpha 0.9: certified with gains of millions (test_design_robustness.py, test_cosim_noise.py).
+DC_MOTOR_LOAD_TORQUE = """
+name = "dc-motor-load-torque"
+[plant]
+time = "continuous"
+A = [[0.0, 1.0, 0.0], [0.0, -10.0, 1.0], [0.0, -0.02, -2.0]]
+B = [[0.0], [0.0], [2.0]]
+E = [[0.0], [-100.0], [0.0]]
+C = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+[observer]
+family = "sampled-data"
+intervals = [0.01, 0.02, 0.03, 0.04, 0.05]
+alpha = 0.9
+"""
+
 #: The delayed UIO of seed 001 as the paper gives it (Fouka et al.), for test_delayed_fmus.py.
 DELAYED_EXAMPLE = """\
 name = "fouka-example"

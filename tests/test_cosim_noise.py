@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 
+from tests.conftest import DC_MOTOR_LOAD_TORQUE as DC_MOTOR
 from tests.conftest import run_cli
 from uiofmu.cosim.master import cosimulate, default_steps, plant_is_design_model
 from uiofmu.cosim.metrics import error_metrics
@@ -20,19 +21,6 @@ from uiofmu.fmu.export import build_observer
 from uiofmu.runtime.card import card_from_data
 from uiofmu.runtime.errors import ProblemError
 
-DC_MOTOR = """
-name = "dc-motor-load-torque"
-[plant]
-time = "continuous"
-A = [[0.0, 1.0, 0.0], [0.0, -10.0, 1.0], [0.0, -0.02, -2.0]]
-B = [[0.0], [0.0], [2.0]]
-E = [[0.0], [-100.0], [0.0]]
-C = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
-[observer]
-family = "sampled-data"
-intervals = [0.01, 0.02, 0.03, 0.04, 0.05]
-alpha = 0.9
-"""
 
 
 def with_noise_gain(card, gain: float):

@@ -34,6 +34,7 @@ from uiofmu.structure import invariant_zeros, rank
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 import design_robustness as dr  # noqa: E402
+from conftest import DC_MOTOR_LOAD_TORQUE  # noqa: E402
 
 FAMILIES = dr.FAMILIES
 #: The sample: campaign seed, problems per family, size caps.
@@ -185,19 +186,6 @@ family = "lti-uio"
 decay = "max"
 """
 
-DC_MOTOR_LOAD_TORQUE = """
-name = "dc-motor-load-torque"
-[plant]
-time = "continuous"
-A = [[0.0, 1.0, 0.0], [0.0, -10.0, 1.0], [0.0, -0.02, -2.0]]
-B = [[0.0], [0.0], [2.0]]
-E = [[0.0], [-100.0], [0.0]]
-C = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
-[observer]
-family = "sampled-data"
-intervals = [0.01, 0.02, 0.03, 0.04, 0.05]
-alpha = 0.9
-"""
 
 
 def _beyond_roundoff(reasons):

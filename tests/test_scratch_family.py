@@ -35,26 +35,10 @@ NAME, MODULE = "scratch-uio", "scratch_uio"
 BEFORE = '    Entry("ltv-auid", '
 ENTRY = f'    Entry("{NAME}", "a renamed copy of lti-uio", "{MODULE}", certifies="as lti-uio"),\n'
 
-#: A small problem for it: seed 000 Example 1 at a fixed decay (its invariant zero is at 0.99).
-PROBLEM = f"""name = "scratch"
-
-[plant]
-time = "discrete"
-dt = 0.1
-A = [[0.0, 1.0], [-0.5, 0.99]]
-B = [[0.0], [1.0]]
-E = [[0.2], [0.0]]
-C = [[1.0, 0.0]]
-x0 = [1.0, -1.0]
-
-[observer]
-family = "{NAME}"
-decay = 0.995
-
-[signals]
-u = [[{{kind = "sine", amplitude = 1.0, omega = 10.0}}]]
-d = [[{{kind = "sine", amplitude = 0.5, omega = 3.0}}]]
-"""
+#: A small problem for it: seed 000 Example 1 (examples/seed000_example1.toml) at a fixed decay (its invariant
+#: zero is at 0.99), observed by the scratch family.
+PROBLEM = (ROOT / "examples" / "seed000_example1.toml").read_text(encoding="utf-8").replace(
+    'family = "lti-uio"', f'family = "{NAME}"').replace('decay = "max"', "decay = 0.995")
 
 #: The commands, each an argv of ``uiofmu``, run in this order in one process of the copy.
 COMMANDS = {
