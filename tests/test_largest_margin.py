@@ -73,6 +73,7 @@ def test_a_search_ends_where_the_margin_crosses_its_threshold():
     # settled: the least objective at half the threshold (the toy has no objective, so no figure to reproduce)
     assert found.solution.verified and found.solution.relative_margin == 0.5 * threshold
     assert HELD in found.solution.status and not found.solution.status.endswith(REPRODUCED)
+    assert found.solution.held and not found.solution.reproduced
 
 
 def test_the_threshold_is_a_fraction_of_the_problems_own_margin():

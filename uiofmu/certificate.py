@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .runtime.errors import InfeasibleError
-from .lmi import HELD, REPRODUCED, LmiSolution, accurate_optimum
+from .lmi import LmiSolution, accurate_optimum
 from .runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, ROUNDING_FACTOR, VERIFY_FRACTION
 
 #: The unit round-off of double precision.
@@ -179,7 +179,7 @@ def figure_digits(solution: LmiSolution) -> int:
     """
     if solution.status.startswith("closed form"):
         return FIGURE_DIGITS
-    if HELD in solution.status and solution.status.endswith(REPRODUCED):
+    if solution.held and solution.reproduced:
         return HELD_FIGURE_DIGITS
     if accurate_optimum(solution):
         return FIGURE_DIGITS

@@ -128,6 +128,10 @@ class LmiSolution:
     #: For a point of largest margin (:meth:`LmiSystem.largest_margin`): that margin, relative to the mean
     #: eigenvalue of the normalised matrices; None for the point of a plain solve.
     relative_margin: float | None = None
+    #: Whether the point is a least objective at a held margin (:meth:`LmiSystem.least_at_margin`; then
+    #: ``relative_margin`` is the margin held), and whether its figure was reproduced by a second solve.
+    held: bool = False
+    reproduced: bool = False
 
 
 def eig_min(lmis: list[Lmi]) -> dict:
@@ -385,8 +389,8 @@ class LmiSystem:
         Returns
         -------
         LmiSolution
-            ``status`` holds :data:`HELD`, and ends in :data:`REPRODUCED` when the figure was reproduced;
-            ``relative_margin`` is ``held``.
+            ``held`` set and ``relative_margin`` the margin held; ``reproduced`` when the figure was reproduced
+            (its ``status`` says both, for the card: :data:`HELD`, :data:`REPRODUCED`).
         """
         if not self.homogeneous:
             raise ValueError(f"{self.name}: a margin held needs a homogeneous system")
@@ -398,7 +402,7 @@ class LmiSystem:
             if again.verified:
                 a, b = self._figure_of(sol), self._figure_of(again)
                 same = np.isfinite(a) and np.isfinite(b) and abs(a - b) <= HELD_AGREEMENT * max(abs(a), abs(b))
-                return replace(sol, status=f"{sol.status}, {REPRODUCED}") if same else sol
+                return replace(sol, status=f"{sol.status}, {REPRODUCED}", reproduced=True) if same else sol
         return sol
 
     def _figure_of(self, sol: LmiSolution) -> float:
@@ -449,7 +453,8 @@ class LmiSystem:
                 return replace(inner, verified=False)
             sol = self.recheck(back(inner.values), pvals, inner.status)
             return LmiSolution(sol.values, pvals, inner.status, sol.eig_min, sol.verified and inner.verified,
-                               inner.solve_time, inner.setup_time, sol.objective, self.margin, inner.relative_margin)
+                               inner.solve_time, inner.setup_time, sol.objective, self.margin, inner.relative_margin,
+                               inner.held)
         conic, size = self._margin_form(held)
         t0 = time.perf_counter()
         values, status, solve_time = (conic.solve(pvals, MARGIN_SOLVER_TOL) if held is None else
@@ -469,7 +474,7 @@ class LmiSystem:
                            f"{status} {'(largest margin)' if held is None else HELD}")
         return LmiSolution(sol.values, pvals, sol.status, sol.eig_min,
                            sol.verified and relative >= MARGIN_DECISION_RTOL, solve_time,
-                           max(total - solve_time, 0.0), sol.objective, self.margin, relative)
+                           max(total - solve_time, 0.0), sol.objective, self.margin, relative, held is not None)
 
     def decide(self, **parameters) -> LmiSolution:
         """Whether the parameter values have a certificate, decided by an optimal value.
@@ -914,7 +919,7 @@ def held_margin(solution: LmiSolution, threshold: float | None = None) -> float 
     margin itself for a point already held; None for a point of a plain solve."""
     if solution.relative_margin is None:
         return None
-    if HELD in solution.status:
+    if solution.held:
         return solution.relative_margin
     return 0.5 * (threshold if threshold is not None else solution.relative_margin)
 
@@ -997,7 +1002,7 @@ def tune(system: LmiSystem, parameter: str, requested, *, feasible_end: float, i
         decided = system.largest_margin(**at)
         if decided.verified:         # the least objective at half its margin: a figure the problem determines
             held = system.least_at_margin(held_margin(decided, min(decided.relative_margin, SEARCH_MARGIN_CAP)), **at)
-            return Tuned(value, held if held.verified and held.status.endswith(REPRODUCED) else
+            return Tuned(value, held if held.verified and held.reproduced else
                          sol if sol.verified else decided, None)
     if sol.verified:
         return Tuned(value, sol, None)
