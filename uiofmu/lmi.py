@@ -400,8 +400,7 @@ class LmiSystem:
         for probe in (HELD_PROBE, -HELD_PROBE):         # a second try where CLARABEL gave up on the first
             again = self._held_once(held * (1.0 + probe), parameters)
             if again.verified:
-                a, b = self._figure_of(sol), self._figure_of(again)
-                same = np.isfinite(a) and np.isfinite(b) and abs(a - b) <= HELD_AGREEMENT * max(abs(a), abs(b))
+                same = reproduced(self._figure_of(sol), self._figure_of(again), HELD_AGREEMENT)
                 return replace(sol, status=f"{sol.status}, {REPRODUCED}", reproduced=True) if same else sol
         return sol
 
@@ -821,6 +820,11 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
     return SearchResult(good, best, solves, time.perf_counter() - t0, (good, bad), name or parameter)
 
 
+def reproduced(a: float, b: float, rtol: float) -> bool:
+    """Whether a figure and its second solve agree: both finite, apart by at most ``rtol`` of the larger."""
+    return bool(np.isfinite(a) and np.isfinite(b) and abs(a - b) <= rtol * max(abs(a), abs(b)))
+
+
 def _passes(sol: LmiSolution, threshold: float) -> bool:
     """Whether a value passes: its point certifies, with a largest margin (where it has one) of at least
     ``threshold``."""
@@ -839,7 +843,7 @@ def _judged(decide: Callable, parameter: str, value: float, threshold: float) ->
         return sol
     again = decide(**{parameter: value * (1.0 + MARGIN_PROBE)})
     s = again.relative_margin
-    if s is None or not np.isfinite(s) or abs(t - s) > MARGIN_AGREEMENT * max(abs(t), abs(s)):
+    if s is None or not reproduced(t, s, MARGIN_AGREEMENT):
         return replace(sol, verified=False)
     return replace(sol, relative_margin=min(t, s))
 
