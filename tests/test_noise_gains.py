@@ -355,6 +355,66 @@ def test_noise_min_with_decay_max_moves_the_decay_and_keeps_the_default_where_th
         problem_from_data({"name": "f", "plant": FREE, "observer": {"family": "lti-uio", "noise": "least"}})
 
 
+def test_noise_gain_asks_for_the_fastest_decay_within_it():
+    """``observer.noise_gain = G``: the card's certified gain is at most G, and a decay one step of the search
+    faster has, by an independent least-noise design there, a larger certified gain (or none)."""
+    fastest = _lti(FREE, decay="max").data["decay_bound"]
+    for goal in (3.0, 1.5):
+        card = _lti(FREE, noise_gain=goal)
+        rho, record = card.data["decay_bound"], card.data["noise_design"]
+        assert card.data["noise"]["gain_y"] <= goal and record["noise_gain"] == goal
+        assert fastest < rho < 1.0 and card.data["design_method"] == "lmi (least noise gain)"
+        assert card.data["certificate"]["verified"]
+        recheck(card_from_data(json.loads(card.to_json())))
+        faster = max(d for d, g in record["search"]["tried"] if d < rho)
+        assert rho - faster <= (1.0 - fastest) / 1024 * 1.0000001
+        try:
+            beyond = _lti(FREE, decay=faster, noise="min").data["noise"]["gain_y"]
+        except uiofmu.InfeasibleError:
+            beyond = math.inf
+        assert beyond > goal, (faster, beyond)
+    assert _lti(FREE, noise_gain=1.5).data["decay_bound"] > _lti(FREE, noise_gain=3.0).data["decay_bound"]
+
+
+def test_a_noise_gain_out_of_reach_or_with_a_decay_is_refused_with_its_numbers():
+    with pytest.raises(uiofmu.InfeasibleError, match=r"noise_gain = 0.5: the slowest decay tried, 0\.99.*has "
+                                                     r"certified gain_y ([0-9.]+) .*ask for noise_gain >= \1"):
+        _lti(FREE, noise_gain=0.5)
+    for observer, what in (({"decay": 0.5}, "decay = 0.5"), ({"method": "riccati", "decay": 0.5}, "method")):
+        with pytest.raises(uiofmu.ProblemError, match=f"noise_gain = 2 asks for the fastest decay.*{what}"):
+            problem_from_data({"name": "f", "plant": FREE, "observer": {"family": "lti-uio", "noise_gain": 2.0,
+                                                                           **observer}})
+    with pytest.raises(uiofmu.ProblemError, match="observer.noise_gain"):
+        problem_from_data({"name": "f", "plant": FREE, "observer": {"family": "lti-uio", "noise_gain": -1.0}})
+
+
+def test_the_tradeoff_plots_certified_gains_over_the_decays(tmp_path, cli):
+    """``uiofmu tradeoff``: every point a certified design, the least-noise design's gain never above the
+    default's at the same decay, the table and the plot written, the problem's designs marked."""
+    from uiofmu.tradeoff import COLUMNS
+
+    problem = tmp_path / "free.toml"
+    rows = lambda m: "[" + ", ".join("[" + ", ".join(repr(v) for v in r) + "]" for r in m) + "]"   # noqa: E731
+    problem.write_text('name = "free"\n[plant]\ntime = "discrete"\ndt = 0.1\n'
+                       + "".join(f"{k} = {rows(FREE[k])}\n" for k in ("A", "E", "C"))
+                       + '[observer]\nfamily = "lti-uio"\ndecay = 0.5\n')
+    res = cli("tradeoff", problem, "-o", tmp_path / "t.png", "--points", "5")
+    assert res.code == 0, res.err
+    assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    lines = (tmp_path / "t.csv").read_text().splitlines()
+    assert lines[0].split(",") == list(COLUMNS) and len(lines) == 6
+    table = [[float(v) if v else None for v in line.split(",")[:5]] for line in lines[1:]]
+    decays = [r[0] for r in table]
+    assert decays == sorted(decays) and decays[0] == _lti(FREE, decay="max").data["decay_bound"]
+    for decay, default, least, *_ in table:
+        assert default is not None and least is not None and least <= default, (decay, default, least)
+    assert table[-1][2] < 0.5 * table[0][2]
+    assert "this problem's design: decay 0.5, gain_y " in res.out and 'noise = "min" at its decay: decay 0.5' in res.out
+    res = cli("tradeoff", ROOT / "examples" / "seed002_setup2.toml", "-o", tmp_path / "s.png")
+    assert res.code == 2 and "has no noise-aware design; the trade-off is drawn for lti-uio" in res.err
+    assert not (tmp_path / "s.png").exists()
+
+
 @pytest.mark.parametrize("example", ["seed002_setup2", "seed002_three_modes"])
 def test_a_switched_cards_gain_holds_under_switching_and_noise(example):
     """The poly-quadratic lemma's gain bounds every frozen mode's peak and the runtime's noise part under random

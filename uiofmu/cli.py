@@ -79,6 +79,27 @@ def _cmd_design(args) -> int:
     return 0
 
 
+def _cmd_tradeoff(args) -> int:
+    from .problem import load_problem
+    from .progress import progress
+    from .tradeoff import tradeoff, write
+
+    problem = load_problem(args.problem)
+    out = check_output_file(args.output or f"{identifier(problem.name)}.tradeoff.png", "trade-off plot")
+    with progress(total=3 + 2 * args.points, desc="designs", unit="design") as bar:
+        result = tradeoff(problem, args.points, bar.update)
+    png, table = write(result, out)
+    print(f"{problem.name}: noise gain against decay, {len(result.points)} decays from the fastest certified one, "
+          f"{result.fastest:.6g}: {png} (table: {table})")
+    print(f"  {'decay':>10s}  {'gain_y default':>14s}  {'gain_y least':>12s}")
+    text = lambda v: "-" if v is None else f"{v:.3g}"     # noqa: E731
+    for p in result.points:
+        print(f"  {p.decay:10.6g}  {text(p.gain_default):>14s}  {text(p.gain_least):>12s}")
+    for label, (decay, gain) in result.marks.items():
+        print(f"  {label}: decay {decay:.6g}, gain_y {text(gain)}")
+    return 0
+
+
 def design_summary(card, timing: bool = True) -> list[str]:
     """The lines ``uiofmu design`` prints under its first: bounds, formula, search, certificate, time.
 
@@ -96,7 +117,7 @@ def design_summary(card, timing: bool = True) -> list[str]:
     """
     from .certificate import overshoot_text
     from .gains import gain_lines
-    from .noise import noise_lines
+    from .noise import noise_design_lines, noise_lines
 
     lines = []
     for key, digits in (("decay_bound", 6), ("overshoot_bound", 0), ("alpha", 6)):
@@ -113,6 +134,7 @@ def design_summary(card, timing: bool = True) -> list[str]:
                      + (f" in {search['seconds']:.3f} s" if timing else ""))
     lines += gain_lines(card.data, figures=timing)
     lines += noise_lines(card.data, figures=timing)
+    lines += noise_design_lines(card.data, figures=timing)
     cert = card.data["certificate"]
     if cert["verified"]:
         found = "re-checked at the stored matrices" + (", point from CLARABEL" if cert["solver"] == "CLARABEL" else "")
@@ -361,6 +383,26 @@ def _add_design(sub) -> None:
     p.set_defaults(func=_cmd_design)
 
 
+def _add_tradeoff(sub) -> None:
+    """The arguments of ``uiofmu tradeoff``."""
+    from .tradeoff import POINTS
+
+    p = sub.add_parser("tradeoff", help="plot the certified noise gain against the decay over the certified range",
+                       description="Design the problem at decays from the fastest one its family certifies "
+                                   "(decay = \"max\") toward 1, by default (least overshoot bound) and by least "
+                                   "noise gain (observer.noise = \"min\"), each certified as `uiofmu design` "
+                                   "certifies it, and plot the cards' gain_y (l2 gain from sensor noise to the "
+                                   "estimation error) and overshoot bounds against the decay, with the problem's own "
+                                   "design and its noise-optimal one marked. A CSV table with the same numbers is "
+                                   "written next to the plot. lti-uio problems.")
+    p.add_argument("problem", help="problem file (TOML) or a plants/NAME folder")
+    p.add_argument("-o", "--output", metavar="TRADEOFF.png", help="plot path (default: NAME.tradeoff.png); the "
+                                                                  "table goes next to it as .csv")
+    p.add_argument("--points", type=int, default=POINTS, metavar="N",
+                   help=f"decays to design at, the fastest included (default {POINTS})")
+    p.set_defaults(func=_cmd_tradeoff)
+
+
 def _add_build(sub) -> None:
     """The arguments of ``uiofmu build``."""
     p = sub.add_parser("build", help="pack a design card as an FMI 2.0 Co-Simulation FMU",
@@ -522,7 +564,7 @@ def _add_demo(sub) -> None:
 
 
 #: The subcommands' arguments, in the order ``uiofmu --help`` lists them.
-_SUBCOMMANDS = (_add_check, _add_design, _add_build, _add_verify, _add_plant, _add_linearize, _add_cosim, _add_report,
+_SUBCOMMANDS = (_add_check, _add_design, _add_tradeoff, _add_build, _add_verify, _add_plant, _add_linearize, _add_cosim, _add_report,
                 _add_campaign, _add_validate, _add_demo)
 
 

@@ -417,6 +417,24 @@ def noise_lines(card_data: dict, figures: bool = True) -> list[str]:
     return lines
 
 
+def noise_design_lines(card_data: dict, figures: bool = True) -> list[str]:
+    """What a noise-aware design did (the card's ``noise_design``), for ``uiofmu design``: the decay
+    ``observer.noise_gain`` searched for, or the design ``observer.noise = "min"`` kept. Which design the latter kept
+    is decided by two points' gains, so it is printed with the ``figures``; the search's decays are
+    the problem's (each decided by a certified gain, rounded up to :data:`NOISE_DIGITS` digits)."""
+    record = card_data.get("noise_design")
+    if not record:
+        return []
+    if "noise_gain" in record:
+        return [f"  noise design     fastest decay with gain_y <= {gain_text(record['noise_gain'])} "
+                f"({len(record['search']['tried'])} decays tried)"]
+    if not figures:
+        return []
+    default = gain_text(record["default_gain_y"])
+    return [f"  noise design     least gain_y at decay {record['decay']:.6g}: kept the {record['kept']} design "
+            f"(the default design's gain_y {default})"]
+
+
 def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
     """``initial_term >= sqrt(eig_max(X))`` (up to the rounding of the eigenvalue): the term of ``||e_0||`` in the
     bound of ``noise.<key>`` (``noise`` the section, or the certificate that holds the term)."""
@@ -433,5 +451,6 @@ def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
 
 __all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks",
            "certificate_key", "certified", "fir_system", "gain_text", "hinf_norm", "initial_check",
-           "lemma_certificate", "lemma_checks", "noise_lines", "pair_error_system", "peak_to_peak", "recheck",
-           "scaled_definite_check", "section", "stated", "switched_brl_certificate", "switched_brl_checks"]
+           "lemma_certificate", "lemma_checks", "noise_design_lines", "noise_lines", "pair_error_system",
+           "peak_to_peak", "recheck", "scaled_definite_check", "section", "stated", "switched_brl_certificate",
+           "switched_brl_checks"]

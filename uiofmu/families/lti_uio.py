@@ -95,6 +95,9 @@ class Options:
         Bound on ``||K||_2`` (:mod:`uiofmu.gains`), None for none.
     noise : {"default", "min"}
         ``"min"``: the gain that minimises the noise gain ``gain_y`` at the decay (see :func:`_least_noise`).
+    noise_gain : float or None
+        The fastest decay whose least-noise gain has a certified ``gain_y`` of at most this (see
+        :func:`_fastest_within`), None for none.
     """
 
     decay: object
@@ -104,6 +107,7 @@ class Options:
     scaling: str = "balance"
     gain_cap: float | None = None
     noise: str = "default"
+    noise_gain: float | None = None
 
     @property
     def step(self) -> float:
@@ -131,8 +135,13 @@ def parse_options(table, plant) -> Options:
     if noise == "min" and method == "riccati":
         raise ProblemError('observer.noise = "min" designs with the LMI: use method = "auto" or "lmi" (the Riccati '
                            "gain minimises nothing)")
+    noise_gain = table.scalar("noise_gain", None, low=0.0, open_low=True)
+    if noise_gain is not None and (decay != "max" or method == "riccati"):
+        raise ProblemError(f"observer.noise_gain = {noise_gain:g} asks for the fastest decay whose certified gain_y "
+                           f"is at most {noise_gain:g}, designed with the LMI: leave observer.decay out (or \"max\") "
+                           f"and use method = \"auto\" or \"lmi\" (given: decay = {decay!r}, method = {method!r})")
     return Options(decay, dt, xhat0, method, table.choice("scaling", SCALINGS, "balance"),
-                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise)
+                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise, noise_gain)
 
 
 #: The card's ``design_method`` of a least-noise design (its overshoot is not what the LMIs minimise: the problem
@@ -141,6 +150,12 @@ NOISE_METHOD = "lmi (least noise gain)"
 
 #: ``observer.noise``: the default design (least overshoot bound), or the least noise gain at the decay.
 NOISE_OBJECTIVES = ("default", "min")
+
+#: ``observer.noise_gain`` searches the decay between the fastest certified one and this fraction of the way to 1
+#: (the slowest decay it tries), and stops when the bracket is narrower than :data:`NOISE_GAIN_RESOLUTION` of that
+#: way.
+NOISE_GAIN_SLOWEST = 0.999
+NOISE_GAIN_RESOLUTION = 1.0 / 1024
 
 #: With ``decay = "max"``, ``noise = "min"`` designs at the fastest certified decay moved this fraction of the way
 #: toward 1 (the card's ``decay_bound``): at the edge itself every gain is pinned by the decay, and the least
@@ -248,10 +263,17 @@ def _noise_point(values: dict) -> dict:
     return {"X": X, "W": X @ np.linalg.solve(np.asarray(values["G"], dtype=float), values["F"])}
 
 
-def _least_noise(s, C, M, t, rho: float, sigma: float, opts: Options, name: str) -> tuple[LmiSolution, LmiSystem]:
-    """``observer.noise = "min"``: the gain of least ``gain_y`` at the decay ``rho``, solved in the coordinates
-    scaled by ``t`` as the decay's LMIs are and with the noise in units of ``1 / sigma`` (its point re-checked, and
-    the certificate's checks at the runtime's matrices, as every design's)."""
+def _noise_system(s, C, M, t, sigma: float, opts: Options) -> tuple:
+    """The LMIs of the least noise gain (:func:`_noise_lmis`), compiled once for any decay: in the coordinates
+    scaled by ``t`` as the decay's LMIs are and with the noise in units of ``1 / sigma``; its points are mapped back
+    to the plant's coordinates by ``back`` and certified by the certificate's checks at the runtime's matrices, as
+    every design's.
+
+    Returns
+    -------
+    tuple
+        ``(system, back)``.
+    """
     PA = (np.eye(len(M)) + M @ C) @ s.A
     scaling = StateScaling(t)
     Ms = M / np.asarray(t, dtype=float)[:, None]
@@ -261,13 +283,28 @@ def _least_noise(s, C, M, t, rho: float, sigma: float, opts: Options, name: str)
     back = lambda v: _noise_point(scaling.invert(v, inverse))           # noqa: E731
     system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(s, C, M, back(v)),
                                                                     float(np.sqrt(prm["rho2"]))))
+    return system, back
+
+
+def _least_noise(noise: tuple, s, C, M, rho: float, name: str) -> LmiSolution:
+    """``observer.noise = "min"``: the gain of least ``gain_y`` at the decay ``rho`` (a point of the
+    ``(system, back)`` of :func:`_noise_system`, re-checked), in the plant's coordinates with its gain ``K``."""
+    system, back = noise
     sol = system.solve(rho2=rho * rho)
     if not sol.verified:
         raise InfeasibleError(f"{name}: the least noise gain at decay {rho:.6g} (observer.noise = \"min\") has no "
                               f"certified point (CLARABEL: {sol.status}); a slower decay leaves the LMIs room")
     values = back(sol.values)
     values["K"] = _lmi_runtime(s, C, M, values)["K"]
-    return replace(sol, values=values), system
+    return replace(sol, values=values)
+
+
+def noise_options(opts: Options, decay, noise: str) -> Options:
+    """These options at another ``decay`` (a number or ``"max"``) with the noise objective ``noise`` (``"default"``
+    or ``"min"``), for :mod:`uiofmu.tradeoff`: no ``noise_gain``, and the LMI where the Riccati design has no
+    answer (a fastest decay, a least noise gain)."""
+    method = "auto" if opts.method == "riccati" and (decay == "max" or noise == "min") else opts.method
+    return replace(opts, decay=decay, noise=noise, noise_gain=None, method=method)
 
 
 def _noise_design(s, C, M, t, rho: float, sol: LmiSolution, system, method: str, opts: Options, name: str) -> tuple:
@@ -285,7 +322,8 @@ def _noise_design(s, C, M, t, rho: float, sol: LmiSolution, system, method: str,
     default = hinf_norm(*error_system(_runtime(s, C, M, sol.values["X"], sol.values["K"])))
     record = {"objective": "least gain_y at the decay", "decay": rho, "default_gain_y": default}
     try:
-        least, noise_system = _least_noise(s, C, M, t, rho, max(default, 1.0), opts, name)
+        noise = _noise_system(s, C, M, t, max(default, 1.0), opts)
+        least, noise_system = _least_noise(noise, s, C, M, rho, name), noise[0]
     except InfeasibleError as exc:
         return rho, sol, system, method, {**record, "kept": "default", "why": str(exc)[:300]}
     found = hinf_norm(*error_system(_runtime(s, C, M, least.values["X"], least.values["K"])))
@@ -294,6 +332,62 @@ def _noise_design(s, C, M, t, rho: float, sol: LmiSolution, system, method: str,
                                                            "why": "the least-noise point's gain is not below it"}
     return rho, least, (system, noise_system), NOISE_METHOD, {**record, "kept": "least noise",
                                                                           "least_gain_y": found}
+
+
+def _fastest_within(s, C, M, t, fastest: float, sol: LmiSolution, system, method: str, opts: Options,
+                    name: str) -> tuple:
+    """``observer.noise_gain = G``: the fastest decay whose least-noise design (:func:`_least_noise`) has a certified
+    ``gain_y`` (the card's figure: :func:`uiofmu.noise.certified` at the runtime's matrices) of at most ``G``.
+
+    The least noise gain does not grow as the decay slows (every point certified at a decay is certified at any
+    slower one), so the decay is bisected on the way from ``fastest`` (the default design's ``"max"``) to
+    :data:`NOISE_GAIN_SLOWEST` of the way to 1, to :data:`NOISE_GAIN_RESOLUTION` of that way; the slower end of
+    the bracket is the decay kept.
+
+    Returns
+    -------
+    tuple
+        ``(rho, solution, systems, design_method, record)`` as :func:`_noise_design`.
+
+    Raises
+    ------
+    InfeasibleError
+        When even the slowest decay tried has a larger certified gain (the message gives it).
+    """
+    goal = float(opts.noise_gain)
+    sigma = max(hinf_norm(*error_system(_runtime(s, C, M, sol.values["X"], sol.values["K"]))), 1.0)
+    record = {"objective": "fastest decay with gain_y <= noise_gain", "noise_gain": goal, "fastest_decay": fastest}
+    noise = _noise_system(s, C, M, t, sigma, opts)
+    tried = {}
+
+    def gain_at(f: float):
+        rho = fastest + f * (1.0 - fastest)
+        try:
+            least = _least_noise(noise, s, C, M, rho, name)
+        except InfeasibleError:
+            tried[f] = (rho, None, None)
+            return tried[f]
+        gain = certified(*error_system(_runtime(s, C, M, least.values["X"], least.values["K"])))[0]
+        tried[f] = (rho, gain, least)
+        return tried[f]
+
+    lo, hi = 0.0, NOISE_GAIN_SLOWEST
+    rho, gain, least = gain_at(hi)
+    if gain is None or gain > goal:
+        said = "no certified point" if gain is None else f"certified gain_y {gain:g}"
+        ask = "" if gain is None else f": ask for noise_gain >= {gain:g}"
+        raise InfeasibleError(f"{name}: observer.noise_gain = {goal:g}: the slowest decay tried, {rho:.6g}, has "
+                              f"{said} for its least-noise gain, more than {goal:g}{ask}")
+    while hi - lo > NOISE_GAIN_RESOLUTION:
+        mid = 0.5 * (lo + hi)
+        _, gain_mid, _ = gain_at(mid)
+        if gain_mid is not None and gain_mid <= goal:
+            hi = mid
+        else:
+            lo = mid
+    rho, gain, least = tried[hi]
+    search = {"parameter": "decay", "solves": len(tried), "tried": sorted((v[0], v[1]) for v in tried.values())}
+    return rho, least, (system, noise[0]), NOISE_METHOD, {**record, "gain_y": gain, "search": search}
 
 
 def checks(matrices: dict, rho: float) -> list:
@@ -551,7 +645,10 @@ def design(problem, analysis: Analysis) -> DesignResult:
     rho, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
     noise_design = None
-    if opts.noise == "min":
+    if opts.noise_gain is not None:
+        rho, sol, system, method, noise_design = _fastest_within(s, C, M, t, rho, sol, system, method, opts,
+                                                                 problem.name)
+    elif opts.noise == "min":
         rho, sol, system, method, noise_design = _noise_design(s, C, M, t, rho, sol, system, method, opts,
                                                                problem.name)
     matrices = _runtime(s, C, M, sol.values["X"], sol.values["K"])
