@@ -564,8 +564,8 @@ def _add_demo(sub) -> None:
 
 
 #: The subcommands' arguments, in the order ``uiofmu --help`` lists them.
-_SUBCOMMANDS = (_add_check, _add_design, _add_tradeoff, _add_build, _add_verify, _add_plant, _add_linearize, _add_cosim, _add_report,
-                _add_campaign, _add_validate, _add_demo)
+_SUBCOMMANDS = (_add_check, _add_design, _add_tradeoff, _add_build, _add_verify, _add_plant, _add_linearize,
+                _add_cosim, _add_report, _add_campaign, _add_validate, _add_demo)
 
 
 def build_parser() -> argparse.ArgumentParser:
