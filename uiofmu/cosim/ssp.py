@@ -171,7 +171,7 @@ def write_ssp(plant_path, observer_path, output, inputs=None, *, name: str | Non
     ProblemError
         For inputs that are not valid (a mode that is not an integer, a run too long).
     """
-    output = check_output_file(output, "SSP file", ".ssp")
+    output = check_output_file(output, "SSP", ".ssp")
     card = observer_card(observer_path)
     plant, obs = _Ports(plant_path), _Ports(observer_path)
     inputs = default_inputs(card) if inputs is None else inputs

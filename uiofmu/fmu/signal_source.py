@@ -85,8 +85,8 @@ class SignalTable:
                 off = np.argwhere((arr != np.floor(arr)) | (arr < -2 ** 31) | (arr > 2 ** 31 - 1))
                 if off.size:
                     row = off[0][0]
-                    raise ProblemError(f"{self.where}: mode[1] = {arr[row, 0]!r} at t = {times[row]:g} s is not an "
-                                       "fmi2Integer")
+                    raise ProblemError(f"{self.where}: mode[1] = {float(arr[row, 0])!r} at t = {times[row]:g} s is "
+                                       "not an fmi2Integer")
             arr.setflags(write=False)
             values[name] = arr
         times.setflags(write=False)
