@@ -19,9 +19,10 @@ from uiofmu.fmu.signal_source import SignalTable, build_source
 from uiofmu.problem import load_problem
 from uiofmu.runtime.errors import ProblemError
 
-#: Problems and their session card fixtures (conftest.py): Real connections only (lti-uio), the plant's Integer
-#: ``mode`` into the observer (switched), ``theta`` from the source into both (dead-beat functional).
+#: Problems and their session card fixtures (conftest.py): Real connections only (lti-uio, ltv-auid), the plant's
+#: Integer ``mode`` into the observer (switched), ``theta`` from the source into both (dead-beat functional).
 LOOPS = {"example1": ("seed000_example1.toml", "example1_card"),
+         "ltv": ("seed000_example1_ltv.toml", "ltv_card"),
          "setup2": ("seed002_setup2.toml", "setup2_card"),
          "needs_theta": ("seed003_needs_theta.toml", "needs_theta_card")}
 
@@ -215,3 +216,98 @@ def test_uiofmu_ssp_refuses_a_bad_problem(cli, tmp_path):
     problem.write_text('[plant]\ntime = "continuous"\nA = [[1.0]]\n', encoding="utf-8")
     res = cli("ssp", problem, "-o", tmp_path / "loop.ssp")
     assert res.code == 2 and "plant.C" in res.err and res.err.count("\n") == 1
+
+
+# -- the source's C kernel under the sanitizers, in uiofmu's C host (no Python in the process) --------------------
+
+@pytest.fixture(scope="module")
+def sanitized_source(tmp_path_factory):
+    """``(table, run)``: a signal source of a random table compiled with ASan and UBSan, and ``run(data, steps)``
+    that instantiates it in the sanitized C host on a resource folder holding ``data`` as its table file (the
+    folder's name has a space: the URI escapes it) and steps it; returns the finished process."""
+    import subprocess
+
+    from cfuzz import SANITIZER_FLAGS
+    from uiofmu.fmu.c_backend import HERE, fmi_headers
+
+    rng = np.random.default_rng(5)
+    times = np.concatenate([[0.0], np.cumsum(rng.uniform(0.05, 0.4, 30))])
+    table = SignalTable(times, {"u": rng.normal(size=(31, 2)), "d": rng.normal(size=(31, 1)),
+                                "mode": rng.integers(1, 4, size=(31, 1))})
+    work = tmp_path_factory.mktemp("source_asan")
+    path = build_source(table, work / "s.fmu")
+    src = work / "src"
+    src.mkdir()
+    with zipfile.ZipFile(path) as z:
+        for name in z.namelist():
+            if name.startswith("sources/"):
+                (src / name[len("sources/"):]).write_bytes(z.read(name))
+        guid = read_model_description(str(path)).guid
+    lib, host = work / "source.so", work / "host"
+    for cmd in (["gcc", "-std=c99", *SANITIZER_FLAGS, "-Wall", "-Wextra", "-shared", "-fPIC", f"-I{src}", "-o",
+                 str(lib), *map(str, sorted(src.glob("*.c"))), "-lm"],
+                ["gcc", "-std=c99", *SANITIZER_FLAGS, "-Wall", f"-I{fmi_headers()}", "-o", str(host),
+                 str(HERE / "fmu_host.c"), "-ldl"]):
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        assert proc.returncode == 0 and proc.stderr.strip() == "", proc.stderr
+
+    def run(data: bytes, steps):
+        resources = work / "res dir"
+        resources.mkdir(exist_ok=True)
+        (resources / "signals.bin").write_bytes(data)
+        steps_file = work / "steps.txt"
+        steps_file.write_text("".join(f"{float(h)!r}\n" for h in steps), encoding="utf-8")
+        uri = "file://" + str(resources).replace(" ", "%20")
+        outs = ",".join(str(v.valueReference) for v in read_model_description(str(path)).modelVariables
+                        if v.type == "Real")
+        return subprocess.run([str(host), str(lib), guid, uri, "-", outs, str(steps_file)], capture_output=True,
+                              text=True, timeout=120)
+
+    return table, run
+
+
+def test_the_source_under_asan_and_ubsan_plays_its_table(sanitized_source):
+    from cfuzz import SANITIZER_MARKS
+
+    table, run = sanitized_source
+    steps = np.random.default_rng(3).uniform(0.01, 0.3, 60)
+    proc = run(table.to_bytes(), steps)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert not any(mark in proc.stderr for mark in SANITIZER_MARKS), proc.stderr[-3000:]
+    got = np.array([[float(v) for v in line.split()] for line in proc.stdout.splitlines()])
+    times = np.concatenate([[0.0], np.cumsum(steps)[:-1]])
+    want = np.array([np.concatenate([table.at(t)["u"], table.at(t)["d"]]) for t in times])
+    assert np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("damage,fragment", [
+    (lambda b: b"XXXXXXXX" + b[8:], "is not a signal table"),
+    (lambda b: b[:-8], "ends in row 31 of 31"),
+    (lambda b: b + b"\0", "is longer than its 31 rows"),
+    (lambda b: b[:24 + 8] + np.float64(np.nan).tobytes() + b[24 + 16:], "row 1, column 1: nan is not finite"),
+    (lambda b: b[:24 + 5 * 8] + np.float64(-1.0).tobytes() + b[24 + 6 * 8:], "row 2: time -1.0 is before"),
+    (lambda b: b[:24 + 4 * 8] + np.float64(1.5).tobytes() + b[24 + 5 * 8:], "row 1: mode 1.5 is not an fmi2Integer"),
+    (lambda b: b[:16] + np.uint64(3).tobytes() + b[24:], "has 3 value columns, this source plays 4"),
+])
+def test_the_source_refuses_a_damaged_table_at_instantiation(sanitized_source, damage, fragment):
+    from cfuzz import SANITIZER_MARKS
+
+    table, run = sanitized_source
+    proc = run(damage(table.to_bytes()), [0.1])
+    assert proc.returncode == 2 and "fmi2Instantiate failed" in proc.stderr
+    assert fragment in proc.stderr, proc.stderr[-3000:]
+    assert not any(mark in proc.stderr for mark in SANITIZER_MARKS), proc.stderr[-3000:]
+
+
+def test_the_source_kernel_compiles_warning_free_with_the_strict_flags(tmp_path):
+    import subprocess
+
+    from uiofmu.fmu.c_backend import HERE, REFUSALS_HEADER, fmi_headers, port_header, refusals_header
+    from uiofmu.fmu.signal_source import SOURCE_KERNEL
+
+    (tmp_path / SOURCE_KERNEL.ports_header).write_text(port_header(SOURCE_KERNEL))
+    (tmp_path / REFUSALS_HEADER).write_text(refusals_header())
+    proc = subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wshadow", "-Wconversion",
+                           "-Wno-sign-conversion", f"-I{HERE}", f"-I{tmp_path}", f"-I{fmi_headers()}", "-c", "-o",
+                           str(tmp_path / "k.o"), str(HERE / SOURCE_KERNEL.source)], capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stderr.strip() == "", proc.stderr
