@@ -249,6 +249,50 @@ def _cmd_cosim(args) -> int:
     return 0
 
 
+def _cmd_ssp(args) -> int:
+    import tempfile
+
+    from .cosim.master import load_inputs
+    from .cosim.ssp import write_ssp
+    from .runtime.errors import ProblemError
+
+    pair = (args.plant, args.observer)
+    if args.problem is not None and any(pair):
+        raise ProblemError("give a PROBLEM or --plant and --observer, not both")
+    if args.problem is None and not all(pair):
+        raise ProblemError("give a PROBLEM (designed and built here) or both --plant P.fmu and --observer O.fmu")
+    out = check_output_file(args.output, "SSP", ".ssp")
+    with tempfile.TemporaryDirectory(prefix="uiofmu_ssp_") as tmp:
+        if args.problem is not None:
+            plant, observer = _loop_fmus(args.problem, Path(tmp))
+        else:
+            plant, observer = pair
+        inputs = load_inputs(args.inputs, plant, observer) if args.inputs else None
+        bundle = write_ssp(plant, observer, out, inputs)
+    exp = bundle.experiment
+    played = ", ".join(f"{k}[{v}]" for k, v in bundle.table.sizes.items()) or "nothing"
+    print(f"SSP bundle written to {out}: source (plays {played}, {bundle.table.times.size} rows), plant, observer; "
+          f"{len(bundle.connections)} connections by name; default experiment 0 to {exp['stopTime']:g} s, "
+          f"step {exp['stepSize']:g} s ({bundle.steps} steps)")
+    return 0
+
+
+def _loop_fmus(problem_path, folder: Path) -> tuple:
+    """Design the problem's observer and build it and its plant (default backends) into ``folder``."""
+    from .fmu.export import build_observer, build_plant, choose_backend
+    from .problem import load_problem
+    from .synthesis import design
+
+    problem = load_problem(problem_path)
+    card = design(problem)
+    observer = build_observer(card, folder / "observer.fmu", backend=choose_backend(card)[0])
+    plant = build_plant(problem.plant, problem.name, folder / "plant.fmu", step=problem.options.step,
+                        backend=choose_backend(problem.plant)[0], experiment_steps=problem.experiment_steps,
+                        labels=problem.labels)
+    print(f"{problem.name}: {card.family} observer designed, observer and plant FMUs built")
+    return plant, observer
+
+
 def _cmd_report(args) -> int:
     from .cosim.report import redraw
 
@@ -507,6 +551,27 @@ def _add_cosim(sub) -> None:
     p.set_defaults(func=_cmd_cosim)
 
 
+def _add_ssp(sub) -> None:
+    """The arguments of ``uiofmu ssp``."""
+    p = sub.add_parser("ssp", help="bundle plant, observer and a signal source as an SSP 1.0 file",
+                       description="Write an SSP 1.0 file (SystemStructure.ssd and resources/*.fmu) with the plant, "
+                                   "the observer and a C signal-source FMU that plays the problem's [signals] (at "
+                                   "the communication points of the observer's default experiment) or the --inputs "
+                                   "table as outputs; connected by name (y from the plant; u, d, mode, theta from "
+                                   "the plant or the source), with the observer's default experiment. From a "
+                                   "PROBLEM the observer is designed and both FMUs are built with the default "
+                                   "backends. libcosim and other SSP importers run it; see docs/ssp.md for the "
+                                   "order in which libcosim reads outputs.")
+    p.add_argument("problem", nargs="?", help="problem file (TOML) or a plants/NAME folder with problem.toml")
+    p.add_argument("-o", "--output", required=True, metavar="LOOP.ssp", help="the SSP file to write")
+    p.add_argument("--plant", metavar="P.fmu", help="plant FMU (instead of a PROBLEM; with --observer)")
+    p.add_argument("--observer", metavar="O.fmu", help="observer FMU built by uiofmu (instead of a PROBLEM)")
+    p.add_argument("--inputs", metavar="CSV",
+                   help="input table instead of the problem's [signals] (as uiofmu cosim --inputs: a column time "
+                        "and one per element of each input no plant output feeds; each row held from its time)")
+    p.set_defaults(func=_cmd_ssp)
+
+
 def _add_report(sub) -> None:
     """The arguments of ``uiofmu report``."""
     p = sub.add_parser("report", help="draw a run's report.png again from its results.csv and metrics.json",
@@ -565,7 +630,7 @@ def _add_demo(sub) -> None:
 
 #: The subcommands' arguments, in the order ``uiofmu --help`` lists them.
 _SUBCOMMANDS = (_add_check, _add_design, _add_tradeoff, _add_build, _add_verify, _add_plant, _add_linearize,
-                _add_cosim, _add_report, _add_campaign, _add_validate, _add_demo)
+                _add_cosim, _add_ssp, _add_report, _add_campaign, _add_validate, _add_demo)
 
 
 def build_parser() -> argparse.ArgumentParser:

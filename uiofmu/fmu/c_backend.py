@@ -44,7 +44,7 @@ from ..runtime.ports import (DESIGN_CAUSALITY, KERNEL_PORTS, lpv_plant_ports, mo
 from ..runtime.labels import apply_labels
 from ..runtime.refusals import REFUSALS, fields
 from ..runtime.text import c_string
-from ..runtime.step_rules import step_rule
+from ..runtime.step_rules import StepRule, step_rule
 from ..runtime.tolerances import STEP_RTOL, STEP_ULPS, STEP_ULPS_LIMIT
 
 HERE = Path(__file__).parent / "c"
@@ -453,7 +453,11 @@ def steps_source(spec: dict) -> str:
     """The end of ``design_data.c``: ``UIOFMU_STEPS``, the :class:`~uiofmu.runtime.step_rules.StepRule` of the
     FMU's ``model.json`` ``spec`` (the plumbing applies it before the kernel sees a step, as the python
     backend's slave does)."""
-    rule = step_rule(spec)
+    return rule_source(step_rule(spec))
+
+
+def rule_source(rule: StepRule) -> str:
+    """``UIOFMU_STEPS`` of a :class:`~uiofmu.runtime.step_rules.StepRule` (see :func:`steps_source`)."""
     steps = list(rule.steps)
     return "\n".join(["", "/* the steps it takes (uiofmu/runtime/step_rules.py) */",
                       f"static const double admissible_steps[] = {_doubles(steps, 'steps', len(steps))};",
@@ -643,15 +647,16 @@ def write_variables(root, ports) -> None:
             attrs = {"name": f"{port.name}[{i + 1}]", "valueReference": str(index), "causality": port.causality,
                      "description": port.description}
             integer = getattr(port, "spec", port).type == "Integer"
-            start = {"start": str(int(port.values[i])) if integer else repr(float(port.values[i]))}
             variability = "discrete" if integer else "continuous"
-            if port.causality == "parameter":
-                attrs.update(variability="fixed", initial="exact")
-            elif port.causality == "output":
+            if port.causality == "output":           # no start value: a declaration of outputs only has none
                 attrs.update(variability=variability, initial="calculated")
                 start = {}
             else:
-                attrs["variability"] = variability
+                start = {"start": str(int(port.values[i])) if integer else repr(float(port.values[i]))}
+                if port.causality == "parameter":
+                    attrs.update(variability="fixed", initial="exact")
+                else:
+                    attrs["variability"] = variability
             SubElement(SubElement(variables, "ScalarVariable", attrs), "Integer" if integer else "Real", start)
             index += 1
     model_structure(root, ports)
@@ -753,13 +758,16 @@ def declaration(spec: dict) -> list:
 
 
 def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, description, spec: dict,
-               extra_flags=()) -> Path:
+               extra_flags=(), *, ports=None, rule: StepRule | None = None, resources: dict | None = None) -> Path:
     """Compile and zip one C FMU: the plumbing, what the kernels share, ``kernel`` with its port header
     (:func:`port_header` of the ports of ``spec``'s model, the ones ``modelDescription.xml`` declares) and
     the generated ``design`` (the text of ``design_data.c``) into ``binaries/linux64/<identifier>.so``,
     those sources and the FMI headers into ``sources/``, ``description(sources)`` (the bytes of
-    ``modelDescription.xml``) and ``spec`` as ``resources/model.json``; written atomically to ``output``."""
-    header = port_header(kernel, declaration(spec))
+    ``modelDescription.xml``) and ``spec`` as ``resources/model.json``; written atomically to ``output``.
+
+    A model that is neither an observer nor a plant (a signal source) gives its declaration ``ports``,
+    its step ``rule`` and its data files ``resources`` (``{name: bytes}``, written to ``resources/``)."""
+    header = port_header(kernel, declaration(spec) if ports is None else ports)
     with tempfile.TemporaryDirectory(prefix="uiofmu_c_") as tmp:
         src = Path(tmp) / "sources"
         src.mkdir()
@@ -771,7 +779,7 @@ def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, desc
             shutil.copy2(fmi_headers() / name, src / name)
         (src / kernel.ports_header).write_text(header)
         (src / REFUSALS_HEADER).write_text(refusals_header())
-        (src / "design_data.c").write_text(design + steps_source(spec))
+        (src / "design_data.c").write_text(design + (steps_source(spec) if rule is None else rule_source(rule)))
         lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64", list(extra_flags), sources)
         with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
             z.writestr("modelDescription.xml", description(sources))
@@ -779,6 +787,8 @@ def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, desc
             for f in sorted(src.iterdir()):
                 z.write(f, f"sources/{f.name}")
             z.writestr("resources/model.json", json.dumps(spec))
+            for name, data in sorted((resources or {}).items()):
+                z.writestr(f"resources/{name}", data)
     return output
 
 

@@ -196,6 +196,13 @@ KERNEL_PORTS = {
         PortSpec("y", 0, "output", "measured outputs C(theta) x + D(theta) d"),
         PortSpec("x", 0, "output", "true state (for validation)"),
     ),
+    "source": (
+        PortSpec("u", 0, "output", "known inputs from the current communication point (held over the step)"),
+        PortSpec("d", 0, "output", "unknown inputs from the current communication point (held over the step)"),
+        PortSpec("theta", 0, "output", "scheduling parameter from the current communication point"),
+        PortSpec("mode", 0, "output", "mode of the step from the current communication point (1..N)",
+                 type="Integer"),
+    ),
 }
 
 
@@ -334,6 +341,25 @@ def delayed_ports(n: int, m: int, p: int, n_theta: int) -> list:
             PortSpec("sigma_min", 1, "output", "rank margin sigma_min(C D_y) now", depends=("y", "ydot")),
             PortSpec("valid", 1, "output", "1 while the estimates are valid (delays filled, margin above the "
                      "premise bound)", type="Integer", depends=("y", "ydot"))]
+
+
+def source_ports(sizes: dict) -> list:
+    """The declaration of a signal source (``c/kernel_source.c``): one output per vector of ``sizes``
+    (``{"u": m, "d": q, "theta": s, "mode": 1}``; a size 0 or a vector left out has no port), in the
+    order of :data:`KERNEL_PORTS` ``["source"]``, which is also the order of the columns of its table.
+
+    Raises
+    ------
+    ValueError
+        For a vector the source does not play, or a ``mode`` of more than one element.
+    """
+    known = [port.key for port in KERNEL_PORTS["source"]]
+    unknown = sorted(set(sizes) - set(known))
+    if unknown:
+        raise ValueError(f"a signal source plays {', '.join(known)}, not {', '.join(unknown)}")
+    if sizes.get("mode", 0) > 1:
+        raise ValueError(f"a signal source plays one mode, not {sizes['mode']}")
+    return [kernel_port("source", key, int(sizes[key])) for key in known if sizes.get(key)]
 
 
 def check_declared(declared, expected: list) -> None:

@@ -178,6 +178,7 @@ struct FmuInstance {
     double time;    /* for fmi2LastSuccessfulTime */
     int time_known;
     int rounding_noted; /* the line of a rounding step was logged (once per instance) */
+    char *resources;    /* the fmuResourceLocation of fmi2Instantiate (a copy), or NULL */
 };
 
 static unsigned category_of(fmi2Status status) {
@@ -195,6 +196,10 @@ static void vlog(FmuInstance *s, fmi2Status status, const char *fmt, va_list ap)
     if (!s || !s->cb.logger || !(s->log & (1u << cat))) return;
     vsnprintf(buf, sizeof buf, fmt, ap);
     s->cb.logger(s->cb.componentEnvironment, s->name, status, CATEGORY[cat], "%s", buf);
+}
+
+const char *uiofmu_resource_location(FmuInstance *s) {
+    return s ? s->resources : NULL;
 }
 
 void uiofmu_log(FmuInstance *s, fmi2Status status, const char *fmt, ...) {
@@ -382,7 +387,6 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                               fmi2Boolean visible, fmi2Boolean loggingOn) {
     const UiofmuFmu *f = &UIOFMU_FMU;
     char msg[512];
-    (void)fmuResourceLocation;
     (void)visible;
     if (!functions) return NULL;
     if (!instanceName || !instanceName[0]) {
@@ -413,8 +417,19 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     s->state = INSTANTIATED;
     s->time = 0.0;
     s->time_known = 1;
+    if (fmuResourceLocation) {
+        size_t len = strlen(fmuResourceLocation);
+        s->resources = (char *)malloc(len + 1);
+        if (!s->resources) {
+            log_early(functions, instanceName, "fmi2Instantiate: out of memory");
+            free(s);
+            return NULL;
+        }
+        memcpy(s->resources, fmuResourceLocation, len + 1);
+    }
     s->model = s->kernel->instantiate(s);
     if (!s->model) {
+        free(s->resources);
         free(s);
         return NULL;
     }
@@ -427,6 +442,7 @@ void fmi2FreeInstance(fmi2Component c) {
     if (!s) return;
     s->kernel->free_instance(s->model);
     s->magic = 0;
+    free(s->resources);
     free(s);
 }
 

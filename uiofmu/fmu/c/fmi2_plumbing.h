@@ -158,6 +158,10 @@ UIOFMU_INTERNAL extern const UiofmuSteps UIOFMU_STEPS;
    when the master has that category on and gave a logger. */
 UIOFMU_INTERNAL void uiofmu_log(FmuInstance *fmu, fmi2Status status, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
 
+/* The fmuResourceLocation the master gave fmi2Instantiate (a URI, as given), or NULL when it gave none:
+   what a kernel with data files in resources/ reads them from, in its instantiate. */
+UIOFMU_INTERNAL const char *uiofmu_resource_location(FmuInstance *fmu);
+
 /* check_design's refusal: the reason, formatted into msg (len bytes), which fmi2Instantiate
    logs; returns 0. */
 UIOFMU_INTERNAL int uiofmu_design_error(char *msg, size_t len, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
