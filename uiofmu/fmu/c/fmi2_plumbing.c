@@ -178,6 +178,7 @@ struct FmuInstance {
     double time;    /* for fmi2LastSuccessfulTime */
     int time_known;
     int rounding_noted; /* the line of a rounding step was logged (once per instance) */
+    char *resources;    /* the importer's fmuResourceLocation (a copy; NULL when it gave none) */
 };
 
 static unsigned category_of(fmi2Status status) {
@@ -203,6 +204,8 @@ void uiofmu_log(FmuInstance *s, fmi2Status status, const char *fmt, ...) {
     vlog(s, status, fmt, ap);
     va_end(ap);
 }
+
+const char *uiofmu_resources(const FmuInstance *s) { return s ? s->resources : NULL; }
 
 const char *uiofmu_num(double v, char *buf) {
     int digits = 1;
@@ -382,7 +385,6 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                               fmi2Boolean visible, fmi2Boolean loggingOn) {
     const UiofmuFmu *f = &UIOFMU_FMU;
     char msg[512];
-    (void)fmuResourceLocation;
     (void)visible;
     if (!functions) return NULL;
     if (!instanceName || !instanceName[0]) {
@@ -413,8 +415,19 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     s->state = INSTANTIATED;
     s->time = 0.0;
     s->time_known = 1;
+    if (fmuResourceLocation) {
+        size_t len = strlen(fmuResourceLocation);
+        s->resources = (char *)malloc(len + 1);
+        if (!s->resources) {
+            log_early(functions, instanceName, "fmi2Instantiate: out of memory");
+            free(s);
+            return NULL;
+        }
+        memcpy(s->resources, fmuResourceLocation, len + 1);
+    }
     s->model = s->kernel->instantiate(s);
     if (!s->model) {
+        free(s->resources);
         free(s);
         return NULL;
     }
@@ -427,6 +440,7 @@ void fmi2FreeInstance(fmi2Component c) {
     if (!s) return;
     s->kernel->free_instance(s->model);
     s->magic = 0;
+    free(s->resources);
     free(s);
 }
 

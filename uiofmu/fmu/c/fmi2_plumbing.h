@@ -166,6 +166,10 @@ UIOFMU_INTERNAL int uiofmu_design_error(char *msg, size_t len, const char *fmt, 
    returns 0. */
 UIOFMU_INTERNAL int uiofmu_state_refused(FmuInstance *fmu, const char *ctx, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
 
+/* The fmuResourceLocation the importer passed to fmi2Instantiate, as it passed it (a URI, most
+   often file:///...), or NULL when it passed none; valid for the instance's lifetime. */
+UIOFMU_INTERNAL const char *uiofmu_resources(const FmuInstance *fmu);
+
 /* The shortest text that reads back as v, as Python's repr writes it (600.0, 0.1, 1e-05);
    buf holds 32 bytes. */
 UIOFMU_INTERNAL const char *uiofmu_num(double v, char *buf);
