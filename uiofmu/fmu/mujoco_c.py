@@ -101,7 +101,7 @@ def design_source(rt, guid: str, identifier: str, ports: list) -> str:
     return "\n".join(lines)
 
 
-def build_c_mujoco_plant(spec, output, identifier: str, experiment: dict | None = None) -> Path:
+def build_c_mujoco_plant(spec, output, identifier: str, experiment: dict | None = None, extra_flags=()) -> Path:
     """Write the C FMU of a MuJoCo plant to ``output``.
 
     Parameters
@@ -114,6 +114,8 @@ def build_c_mujoco_plant(spec, output, identifier: str, experiment: dict | None 
         The model identifier (an ASCII identifier).
     experiment : dict, optional
         Its ``<DefaultExperiment>`` (:func:`uiofmu.runtime.ports.plant_experiment`).
+    extra_flags : sequence of str, optional
+        More compiler flags (the tests' sanitizers; libmujoco itself is the wheel's, not instrumented).
 
     Returns
     -------
@@ -149,4 +151,4 @@ def build_c_mujoco_plant(spec, output, identifier: str, experiment: dict | None 
         return pack_c_fmu(output, identifier, MUJOCO_KERNEL, design,
                           lambda sources: description_xml(identifier, guid, text, sources, experiment, model.ports,
                                                           model.labels, step_rule(model_json).variable),
-                          model_json, linked=linked)
+                          model_json, extra_flags, linked=linked)
