@@ -108,6 +108,19 @@ def test_it_ships_libmujoco_next_to_its_binary_and_the_mjcf_in_its_resources(fmu
     assert "python" not in dynamic.lower()
 
 
+@pytest.mark.parametrize("backend", [None, "c", "python"])
+def test_uiofmu_plant_picks_c_and_keeps_pythonfmu_on_request(tmp_path, cli, backend):
+    out = tmp_path / "qc.fmu"
+    res = cli("plant", FOLDER, "-o", out, *(["--backend", backend] if backend else []))
+    assert res.code == 0, res.err
+    md = read_model_description(str(out))
+    with zipfile.ZipFile(out) as z:
+        ships_mujoco = any(name.startswith("binaries/linux64/libmujoco.so.") for name in z.namelist())
+    c = backend != "python"
+    assert ships_mujoco is c and md.generationTool.startswith("uiofmu") is c
+    assert f"{'c' if c else 'python'} backend) written to {out}" in res.out
+
+
 def test_it_declares_what_the_pythonfmu_plant_declares(fmus):
     c, py = (read_model_description(str(fmus[b])) for b in ("c", "python"))
     def variables(md):
@@ -133,6 +146,20 @@ def test_equal_to_the_pythonfmu_plant_on_random_aperiodic_runs(fmus, seed):
     c, py = _run(fmus["c"], hs, us, ds, parameters), _run(fmus["python"], hs, us, ds, parameters)
     assert np.all(np.isfinite(c)) and np.abs(c).max() > 1e-3           # the road moves it
     np.testing.assert_allclose(c, py, rtol=0.0, atol=1e-12)
+
+
+def test_where_mujoco_resets_a_blown_up_simulation_both_do_and_the_c_plant_says_so(fmus, tmp_path, monkeypatch):
+    """A road force of 1e12 N: MuJoCo resets the simulation (its warning, in both); the C plant's step
+    returns fmi2OK with a warning line naming what MuJoCo said."""
+    monkeypatch.chdir(tmp_path)                       # MuJoCo's default handler writes MUJOCO_LOG.TXT here
+    hs, us, ds = [0.01] * 6, [0.0] * 6, [0.0, 0.0, 1e12, 1e12, 0.0, 0.0]
+    c, py = _run(fmus["c"], hs, us, ds), _run(fmus["python"], hs, us, ds)
+    np.testing.assert_array_equal(c, py)
+    with Fmu(fmus["c"], "plant") as fmu:
+        fmu.initialize(0.0)
+        _drive(fmu, ([0.0] * 3, [0.0, 1e12, 0.0]), 0.0, 0.01)
+        log = " ".join(fmu.messages)
+    assert "t = 0.01: MuJoCo warned" in log and "The simulation is unstable" in log, log
 
 
 # -- (c) no Python in the host --------------------------------------------------------------------------------
@@ -289,6 +316,9 @@ def test_a_corrupt_state_is_refused_and_changes_nothing(fmus, edit):
 
 def check_plant(fmu, data) -> None:
     """Random call sequences (odd inputs, odd steps, states flipped and truncated, resets) and a plain run."""
+    import tempfile
+
+    os.chdir(tempfile.mkdtemp())                      # MuJoCo's default handler writes MUJOCO_LOG.TXT there
     for seed in range(3):
         random_calls(fmu, 0.01, seed, calls=300)
     with Fmu(fmu, "plain") as f:

@@ -18,7 +18,10 @@
  *
  * A step of more than max_substeps substeps is refused with fmi2Discard and the reference's log
  * line (nothing changes); non-finite inputs with fmi2Error and a log line naming the input. MuJoCo
- * itself resets a simulation whose state blows up (its warning), as it does under the reference.
+ * itself resets a simulation whose state, acceleration or controls blow up, as it does under the
+ * reference; a step during which MuJoCo warned returns fmi2OK with one fmi2Warning line per kind of
+ * warning (mju_warningText, and how many times). MuJoCo's default log handler also prints them and
+ * appends them to MUJOCO_LOG.TXT in the working directory, as it does under the reference.
  *
  * fmi2Instantiate refuses (NULL, one log line) a resource location it cannot read, an MJCF MuJoCo
  * cannot load, a libmujoco of another version than the one the FMU was built with, and a model
@@ -395,14 +398,14 @@ static UiofmuResult mujoco_step(void *self, double t, double h) {
     mjModel *m = s->model;
     mjData *data = s->data;
     char bt[32];
+    uiofmu_num(t, bt);
     if (!uiofmu_inputs_finite(s->fmu, t, -1, s->u, d->m, PORT_NAME[UIOFMU_MUJOCO_U]) ||
         !uiofmu_inputs_finite(s->fmu, t, -1, s->dv, d->q, PORT_NAME[UIOFMU_MUJOCO_D]))
         return UIOFMU_REFUSED;
     double count = h / d->dt - 1e-9;
     if (!(count <= d->max_substeps)) {
         uiofmu_log(s->fmu, fmi2Discard, "t = %s: communication step h = %.6g s needs %.3g MuJoCo steps (at most "
-                   "%.3g s each), more than the %d a step may take: take steps of at most %.6g s", uiofmu_num(t, bt),
-                   h, count + 1e-9, d->dt, d->max_substeps, d->max_substeps * d->dt);
+                   "%.3g s each), more than the %d a step may take: take steps of at most %.6g s", bt, h, count + 1e-9, d->dt, d->max_substeps, d->max_substeps * d->dt);
         return UIOFMU_DISCARDED;
     }
     for (int i = 0; i < d->m; i++) data->ctrl[d->uid[i]] = s->u[i];
@@ -410,6 +413,8 @@ static UiofmuResult mujoco_step(void *self, double t, double h) {
     double t_end = data->time + h;
     long full = (long)floor(h / d->dt + 1e-9);
     double rest = h - (double)full * d->dt;
+    int warned[mjNWARNING];
+    for (int i = 0; i < mjNWARNING; i++) warned[i] = data->warning[i].number;
     for (long i = 0; i < full; i++) mj_step(m, data);
     if (rest > 1e-9 * d->dt) {
         m->opt.timestep = rest;
@@ -418,6 +423,11 @@ static UiofmuResult mujoco_step(void *self, double t, double h) {
     }
     data->time = t_end;
     s->dirty = 1;
+    for (int i = 0; i < mjNWARNING; i++)
+        if (data->warning[i].number != warned[i])
+            uiofmu_log(s->fmu, fmi2Warning, "t = %s: MuJoCo warned %d time(s) in the step of h = %.6g s: %s", bt,
+                       data->warning[i].number - warned[i], h,
+                       mju_warningText(i, (size_t)data->warning[i].lastinfo));
     return UIOFMU_DONE;
 }
 
