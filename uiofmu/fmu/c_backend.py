@@ -12,7 +12,9 @@ and the refusals the kernels share with the Python runtime (``uiofmu_refusals.h`
 ``binaries/linux64/<model>.so``. The sources and the FMI headers travel in ``sources/`` with a
 ``<SourceFiles>`` list, so ``fmpy compile`` rebuilds the binary on another platform. The interface
 (names, value references, start values) is the one of the python backend, enumerated from the same
-ports.
+ports. The MuJoCo plant's kernel (``c/kernel_mujoco.c``) links a prebuilt library instead
+(:class:`LinkedLibrary`: the mujoco wheel's libmujoco, shipped next to the binary, found through the run
+path ``$ORIGIN``); :mod:`uiofmu.fmu.mujoco_c` builds it.
 """
 
 from __future__ import annotations
