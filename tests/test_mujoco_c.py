@@ -164,9 +164,10 @@ def test_where_mujoco_resets_a_blown_up_simulation_both_do_and_the_c_plant_says_
 
 # -- (c) no Python in the host --------------------------------------------------------------------------------
 
-def _host(fmu: Path, tmp_path: Path, location) -> tuple:
+def _host(fmu: Path, tmp_path: Path, location, mjcf=None) -> tuple:
     """uiofmu's C host on the C FMU (extracted under a folder with a space in its name), its resource
-    location ``location(resources folder)``; the reference runtime's y and x over the same steps."""
+    location ``location(resources folder)``; the reference runtime's y and x over the same steps. ``mjcf``:
+    the text the FMU's MJCF is replaced with after the reference has loaded the original."""
     from uiofmu.runtime.mujoco_runtime import MujocoRuntime
 
     unzip = tmp_path / "the fmu"
@@ -174,7 +175,9 @@ def _host(fmu: Path, tmp_path: Path, location) -> tuple:
         z.extractall(unzip)
     md = read_model_description(str(fmu))
     refs = {v.name: v.valueReference for v in md.modelVariables}
-    rt = MujocoRuntime({**_spec_of(unzip)}, unzip / "resources")
+    rt = MujocoRuntime(_spec_of(unzip), unzip / "resources")
+    if mjcf is not None:
+        (unzip / "resources" / "model.xml").write_text(mjcf)
     rng = np.random.default_rng(4)
     rows, expect = [], []
     for _ in range(80):
@@ -222,6 +225,23 @@ def test_a_resource_location_it_cannot_read_is_refused_at_instantiation(fmus, tm
     proc, _ = _host(fmus["c"], tmp_path, location)
     assert proc.returncode == 2 and "fmi2Instantiate failed" in proc.stderr, proc.stderr
     assert words in proc.stderr, proc.stderr
+
+
+def test_an_mjcf_edited_after_the_build_is_refused_at_instantiation(fmus, tmp_path):
+    """A third body with a joint: the model's sizes differ from those its indices were resolved in."""
+    text = (FOLDER / "model.xml").read_text().replace("</worldbody>", '<body name="extra" pos="0 0 2"><joint '
+                                                      'name="extra_z" type="slide"/><geom type="sphere" size="0.1"/>'
+                                                      '</body></worldbody>')
+    proc, _ = _host(fmus["c"], tmp_path, lambda p: p.as_uri(), mjcf=text)
+    assert proc.returncode == 2 and "fmi2Instantiate failed" in proc.stderr, proc.stderr
+    assert "has nq = 3, the FMU was built for 2 (the MJCF was changed after the build)" in proc.stderr, proc.stderr
+
+
+def test_the_kernel_and_the_builder_name_the_same_mjcf_file():
+    from uiofmu.fmu.mujoco_c import MJCF_FILE
+
+    header = (ROOT / "uiofmu" / "fmu" / "c" / "kernel_mujoco.h").read_text()
+    assert f'#define UIOFMU_MJCF_FILE "{MJCF_FILE}"' in header
 
 
 def _needs(tool: str) -> None:
