@@ -392,7 +392,7 @@ def mujoco_row(root=ROOT) -> Row:
     spec = load_spec(Path(root) / MUJOCO_FOLDER)
     specs = [p.spec for p in make_model({"kind": MUJOCO.fmu_kind, MUJOCO.key: spec.mujoco}, str(spec.folder)).ports]
     step = load_problem(Path(root) / MUJOCO_FOLDER / "problem.toml").options.step
-    return Row(MUJOCO_FILE, "plant", MUJOCO.name, MUJOCO_KEY, "python (MuJoCo runs in Python)",
+    return Row(MUJOCO_FILE, "plant", MUJOCO.name, MUJOCO_KEY, "C",
                [file_name(k, "observer") for k in MUJOCO_OBSERVERS],
                _ports(specs, "parameter"), _ports(specs, "input"), _ports(specs, "output"),
                f"any h > 0 (MuJoCo RK4 substeps of {num(spec.mujoco['timestep'])} s)", plant_experiment(step),
@@ -488,10 +488,11 @@ USE = """\
 ## Use it in your tool
 
 Every FMU is FMI 2.0 Co-Simulation; the C ones need nothing but the `.fmu` (its `sources/` rebuild it
-elsewhere: `fmpy compile`), the python ones (pythonfmu) need a Python with numpy where they run (the
-MuJoCo plant also `mujoco`). Step at the observer's DefaultExperiment `stepSize` (or one of the steps
-its row accepts): any other step is refused with fmi2Discard and a log line. At every communication
-point set the observer's inputs, then step both FMUs from t_k to t_k+1.
+elsewhere: `fmpy compile`; the MuJoCo plant ships MuJoCo's `libmujoco.so` next to its binary instead, so
+it runs on linux64 only), the python ones (pythonfmu) need a Python with numpy where they run. Step at
+the observer's DefaultExperiment `stepSize` (or one of the steps its row accepts): any other step is
+refused with fmi2Discard and a log line. At every communication point set the observer's inputs, then
+step both FMUs from t_k to t_k+1.
 
 Which output goes to which input:
 

@@ -183,19 +183,16 @@ def _cmd_plant(args) -> int:
     from .fmu.export import build_plant, choose_backend, model_identifier, plant_kind
     from .mujoco_plant import build_mujoco_plant, is_mujoco_plant, load_spec
     from .problem import load_problem
-    from .runtime.errors import FmuError
 
     if is_mujoco_plant(args.problem):
-        if args.backend == "c":
-            raise FmuError("--backend c: MuJoCo plants are pythonfmu FMUs only (the simulator runs in Python); "
-                           "leave --backend out or use --backend python")
         spec = load_spec(args.problem)
         out = check_output_file(args.output or f"{model_identifier(spec.name, 'plant')}.fmu", "FMU", ".fmu")
         linearised = Path(args.problem) / "problem.toml"          # its observer's step, for the default experiment
         step = load_problem(linearised).options.step if linearised.is_file() else None
-        path = build_mujoco_plant(spec, out, step=step)
-        print(f"{spec.name}: MuJoCo plant FMU ({spec.mujoco['integrator']}, substeps of {spec.mujoco['timestep']:g} s) "
-              f"written to {path}")
+        backend, _ = choose_backend(None, args.backend)
+        path = build_mujoco_plant(spec, out, step=step, backend=backend)
+        print(f"{spec.name}: MuJoCo plant FMU ({spec.mujoco['integrator']}, substeps of {spec.mujoco['timestep']:g} s; "
+              f"{backend} backend) written to {path}")
         return 0
     problem = load_problem(args.problem)
     out = check_output_file(args.output or f"{model_identifier(problem.name, 'plant')}.fmu", "FMU", ".fmu")
@@ -494,7 +491,8 @@ def _add_plant(sub) -> None:
     p.add_argument("--backend", choices=["c", "python"],
                    help="linear plants: c, a standalone native binary with its sources (no Python needed by the "
                         "importer; the default when a C compiler is found); python: pythonfmu (the importer needs "
-                        "Python and numpy). MuJoCo plants are pythonfmu FMUs always")
+                        "Python and numpy). MuJoCo plants too: c links the mujoco wheel's libmujoco and ships it in "
+                        "the FMU; python needs Python, numpy and mujoco where it runs")
     p.set_defaults(func=_cmd_plant)
 
 

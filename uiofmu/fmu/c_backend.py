@@ -12,7 +12,9 @@ and the refusals the kernels share with the Python runtime (``uiofmu_refusals.h`
 ``binaries/linux64/<model>.so``. The sources and the FMI headers travel in ``sources/`` with a
 ``<SourceFiles>`` list, so ``fmpy compile`` rebuilds the binary on another platform. The interface
 (names, value references, start values) is the one of the python backend, enumerated from the same
-ports.
+ports. The MuJoCo plant's kernel (``c/kernel_mujoco.c``) links a prebuilt library instead
+(:class:`LinkedLibrary`: the mujoco wheel's libmujoco, shipped next to the binary, found through the run
+path ``$ORIGIN``); :mod:`uiofmu.fmu.mujoco_c` builds it.
 """
 
 from __future__ import annotations
@@ -87,12 +89,17 @@ class CKernel:
     ports : str
         Its ports: the key of :data:`uiofmu.runtime.ports.KERNEL_PORTS` (``"plant"``), whose entries,
         in order, are its port ids ``UIOFMU_<PORTS>_<KEY>`` (:func:`port_header`).
+    physical : str or None
+        The key of its port that holds the physical parameters, which a declaration names one port
+        each (Real parameters of one element, keys of their own): their elements, in declaration
+        order, are that port's (:func:`table_rows`). None: a kernel without them.
     """
 
     source: str
     header: str
     symbol: str
     ports: str
+    physical: str | None = None
 
     @property
     def ports_header(self) -> str:
@@ -114,16 +121,21 @@ C_KERNELS = {
 
 _PLANT = CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", "plant")
 _LPV = CKernel("kernel_lpv.c", "kernel_lpv.h", "UIOFMU_KERNEL_LPV", "lpv")
+#: The kernel of MuJoCo plants (``c/kernel_mujoco.c``, built by :mod:`uiofmu.fmu.mujoco_c`): the physical
+#: parameters are the elements of its port ``params``.
+MUJOCO_KERNEL = CKernel("kernel_mujoco.c", "kernel_mujoco.h", "UIOFMU_KERNEL_MUJOCO", "mujoco", physical="params")
 
 #: The C kernels of plants, by plant kind: linear, and switched by rule (one kernel,
 #: ``c/kernel_plant.c``, whose Integer port ``mode`` is an input for rule ``input``, else an output),
 #: and LPV by the kind of its theta (one kernel, ``c/kernel_lpv.c``, whose port ``theta`` is an input
 #: for kind ``input``, else the output ``T x``): the causality each declaration gives them
-#: (:data:`uiofmu.runtime.ports.DESIGN_CAUSALITY`), which the kernel checks against its design.
+#: (:data:`uiofmu.runtime.ports.DESIGN_CAUSALITY`), which the kernel checks against its design; and MuJoCo
+#: plants (``c/kernel_mujoco.c``, which links MuJoCo's library: :mod:`uiofmu.fmu.mujoco_c` builds it).
 PLANT_KERNELS = {
     "linear": _PLANT,
     **{f"switched-{rule}": _PLANT for rule in ("threshold", "input", "random")},
     **{f"lpv-{kind}": _LPV for kind in ("state", "input")},
+    "mujoco": MUJOCO_KERNEL,
 }
 TIMES = {"discrete": "UIOFMU_DISCRETE", "continuous": "UIOFMU_CONTINUOUS"}
 RULES = {"threshold": "UIOFMU_RULE_THRESHOLD", "input": "UIOFMU_RULE_INPUT", "random": "UIOFMU_RULE_RANDOM"}
@@ -196,12 +208,25 @@ def variable_table(card: Card) -> list:
 def table_rows(kernel: CKernel, label: str, ports) -> list:
     """The variable table of a declaration ``ports`` (PortSpecs) for ``kernel`` (``label`` names it
     in messages): see :func:`variable_table`."""
-    rows = []
+    rows, physical = [], 0
     for port in _checked_ports(kernel, label, ports):
+        if _is_physical(kernel, port):
+            rows.append(f"    {{{kernel.prefix}_{kernel.physical.upper()}, {physical}, {CAUSALITIES['parameter']}, "
+                        f"{PORT_TYPES['Real']}}},")
+            physical += 1
+            continue
         enum = f"{kernel.prefix}_{port.key.upper()}"
         rows += [f"    {{{enum}, {i}, {CAUSALITIES[port.causality]}, {PORT_TYPES[port.type]}}},"
                  for i in range(port.size)]
     return rows
+
+
+def _is_physical(kernel: CKernel, port) -> bool:
+    """Whether ``port`` is one of the physical parameters a kernel with :attr:`CKernel.physical` holds in that
+    port: a key that is none of the kernel's ports, a Real parameter of one element."""
+    known = {p.key for p in KERNEL_PORTS[kernel.ports]}
+    return (kernel.physical is not None and port.key not in known and port.causality == "parameter"
+            and port.type == "Real" and port.size == 1)
 
 
 def _checked_ports(kernel: CKernel, label: str, ports) -> list:
@@ -212,7 +237,9 @@ def _checked_ports(kernel: CKernel, label: str, ports) -> list:
     seen = set()
     for port in ports:
         want = known.get(port.key)
-        if want is None:
+        if _is_physical(kernel, port):
+            continue
+        if want is None or port.key == kernel.physical:
             raise FmuError(f"the C {label} kernel has no port {str(port.name)[:40]!r} "
                            f"(it implements {', '.join(p.name for p in known.values())})")
         causalities = DESIGN_CAUSALITY.get((kernel.ports, port.key), (want.causality,))
@@ -687,10 +714,11 @@ def plant_model_description(spec: dict, description: str, guid: str, identifier:
 def description_xml(identifier: str, guid: str, description: str, sources: list[str], experiment: dict | None,
                     ports, labels: dict | None = None, variable_steps: bool = True) -> bytes:
     """The ``modelDescription.xml`` of every C FMU: Co-Simulation without an execution tool, its
-    ``<SourceFiles>``, the plumbing's ``<LogCategories>``, ``<DefaultExperiment>`` (when given),
-    the variables and structure of ``ports`` (:func:`write_variables`) and their names and units
-    (``labels``: :func:`uiofmu.runtime.labels.apply_labels`); ``canHandleVariableCommunicationStepSize``
-    is ``variable_steps`` (:attr:`uiofmu.runtime.step_rules.StepRule.variable`)."""
+    ``<SourceFiles>`` (none when ``sources`` is empty), the plumbing's ``<LogCategories>``,
+    ``<DefaultExperiment>`` (when given), the variables and structure of ``ports`` (:func:`write_variables`)
+    and their names and units (``labels``: :func:`uiofmu.runtime.labels.apply_labels`);
+    ``canHandleVariableCommunicationStepSize`` is ``variable_steps``
+    (:attr:`uiofmu.runtime.step_rules.StepRule.variable`)."""
     root = Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": identifier, "guid": f"{{{guid}}}",
         "description": description,
@@ -702,9 +730,10 @@ def description_xml(identifier: str, guid: str, description: str, sources: list[
         "canInterpolateInputs": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false", "canNotUseMemoryManagementFunctions": "true",
         "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true"})
-    files = SubElement(cs, "SourceFiles")
-    for name in sources:
-        SubElement(files, "File", {"name": name})
+    if sources:                                        # FMI 2.0: a <SourceFiles> lists one file at least
+        files = SubElement(cs, "SourceFiles")
+        for name in sources:
+            SubElement(files, "File", {"name": name})
     cats = SubElement(root, "LogCategories")
     for name in LOG_CATEGORIES:
         SubElement(cats, "Category", {"name": name})
@@ -715,9 +744,10 @@ def description_xml(identifier: str, guid: str, description: str, sources: list[
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
 
 
-def compile_binary(src: Path, identifier: str, out: Path, extra_flags=(), sources=None) -> Path:
+def compile_binary(src: Path, identifier: str, out: Path, extra_flags=(), sources=None, libraries=()) -> Path:
     """Compile the C files ``sources`` (names in ``src``; default: every ``*.c`` there) into
-    ``out/<identifier>.so`` with the system compiler."""
+    ``out/<identifier>.so`` with the system compiler, linked with ``libraries`` (linker arguments, after the
+    sources)."""
     cc = c_compiler()
     if cc is None:
         raise FmuError("--backend c needs a C compiler (cc or gcc) on PATH; use --backend python")
@@ -725,7 +755,7 @@ def compile_binary(src: Path, identifier: str, out: Path, extra_flags=(), source
     lib = out / f"{identifier}.so"
     files = [str(src / name) for name in sources] if sources is not None else sorted(map(str, src.glob("*.c")))
     cmd = [cc, "-std=c99", "-O2", "-shared", "-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra",
-           f"-I{src}", *extra_flags, "-o", str(lib), *files, "-lm"]
+           f"-I{src}", *extra_flags, "-o", str(lib), *files, *libraries, "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise FmuError(f"the C compiler failed on the generated FMU: {proc.stderr.strip()[:2000]}")
@@ -758,7 +788,8 @@ def declaration(spec: dict) -> list:
 
 
 def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, description, spec: dict,
-               extra_flags=(), *, ports=None, rule: StepRule | None = None, resources: dict | None = None) -> Path:
+               extra_flags=(), *, ports=None, rule: StepRule | None = None, resources: dict | None = None,
+               linked=None) -> Path:
     """Compile and zip one C FMU: the plumbing, what the kernels share, ``kernel`` with its port header
     (:func:`port_header` of the ports of ``spec``'s model, the ones ``modelDescription.xml`` declares) and
     the generated ``design`` (the text of ``design_data.c``) into ``binaries/linux64/<identifier>.so``,
@@ -766,8 +797,14 @@ def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, desc
     ``modelDescription.xml``) and ``spec`` as ``resources/model.json``; written atomically to ``output``.
 
     A model that is neither an observer nor a plant (a signal source) gives its declaration ``ports``,
-    its step ``rule`` and its data files ``resources`` (``{name: bytes}``, written to ``resources/``)."""
-    header = port_header(kernel, declaration(spec) if ports is None else ports)
+    its step ``rule`` and its data files ``resources`` (``{name: bytes}``, written to ``resources/``).
+    ``linked`` (a :class:`LinkedLibrary`) adds a prebuilt shared library: its headers to the compiler,
+    the library to the link with the run path ``$ORIGIN``, the library itself next to the binary and
+    its ``resources`` (name -> file) into ``resources/``, its ``ports`` as the declaration; ``description``
+    then gets no source list (the sources alone do not rebuild the FMU)."""
+    if ports is None:
+        ports = linked.ports if linked is not None else declaration(spec)
+    header = port_header(kernel, ports)
     with tempfile.TemporaryDirectory(prefix="uiofmu_c_") as tmp:
         src = Path(tmp) / "sources"
         src.mkdir()
@@ -780,16 +817,48 @@ def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, desc
         (src / kernel.ports_header).write_text(header)
         (src / REFUSALS_HEADER).write_text(refusals_header())
         (src / "design_data.c").write_text(design + (steps_source(spec) if rule is None else rule_source(rule)))
-        lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64", list(extra_flags), sources)
+        flags, libraries = list(extra_flags), []
+        if linked is not None:
+            flags.append(f"-I{linked.include}")
+            libraries = [f"-L{linked.library.parent}", f"-l:{linked.library.name}", "-Wl,-rpath,$ORIGIN"]
+        lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64", flags, sources, libraries)
         with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
-            z.writestr("modelDescription.xml", description(sources))
+            z.writestr("modelDescription.xml", description(sources if linked is None else []))
             z.write(lib, f"binaries/linux64/{identifier}.so")
+            if linked is not None:
+                z.write(linked.library, f"binaries/linux64/{linked.library.name}")
+                for name, file in linked.resources.items():
+                    z.write(file, f"resources/{name}")
             for f in sorted(src.iterdir()):
                 z.write(f, f"sources/{f.name}")
             z.writestr("resources/model.json", json.dumps(spec))
             for name, data in sorted((resources or {}).items()):
                 z.writestr(f"resources/{name}", data)
     return output
+
+
+@dataclass(frozen=True)
+class LinkedLibrary:
+    """A prebuilt shared library a C FMU links with and ships (:func:`pack_c_fmu`).
+
+    Attributes
+    ----------
+    library : Path
+        The library file (``libmujoco.so.4.0.0``), copied into ``binaries/linux64/`` under its name,
+        which must be its soname.
+    include : Path
+        The folder of its headers (given to the compiler with ``-I``).
+    resources : dict
+        Files the kernel reads at run time: name in ``resources/`` -> file.
+    ports : list
+        The FMU's ports (PortSpecs, as ``modelDescription.xml`` declares them): its model reads files
+        that :func:`declaration` does not have.
+    """
+
+    library: Path
+    include: Path
+    resources: dict
+    ports: list
 
 
 def build_c_observer(card: Card, output, identifier: str, call_floor: bool = False) -> Path:

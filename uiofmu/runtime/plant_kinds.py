@@ -146,8 +146,8 @@ PLANT_KINDS = {k.name: k for k in (
     PlantKind("switched", "modes", _plant_runtime(SwitchedPlantRuntime), _switched_ports, _switched_arrays,
               c_kernel="switched", variant=("switching", "rule"), what="switched plant"),
     PlantKind("linear", None, _plant_runtime(PlantRuntime), _linear_ports, c_kernel="linear"),
-    PlantKind("mujoco", "mujoco", _mujoco_runtime, _linear_ports, fmu_kind="mujoco", steps=_any_step,
-              python_only="the C backend has no kernel for a MuJoCo plant (MuJoCo steps it)"),
+    PlantKind("mujoco", "mujoco", _mujoco_runtime, _linear_ports, c_kernel="mujoco", what="MuJoCo plant",
+              fmu_kind="mujoco", steps=_any_step),
 )}
 #: The kind of plant data that has none of the kinds' keys.
 LINEAR = PLANT_KINDS["linear"]

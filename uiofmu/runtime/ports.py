@@ -206,6 +206,18 @@ KERNEL_PORTS = {
 }
 
 
+def _with_physical(plant: tuple) -> tuple:
+    """The ports of a plant kernel with physical parameters: ``x0``, ``u``, ``d``, ``y``, ``x`` of the plant
+    kernel's entries ``plant`` (what :func:`plant_ports` declares), and after ``x0`` the port ``params``, whose
+    elements are the physical parameters (each declared as a port of its own, named by the plant's spec)."""
+    by_key = {port.key: port for port in plant}
+    params = PortSpec("params", 0, "parameter", "the physical parameters, each declared as a port of its own")
+    return (by_key["x0"], params, *(by_key[key] for key in ("u", "d", "y", "x")))
+
+
+#: The MuJoCo plant kernel's ports (:func:`_with_physical`).
+KERNEL_PORTS = {**KERNEL_PORTS, "mujoco": _with_physical(KERNEL_PORTS["plant"])}
+
 #: The ports whose causality a kernel takes from its design, and the causalities it implements
 #: (every other port has the one of :data:`KERNEL_PORTS`): a switched plant's ``mode`` is an input
 #: under rule ``input``, else an output; an LPV plant's ``theta`` an input for kind ``input``, else
