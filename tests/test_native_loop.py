@@ -225,3 +225,29 @@ def test_the_delayed_family_keeps_the_python_loop(delayed_card, observer_fmus, t
     python = cosimulate(plant, observer, steps, show_progress=False, native=False)
     assert default.timing["native"] is False
     assert_same_run(python, default)
+
+
+def test_a_campaign_worker_steps_its_runs_in_c(pairs, tmp_path):
+    """The worker's runs (FMUs kept, reset before each) on the C driver: the same results as on the Python loop,
+    with sensor noise on some rows (the twin's loop)."""
+    from uiofmu.cosim.campaign.file import load_campaign
+    from uiofmu.cosim.campaign.fmus import prepare
+    from uiofmu.cosim.campaign.sampling import scenario
+    from uiofmu.cosim.campaign.worker import run_scenario
+
+    card, plant, observer = pairs("example1_card")
+    spec = tmp_path / "campaign.toml"
+    spec.write_text(f'[campaign]\nobserver = "{observer}"\nplant = "{plant}"\nruns = 4\nseed = 5\nt_end = 20.0\n'
+                    '[axes]\nxhat0_error = {kind = "normal", std = 2.0}\n'
+                    'd_scale = {kind = "uniform", low = 0.5, high = 1.5}\n'
+                    'noise_y = [0.0, 0.05]\n')
+    campaign = load_campaign(spec)
+    setup = prepare(campaign, tmp_path / "out")
+    noisy = 0
+    for row in range(4):
+        sc = scenario(campaign, setup, row)
+        noisy += any(s > 0 for s in sc.get("noise_y", ()))
+        c, python = run_scenario(setup, sc), run_scenario(setup, sc, native=False)
+        assert c.timing["native"] is True and python.timing["native"] is False
+        assert_same_run(python, c)
+    assert 0 < noisy < 4
