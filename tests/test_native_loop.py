@@ -251,3 +251,47 @@ def test_a_campaign_worker_steps_its_runs_in_c(pairs, tmp_path):
         assert c.timing["native"] is True and python.timing["native"] is False
         assert_same_run(python, c)
     assert 0 < noisy < 4
+
+
+def test_the_driver_converts_and_measures_as_numpy_does():
+    """Its conversions (Real to Integer refusing a non-integer, Integer to Real) and the measurement (noise added,
+    rounded half to even to the quantum) on arrays alone, against numpy's arithmetic and the loop's checks."""
+    from uiofmu.cosim.fmi import first_non_integer
+    from uiofmu.cosim.twin import measured
+
+    rng = np.random.default_rng(3)
+    y = np.concatenate([[[0.5, -0.5], [1.5, 2.5], [0.15, -0.25]], rng.normal(size=(7, 2)) * 10])
+    v = np.concatenate([np.zeros((3, 2)), rng.normal(size=(7, 2))])
+    for quantum in (None, 1.0, 0.1, 0.003):
+        program = native.Program(np.arange(10.0), np.ones(9))
+        target = np.zeros_like(y)
+        program.measure(y, v, quantum, target)
+        program.run(_Bar())
+        expected = np.array([measured(v, quantum)(k, y[k]) for k in range(10)])
+        assert same_bits(target, expected), quantum
+    reals = np.array([[1.0, -2.0], [2147483647.0, -2147483648.0], [3.0, 2.5], [4.0, 4.0]])
+    integers, back = np.zeros((4, 2), dtype=np.intc), np.zeros((4, 2))
+    program = native.Program(np.arange(4.0), np.ones(3))
+    stops = []
+
+    def refused(k, status, mark):
+        stops.append((k, status, mark))
+        raise ValueError("refused")
+
+    program.convert(reals, 0, integers, 0, 2, refused)
+    program.convert(integers, 0, back, 0, 2, refused)
+    with pytest.raises(ValueError):
+        program.run(_Bar())
+    assert stops == [(2, -1, 1)] and first_non_integer(reals[2]) == 1
+    assert integers[:2].tolist() == [[1, -2], [2147483647, -2147483648]] and same_bits(back[:2], reals[:2])
+    assert integers[2:].tolist() == [[0, 0], [0, 0]]                # nothing written from the refused point on
+
+
+def test_cosim_python_loop_writes_the_same_table(pairs, cli, tmp_path):
+    _, plant, observer = pairs("example1_card")
+    for name, extra in (("native", ()), ("python", ("--python-loop",))):
+        res = cli("cosim", "--plant", plant, "--observer", observer, "--t-end", "10", "--no-report",
+                  "--noise", "y=0.01,4", "--out", tmp_path / name, *extra)
+        assert res.code == 0, res.err
+    assert (tmp_path / "native" / "results.csv").read_bytes() == (tmp_path / "python" / "results.csv").read_bytes()
+    assert (tmp_path / "native" / "metrics.json").read_text() == (tmp_path / "python" / "metrics.json").read_text()
