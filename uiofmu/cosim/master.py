@@ -8,6 +8,9 @@ A delayed observer (kernel ``delayed``, seed 001) also takes the plant's ``ydot`
 plant's ``u`` of t_k, so it is ``C x'`` with the input of the step about to be taken); the master
 records its ``thetahat``, ``sigma_min`` and ``valid`` at every point and compares ``thetahat`` with the
 true ``theta``, read from the plant FMU's parameter ``theta`` (the observer never reads it).
+
+Where both FMUs have native binaries, the C driver of :mod:`uiofmu.cosim.native` makes the loop's calls (the
+same ones, on the same buffers: the same results bit for bit); ``native=False`` keeps the loop in Python.
 """
 
 from __future__ import annotations

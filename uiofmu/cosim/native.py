@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .fmi import FmuCallError, refused_step
+
 #: The driver's source.
 SOURCE = Path(__file__).parent / "c" / "native_loop.c"
 #: Its compiler flags: no contraction into fused multiply-adds (the measurement's arithmetic is numpy's).
@@ -174,7 +176,6 @@ class Program:
     def step(self, fmu, who: str) -> None:
         """fmi2DoStep(t_k, h_k, fmi2True) of ``fmu`` (none at t_K; the steps come after every other operation); a
         refusal raises :func:`~uiofmu.cosim.fmi.refused_step`'s exception naming ``who``."""
-        from .fmi import FmuCallError, refused_step
 
         def fail(k, status, mark):
             raise refused_step(who, k, float(self.times[k]), float(self.steps[k]),
@@ -216,7 +217,6 @@ class Program:
 def call_failed(fmu, function: str):
     """The ``fail`` of a call of ``fmu``'s ``function``: raise :class:`~uiofmu.cosim.fmi.FmuCallError` with the
     log lines the FMU wrote during the call."""
-    from .fmi import FmuCallError
 
     def fail(k, status, mark):
         raise FmuCallError(function, int(status), fmu.messages[mark:]) from None
