@@ -124,6 +124,15 @@ def _at(buffer: np.ndarray, first: int = 0) -> int:
     return buffer.ctypes.data + first * buffer.itemsize
 
 
+def _check_rows(buffer: np.ndarray, dtype, width: int, rows: int) -> None:
+    """Refuse a buffer the driver would read or write out of its bounds or as another type: it must be a matrix
+    of ``dtype`` with at least ``rows`` rows of ``width`` values, each row contiguous."""
+    if (buffer.ndim != 2 or buffer.dtype != dtype or buffer.shape[0] < rows or buffer.shape[1] < width
+            or buffer.strides[1] != buffer.itemsize):
+        raise ValueError(f"a buffer of the native loop must be a ({rows}, >= {width}) matrix of {np.dtype(dtype)} with "
+                         f"contiguous rows, not {buffer.shape} of {buffer.dtype}")
+
+
 class Program:
     """The operations of one run, executed by the driver at every communication point.
 
@@ -169,6 +178,8 @@ class Program:
         :func:`call_failed`'s exception."""
         refs = fmu.value_references(names)
         if len(refs):
+            _check_rows(buffer, np.intc if function.endswith("Integer") else np.float64, first + len(refs),
+                        self.K + 1)
             self._keep += [refs, buffer]
             self.call(fmu, fmu.function(function), ctypes.addressof(refs), len(refs), _at(buffer, first),
                       buffer.strides[0], call_failed(fmu, function))
@@ -187,6 +198,8 @@ class Program:
     def convert(self, source: np.ndarray, a: int, target: np.ndarray, b: int, width: int, fail) -> None:
         """Copy ``width`` values of row k of ``source`` from column ``a`` into row k of ``target`` from column ``b``,
         Real to Integer (each an fmi2Integer, else ``fail``) or Integer to Real."""
+        _check_rows(source, np.float64 if target.dtype == np.intc else np.intc, a + width, self.K + 1)
+        _check_rows(target, np.intc if source.dtype == np.float64 else np.float64, b + width, self.K + 1)
         self._keep += [source, target]
         kind = TO_INTEGER if target.dtype == np.intc else TO_REAL
         self._add(fail, kind=kind, count=width, base=_at(target, b), stride=target.strides[0],
@@ -194,6 +207,8 @@ class Program:
 
     def measure(self, y: np.ndarray, v: np.ndarray, quantum: float | None, target: np.ndarray) -> None:
         """``target[k] = y[k] + v[k]``, then ``quantum * round(target[k] / quantum)`` with a quantum."""
+        for array in (y, v, target):
+            _check_rows(array, np.float64, y.shape[1], self.K + 1)
         self._keep += [y, v, target]
         self._add(None, kind=MEASURE, count=y.shape[1], base=_at(target), stride=target.strides[0], source=_at(y),
                   source_stride=y.strides[0], noise=_at(v), noise_stride=v.strides[0], quantum=quantum or 0.0)

@@ -128,11 +128,13 @@ def _native_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: 
     K = len(steps)
     program = Program(times, steps)
     outputs = plant.ports("output")
-    values = {name: (np.ascontiguousarray(source[name], dtype=float) if not fmu.integer(name)
-                     else np.asarray(source[name], dtype=float).astype(np.intc))
-              for fmu, names in ((plant, plant_inputs), (obs, sourced)) for name in names}
+    def typed(fmu: Fmu, name: str) -> np.ndarray:
+        """The source's values of ``name`` as ``fmu`` takes them (an Integer's checked by the master before)."""
+        values = np.ascontiguousarray(source[name], dtype=float)
+        return values.astype(np.intc) if fmu.integer(name) else values
+
     for name in plant_inputs:
-        program.values(plant, _function(plant, "Set", name), [name], values[name])
+        program.values(plant, _function(plant, "Set", name), [name], typed(plant, name))
     recorded = {name: np.zeros((K + 1, outputs[name]), dtype=_dtype(plant, name))
                 for name in dict.fromkeys(["x", "y", *fed]) if name in outputs}
     for name in outputs:
@@ -144,8 +146,9 @@ def _native_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: 
         program.values(obs, _function(obs, "Set", name), [name], y_measured if name == "y" else recorded[name])
         program.values(twin, _function(twin, "Set", name), [name], recorded[name])
     for name in sourced:
-        program.values(obs, _function(obs, "Set", name), [name], values[name])
-        program.values(twin, _function(twin, "Set", name), [name], values[name])
+        values = typed(obs, name)
+        program.values(obs, _function(obs, "Set", name), [name], values)
+        program.values(twin, _function(twin, "Set", name), [name], values)
     H = {name: np.zeros((K + 1, size), dtype=_dtype(obs, name)) for name, size in obs.ports("output").items()}
     H_twin = {name: np.zeros((K + 1, size), dtype=_dtype(twin, name)) for name, size in twin.ports("output").items()}
     for name in H:
