@@ -18,10 +18,12 @@ anyway).
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import hashlib
 import os
 import platform
+import shutil
 import subprocess
 import tempfile
 from functools import lru_cache
@@ -82,18 +84,30 @@ def _build(cc: str, folder: Path) -> Path:
     return lib
 
 
+def _private_folder() -> Path:
+    """A temporary folder of this process only, removed at its exit."""
+    folder = tempfile.mkdtemp(prefix="uiofmu_native_")
+    atexit.register(shutil.rmtree, folder, True)
+    return Path(folder)
+
+
 @lru_cache(maxsize=None)
 def driver():
     """The driver's ``uiofmu_run``, built and loaded at first use; None without a C compiler or where the
-    build or the loading fails (the master then keeps its Python loop)."""
+    build or the loading fails (the master then keeps its Python loop). Where the cache folder cannot be
+    written, the driver is built into a private temporary folder of the process."""
     from ..fmu.c_backend import c_compiler
 
     cc = c_compiler()
     if cc is None:
         return None
-    try:
-        lib = ctypes.CDLL(str(_build(cc, cache_folder())))
-    except (OSError, subprocess.SubprocessError):
+    for folder in (cache_folder, _private_folder):
+        try:
+            lib = ctypes.CDLL(str(_build(cc, folder())))
+            break
+        except (OSError, subprocess.SubprocessError):
+            continue
+    else:
         return None
     run = lib.uiofmu_run
     run.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int64,
