@@ -238,7 +238,8 @@ def _cmd_cosim(args) -> int:
     steps = step_sequence(spec, t_end, seed=args.seed)
     inputs = load_inputs(args.inputs, args.plant, args.observer) if args.inputs else None
     noise = noises(args.noise)
-    result = cosimulate(args.plant, args.observer, steps, inputs, noise=list(noise.values()))
+    result = cosimulate(args.plant, args.observer, steps, inputs, noise=list(noise.values()),
+                        native=not args.python_loop)
     paths = write_outputs(result, args.out, title=f"{card.name}: {card.family} observer, steps {short_spec(spec)}",
                           report=not args.no_report, fmt=args.format)
     print(f"{card.name}: co-simulation of {Path(args.observer).name} against {Path(args.plant).name}")
@@ -546,6 +547,9 @@ def _add_cosim(sub) -> None:
     p.add_argument("--format", default="csv", metavar="FORMAT",
                    help="results table: csv (default, DIR/results.csv), npz (numpy, DIR/results.npz) or parquet "
                         "(DIR/results.parquet, needs pyarrow); binary ones write a long run's table many times faster")
+    p.add_argument("--python-loop", action="store_true",
+                   help="step the FMUs from Python even where both have native binaries (by default a small C "
+                        "loop, built once with the C compiler, makes their calls: the same results, bit for bit)")
     p.set_defaults(func=_cmd_cosim)
 
 

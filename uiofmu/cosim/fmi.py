@@ -127,6 +127,13 @@ class FmuCallError(FmuError):
         super().__init__(f"{function} returned fmi2{label.capitalize()}{detail}")
 
 
+def refused_step(who: str, k: int, t: float, h: float, exc: FmuCallError) -> FmuError:
+    """The error of a master whose ``who`` FMU (``"plant"``, ``"observer"``, ...) refused step ``k`` from
+    ``t`` over ``h``: its last log line, or the call's status without one."""
+    return FmuError(f"the {who} FMU refused step {k} (t = {t:g} s, h = {h:g} s): "
+                    + (exc.messages[-1] if exc.messages else str(exc)))
+
+
 def _over(path, found: str, limit: int, name: str) -> FmuError:
     """The refusal of an FMU beyond one of the limits above: what was found, the limit and its name."""
     return FmuError(f"{path}: {found}, more than the limit of {limit} (uiofmu.cosim.fmi.{name})")
@@ -378,6 +385,7 @@ def _log(environment, instance, status, category, message) -> None:
     fmu = _INSTANCES.get(environment or 0)
     if fmu is not None:
         fmu.messages.append(message.decode("utf-8", "replace") if message else "")
+        fmu.logged.value = len(fmu.messages)
 
 
 @lru_cache(maxsize=None)
@@ -456,6 +464,7 @@ class Fmu:
         if self.description.coSimulation is None:
             raise FmuError(f"{self.path}: not a Co-Simulation FMU")
         self.messages: list[str] = []
+        self.logged = ctypes.c_int64(0)        # len(messages), where the native loop reads it
         self._refs = {v.name: v.valueReference for v in self.description.modelVariables}
         self._types = {v.name: v.type for v in self.description.modelVariables}
         self._vectors: dict = {}
