@@ -196,6 +196,19 @@ KERNEL_PORTS = {
         PortSpec("y", 0, "output", "measured outputs C(theta) x + D(theta) d"),
         PortSpec("x", 0, "output", "true state (for validation)"),
     ),
+    "delayed": (
+        PortSpec("xhat0", 0, "parameter", "initial state estimate (also of the delayed copies)"),
+        PortSpec("y", 0, "input", "measured outputs at the current communication point"),
+        PortSpec("ydot", 0, "input", "their measured derivative"),
+        PortSpec("u", 0, "input", "known inputs (held over the step)"),
+        PortSpec("xhat", 0, "output", "state estimate (held while not valid)", depends=("y", "ydot", "u")),
+        PortSpec("thetahat", 0, "output", "parameter estimate (34) (held while not valid)",
+                 depends=("y", "ydot", "u")),
+        PortSpec("r", 0, "output", "output residual y - C xhat", depends=("y", "ydot", "u")),
+        PortSpec("sigma_min", 0, "output", "rank margin sigma_min(C D_y) now", depends=("y", "ydot")),
+        PortSpec("valid", 0, "output", "1 while the estimates are valid (delays filled, margin above the "
+                 "premise bound)", type="Integer", depends=("y", "ydot")),
+    ),
 }
 
 
@@ -323,17 +336,11 @@ def delayed_ports(n: int, m: int, p: int, n_theta: int) -> list:
     """The declaration of the delayed kernel (:mod:`uiofmu.runtime.delayed`): parameter ``xhat0``; inputs
     ``y``, ``ydot``, ``u``; outputs ``xhat``, ``thetahat``, ``r``, the rank margin ``sigma_min`` and the
     Integer ``valid`` (1 while the estimates are valid)."""
-    return [PortSpec("xhat0", n, "parameter", "initial state estimate (also of the delayed copies)"),
-            PortSpec("y", p, "input", "measured outputs at the current communication point"),
-            PortSpec("ydot", p, "input", "their measured derivative"),
-            PortSpec("u", m, "input", "known inputs (held over the step)"),
-            PortSpec("xhat", n, "output", "state estimate (held while not valid)", depends=("y", "ydot", "u")),
-            PortSpec("thetahat", n_theta, "output", "parameter estimate (34) (held while not valid)",
-                     depends=("y", "ydot", "u")),
-            PortSpec("r", p, "output", "output residual y - C xhat", depends=("y", "ydot", "u")),
-            PortSpec("sigma_min", 1, "output", "rank margin sigma_min(C D_y) now", depends=("y", "ydot")),
-            PortSpec("valid", 1, "output", "1 while the estimates are valid (delays filled, margin above the "
-                     "premise bound)", type="Integer", depends=("y", "ydot"))]
+    def port(key, size):
+        return kernel_port("delayed", key, size)
+
+    return [port("xhat0", n), port("y", p), port("ydot", p), port("u", m), port("xhat", n), port("thetahat", n_theta),
+            port("r", p), port("sigma_min", 1), port("valid", 1)]
 
 
 def check_declared(declared, expected: list) -> None:
