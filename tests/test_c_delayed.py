@@ -1,6 +1,6 @@
-"""The C backend of the delayed UIO (seed 001): kernel_delayed.c against the Python reference
-(uiofmu.runtime.delayed.DelayedRuntime), on the short problem (``conftest.DELAYED_SHORT``: delay 0.1 s,
-valid from 0.1 s).
+"""The C backend of the delayed UIO (seed 001) and its plant: kernel_delayed.c and kernel_parametric.c against
+the Python references (uiofmu.runtime.delayed.DelayedRuntime, uiofmu.runtime.parametric_plant), on the short
+problem (``conftest.DELAYED_SHORT``: delay 0.1 s, valid from 0.1 s).
 
 (a) The C observer FMU equals DelayedRuntime to 1e-12 (relative to 1 + |value|) on every output over 250
 random aperiodic steps (0.5 to 1.5 ms) fed by the plant's runtime: through start-up, the prediction, the
@@ -18,9 +18,12 @@ runtime's messages; nothing changes and the run goes on equal to the runtime.
 strict flags.
 (e) Random call sequences (odd inputs and steps, byte-flipped and cut state images, resets, calls in the
 wrong state) get statuses up to fmi2Error, never fmi2Fatal or a crash.
-(f) (a)-(c) and (e) again with the FMU's own C sources compiled under ASan and UBSan, run through fmpy in a
-Python with the sanitizer runtimes preloaded: no report (cfmu.check_sanitized; this file is a script as well,
-``python tests/test_c_delayed.py observer FMU CARD.json``).
+(f) The C plant equals ParametricPlantRuntime to 1e-12 (x, y, ydot) on random inputs, aperiodic steps and a
+theta set as its parameter; its states restore the same run and forged ones are refused; a NaN u is refused
+and a step needing too many substeps discarded, with the runtime's message; random calls.
+(g) (a)-(c), (e) and (f) again with the FMUs' own C sources compiled under ASan and UBSan, run through fmpy in
+a Python with the sanitizer runtimes preloaded: no report (cfmu.check_sanitized; this file is a script as well,
+``python tests/test_c_delayed.py observer|plant FMU DATA.json``).
 """
 
 from __future__ import annotations
@@ -238,7 +241,52 @@ def check_observer(path, card) -> None:
 
 
 def check_plant(path, data) -> None:
-    raise AssertionError("no plant here")
+    """(f) for the C plant FMU at ``path`` of the plant ``data``."""
+    theta, x0 = [1.5, -0.5, 2.0], [0.1, -0.2, 0.3]
+    rng = np.random.default_rng(3)
+    inputs, hs = rng.normal(size=(200, 1)) * 10, plan(200, 4)
+    ref = ParametricPlantRuntime(data)
+    ref.params[:] = theta
+    ref.apply_parameters()
+    ref.x0 = np.array(x0)
+    ref.reset()
+
+    def run(fmu, rt, ks, t0=0.0):
+        got, want, t = [], [], t0
+        for k in ks:
+            fmu.set("u", inputs[k])
+            got.append(np.concatenate([fmu.get("x"), fmu.get("y"), fmu.get("ydot")]))
+            if rt is not None:
+                rt.u[:] = inputs[k]
+                want.append(np.concatenate([rt.x, rt.y(), rt.ydot()]))
+                rt.step(float(hs[k]))
+            fmu.step(t, float(hs[k]))
+            t += float(hs[k])
+        return np.array(got), np.array(want), t
+
+    with Fmu(path, "plant") as fmu, Fmu(path, "other") as other:
+        fmu.initialize(0.0, {"x0": x0, "theta": theta})
+        got, want, t = run(fmu, ref, range(100))
+        assert_close(got, want, "C plant against ParametricPlantRuntime")
+        assert np.ptp(got[:, :3]) > 0.01
+        blob, after = check_restores(fmu, other, lambda f: run(f, None, range(100, 130), t)[0])
+        for index, value, word in [(0, 7.0, "phase = 7"), (1, math.nan, "x0[1] = nan"), (4, math.inf, "x[1] = inf"),
+                                   (8, math.nan, "theta[1] = nan"), (11, math.inf, "params[1] = inf"),
+                                   (0, 1.0, "before initialisation ended")]:
+            refused(lambda: other.deserialize(_with_double(blob, index, value)), word)
+        fmu.set_state(fmu.deserialize(blob))
+        got, want, t = run(fmu, ref, range(100, 150), t)
+        assert_close(got, want, "C plant after a restored state")
+        fmu.set("u", [math.nan])
+        refused(lambda: fmu.step(t, H), "input u[1] = nan is not finite")
+        fmu.set("u", inputs[150])
+        ref.u[:] = inputs[150]
+        start = len(fmu.messages)
+        discarded(lambda: fmu.step(t, 1e300), "RK4 substeps of the plant")
+        assert fmu.messages[start].split(": ", 1)[1] == runtime_refusal(ref, 1e300)
+        got, want, _ = run(fmu, ref, range(150, 200), t)
+        assert_close(got, want, "C plant after the refused calls")
+    random_calls(path, H, 3)
 
 
 @pytest.fixture(scope="module")
@@ -276,8 +324,9 @@ def test_instantiate_refuses_inconsistent_design_data(built, tmp_path):
     refused_edits(path, c_backend.c_kernel(card), edits, tmp_path, "delayed")
 
 
-def test_the_kernel_compiles_warning_free_with_the_strict_flags(tmp_path):
-    kernel = c_backend.C_KERNELS["delayed"]
+@pytest.mark.parametrize("kernel", [c_backend.C_KERNELS["delayed"], c_backend.PLANT_KERNELS["parametric"]],
+                         ids=["delayed", "parametric"])
+def test_the_kernel_compiles_warning_free_with_the_strict_flags(tmp_path, kernel):
     (tmp_path / kernel.ports_header).write_text(c_backend.port_header(kernel))
     (tmp_path / c_backend.REFUSALS_HEADER).write_text(c_backend.refusals_header())
     proc = subprocess.run(["gcc", "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wshadow", "-Wconversion",
@@ -287,9 +336,21 @@ def test_the_kernel_compiles_warning_free_with_the_strict_flags(tmp_path):
     assert proc.returncode == 0 and proc.stderr.strip() == "", proc.stderr
 
 
+@pytest.fixture(scope="module")
+def plant(delayed_card):
+    """The card's plant (a plant with unknown parameters)."""
+    return problem_from_data(delayed_card[0].data["problem"]).plant
+
+
+def test_the_c_plant_equals_the_runtime_and_refuses_what_it_refuses(plant, tmp_path):
+    from uiofmu.fmu.export import build_plant
+
+    check_plant(build_plant(plant, "short", tmp_path / "plant.fmu", backend="c"), plant.to_data())
+
+
 @pytest.mark.skipif(not shutil.which("gcc"), reason="the sanitizers need gcc")
-def test_the_observer_under_asan_and_ubsan(delayed_card, tmp_path):
-    check_sanitized(__file__, {"short": delayed_card[0]}, {}, tmp_path)
+def test_the_observer_and_plant_under_asan_and_ubsan(delayed_card, plant, tmp_path):
+    check_sanitized(__file__, {"short": delayed_card[0]}, {"short": plant}, tmp_path)
 
 
 if __name__ == "__main__":

@@ -196,6 +196,14 @@ KERNEL_PORTS = {
         PortSpec("y", 0, "output", "measured outputs C(theta) x + D(theta) d"),
         PortSpec("x", 0, "output", "true state (for validation)"),
     ),
+    "parametric": (
+        PortSpec("x0", 0, "parameter", "initial state"),
+        PortSpec("theta", 0, "parameter", "the unknown constant parameters the plant simulates"),
+        PortSpec("u", 0, "input", "known inputs (held over the step)"),
+        PortSpec("y", 0, "output", "measured outputs C x"),
+        PortSpec("ydot", 0, "output", "their derivative C x' at the current point", depends=("u",)),
+        PortSpec("x", 0, "output", "true state (for validation)"),
+    ),
     "delayed": (
         PortSpec("xhat0", 0, "parameter", "initial state estimate (also of the delayed copies)"),
         PortSpec("y", 0, "input", "measured outputs at the current communication point"),
@@ -324,12 +332,10 @@ def parametric_plant_ports(n: int, m: int, p: int, n_theta: int) -> list:
     """The declaration of a plant with unknown parameters (:mod:`uiofmu.runtime.parametric_plant`):
     parameters ``x0`` and ``theta`` (the true values it simulates), input ``u``, outputs ``y``, its
     derivative ``ydot = C x'`` (depending on ``u``) and ``x``."""
-    return [PortSpec("x0", n, "parameter", "initial state"),
-            PortSpec("theta", n_theta, "parameter", "the unknown constant parameters the plant simulates"),
-            PortSpec("u", m, "input", "known inputs (held over the step)"),
-            PortSpec("y", p, "output", "measured outputs C x"),
-            PortSpec("ydot", p, "output", "their derivative C x' at the current point", depends=("u",)),
-            PortSpec("x", n, "output", "true state (for validation)")]
+    def port(key, size):
+        return kernel_port("parametric", key, size)
+
+    return [port("x0", n), port("theta", n_theta), port("u", m), port("y", p), port("ydot", p), port("x", n)]
 
 
 def delayed_ports(n: int, m: int, p: int, n_theta: int) -> list:
