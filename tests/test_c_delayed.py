@@ -336,6 +336,24 @@ def test_the_kernel_compiles_warning_free_with_the_strict_flags(tmp_path, kernel
     assert proc.returncode == 0 and proc.stderr.strip() == "", proc.stderr
 
 
+def test_a_card_too_large_for_the_c_kernel_is_built_with_python_by_default(built, tmp_path, monkeypatch):
+    """A card whose delay buffer (or augmented system) exceeds what kernel_delayed.c takes: ``--backend c`` refuses
+    it naming the numbers, the default picks python and says why."""
+    from uiofmu.fmu.export import build_observer, choose_backend
+    from uiofmu.runtime.errors import FmuError
+
+    card = built[0]
+    monkeypatch.setattr(c_backend, "DELAYED_MAX_BUFFER", 100)
+    rows = buffer_rows(card.schedule["delays"], card.schedule["step"])
+    with pytest.raises(FmuError) as info:
+        build_observer(card, tmp_path / "o.fmu", backend="c")
+    text = str(info.value)
+    assert f"100 numbers in its delay buffer; this card has (n, m, p) (len(delays) + 1) = (6, 2, 4) and {rows + 1} " \
+        "x 6" in text and "use --backend python" in text, text
+    backend, note = choose_backend(card)
+    assert backend == "python" and "delay buffer" in note and not (tmp_path / "o.fmu").exists()
+
+
 @pytest.fixture(scope="module")
 def plant(delayed_card):
     """The card's plant (a plant with unknown parameters)."""

@@ -156,7 +156,7 @@ def c_refusal(model) -> str | None:
     if isinstance(model, Card):
         kernel = model.stepper
         if kernel.c_kernel in C_KERNELS:
-            return None
+            return _delayed_too_large(model) if kernel.c_kernel == "delayed" else None
         return kernel.python_only or (f"the C backend has no kernel {kernel.name[:40]!r} "
                                       f"(it has {', '.join(C_KERNELS)})")
     data = model if isinstance(model, dict) else model.to_data()
@@ -436,6 +436,21 @@ def _window_source(card: Card, guid: str, identifier: str) -> str:
     return "\n".join(lines)
 
 
+def _delayed_too_large(card: Card) -> str | None:
+    """Why ``c/kernel_delayed.c`` cannot take a delayed-kernel card (:data:`DELAYED_MAX_AUGMENTED`,
+    :data:`DELAYED_MAX_BUFFER`), or None."""
+    from ..runtime.delayed import buffer_rows
+
+    n, m, p = (int(card.dims[k]) for k in ("n", "m", "p"))
+    c = len(card.schedule["delays"]) + 1
+    rows, width = buffer_rows(card.schedule["delays"], card.schedule["step"]), 1 + 2 * p + m
+    if max(n, m, p) * c <= DELAYED_MAX_AUGMENTED and (rows + 1) * width <= DELAYED_MAX_BUFFER:
+        return None
+    return (f"the C delayed kernel takes at most {DELAYED_MAX_AUGMENTED} states, inputs and outputs of the augmented "
+            f"system and {DELAYED_MAX_BUFFER} numbers in its delay buffer; this card has (n, m, p) (len(delays) + 1) "
+            f"= ({n * c}, {m * c}, {p * c}) and {rows + 1} x {width}")
+
+
 def _delayed_source(card: Card, guid: str, identifier: str) -> str:
     """``design_data.c`` of a delayed-kernel card (the delayed UIO of seed 001): one constant ``UiofmuDelayed``
     (``c/kernel_delayed.h``: the plant's ``Abar, Bbar, Cbar, D0, Dy``, the gain ``K``, the delays, the
@@ -451,6 +466,10 @@ def _delayed_source(card: Card, guid: str, identifier: str) -> str:
     c = len(delays) + 1
     D0 = np.asarray(mats["D0"], dtype=float)
     nt = _count(D0.shape[1] if D0.ndim == 2 else -1, "matrices.D0 columns")
+    too_large = _delayed_too_large(card)
+    if too_large:
+        raise FmuError(f"--backend c: {too_large}; use --backend python")
+    rows = buffer_rows(delays, sched["step"])
     arrays = (("A", mats["Abar"], n * n), ("B", mats["Bbar"], n * m), ("C", mats["Cbar"], p * n), ("D0", D0, n * nt),
               ("Dy", mats["Dy"], p * n * nt), ("K", mats["K"], n * c * p * c), ("delays", delays, len(delays)),
               ("xhat0", card.data["initial"].get("xhat0", [0.0] * n), n))
@@ -460,7 +479,7 @@ def _delayed_source(card: Card, guid: str, identifier: str) -> str:
                for key, values, size in arrays), "",
              "const UiofmuDelayed UIOFMU_DELAYED = {",
              f"    .n = {n}, .m = {m}, .p = {p}, .nt = {nt}, .ndelays = {len(delays)}, "
-             f".rows = {buffer_rows(delays, sched['step'])},",
+             f".rows = {rows},",
              f"    .max_substep = {_double(sched['max_substep'], 'schedule.max_substep')}, "
              f".sigma_bound = {_double(sched['sigma_bound'], 'schedule.sigma_bound')},",
              f"    .valid_from = {_double(sched.get('valid_from', max(delays)), 'schedule.valid_from')}, "
@@ -469,6 +488,12 @@ def _delayed_source(card: Card, guid: str, identifier: str) -> str:
              "    " + ", ".join(f".{key} = m_{key}, .{key}_length = UIOFMU_LENGTH(m_{key})" for key, _, _ in arrays)
              + ",", "};", "", *fmu_table(guid, identifier, kernel, table)]
     return "\n".join(lines)
+
+
+#: What ``c/kernel_delayed.c`` takes (its ``MAX_AUGMENTED`` and ``MAX_BUFFER``): states, inputs and outputs of the
+#: augmented system (``n (len(delays) + 1)``, ...), and numbers in the delay buffer (``(rows + 1) (1 + 2 p + m)``).
+DELAYED_MAX_AUGMENTED = 512
+DELAYED_MAX_BUFFER = 16_777_216
 
 
 #: The generator of ``design_data.c`` of each observer C kernel (the keys of :data:`C_KERNELS`).

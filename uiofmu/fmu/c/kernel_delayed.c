@@ -50,9 +50,9 @@
    the augmented dims n c and p c at most MAX_AUGMENTED, the buffer at most MAX_ROWS points. */
 #define MAX_DIM 1000
 #define MAX_DELAYS 16
-#define MAX_AUGMENTED 512
+#define MAX_AUGMENTED 512 /* uiofmu/fmu/c_backend.py DELAYED_MAX_AUGMENTED */
 #define MAX_ROWS 262144
-#define MAX_BUFFER 16777216 /* doubles of the buffer */
+#define MAX_BUFFER 16777216 /* doubles of the buffer (c_backend.py DELAYED_MAX_BUFFER) */
 /* Most RK4 substeps of one communication step (uiofmu/runtime/delayed.py MAX_SUBSTEPS). */
 #define MAX_SUBSTEPS 10000
 /* Jacobi sweeps: a few suffice for the small matrices here; the bound only stops NaN and Inf. */
