@@ -29,6 +29,7 @@ import uuid
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 import numpy as np
@@ -88,12 +89,16 @@ class CKernel:
     ports : str
         Its ports: the key of :data:`uiofmu.runtime.ports.KERNEL_PORTS` (``"plant"``), whose entries,
         in order, are its port ids ``UIOFMU_<PORTS>_<KEY>`` (:func:`port_header`).
+    too_large : callable or None
+        ``too_large(card) -> str or None``: why it cannot take a card its descriptor names it for (a card
+        beyond its bounds), or None; None when it takes every such card.
     """
 
     source: str
     header: str
     symbol: str
     ports: str
+    too_large: Callable | None = None
 
     @property
     def ports_header(self) -> str:
@@ -107,11 +112,32 @@ class CKernel:
         return f"UIOFMU_{self.ports.upper()}"
 
 
+#: What ``c/kernel_delayed.c`` takes (its ``MAX_AUGMENTED`` and ``MAX_BUFFER``): states, inputs and outputs of the
+#: augmented system (``n (len(delays) + 1)``, ...), and numbers in the delay buffer (``(rows + 1) (1 + 2 p + m)``).
+DELAYED_MAX_AUGMENTED = 512
+DELAYED_MAX_BUFFER = 16_777_216
+
+
+def _delayed_too_large(card: Card) -> str | None:
+    """Why ``c/kernel_delayed.c`` cannot take a delayed-kernel card (:data:`DELAYED_MAX_AUGMENTED`,
+    :data:`DELAYED_MAX_BUFFER`), or None."""
+    from ..runtime.delayed import buffer_rows
+
+    n, m, p = (int(card.dims[k]) for k in ("n", "m", "p"))
+    c = len(card.schedule["delays"]) + 1
+    rows, width = buffer_rows(card.schedule["delays"], card.schedule["step"]), 1 + 2 * p + m
+    if max(n, m, p) * c <= DELAYED_MAX_AUGMENTED and (rows + 1) * width <= DELAYED_MAX_BUFFER:
+        return None
+    return (f"the C delayed kernel takes at most {DELAYED_MAX_AUGMENTED} states, inputs and outputs of the augmented "
+            f"system and {DELAYED_MAX_BUFFER} numbers in its delay buffer; this card has (n, m, p) (len(delays) + 1) "
+            f"= ({n * c}, {m * c}, {p * c}) and {rows + 1} x {width}")
+
+
 #: The C kernels, by the card's ``kernel``.
 C_KERNELS = {
     "affine": CKernel("kernel_affine.c", "kernel_affine.h", "UIOFMU_KERNEL_AFFINE", "affine"),
     "window": CKernel("kernel_window.c", "kernel_window.h", "UIOFMU_KERNEL_WINDOW", "window"),
-    "delayed": CKernel("kernel_delayed.c", "kernel_delayed.h", "UIOFMU_KERNEL_DELAYED", "delayed"),
+    "delayed": CKernel("kernel_delayed.c", "kernel_delayed.h", "UIOFMU_KERNEL_DELAYED", "delayed", _delayed_too_large),
 }
 
 _PLANT = CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", "plant")
@@ -156,7 +182,8 @@ def c_refusal(model) -> str | None:
     if isinstance(model, Card):
         kernel = model.stepper
         if kernel.c_kernel in C_KERNELS:
-            return _delayed_too_large(model) if kernel.c_kernel == "delayed" else None
+            bounds = C_KERNELS[kernel.c_kernel].too_large
+            return bounds(model) if bounds else None
         return kernel.python_only or (f"the C backend has no kernel {kernel.name[:40]!r} "
                                       f"(it has {', '.join(C_KERNELS)})")
     data = model if isinstance(model, dict) else model.to_data()
@@ -436,21 +463,6 @@ def _window_source(card: Card, guid: str, identifier: str) -> str:
     return "\n".join(lines)
 
 
-def _delayed_too_large(card: Card) -> str | None:
-    """Why ``c/kernel_delayed.c`` cannot take a delayed-kernel card (:data:`DELAYED_MAX_AUGMENTED`,
-    :data:`DELAYED_MAX_BUFFER`), or None."""
-    from ..runtime.delayed import buffer_rows
-
-    n, m, p = (int(card.dims[k]) for k in ("n", "m", "p"))
-    c = len(card.schedule["delays"]) + 1
-    rows, width = buffer_rows(card.schedule["delays"], card.schedule["step"]), 1 + 2 * p + m
-    if max(n, m, p) * c <= DELAYED_MAX_AUGMENTED and (rows + 1) * width <= DELAYED_MAX_BUFFER:
-        return None
-    return (f"the C delayed kernel takes at most {DELAYED_MAX_AUGMENTED} states, inputs and outputs of the augmented "
-            f"system and {DELAYED_MAX_BUFFER} numbers in its delay buffer; this card has (n, m, p) (len(delays) + 1) "
-            f"= ({n * c}, {m * c}, {p * c}) and {rows + 1} x {width}")
-
-
 def _delayed_source(card: Card, guid: str, identifier: str) -> str:
     """``design_data.c`` of a delayed-kernel card (the delayed UIO of seed 001): one constant ``UiofmuDelayed``
     (``c/kernel_delayed.h``: the plant's ``Abar, Bbar, Cbar, D0, Dy``, the gain ``K``, the delays, the
@@ -488,12 +500,6 @@ def _delayed_source(card: Card, guid: str, identifier: str) -> str:
              "    " + ", ".join(f".{key} = m_{key}, .{key}_length = UIOFMU_LENGTH(m_{key})" for key, _, _ in arrays)
              + ",", "};", "", *fmu_table(guid, identifier, kernel, table)]
     return "\n".join(lines)
-
-
-#: What ``c/kernel_delayed.c`` takes (its ``MAX_AUGMENTED`` and ``MAX_BUFFER``): states, inputs and outputs of the
-#: augmented system (``n (len(delays) + 1)``, ...), and numbers in the delay buffer (``(rows + 1) (1 + 2 p + m)``).
-DELAYED_MAX_AUGMENTED = 512
-DELAYED_MAX_BUFFER = 16_777_216
 
 
 #: The generator of ``design_data.c`` of each observer C kernel (the keys of :data:`C_KERNELS`).
