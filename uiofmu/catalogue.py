@@ -2,7 +2,7 @@
 
 ``make fmus`` (``examples/build_fmus.py``, which calls :func:`main`) designs each example, builds its
 observer and plant FMUs with the default backend (C where the C backend has the kernel; pythonfmu for
-the delayed UIO, a plant with unknown parameters and the MuJoCo plant), checks every FMU's
+the MuJoCo plant), checks every FMU's
 ``modelDescription.xml`` against the ports and ``<DefaultExperiment>`` its design declares, and runs:
 
 * ``uiofmu validate`` (:func:`uiofmu.cosim.validate.validate`) on every FMU;

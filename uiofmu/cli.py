@@ -454,8 +454,7 @@ def _add_build(sub) -> None:
                                    "(family deadbeat-functional) has inputs y[i] (and theta[i]), outputs gx[i] and "
                                    "the Integer gx_valid[1]; a delayed observer (family delayed-uio) has inputs y[i], "
                                    "ydot[i], u[i], outputs xhat[i], thetahat[i], r[i], sigma_min[1] and the Integer "
-                                   "valid[1], and is a pythonfmu FMU only (the C backend has no kernel for it: the "
-                                   "default picks python and says so).")
+                                   "valid[1].")
     p.add_argument("design", help="design card (JSON) from `uiofmu design`")
     p.add_argument("-o", "--output", metavar="OBS.fmu", help="FMU path (default: NAME_observer.fmu)")
     p.add_argument("--backend", choices=["c", "python"],

@@ -2,7 +2,8 @@
 
 The card's matrices become constant C data (``design_data.c``, with the variable table of the
 card's ports) next to the card's kernel (``c/kernel_affine.c``: the observer maths of every affine
-card; ``c/kernel_window.c``: the window formula of a dead-beat functional observer), what the kernels
+card; ``c/kernel_window.c``: the window formula of a dead-beat functional observer;
+``c/kernel_delayed.c``: the delayed UIO integrated inside the FMU), what the kernels
 share (``c/kernel_util.c``: their checks of design data, inputs and steps, and the pieces of their
 FMU state) and the shared FMI 2.0 Co-Simulation plumbing (``c/fmi2_plumbing.c``: states and legal
 calls, logging, get/set, FMU states, status queries). Two headers are generated with it: the kernel's
@@ -30,6 +31,7 @@ import uuid
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 import numpy as np
@@ -42,7 +44,7 @@ from ..runtime.kernels import KERNELS
 from ..runtime.plant_kinds import LINEAR, PLANT_KINDS, data_kind
 from ..runtime.schedules import schedule_axes
 from ..runtime.ports import (DESIGN_CAUSALITY, KERNEL_PORTS, lpv_plant_ports, model_structure, observer_experiment,
-                             plant_ports, plant_spec, write_experiment)
+                             parametric_plant_ports, plant_ports, plant_spec, write_experiment)
 from ..runtime.labels import apply_labels
 from ..runtime.refusals import REFUSALS, fields
 from ..runtime.text import c_string
@@ -93,6 +95,9 @@ class CKernel:
         The key of its port that holds the physical parameters, which a declaration names one port
         each (Real parameters of one element, keys of their own): their elements, in declaration
         order, are that port's (:func:`table_rows`). None: a kernel without them.
+    too_large : callable or None
+        ``too_large(card) -> str or None``: why it cannot take a card its descriptor names it for (a card
+        beyond its bounds), or None; None when it takes every such card.
     """
 
     source: str
@@ -100,6 +105,7 @@ class CKernel:
     symbol: str
     ports: str
     physical: str | None = None
+    too_large: Callable | None = None
 
     @property
     def ports_header(self) -> str:
@@ -113,10 +119,32 @@ class CKernel:
         return f"UIOFMU_{self.ports.upper()}"
 
 
+#: What ``c/kernel_delayed.c`` takes (its ``MAX_AUGMENTED`` and ``MAX_BUFFER``): states, inputs and outputs of the
+#: augmented system (``n (len(delays) + 1)``, ...), and numbers in the delay buffer (``(rows + 1) (1 + 2 p + m)``).
+DELAYED_MAX_AUGMENTED = 512
+DELAYED_MAX_BUFFER = 16_777_216
+
+
+def _delayed_too_large(card: Card) -> str | None:
+    """Why ``c/kernel_delayed.c`` cannot take a delayed-kernel card (:data:`DELAYED_MAX_AUGMENTED`,
+    :data:`DELAYED_MAX_BUFFER`), or None."""
+    from ..runtime.delayed import buffer_rows
+
+    n, m, p = (int(card.dims[k]) for k in ("n", "m", "p"))
+    c = len(card.schedule["delays"]) + 1
+    rows, width = buffer_rows(card.schedule["delays"], card.schedule["step"]), 1 + 2 * p + m
+    if max(n, m, p) * c <= DELAYED_MAX_AUGMENTED and (rows + 1) * width <= DELAYED_MAX_BUFFER:
+        return None
+    return (f"the C delayed kernel takes at most {DELAYED_MAX_AUGMENTED} states, inputs and outputs of the augmented "
+            f"system and {DELAYED_MAX_BUFFER} numbers in its delay buffer; this card has (n, m, p) (len(delays) + 1) "
+            f"= ({n * c}, {m * c}, {p * c}) and {rows + 1} x {width}")
+
+
 #: The C kernels, by the card's ``kernel``.
 C_KERNELS = {
     "affine": CKernel("kernel_affine.c", "kernel_affine.h", "UIOFMU_KERNEL_AFFINE", "affine"),
     "window": CKernel("kernel_window.c", "kernel_window.h", "UIOFMU_KERNEL_WINDOW", "window"),
+    "delayed": CKernel("kernel_delayed.c", "kernel_delayed.h", "UIOFMU_KERNEL_DELAYED", "delayed", _delayed_too_large),
 }
 
 _PLANT = CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", "plant")
@@ -124,15 +152,18 @@ _LPV = CKernel("kernel_lpv.c", "kernel_lpv.h", "UIOFMU_KERNEL_LPV", "lpv")
 #: The kernel of MuJoCo plants (``c/kernel_mujoco.c``, built by :mod:`uiofmu.fmu.mujoco_c`): the physical
 #: parameters are the elements of its port ``params``.
 MUJOCO_KERNEL = CKernel("kernel_mujoco.c", "kernel_mujoco.h", "UIOFMU_KERNEL_MUJOCO", "mujoco", physical="params")
+_PARAMETRIC = CKernel("kernel_parametric.c", "kernel_parametric.h", "UIOFMU_KERNEL_PARAMETRIC", "parametric")
 
 #: The C kernels of plants, by plant kind: linear, and switched by rule (one kernel,
 #: ``c/kernel_plant.c``, whose Integer port ``mode`` is an input for rule ``input``, else an output),
 #: and LPV by the kind of its theta (one kernel, ``c/kernel_lpv.c``, whose port ``theta`` is an input
 #: for kind ``input``, else the output ``T x``): the causality each declaration gives them
-#: (:data:`uiofmu.runtime.ports.DESIGN_CAUSALITY`), which the kernel checks against its design; and MuJoCo
-#: plants (``c/kernel_mujoco.c``, which links MuJoCo's library: :mod:`uiofmu.fmu.mujoco_c` builds it).
+#: (:data:`uiofmu.runtime.ports.DESIGN_CAUSALITY`), which the kernel checks against its design; plants with
+#: unknown parameters (``c/kernel_parametric.c``: RK4 substeps and the output ``ydot``); and MuJoCo plants
+#: (``c/kernel_mujoco.c``, which links MuJoCo's library: :mod:`uiofmu.fmu.mujoco_c` builds it).
 PLANT_KERNELS = {
     "linear": _PLANT,
+    "parametric": _PARAMETRIC,
     **{f"switched-{rule}": _PLANT for rule in ("threshold", "input", "random")},
     **{f"lpv-{kind}": _LPV for kind in ("state", "input")},
     "mujoco": MUJOCO_KERNEL,
@@ -163,7 +194,8 @@ def c_refusal(model) -> str | None:
     if isinstance(model, Card):
         kernel = model.stepper
         if kernel.c_kernel in C_KERNELS:
-            return None
+            bounds = C_KERNELS[kernel.c_kernel].too_large
+            return bounds(model) if bounds else None
         return kernel.python_only or (f"the C backend has no kernel {kernel.name[:40]!r} "
                                       f"(it has {', '.join(C_KERNELS)})")
     data = model if isinstance(model, dict) else model.to_data()
@@ -458,8 +490,47 @@ def _window_source(card: Card, guid: str, identifier: str) -> str:
     return "\n".join(lines)
 
 
+def _delayed_source(card: Card, guid: str, identifier: str) -> str:
+    """``design_data.c`` of a delayed-kernel card (the delayed UIO of seed 001): one constant ``UiofmuDelayed``
+    (``c/kernel_delayed.h``: the plant's ``Abar, Bbar, Cbar, D0, Dy``, the gain ``K``, the delays, the
+    default ``xhat0``, the schedule's numbers and the buffer's rows, :func:`uiofmu.runtime.delayed.buffer_rows`),
+    its variable table and ``UIOFMU_FMU``; numbers only, as :func:`design_source`."""
+    from ..runtime.delayed import buffer_rows
+
+    kernel = c_kernel(card)
+    table = variable_table(card)
+    sched, mats = card.schedule, card.matrices
+    n, m, p = (_count(card.dims[k], f"dims.{k}") for k in ("n", "m", "p"))
+    delays = [float(t) for t in sched["delays"]]
+    c = len(delays) + 1
+    D0 = np.asarray(mats["D0"], dtype=float)
+    nt = _count(D0.shape[1] if D0.ndim == 2 else -1, "matrices.D0 columns")
+    too_large = _delayed_too_large(card)
+    if too_large:
+        raise FmuError(f"--backend c: {too_large}; use --backend python")
+    rows = buffer_rows(delays, sched["step"])
+    arrays = (("A", mats["Abar"], n * n), ("B", mats["Bbar"], n * m), ("C", mats["Cbar"], p * n), ("D0", D0, n * nt),
+              ("Dy", mats["Dy"], p * n * nt), ("K", mats["K"], n * c * p * c), ("delays", delays, len(delays)),
+              ("xhat0", card.data["initial"].get("xhat0", [0.0] * n), n))
+    gamma = float(sched.get("gamma_bound", math.inf))
+    lines = ["/* Generated by uiofmu from a design card. */", f'#include "{kernel.header}"', "",
+             *(f"static const double m_{key}[] = {_doubles(values, f'matrices.{key}', size)};"
+               for key, values, size in arrays), "",
+             "const UiofmuDelayed UIOFMU_DELAYED = {",
+             f"    .n = {n}, .m = {m}, .p = {p}, .nt = {nt}, .ndelays = {len(delays)}, "
+             f".rows = {rows},",
+             f"    .max_substep = {_double(sched['max_substep'], 'schedule.max_substep')}, "
+             f".sigma_bound = {_double(sched['sigma_bound'], 'schedule.sigma_bound')},",
+             f"    .valid_from = {_double(sched.get('valid_from', max(delays)), 'schedule.valid_from')}, "
+             f".gamma_bound = {_double(gamma if math.isfinite(gamma) else 0.0, 'schedule.gamma_bound')}, "
+             f".has_gamma_bound = {int(math.isfinite(gamma))},",
+             "    " + ", ".join(f".{key} = m_{key}, .{key}_length = UIOFMU_LENGTH(m_{key})" for key, _, _ in arrays)
+             + ",", "};", "", *fmu_table(guid, identifier, kernel, table)]
+    return "\n".join(lines)
+
+
 #: The generator of ``design_data.c`` of each observer C kernel (the keys of :data:`C_KERNELS`).
-_OBSERVER_SOURCES = {"affine": _affine_source, "window": _window_source}
+_OBSERVER_SOURCES = {"affine": _affine_source, "window": _window_source, "delayed": _delayed_source}
 
 
 def fmu_table(guid: str, identifier: str, kernel: CKernel, table: list) -> list:
@@ -638,8 +709,50 @@ def _linear_source(data: dict, guid: str, identifier: str) -> str:
                               [".modes = 0, .rule = UIOFMU_RULE_NONE, .mode0 = 1,"], guid, identifier, table)
 
 
+def _parametric_source(data: dict, guid: str, identifier: str) -> str:
+    """``design_data.c`` of a plant with unknown parameters (:meth:`uiofmu.parametric_plant.ParametricPlant.to_data`):
+    see :func:`plant_source`. ``Dy`` dense (``p x n x n_theta``, zero for an output without an entry, as the
+    runtime builds it) and the parts of the plant's rate that do not depend on theta as numpy computes them
+    (:func:`uiofmu.runtime.parametric_plant.rate`), so both runtimes take the same substeps."""
+    kernel = plant_kernel(data)
+    if data.get("time") != "continuous":
+        raise FmuError("plant time: a plant with unknown parameters is continuous, found "
+                       f"{str(data.get('time'))[:40]!r}")
+    A = np.asarray(data["A"], dtype=float)
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or not A.shape[0]:
+        raise FmuError(f"plant A: expected a square matrix, found shape {A.shape}")
+    n = A.shape[0]
+    B = np.asarray(data["B"], dtype=float).reshape(n, -1)
+    C = np.asarray(data["C"], dtype=float).reshape(-1, n)
+    par = data["parameters"]
+    theta = np.asarray(par["theta"], dtype=float).ravel()
+    D0 = np.asarray(par["D0"], dtype=float).reshape(n, theta.size)
+    m, p, nt = B.shape[1], C.shape[0], theta.size
+    Dy = np.zeros((p, n, nt))
+    for entry in par["Dy"]:
+        output = _count(entry["output"], "plant parameters.Dy.output")
+        if not 1 <= output <= p:
+            raise FmuError(f"plant parameters.Dy: output {output} is not one of 1..{p}")
+        Dy[output - 1] = np.asarray(entry["D"], dtype=float).reshape(n, nt)
+    x0 = np.asarray(data.get("x0") or np.zeros(n), dtype=float)
+    table = table_rows(kernel, "plant with unknown parameters", parametric_plant_ports(n, m, p, nt))
+    arrays = (("A", A, n * n), ("B", B, n * m), ("C", C, p * n), ("D0", D0, n * nt), ("Dy", Dy, p * n * nt),
+              ("x0", x0, n), ("theta", theta, nt))
+    rate = (f".norm_A = {_double(np.linalg.norm(A, 2), 'norm_A')}, "
+            f".norm_C = {_double(np.linalg.norm(C, 2), 'norm_C')}, "
+            f".sum_Dy = {_double(np.abs(Dy).sum(), 'sum_Dy')}, .sum_D0 = {_double(np.abs(D0).sum(), 'sum_D0')},")
+    lines = ["/* Generated by uiofmu from a plant with unknown parameters. */", f'#include "{kernel.header}"', "",
+             *(f"static const double m_{key}[] = {_doubles(arr, f'plant.{key}', size)};" for key, arr, size in arrays),
+             "", "const UiofmuParametric UIOFMU_PARAMETRIC = {", f"    .n = {n}, .m = {m}, .p = {p}, .nt = {nt},",
+             f"    {rate}",
+             "    " + ", ".join(f".{k} = m_{k}, .{k}_length = UIOFMU_LENGTH(m_{k})" for k, _, _ in arrays) + ",",
+             "};", "", *fmu_table(guid, identifier, kernel, table)]
+    return "\n".join(lines)
+
+
 #: The generator of ``design_data.c`` of each plant C kernel (:attr:`uiofmu.runtime.plant_kinds.PlantKind.c_kernel`).
-_PLANT_SOURCES = {"linear": _linear_source, "switched": _switched_source, "lpv": _lpv_source}
+_PLANT_SOURCES = {"linear": _linear_source, "switched": _switched_source, "lpv": _lpv_source,
+                  "parametric": _parametric_source}
 
 
 def _plant_data_source(what: str, kernel: CKernel, declaration: str, arrays, dims: str, dt: float, fields: list,
@@ -881,12 +994,13 @@ def build_c_plant(plant, output, identifier: str, experiment: dict | None = None
     """Write the C FMU of a plant to ``output`` (``c/kernel_plant.c``: exact zero-order hold for
     any step of a continuous plant, dt only for a discrete one; a switched plant in its current
     mode, picked by its rule; ``c/kernel_lpv.c``: an LPV plant at its theta, from the state or
-    the input ``theta``).
+    the input ``theta``; ``c/kernel_parametric.c``: a plant with unknown parameters, RK4 substeps).
 
     Parameters
     ----------
-    plant : uiofmu.plant.Plant, uiofmu.switched_plant.SwitchedPlant or uiofmu.lpv_plant.LpvPlant
-        A checked linear, switched or LPV plant.
+    plant : Plant, SwitchedPlant, LpvPlant or ParametricPlant
+        A checked linear, switched or LPV plant (:mod:`uiofmu.plant`, :mod:`uiofmu.switched_plant`,
+        :mod:`uiofmu.lpv_plant`) or a plant with unknown parameters (:mod:`uiofmu.parametric_plant`).
     output : str or Path
         The ``.fmu`` file to write.
     identifier : str

@@ -299,10 +299,7 @@ KERNELS = {k.name: k for k in (
     Kernel("window", ("window",), ("F", "Fexp"), _check_window, _window_ports, WindowRuntime, FunctionalModel,
            "window", estimates_x=False),
     Kernel("delayed", ("continuous",), ("Abar", "Bbar", "Cbar", "D0", "Dy", "K"), _check_delayed, _delayed_ports,
-           DelayedRuntime, DelayedModel, None,
-           python_only="the C backend has no kernel 'delayed' (the continuous-time delayed UIO with parameter "
-                       "identification: RK4 substeps, a time-stamped delay buffer and a rank test at every substep "
-                       "are implemented in the Python runtime only)"),
+           DelayedRuntime, DelayedModel, "delayed"),
 )}
 #: The kernel of a card without a ``kernel`` key.
 DEFAULT = next(iter(KERNELS))

@@ -137,10 +137,8 @@ class PlantKind:
 #: The plant kinds, in the order a plant's data is tested for their keys (the first that matches).
 PLANT_KINDS = {k.name: k for k in (
     PlantKind("parametric", "parameters", _plant_runtime(ParametricPlantRuntime), _parametric_ports,
-              _parametric_arrays, theta_parameters=True,
-              python_only="the C backend has no kernel for a plant with unknown parameters (x' = A x + B u + "
-                          "D(y) theta with RK4 substeps and the output ydot are implemented in the Python runtime "
-                          "only)"),
+              _parametric_arrays, theta_parameters=True, c_kernel="parametric",
+              what="plant with unknown parameters"),
     PlantKind("lpv", "scheduling", _plant_runtime(LpvPlantRuntime), _lpv_ports, _lpv_arrays, c_kernel="lpv",
               variant=("theta", "kind"), what="LPV plant"),
     PlantKind("switched", "modes", _plant_runtime(SwitchedPlantRuntime), _switched_ports, _switched_arrays,

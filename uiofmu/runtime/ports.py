@@ -203,6 +203,28 @@ KERNEL_PORTS = {
         PortSpec("mode", 0, "output", "mode of the step from the current communication point (1..N)",
                  type="Integer"),
     ),
+    "parametric": (
+        PortSpec("x0", 0, "parameter", "initial state"),
+        PortSpec("theta", 0, "parameter", "the unknown constant parameters the plant simulates"),
+        PortSpec("u", 0, "input", "known inputs (held over the step)"),
+        PortSpec("y", 0, "output",
+                 "measured outputs C x"),
+        PortSpec("ydot", 0, "output", "their derivative C x' at the current point", depends=("u",)),
+        PortSpec("x", 0, "output", "true state (for validation)"),
+    ),
+    "delayed": (
+        PortSpec("xhat0", 0, "parameter", "initial state estimate (also of the delayed copies)"),
+        PortSpec("y", 0, "input", "measured outputs at the current communication point"),
+        PortSpec("ydot", 0, "input", "their measured derivative"),
+        PortSpec("u", 0, "input", "known inputs (held over the step)"),
+        PortSpec("xhat", 0, "output", "state estimate (held while not valid)", depends=("y", "ydot", "u")),
+        PortSpec("thetahat", 0, "output", "parameter estimate (34) (held while not valid)",
+                 depends=("y", "ydot", "u")),
+        PortSpec("r", 0, "output", "output residual y - C xhat", depends=("y", "ydot", "u")),
+        PortSpec("sigma_min", 0, "output", "rank margin sigma_min(C D_y) now", depends=("y", "ydot")),
+        PortSpec("valid", 0, "output", "1 while the estimates are valid (delays filled, margin above the "
+                 "premise bound)", type="Integer", depends=("y", "ydot")),
+    ),
 }
 
 
@@ -330,29 +352,21 @@ def parametric_plant_ports(n: int, m: int, p: int, n_theta: int) -> list:
     """The declaration of a plant with unknown parameters (:mod:`uiofmu.runtime.parametric_plant`):
     parameters ``x0`` and ``theta`` (the true values it simulates), input ``u``, outputs ``y``, its
     derivative ``ydot = C x'`` (depending on ``u``) and ``x``."""
-    return [PortSpec("x0", n, "parameter", "initial state"),
-            PortSpec("theta", n_theta, "parameter", "the unknown constant parameters the plant simulates"),
-            PortSpec("u", m, "input", "known inputs (held over the step)"),
-            PortSpec("y", p, "output", "measured outputs C x"),
-            PortSpec("ydot", p, "output", "their derivative C x' at the current point", depends=("u",)),
-            PortSpec("x", n, "output", "true state (for validation)")]
+    def port(key, size):
+        return kernel_port("parametric", key, size)
+
+    return [port("x0", n), port("theta", n_theta), port("u", m), port("y", p), port("ydot", p), port("x", n)]
 
 
 def delayed_ports(n: int, m: int, p: int, n_theta: int) -> list:
     """The declaration of the delayed kernel (:mod:`uiofmu.runtime.delayed`): parameter ``xhat0``; inputs
     ``y``, ``ydot``, ``u``; outputs ``xhat``, ``thetahat``, ``r``, the rank margin ``sigma_min`` and the
     Integer ``valid`` (1 while the estimates are valid)."""
-    return [PortSpec("xhat0", n, "parameter", "initial state estimate (also of the delayed copies)"),
-            PortSpec("y", p, "input", "measured outputs at the current communication point"),
-            PortSpec("ydot", p, "input", "their measured derivative"),
-            PortSpec("u", m, "input", "known inputs (held over the step)"),
-            PortSpec("xhat", n, "output", "state estimate (held while not valid)", depends=("y", "ydot", "u")),
-            PortSpec("thetahat", n_theta, "output", "parameter estimate (34) (held while not valid)",
-                     depends=("y", "ydot", "u")),
-            PortSpec("r", p, "output", "output residual y - C xhat", depends=("y", "ydot", "u")),
-            PortSpec("sigma_min", 1, "output", "rank margin sigma_min(C D_y) now", depends=("y", "ydot")),
-            PortSpec("valid", 1, "output", "1 while the estimates are valid (delays filled, margin above the "
-                     "premise bound)", type="Integer", depends=("y", "ydot"))]
+    def port(key, size):
+        return kernel_port("delayed", key, size)
+
+    return [port("xhat0", n), port("y", p), port("ydot", p), port("u", m), port("xhat", n), port("thetahat", n_theta),
+            port("r", p), port("sigma_min", 1), port("valid", 1)]
 
 
 def source_ports(sizes: dict) -> list:
