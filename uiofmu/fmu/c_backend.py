@@ -48,7 +48,7 @@ from ..runtime.step_rules import step_rule
 from ..runtime.tolerances import STEP_RTOL, STEP_ULPS, STEP_ULPS_LIMIT
 
 HERE = Path(__file__).parent / "c"
-MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc")
+MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc", "Xu")
 KINDS = {"constant": "UIOFMU_CONSTANT", "interval": "UIOFMU_INTERVAL", "geometric": "UIOFMU_GEOMETRIC",
          "mode": "UIOFMU_MODE"}
 POLICIES = {"error": "UIOFMU_POLICY_ERROR", "nearest": "UIOFMU_POLICY_NEAREST", "count": "UIOFMU_POLICY_COUNT"}
@@ -135,6 +135,11 @@ THETA_KINDS = {"state": "UIOFMU_THETA_STATE", "input": "UIOFMU_THETA_INPUT"}
 PYTHON_ONLY = {d.name: d.python_only for d in (*KERNELS.values(), *PLANT_KINDS.values()) if d.python_only}
 
 
+#: Why a linear plant with direct feedthrough has no C kernel.
+FEEDTHROUGH_PYTHON_ONLY = ("the C backend's linear plant kernel measures y = C x: a plant with feedthrough "
+                           "(plant.D or plant.F) is implemented in the Python runtime only")
+
+
 def c_refusal(model) -> str | None:
     """Why the C backend cannot pack ``model``, or None when it can.
 
@@ -156,6 +161,8 @@ def c_refusal(model) -> str | None:
                                       f"(it has {', '.join(C_KERNELS)})")
     data = model if isinstance(model, dict) else model.to_data()
     kind = data_kind(data)
+    if kind is LINEAR and (data.get("D") or data.get("F")):
+        return FEEDTHROUGH_PYTHON_ONLY
     return None if kind.c_kernel is not None else kind.python_only
 
 
@@ -585,6 +592,9 @@ def plant_source(data: dict, guid: str, identifier: str) -> str:
 def _linear_source(data: dict, guid: str, identifier: str) -> str:
     """``design_data.c`` of a linear plant (:func:`plant_source`)."""
     kernel = PLANT_KERNELS[LINEAR.c_kernel]
+    if data.get("D") or data.get("F"):
+        raise FmuError(f"--backend c: {FEEDTHROUGH_PYTHON_ONLY}; use --backend python (or leave --backend out: the "
+                       "default picks python for this plant)")
     time = data.get("time")
     if time not in TIMES:
         raise FmuError(f"plant time: expected discrete or continuous, found {str(time)[:40]!r}")
