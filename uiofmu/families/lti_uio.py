@@ -188,7 +188,8 @@ def _parse_poles(table) -> tuple:
     for i, item in enumerate(raw):
         where = f"{key}[{i}]"
         parts = item if isinstance(item, list) else [item]
-        if len(parts) != (2 if isinstance(item, list) else 1) or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in parts):
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in parts)
+        if len(parts) != (2 if isinstance(item, list) else 1) or not numbers:
             raise ProblemError(f"{where}: expected a number or an [re, im] pair of numbers, found {str(item)[:60]}")
         value = complex(float(parts[0]), float(parts[1]) if len(parts) == 2 else 0.0)
         if not np.isfinite(value) or not abs(value) < 1.0:
