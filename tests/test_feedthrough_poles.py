@@ -138,7 +138,8 @@ def accelerometer_fmus(tmp_path_factory):
     for argv in (("design", ACCELEROMETER, "-o", out / "card.json"),
                  ("build", out / "card.json", "-o", out / "c.fmu", "--backend", "c"),
                  ("build", out / "card.json", "-o", out / "python.fmu", "--backend", "python"),
-                 ("plant", ACCELEROMETER, "-o", out / "plant.fmu")):
+                 ("plant", ACCELEROMETER, "-o", out / "plant.fmu", "--backend", "c"),
+                 ("plant", ACCELEROMETER, "-o", out / "plant_python.fmu", "--backend", "python")):
         res = run_cli(*map(str, argv))
         assert res.code == 0, res.err
     return out
@@ -152,10 +153,14 @@ def _dependencies(path, output: str) -> set:
     return {d.name for d in out.dependencies}
 
 
-def test_plant_fmu_measures_the_feedthrough(accelerometer_fmus, cli):
-    res = cli("validate", accelerometer_fmus / "plant.fmu")
+@pytest.mark.parametrize("plant", ["plant.fmu", "plant_python.fmu"])
+def test_plant_fmus_measure_the_feedthrough(accelerometer_fmus, cli, plant):
+    res = cli("validate", accelerometer_fmus / plant)           # y against C x + D u + F d on random inputs
     assert res.code == 0, res.out + res.err
-    assert _dependencies(accelerometer_fmus / "plant.fmu", "y[2]") == {"u[1]", "d[1]"}
+    assert _dependencies(accelerometer_fmus / plant, "y[2]") == {"u[1]", "d[1]"}
+
+
+def test_observer_fmus_declare_xhat_on_u(accelerometer_fmus):
     assert _dependencies(accelerometer_fmus / "c.fmu", "xhat[1]") == {"y[1]", "y[2]", "u[1]"}
     assert _dependencies(accelerometer_fmus / "python.fmu", "xhat[1]") == {"y[1]", "y[2]", "u[1]"}
 
@@ -177,10 +182,12 @@ def test_both_backends_converge_with_an_unknown_input_that_feeds_through(acceler
     np.testing.assert_allclose(result.y, result.x @ p.C.T + result.u @ p.D.T + result.d @ p.F.T, atol=1e-12)
 
 
-def test_c_and_python_observers_agree(accelerometer_fmus):
+def test_c_and_python_fmus_agree(accelerometer_fmus):
     steps = np.full(60, 0.05)
-    runs = [cosimulate(accelerometer_fmus / "plant.fmu", accelerometer_fmus / f"{b}.fmu", steps,
-                       plant_x0=[0.3, -0.4], show_progress=False) for b in ("c", "python")]
+    runs = [cosimulate(accelerometer_fmus / plant, accelerometer_fmus / f"{b}.fmu", steps,
+                       plant_x0=[0.3, -0.4], show_progress=False)
+            for plant, b in (("plant.fmu", "c"), ("plant_python.fmu", "python"))]
+    np.testing.assert_allclose(runs[0].y, runs[1].y, rtol=0, atol=1e-12)
     np.testing.assert_allclose(runs[0].xhat, runs[1].xhat, rtol=0, atol=1e-12)
 
 

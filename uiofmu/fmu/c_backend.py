@@ -135,11 +135,6 @@ THETA_KINDS = {"state": "UIOFMU_THETA_STATE", "input": "UIOFMU_THETA_INPUT"}
 PYTHON_ONLY = {d.name: d.python_only for d in (*KERNELS.values(), *PLANT_KINDS.values()) if d.python_only}
 
 
-#: Why a linear plant with direct feedthrough has no C kernel.
-FEEDTHROUGH_PYTHON_ONLY = ("the C backend's linear plant kernel measures y = C x: a plant with feedthrough "
-                           "(plant.D or plant.F) is implemented in the Python runtime only")
-
-
 def c_refusal(model) -> str | None:
     """Why the C backend cannot pack ``model``, or None when it can.
 
@@ -161,8 +156,6 @@ def c_refusal(model) -> str | None:
                                       f"(it has {', '.join(C_KERNELS)})")
     data = model if isinstance(model, dict) else model.to_data()
     kind = data_kind(data)
-    if kind is LINEAR and (data.get("D") or data.get("F")):
-        return FEEDTHROUGH_PYTHON_ONLY
     return None if kind.c_kernel is not None else kind.python_only
 
 
@@ -525,7 +518,8 @@ def _switched_source(data: dict, guid: str, identifier: str) -> str:
         raise FmuError(f"plant switching.seed: expected an fmi2Integer, found {str(seed)[:40]!r}")
     table = table_rows(kernel, "switched plant", plant_ports(n, m, p, q, (), rule))
     arrays = (("A", A, N * n * n), ("B", B, N * n * m), ("E", E, N * n * q), ("C", C, p * n), ("w", w, N * n),
-              ("x0", x0, n), ("thresholds", thresholds, len(thresholds)), ("cumulative", cumulative, len(cumulative)))
+              ("x0", x0, n), ("thresholds", thresholds, len(thresholds)), ("cumulative", cumulative, len(cumulative)),
+              ("D", np.zeros((p, m)), p * m), ("F", np.zeros((p, q)), p * q))
     switching = (f".modes = {N}, .rule = {RULES[rule]}, .state = {state}, .nthresholds = {len(thresholds)}, "
                  f".mode0 = {mode0}, .seed = {int(seed)},")
     return _plant_data_source("a switched plant", kernel, "UiofmuPlant UIOFMU_PLANT", arrays,
@@ -592,9 +586,6 @@ def plant_source(data: dict, guid: str, identifier: str) -> str:
 def _linear_source(data: dict, guid: str, identifier: str) -> str:
     """``design_data.c`` of a linear plant (:func:`plant_source`)."""
     kernel = PLANT_KERNELS[LINEAR.c_kernel]
-    if data.get("D") or data.get("F"):
-        raise FmuError(f"--backend c: {FEEDTHROUGH_PYTHON_ONLY}; use --backend python (or leave --backend out: the "
-                       "default picks python for this plant)")
     time = data.get("time")
     if time not in TIMES:
         raise FmuError(f"plant time: expected discrete or continuous, found {str(time)[:40]!r}")
@@ -608,10 +599,13 @@ def _linear_source(data: dict, guid: str, identifier: str) -> str:
     w = np.asarray(data.get("w") or np.zeros(n), dtype=float)
     x0 = np.asarray(data.get("x0") or np.zeros(n), dtype=float)
     m, q, p = B.shape[1], E.shape[1], C.shape[0]
+    D, F = (np.asarray(data[k], dtype=float).reshape(p, cols) if data.get(k) else np.zeros((p, cols))
+            for k, cols in (("D", m), ("F", q)))
     dt = float(data.get("dt") or 0.0) if time == "discrete" else 0.0
-    table = table_rows(kernel, "linear plant", plant_ports(n, m, p, q))
+    feeds = tuple(name for name, M in (("u", D), ("d", F)) if np.any(M))
+    table = table_rows(kernel, "linear plant", plant_ports(n, m, p, q, feeds=feeds))
     arrays = (("A", A, n * n), ("B", B, n * m), ("E", E, n * q), ("C", C, p * n), ("w", w, n), ("x0", x0, n),
-              ("thresholds", [], 0), ("cumulative", [], 0))
+              ("thresholds", [], 0), ("cumulative", [], 0), ("D", D, p * m), ("F", F, p * q))
     return _plant_data_source("a linear plant", kernel, "UiofmuPlant UIOFMU_PLANT", arrays,
                               f".n = {n}, .m = {m}, .p = {p}, .q = {q}, .time = {TIMES[time]},", dt,
                               [".modes = 0, .rule = UIOFMU_RULE_NONE, .mode0 = 1,"], guid, identifier, table)
