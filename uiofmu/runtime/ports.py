@@ -289,7 +289,9 @@ def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | 
     ports += [port("u", m), port("d", q)]
     if switching == "input":
         ports.append(port("mode", 1, causality="input"))
-    ports += [port("y", p, depends=tuple(feeds)) if feeds else port("y", p), port("x", n)]
+    ports += [port("y", p), port("x", n)]
+    if feeds:                                        # y = C x + D u + F d
+        ports = [replace(spec, depends=tuple(feeds)) if spec.key == "y" else spec for spec in ports]
     if switching in ("threshold", "random"):
         ports.append(port("mode", 1, causality="output"))
     return ports
