@@ -285,3 +285,14 @@ def test_pole_placed_observer_converges_in_co_simulation(tmp_path, cli):
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert metrics["bound_respected"] is True and metrics["certified_decay"] == 0.5001
     assert metrics["final_error_norm"] <= 1e-9 * metrics["initial_error_norm"]
+
+
+def test_a_statespace_with_d_keeps_its_feedthrough():
+    control = pytest.importorskip("control")
+    sys = control.ss([[0.5, 0.1], [0.0, 0.4]], [[1.0], [0.5]], [[1.0, 0.0], [0.0, 1.0]], [[0.2], [0.0]], 0.1)
+    plant = uiofmu.plant_from_statespace(sys, [[0.0], [1.0]], x0=[1.0, 0.0])
+    np.testing.assert_array_equal(plant.D, [[0.2], [0.0]])
+    assert plant.feeds_u and not plant.feeds_d
+    card = uiofmu.design(uiofmu.make_problem(plant, "lti-uio", decay=0.5))
+    np.testing.assert_allclose(card.data["matrices"]["Xu"], np.asarray(card.data["matrices"]["M"]) @ plant.D)
+    assert all(c.holds for c in verify(card))
