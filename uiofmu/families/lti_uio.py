@@ -43,8 +43,8 @@ stores ``G = P B - L D`` and the direct term ``Xu = M D`` of ``xhat`` (the FMU's
 injection moves are placed exactly at the poles given (``scipy.signal.place_poles`` on the observable part of an
 orthogonal observability split), the fixed modes stay. With ``N = V diag(lambda) V^-1`` (unit columns of ``V``)
 and ``X = (V V^H)^-1`` scaled to ``X >= I``, ``||e_k|| <= cond(V) rho^k ||e_0||`` for ``rho`` the largest modulus of
-``N``'s eigenvalues; the card certifies it at ``decay_bound``, ``rho`` rounded up to 4 digits above
-``sqrt(rho^2 + POLE_ROOM)`` (what the Lyapunov re-check at the stored matrices needs as margin), with
+``N``'s eigenvalues; the card certifies it at ``decay_bound = sqrt(rho^2 + POLE_ROOM)`` rounded up to 4
+significant digits (the margin the Lyapunov re-check at the stored matrices needs), with
 ``overshoot_bound = sqrt(cond X) = cond(V)``. ``poles`` lists ``N``'s eigenvalues. With one output direction the
 gain is unique and the overshoot is the problem's; with more, ``place_poles`` picks one of many gains (its
 robust algorithm), so the card's ``overshoot_digits`` says the problem does not determine it.
