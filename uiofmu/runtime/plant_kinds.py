@@ -40,7 +40,8 @@ def _mujoco_runtime(spec: dict, resources: str):
 
 
 def _linear_ports(rt, physical: list) -> list:
-    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical)
+    feeds = tuple(k for k in ("u", "d") if getattr(rt, {"u": "D", "d": "F"}[k], None) is not None)
+    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, feeds=feeds)
 
 
 def _switched_ports(rt, physical: list) -> list:

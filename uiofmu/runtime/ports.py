@@ -257,7 +257,8 @@ def kernel_port(kernel: str, key: str, size: int, **changes) -> PortSpec:
     return replace(ports[key], size=size, **changes)
 
 
-def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool = True) -> list:
+def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool = True,
+                   feeds_u: bool = False) -> list:
     """The declaration of the affine observer kernel (every family today).
 
     Parameters
@@ -271,6 +272,8 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
         Adds the output ``dhat``.
     feeds_y : bool
         Whether ``xhat`` depends on the ``y`` of the same communication point (``Xy != 0``).
+    feeds_u : bool
+        Whether ``xhat`` (and so ``r``) depends on the ``u`` of the same communication point (``Xu != 0``).
 
     Returns
     -------
@@ -289,7 +292,8 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
     ports += [port("y", p), port("u", m)]
     if schedule_kind == "mode":
         ports.append(port("mode", 1))
-    ports += [port("xhat", n, depends=("y",) if feeds_y else ()), port("r", p, depends=("y",))]
+    direct = (("y",) if feeds_y else ()) + (("u",) if feeds_u else ())
+    ports += [port("xhat", n, depends=direct), port("r", p, depends=("y",) + (("u",) if feeds_u else ()))]
     if has_dhat:
         ports.append(port("dhat", q, depends=("y",)))
     return ports
@@ -306,9 +310,11 @@ def window_ports(p: int, d: int, s: int) -> list:
     return ports + [port("gx", d, depends=("y", "theta") if s else ("y",)), port("gx_valid", 1)]
 
 
-def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | None = None) -> list:
+def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | None = None,
+                feeds: tuple = ()) -> list:
     """The declaration of a plant: parameters ``x0`` and the physical ``(name, what)`` pairs,
-    inputs ``u``, ``d`` (held over the step), outputs ``y = C x`` and ``x`` (no feedthrough).
+    inputs ``u``, ``d`` (held over the step), outputs ``y = C x + D u + F d`` and ``x`` (``feeds``: the inputs
+    ``y`` depends on directly, ``"u"`` where ``D != 0`` and ``"d"`` where ``F != 0``; none by default).
 
     A switched plant (``switching``: its rule, :mod:`uiofmu.runtime.switching`) adds the Integer
     ``mode`` of the step from the current point: an output that depends on no input (rules
@@ -325,6 +331,8 @@ def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | 
     if switching == "input":
         ports.append(port("mode", 1, causality="input"))
     ports += [port("y", p), port("x", n)]
+    if feeds:                                        # y = C x + D u + F d
+        ports = [replace(spec, depends=tuple(feeds)) if spec.key == "y" else spec for spec in ports]
     if switching in ("threshold", "random"):
         ports.append(port("mode", 1, causality="output"))
     return ports
