@@ -358,7 +358,20 @@ def read_description(path, source=None):
         raise FmuError(f"{path}: not a readable FMU ({_first_line(exc)})") from None
 
 
-def read_model_json(path) -> dict:
+def read_model_text(path) -> str:
+    """The text of ``resources/model.json`` packed in an FMU built by uiofmu (see :func:`read_model_json`)."""
+    path = Path(path)
+    try:
+        with open_archive(path) as z:
+            info = z.getinfo("resources/model.json")
+            if info.file_size > MAX_INPUT_BYTES:
+                raise FmuError(f"{path}: resources/model.json has {info.file_size} bytes, more than {MAX_INPUT_BYTES}")
+            return z.read(info).decode("utf-8")
+    except (KeyError, OSError, zipfile.BadZipFile, UnicodeDecodeError, RuntimeError, NotImplementedError):
+        raise FmuError(f"{path}: not an FMU built by uiofmu (no readable resources/model.json)") from None
+
+
+def read_model_json(path, text: str | None = None) -> dict:
     """The uiofmu model (``resources/model.json``) packed in an FMU built by uiofmu.
 
     Parameters
@@ -366,23 +379,17 @@ def read_model_json(path) -> dict:
     path : str or Path
         A regular file within the limits of :func:`open_archive`; its ``resources/model.json`` is read only up to
         :data:`uiofmu.runtime.files.MAX_INPUT_BYTES` and nested at most :data:`uiofmu.runtime.files.MAX_DEPTH` deep.
+    text : str, optional
+        That file's text, already read (:func:`read_model_text`).
 
     Returns
     -------
     dict
     """
-    path = Path(path)
-    try:
-        with open_archive(path) as z:
-            info = z.getinfo("resources/model.json")
-            if info.file_size > MAX_INPUT_BYTES:
-                raise FmuError(f"{path}: resources/model.json has {info.file_size} bytes, more than {MAX_INPUT_BYTES}")
-            text = z.read(info).decode("utf-8")
-    except (KeyError, OSError, zipfile.BadZipFile, UnicodeDecodeError, RuntimeError, NotImplementedError):
-        raise FmuError(f"{path}: not an FMU built by uiofmu (no readable resources/model.json)") from None
-    spec = parse_json(text, f"{path}: resources/model.json", error=FmuError)
+    text = read_model_text(path) if text is None else text
+    spec = parse_json(text, f"{Path(path)}: resources/model.json", error=FmuError)
     if not isinstance(spec, dict):
-        raise FmuError(f"{path}: resources/model.json is not a uiofmu model")
+        raise FmuError(f"{Path(path)}: resources/model.json is not a uiofmu model")
     return spec
 
 

@@ -39,8 +39,9 @@ from .steps import step_sequence
 from ..threads import single_blas_thread
 
 
-#: The SHA-256 digests of the observer FMUs whose card re-checked in this process (the last MAX_FILES).
-_CHECKED: "OrderedDict[str, None]" = OrderedDict()
+#: The observer FMUs whose card re-checked in this process (the last MAX_FILES), by the SHA-256 of their bytes:
+#: the text of their ``resources/model.json`` and the card's read-only matrices.
+_CHECKED: "OrderedDict[str, tuple]" = OrderedDict()
 
 
 def _digest(path) -> str | None:
@@ -56,21 +57,24 @@ def observer_card(path) -> Card:
     with its certificate re-checked at the stored matrices (:func:`uiofmu.synthesis.recheck`) and,
     for a C FMU (whose binary holds the matrices), bound to the binary by the GUID both carry.
 
-    The re-check and the binding are done once per content in a process: a file whose bytes (their
-    SHA-256, the same before and after the card was read) passed them before gives its card at once."""
+    The reading, the re-check and the binding are done once per content in a process: a file whose bytes
+    (their SHA-256) passed them before gives its card again, its document parsed afresh from the text kept
+    (the same before and after it was first read)."""
     from ..fmu.c_backend import guid_of
     from ..synthesis import recheck
-    from .fmi import open_archive, read_description
+    from .fmi import open_archive, read_description, read_model_text
 
     digest = _digest(path)
-    spec = read_model_json(path)
+    if digest in _CHECKED:
+        _CHECKED.move_to_end(digest)
+        text, matrices = _CHECKED[digest]
+        return Card(json.loads(text)["card"], matrices)
+    text = read_model_text(path)
+    spec = read_model_json(path, text)
     if spec.get("kind") != "observer" or "card" not in spec:
         raise FmuError(f"{path}: this FMU is not an observer built by uiofmu (its model is a "
                        f"{str(spec.get('kind'))[:40]!r})")
     card = card_from_data(spec["card"])
-    if digest is not None and digest in _CHECKED and _digest(path) == digest:
-        _CHECKED.move_to_end(digest)
-        return card
     recheck(card)
     with open_archive(path) as archive:
         compiled = "sources/design_data.c" in archive.namelist()
@@ -80,7 +84,7 @@ def observer_card(path) -> Card:
                        f"FMU's GUID {str(guid)[:40]} is not the card's {guid_of(spec['card'])}): rebuild the FMU "
                        "from its card")
     if digest is not None and _digest(path) == digest:
-        _CHECKED[digest] = None
+        _CHECKED[digest] = (text, card.matrices)
         while len(_CHECKED) > MAX_FILES:
             _CHECKED.popitem(last=False)
     return card
