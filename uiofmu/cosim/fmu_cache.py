@@ -148,12 +148,13 @@ def take(path, describe) -> Copy:
     Raises
     ------
     FmuError
-        From ``describe``, and for an FMU fmpy cannot extract.
-    OSError
-        For a file that cannot be read.
+        From ``describe``, for a file that cannot be read and for an FMU fmpy cannot extract.
     """
     path = Path(path)
-    unit = _UNITS.get(digest_of(path)) or _add(path, describe)
+    try:
+        unit = _UNITS.get(digest_of(path)) or _add(path, describe)
+    except OSError as exc:
+        raise FmuError(f"{path}: not a readable FMU ({exc.strerror or type(exc).__name__})") from None
     _UNITS.move_to_end(unit.digest)
     copy = unit.free.pop() if unit.free else _extract(path, unit)
     unit.busy += 1
