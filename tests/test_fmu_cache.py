@@ -153,3 +153,31 @@ def test_the_private_folder_goes_at_exit(fmus, tmp_path):
     assert proc.returncode == 0, proc.stderr
     folder = json.loads(proc.stdout)
     assert "uiofmu_fmus_" in folder and not os.path.exists(folder)
+
+
+def test_a_card_is_re_checked_once_per_content(fmus, tmp_path, monkeypatch):
+    import uiofmu.synthesis
+    from uiofmu.cosim.master import observer_card
+
+    observer = tmp_path / "obs.fmu"
+    shutil.copyfile(fmus / "obs_c.fmu", observer)
+    first = observer_card(observer)
+    checks = []
+    monkeypatch.setattr(uiofmu.synthesis, "recheck", lambda card: checks.append(card) or [])
+    again = observer_card(observer)
+    assert checks == [] and again.data == first.data and again.data is not first.data
+    assert all(np.array_equal(again.matrices[k], first.matrices[k]) for k in first.matrices)
+    other = _modified(observer, tmp_path, "other.fmu", comment=b"other bytes, the same card")
+    observer_card(other)
+    assert len(checks) == 1                     # other bytes: read and re-checked afresh
+
+
+def test_files_removed_under_the_cache_are_unpacked_again(fmus, tmp_path):
+    """A cleaner of the temporary folder may remove the private folder of a long process: the next instance
+    unpacks the file again."""
+    observer = tmp_path / "obs.fmu"
+    shutil.copyfile(fmus / "obs_c.fmu", observer)
+    reference = _run(fmus / "plant.fmu", observer)
+    shutil.rmtree(fmu_cache.folder())
+    _same(_run(fmus / "plant.fmu", observer), reference)
+    assert fmu_cache.folder().is_dir() and fmu_cache.digest_of(observer) in fmu_cache.files()

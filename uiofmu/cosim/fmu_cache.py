@@ -29,6 +29,7 @@ import itertools
 import os
 import shutil
 import tempfile
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,6 +69,7 @@ class Copy:
 _UNITS: "OrderedDict[str, Unit]" = OrderedDict()
 _STATE = {"root": None, "closed": False}
 _NAMES = itertools.count(1)
+_LOCK = threading.RLock()          # instances may be made and freed from several threads
 
 
 def digest_of(path) -> str:
@@ -80,8 +82,8 @@ def digest_of(path) -> str:
 
 
 def _root() -> Path:
-    """The process's private folder (made on first use, removed at exit)."""
-    if _STATE["root"] is None:
+    """The process's private folder (made on first use, again if something removed it; removed at exit)."""
+    if _STATE["root"] is None or not _STATE["root"].is_dir():
         _STATE["root"] = Path(tempfile.mkdtemp(prefix="uiofmu_fmus_"))
     return _STATE["root"]
 
@@ -151,14 +153,25 @@ def take(path, describe) -> Copy:
         From ``describe``, for a file that cannot be read and for an FMU fmpy cannot extract.
     """
     path = Path(path)
-    try:
-        unit = _UNITS.get(digest_of(path)) or _add(path, describe)
-    except OSError as exc:
-        raise FmuError(f"{path}: not a readable FMU ({exc.strerror or type(exc).__name__})") from None
-    _UNITS.move_to_end(unit.digest)
-    copy = unit.free.pop() if unit.free else _extract(path, unit)
-    unit.busy += 1
-    return copy
+    with _LOCK:
+        try:
+            unit = _UNITS.get(digest_of(path))
+            if unit is not None and not unit.archive.is_file():     # its files were removed under it
+                _remove(unit)
+                unit = None
+            unit = unit or _add(path, describe)
+        except OSError as exc:
+            raise FmuError(f"{path}: not a readable FMU ({exc.strerror or type(exc).__name__})") from None
+        _UNITS.move_to_end(unit.digest)
+        copy = None
+        while unit.free and copy is None:
+            copy = unit.free.pop()
+            if not copy.folder.is_dir():            # removed under it: unloaded and forgotten
+                _forget_copy(copy)
+                copy = None
+        copy = copy or _extract(path, unit)
+        unit.busy += 1
+        return copy
 
 
 def give_back(copy: Copy) -> None:
@@ -167,14 +180,15 @@ def give_back(copy: Copy) -> None:
     unit = copy.unit
     if unit.pid != os.getpid():                     # the parent's, inherited through fork: the parent's to remove
         return
-    unit.busy -= 1
-    if copy.slave is not None and (unit.once or _STATE["closed"]):
-        _unload(copy)
-    if _STATE["closed"] or _UNITS.get(unit.digest) is not unit:
-        shutil.rmtree(copy.folder, ignore_errors=True)
-        return
-    unit.free.append(copy)
-    _evict()
+    with _LOCK:
+        unit.busy -= 1
+        if copy.slave is not None and (unit.once or _STATE["closed"]):
+            _unload(copy)
+        if _STATE["closed"] or _UNITS.get(unit.digest) is not unit:
+            shutil.rmtree(copy.folder, ignore_errors=True)
+            return
+        unit.free.append(copy)
+        _evict()
 
 
 def drop(copy: Copy) -> None:
@@ -182,10 +196,9 @@ def drop(copy: Copy) -> None:
     removed."""
     if copy.unit.pid != os.getpid():
         return
-    copy.unit.busy -= 1
-    if copy.slave is not None:
-        _unload(copy)
-    shutil.rmtree(copy.folder, ignore_errors=True)
+    with _LOCK:
+        copy.unit.busy -= 1
+        _forget_copy(copy)
 
 
 def release_python_state(dll) -> None:
@@ -217,16 +230,20 @@ def _unload(copy: Copy) -> None:
         slave.freeLibrary()
 
 
+def _forget_copy(copy: Copy) -> None:
+    """Unload a copy's binary (if loaded) and remove its folder."""
+    try:
+        if copy.slave is not None:
+            _unload(copy)
+    finally:
+        shutil.rmtree(copy.folder, ignore_errors=True)
+
+
 def _remove(unit: Unit) -> None:
     """Unload and remove the free copies of a unit and its bytes (its busy copies go when given back)."""
     _UNITS.pop(unit.digest, None)
     while unit.free:
-        copy = unit.free.pop()
-        try:
-            if copy.slave is not None:
-                _unload(copy)
-        finally:
-            shutil.rmtree(copy.folder, ignore_errors=True)
+        _forget_copy(unit.free.pop())
     unit.archive.unlink(missing_ok=True)
 
 
@@ -253,18 +270,21 @@ def folder() -> Path | None:
 def _close() -> None:
     """At exit: unload every free copy and remove the private folder (a copy still in use is unloaded and
     removed when it is given back)."""
-    _STATE["closed"] = True
-    for unit in list(_UNITS.values()):
-        try:
-            _remove(unit)
-        except Exception:  # noqa: BLE001 - at exit, the rest must still go
-            pass
-    if _STATE["root"] is not None:
-        shutil.rmtree(_STATE["root"], ignore_errors=True)
+    with _LOCK:
+        _STATE["closed"] = True
+        for unit in list(_UNITS.values()):
+            try:
+                _remove(unit)
+            except Exception:  # noqa: BLE001 - at exit, the rest must still go
+                pass
+        if _STATE["root"] is not None:
+            shutil.rmtree(_STATE["root"], ignore_errors=True)
 
 
 def _forget() -> None:
     """In a child started by ``fork``: a cache of its own (the parent's folder and binaries stay the parent's)."""
+    global _LOCK
+    _LOCK = threading.RLock()                       # a lock held by another thread at the fork stays held
     _UNITS.clear()
     _STATE.update(root=None, closed=False)
 

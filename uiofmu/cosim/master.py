@@ -65,10 +65,12 @@ def observer_card(path) -> Card:
     from .fmi import open_archive, read_description, read_model_text
 
     digest = _digest(path)
-    if digest in _CHECKED:
-        _CHECKED.move_to_end(digest)
-        text, matrices = _CHECKED[digest]
-        return Card(json.loads(text)["card"], matrices)
+    hit = _CHECKED.get(digest)
+    if hit is not None:
+        with contextlib.suppress(KeyError):      # another thread may have let it go meanwhile
+            _CHECKED.move_to_end(digest)
+        text, matrices = hit
+        return Card(json.loads(text)["card"], dict(matrices))
     text = read_model_text(path)
     spec = read_model_json(path, text)
     if spec.get("kind") != "observer" or "card" not in spec:
