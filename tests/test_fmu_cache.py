@@ -181,3 +181,16 @@ def test_files_removed_under_the_cache_are_unpacked_again(fmus, tmp_path):
     shutil.rmtree(fmu_cache.folder())
     _same(_run(fmus / "plant.fmu", observer), reference)
     assert fmu_cache.folder().is_dir() and fmu_cache.digest_of(observer) in fmu_cache.files()
+
+
+def test_bytes_seen_under_other_limits_are_checked_again(fmus, monkeypatch):
+    from uiofmu.cosim import fmi
+
+    observer = fmus / "obs_c.fmu"
+    with Fmu(observer, "before"):
+        pass
+    monkeypatch.setattr(fmi, "MAX_ELEMENTS", 20)
+    with pytest.raises(FmuError, match=r"modelDescription.xml has 21 elements.*uiofmu.cosim.fmi.MAX_ELEMENTS"):
+        Fmu(observer, "after")
+    with pytest.raises(FmuError, match="MAX_ELEMENTS"):
+        _run(fmus / "plant.fmu", observer)

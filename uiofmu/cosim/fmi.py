@@ -78,6 +78,13 @@ MAX_ELEMENTS = 10 * MAX_VARIABLES
 MAX_DEPENDENCIES = 3 * MAX_DIM**2
 
 
+def limits() -> tuple:
+    """The limits above as they are now: a file checked under others is checked again
+    (:mod:`uiofmu.cosim.fmu_cache`)."""
+    return (MAX_ENTRIES, MAX_DIRECTORY_BYTES, MAX_ENTRY_BYTES, MAX_UNPACKED_BYTES, MAX_RATIO, RATIO_FLOOR,
+            MAX_DESCRIPTION_BYTES, MAX_VARIABLES, MAX_OWN_VARIABLES, MAX_ELEMENTS, MAX_DEPENDENCIES)
+
+
 #: The range of an fmi2Integer (a C int of 32 bits).
 FMI2_INTEGER = (-2**31, 2**31 - 1)
 
@@ -460,7 +467,7 @@ class Fmu:
 
         self.path = Path(path)
         check_regular(self.path)
-        self._copy = fmu_cache.take(self.path, read_description)      # checked against the limits, then extracted
+        self._copy = fmu_cache.take(self.path, read_description, limits())   # checked against the limits, extracted
         self.description = self._copy.unit.description
         if self.description.coSimulation is None:
             fmu_cache.give_back(self._copy)

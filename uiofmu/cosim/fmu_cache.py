@@ -52,6 +52,7 @@ class Unit:
     description: object
     archive: Path
     once: bool
+    checked: tuple = ()
     free: list = field(default_factory=list)
     busy: int = 0
     pid: int = field(default_factory=os.getpid)
@@ -88,7 +89,7 @@ def _root() -> Path:
     return _STATE["root"]
 
 
-def _add(path: Path, describe) -> Unit:
+def _add(path: Path, describe, checked: tuple) -> Unit:
     """The unit of the bytes ``path`` holds now: a private copy, checked and described as ``path``."""
     snapshot = _root() / f"new-{next(_NAMES)}.fmu"
     try:
@@ -104,14 +105,27 @@ def _add(path: Path, describe) -> Unit:
         description = describe(path, source=snapshot)
     except BaseException:
         snapshot.unlink(missing_ok=True)
+        _tidy()
         raise
     archive = snapshot.with_name(f"{digest}.fmu")
     snapshot.rename(archive)
     cs = getattr(description, "coSimulation", None)
-    unit = Unit(digest, description, archive, bool(getattr(cs, "canBeInstantiatedOnlyOncePerProcess", False)))
+    unit = Unit(digest, description, archive, bool(getattr(cs, "canBeInstantiatedOnlyOncePerProcess", False)),
+                checked)
     _UNITS[digest] = unit
     _evict()
     return unit
+
+
+def _tidy() -> None:
+    """Remove the private folder while it holds nothing (a refused file leaves no trace)."""
+    root = _STATE["root"]
+    if root is not None and not _UNITS:
+        try:
+            root.rmdir()
+        except OSError:
+            return
+        _STATE["root"] = None
 
 
 def _extract(path: Path, unit: Unit) -> Copy:
@@ -128,7 +142,7 @@ def _extract(path: Path, unit: Unit) -> Copy:
     return Copy(unit, folder)
 
 
-def take(path, describe) -> Copy:
+def take(path, describe, checked: tuple = ()) -> Copy:
     """A copy of the FMU file ``path`` for one instance: a free one of its bytes, else a new extraction.
 
     Parameters
@@ -139,6 +153,9 @@ def take(path, describe) -> Copy:
         ``describe(path, source=file)``: the model description of an FMU file seen for the first time, read
         from ``file`` (the private copy of its bytes) and checked against the limits, with errors naming
         ``path`` (:func:`uiofmu.cosim.fmi.read_description`).
+    checked : tuple, optional
+        The limits ``describe`` checks against (:func:`uiofmu.cosim.fmi.limits`): bytes checked under other
+        limits are described again.
 
     Returns
     -------
@@ -159,7 +176,9 @@ def take(path, describe) -> Copy:
             if unit is not None and not unit.archive.is_file():     # its files were removed under it
                 _remove(unit)
                 unit = None
-            unit = unit or _add(path, describe)
+            if unit is not None and unit.checked != checked:
+                unit.description, unit.checked = describe(path, source=unit.archive), checked
+            unit = unit or _add(path, describe, checked)
         except OSError as exc:
             raise FmuError(f"{path}: not a readable FMU ({exc.strerror or type(exc).__name__})") from None
         _UNITS.move_to_end(unit.digest)

@@ -39,8 +39,9 @@ from .steps import step_sequence
 from ..threads import single_blas_thread
 
 
-#: The observer FMUs whose card re-checked in this process (the last MAX_FILES), by the SHA-256 of their bytes:
-#: the text of their ``resources/model.json`` and the card's read-only matrices.
+#: The observer FMUs whose card re-checked in this process (the last MAX_FILES), by the SHA-256 of their bytes
+#: and the archive limits they were read under: the text of their ``resources/model.json`` and the card's
+#: read-only matrices.
 _CHECKED: "OrderedDict[str, tuple]" = OrderedDict()
 
 
@@ -62,13 +63,14 @@ def observer_card(path) -> Card:
     (the same before and after it was first read)."""
     from ..fmu.c_backend import guid_of
     from ..synthesis import recheck
-    from .fmi import open_archive, read_description, read_model_text
+    from .fmi import limits, open_archive, read_description, read_model_text
 
     digest = _digest(path)
-    hit = _CHECKED.get(digest)
+    key = (digest, limits())
+    hit = _CHECKED.get(key)
     if hit is not None:
         with contextlib.suppress(KeyError):      # another thread may have let it go meanwhile
-            _CHECKED.move_to_end(digest)
+            _CHECKED.move_to_end(key)
         text, matrices = hit
         return Card(json.loads(text)["card"], dict(matrices))
     text = read_model_text(path)
@@ -86,7 +88,7 @@ def observer_card(path) -> Card:
                        f"FMU's GUID {str(guid)[:40]} is not the card's {guid_of(spec['card'])}): rebuild the FMU "
                        "from its card")
     if digest is not None and _digest(path) == digest:
-        _CHECKED[digest] = (text, card.matrices)
+        _CHECKED[key] = (text, card.matrices)
         while len(_CHECKED) > MAX_FILES:
             _CHECKED.popitem(last=False)
     return card
