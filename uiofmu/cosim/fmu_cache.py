@@ -113,7 +113,6 @@ def _add(path: Path, describe, checked: tuple) -> Unit:
     unit = Unit(digest, description, archive, bool(getattr(cs, "canBeInstantiatedOnlyOncePerProcess", False)),
                 checked)
     _UNITS[digest] = unit
-    _evict()
     return unit
 
 
@@ -190,6 +189,7 @@ def take(path, describe, checked: tuple = ()) -> Copy:
                 copy = None
         copy = copy or _extract(path, unit)
         unit.busy += 1
+        _evict()                                    # after the count: this unit is in use, it stays
         return copy
 
 
