@@ -2,6 +2,10 @@
 
 Exit codes: 0 success; 2 a problem the user can fix (one message on stderr, no traceback);
 1 an internal error.
+
+Each command imports what it uses when it runs: ``uiofmu --help`` and the parser load neither numpy nor
+the runtime package, and ``check``, ``design``, ``build`` and ``verify`` neither cvxpy, scipy.optimize,
+matplotlib, fmpy nor dask (``tests/test_cli_imports.py``).
 """
 
 from __future__ import annotations
@@ -13,10 +17,6 @@ import os
 import sys
 import warnings
 from pathlib import Path
-
-from .runtime.files import check_output_dir, check_output_file, write_atomic
-from .runtime.text import identifier
-from .threads import one_blas_thread
 
 EPILOG = """\
 typical session:
@@ -67,6 +67,8 @@ def check_summary(report) -> list[str]:
 
 def _cmd_design(args) -> int:
     from .problem import load_problem
+    from .runtime.files import check_output_file
+    from .runtime.text import identifier
     from .synthesis import design
 
     problem = load_problem(args.problem)
@@ -152,6 +154,7 @@ def design_summary(card, timing: bool = True) -> list[str]:
 
 def _cmd_build(args) -> int:
     from .runtime.card import read_card
+    from .runtime.files import check_output_file
     from .fmu.export import build_observer, choose_backend, model_identifier
     from .synthesis import recheck
 
@@ -183,6 +186,7 @@ def _cmd_plant(args) -> int:
     from .fmu.export import build_plant, choose_backend, model_identifier, plant_kind
     from .mujoco_plant import build_mujoco_plant, is_mujoco_plant, load_spec
     from .problem import load_problem
+    from .runtime.files import check_output_file
 
     if is_mujoco_plant(args.problem):
         spec = load_spec(args.problem)
@@ -208,6 +212,7 @@ def _cmd_plant(args) -> int:
 def _cmd_linearize(args) -> int:
     from .mujoco_plant import linearize, load_spec, problem_document
     from .problem import to_toml
+    from .runtime.files import check_output_file, write_atomic
 
     spec = load_spec(args.plant)
     out = check_output_file(args.output or spec.folder / "problem.toml", "problem file")
@@ -229,6 +234,7 @@ def _cmd_cosim(args) -> int:
     from .cosim.noise import noises
     from .cosim.steps import short_spec
     from .cosim.summary import print_summary
+    from .runtime.files import check_output_dir
 
     check_output_dir(args.out, "--out folder")
     check_format(args.format)
@@ -303,6 +309,7 @@ def _cmd_campaign(args) -> int:
     from .cosim.campaign import load_campaign, replay, run_campaign
     from .cosim.steps import short_spec
     from .cosim.summary import print_summary
+    from .runtime.files import check_output_dir
 
     campaign = load_campaign(args.spec)
     check_output_dir(args.out, "--out folder")
@@ -396,6 +403,12 @@ class Parser(argparse.ArgumentParser):
         """Print one line naming the argument and exit with code 2."""
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
+    def format_help(self):
+        """The help text; a description given as a function is written when the help is shown."""
+        if callable(self.description):
+            self.description = self.description()
+        return super().format_help()
+
 
 def _add_check(sub) -> None:
     """The arguments of ``uiofmu check``."""
@@ -409,17 +422,21 @@ def _add_check(sub) -> None:
     p.set_defaults(func=_cmd_check)
 
 
-def _add_design(sub) -> None:
-    """The arguments of ``uiofmu design``."""
+def _design_description() -> str:
+    """The description of ``uiofmu design`` (the families' list needs the runtime package: written on demand)."""
     from .runtime.registry import summary
 
+    return ("Solve the family's LMIs with CLARABEL, re-check the certificate with numpy at the stored matrices, and "
+            "write the design card (JSON). A tunable set to \"max\" is searched from the limit the existence "
+            "analysis gives. Prints the bounds, the search and where the time went (CLARABEL, LMI assembly, the "
+            "rest); the card keeps the times under \"timing\". Families (observer.family): "
+            f"{summary()}.")
+
+
+def _add_design(sub) -> None:
+    """The arguments of ``uiofmu design``."""
     p = sub.add_parser("design", help="solve the LMI design, re-check the certificate, write the design card",
-                       description="Solve the family's LMIs with CLARABEL, re-check the certificate with numpy "
-                                   "at the stored matrices, and write the design card (JSON). A tunable set to "
-                                   "\"max\" is searched from the limit the existence analysis gives. Prints the "
-                                   "bounds, the search and where the time went (CLARABEL, LMI assembly, the rest); "
-                                   "the card keeps the times under \"timing\". Families (observer.family): "
-                                   f"{summary()}.")
+                       description=_design_description)
     p.add_argument("problem", help="problem file (TOML) or a plants/NAME folder")
     p.add_argument("-o", "--output", metavar="DESIGN.json", help="card path (default: NAME.design.json)")
     p.set_defaults(func=_cmd_design)
@@ -657,6 +674,8 @@ def main(argv: list[str] | None = None) -> int:
     if extra:
         parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)[:200]}")
     try:
+        from .threads import one_blas_thread
+
         with warnings.catch_warnings():
             # numbers that overflow become an exit-2 message of the step that meets them; numpy's
             # warnings on the way there would only add lines to it

@@ -39,6 +39,7 @@ import warnings
 import numpy as np
 
 from .certificate import Check, definite_check, figure_text, round_up
+from .scalar_search import bounded_minimum
 
 #: The norm every gain of a card's ``noise`` section is in.
 NORM = "l2"
@@ -84,10 +85,9 @@ def hinf_norm(A, B, C, D) -> float:
     """The H-infinity norm of the discrete system ``(A, B, C, D)`` (``A`` Schur stable).
 
     A sweep of :data:`SWEEP_POINTS` angles on [0, pi] and the angles of the poles, then a bounded scalar
-    search around the three largest; a value below the true norm is caught by the certificate's re-check.
+    search (:func:`uiofmu.scalar_search.bounded_minimum`) around the three largest; a value below the true
+    norm is caught by the certificate's re-check.
     """
-    from scipy.optimize import minimize_scalar
-
     A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
     poles = np.abs(np.angle(np.linalg.eigvals(A))) if len(A) else np.zeros(0)
     w = np.unique(np.concatenate([np.linspace(0.0, np.pi, SWEEP_POINTS), poles]))
@@ -96,9 +96,8 @@ def hinf_norm(A, B, C, D) -> float:
     step = np.pi / (SWEEP_POINTS - 1)
     for i in np.argsort(g)[-3:]:
         lo, hi = max(0.0, w[i] - step), min(np.pi, w[i] + step)
-        found = minimize_scalar(lambda a: -_response(A, B, C, D, np.array([a]))[0], bounds=(lo, hi),
-                                method="bounded", options={"xatol": 1e-12})
-        best = max(best, float(-found.fun))
+        _, least = bounded_minimum(lambda a: -_response(A, B, C, D, np.array([a]))[0], lo, hi, xatol=1e-12)
+        best = max(best, -least)
     return best
 
 

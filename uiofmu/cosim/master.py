@@ -21,12 +21,14 @@ import ctypes
 import json
 import math
 import time
+from collections import OrderedDict
 
 import numpy as np
 
 from ..runtime.card import Card, card_from_data
 from ..runtime.errors import FmuError, ProblemError
 from ..runtime.files import atomic_output, check_output_dir, write_atomic
+from .fmu_cache import MAX_FILES, digest_of
 from .fmi import (Fmu, FmuCallError, first_non_integer, not_an_integer, read_description, read_model_json, refused_step,
                   vector_sizes)
 from .inputs import CsvInputs, SignalInputs, values_at
@@ -42,15 +44,42 @@ from .steps import step_sequence
 from ..threads import single_blas_thread
 
 
+#: The observer FMUs whose card re-checked in this process (the last MAX_FILES), by the SHA-256 of their bytes
+#: and the archive limits they were read under: the text of their ``resources/model.json`` and the card's
+#: read-only matrices.
+_CHECKED: "OrderedDict[str, tuple]" = OrderedDict()
+
+
+def _digest(path) -> str | None:
+    """The SHA-256 of a file's bytes; None where it cannot be read (the reader then says why)."""
+    try:
+        return digest_of(path)
+    except OSError:
+        return None
+
+
 def observer_card(path) -> Card:
     """The design card packed in an observer FMU built by uiofmu, checked against the card schema,
     with its certificate re-checked at the stored matrices (:func:`uiofmu.synthesis.recheck`) and,
-    for a C FMU (whose binary holds the matrices), bound to the binary by the GUID both carry."""
+    for a C FMU (whose binary holds the matrices), bound to the binary by the GUID both carry.
+
+    The reading, the re-check and the binding are done once per content in a process: a file whose bytes
+    (their SHA-256) passed them before gives its card again, its document parsed afresh from the text kept
+    (the same before and after it was first read)."""
     from ..fmu.c_backend import guid_of
     from ..synthesis import recheck
-    from .fmi import open_archive, read_description
+    from .fmi import limits, open_archive, read_description, read_model_text
 
-    spec = read_model_json(path)
+    digest = _digest(path)
+    key = (digest, limits())
+    hit = _CHECKED.get(key)
+    if hit is not None:
+        with contextlib.suppress(KeyError):      # another thread may have let it go meanwhile
+            _CHECKED.move_to_end(key)
+        text, matrices = hit
+        return Card(json.loads(text)["card"], dict(matrices))
+    text = read_model_text(path)
+    spec = read_model_json(path, text)
     if spec.get("kind") != "observer" or "card" not in spec:
         raise FmuError(f"{path}: this FMU is not an observer built by uiofmu (its model is a "
                        f"{str(spec.get('kind'))[:40]!r})")
@@ -63,6 +92,10 @@ def observer_card(path) -> Card:
         raise FmuError(f"{path}: the card in resources/model.json is not the one its binary was built from (the "
                        f"FMU's GUID {str(guid)[:40]} is not the card's {guid_of(spec['card'])}): rebuild the FMU "
                        "from its card")
+    if digest is not None and _digest(path) == digest:
+        _CHECKED[key] = (text, card.matrices)
+        while len(_CHECKED) > MAX_FILES:
+            _CHECKED.popitem(last=False)
     return card
 
 

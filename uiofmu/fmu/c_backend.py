@@ -20,6 +20,7 @@ path ``$ORIGIN``); :mod:`uiofmu.fmu.mujoco_c` builds it.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import platform
@@ -880,10 +881,11 @@ def compile_binary(src: Path, identifier: str, out: Path, extra_flags=(), source
 
 
 def fmi_headers() -> Path:
-    """The FMI 2.0 headers that fmpy ships."""
-    import fmpy
-
-    return Path(fmpy.__file__).parent / "c-code"
+    """The FMI 2.0 headers that fmpy ships (found without importing fmpy)."""
+    spec = importlib.util.find_spec("fmpy")
+    if spec is None or not spec.submodule_search_locations:
+        raise FmuError("--backend c needs the FMI 2.0 headers that fmpy ships: install fmpy")
+    return Path(next(iter(spec.submodule_search_locations))) / "c-code"
 
 
 def _check_platform() -> None:
