@@ -6,7 +6,8 @@ LMI as an affine map of the variables, with dense coefficient tensors per variab
 are small; there are many of them). :class:`ConicProblem` turns the traced LMIs into CLARABEL's
 form ``A x + s = b``, ``s`` in zero and PSD-triangle cones, once, with one sparsity pattern
 for every parameter value: a solve for new values forms ``A`` and ``b`` with one small matrix
-product each and calls the solver.
+product each and calls the solver. Systems of one structure (:func:`traced`: the same LMIs of the same data,
+whatever their parameters' values) share one traced problem.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import copy
 import math
 import time
+from collections import OrderedDict
 from functools import lru_cache
 from types import SimpleNamespace
 
@@ -389,6 +391,14 @@ class ConicProblem:
         ValueError
             When there is no normalisation (the margin would be unbounded).
         """
+        memo = self.__dict__.setdefault("_forms", {})
+        key = (name, margin, tie_break, held)
+        if key not in memo:
+            memo[key] = self._margin_form(name, margin, tie_break, held)
+        return memo[key]
+
+    def _margin_form(self, name: str, margin: float, tie_break: float, held: float | None) -> tuple:
+        """:meth:`margin_form`, derived (it keeps what it derived for the next call)."""
         def diagonal(first, m):
             j = np.arange(m)
             return first + j * (j + 1) // 2 + j
@@ -416,6 +426,7 @@ class ConicProblem:
         vals = np.vstack([self._values, trace_vals, trace_t, t_vals])
         order = np.lexsort((rows, cols))
         out = copy.copy(self)
+        out._forms = {}
         out.nvar, out.nrows = self.nvar + 1, self.nrows + 1
         out._indices, out._values = rows[order], vals[order]
         out._indptr = np.searchsorted(cols[order], np.arange(out.nvar + 1))
@@ -496,3 +507,57 @@ class ConicProblem:
             if spec[0] == "scalar":
                 out[name] = np.array(out[name][0, 0])
         return out
+
+
+#: Traced problems kept for systems of the same structure (:func:`traced`), the least recently used dropped first.
+TRACED_KEPT = 32
+
+_TRACED: OrderedDict = OrderedDict()
+
+
+def fingerprint(item):
+    """A hashable stand-in for the data an LMI system's ``build`` reads, equal exactly when the data are.
+
+    Arrays by dtype, shape and bytes (so ``-0.0`` and ``0.0`` differ, as they may in a product), numbers by type and
+    ``repr``, strings and None as they are, tuples, lists and dicts of them recursively.
+
+    Raises
+    ------
+    TypeError
+        For anything else (its equality is not the data's).
+    """
+    if isinstance(item, (np.ndarray, np.generic)):
+        arr = np.ascontiguousarray(item)
+        return ("array", arr.dtype.str, arr.shape, arr.tobytes())
+    if isinstance(item, (tuple, list)):
+        return (type(item).__name__, *(fingerprint(x) for x in item))
+    if isinstance(item, dict):
+        return ("dict", *((fingerprint(k), fingerprint(v)) for k, v in item.items()))
+    if item is None or isinstance(item, str):
+        return item
+    if isinstance(item, (bool, int, float, complex)):
+        return (type(item).__name__, repr(item))
+    raise TypeError(f"no fingerprint of a {type(item).__name__}")
+
+
+def traced(structure, variables: dict, parameters: dict, build, objective, margin: float) -> ConicProblem:
+    """The :class:`ConicProblem` of a system, traced once per structure.
+
+    ``structure`` is everything ``build`` and ``objective`` read besides the variables and the parameters (the
+    family's matrices, as :func:`fingerprint` takes them). The key adds the code of ``build`` and ``objective``, the
+    variables' kinds and sizes, the parameters' names and the margin, so a system at other parameter values, or
+    the same design made again, reuses the traced problem (and the largest-margin forms derived from it); the
+    parameters' values are given per solve. The :data:`TRACED_KEPT` most recent are kept.
+    """
+    code = lambda f: None if f is None else (f.__code__, fingerprint(f.__defaults__))   # noqa: E731
+    key = (fingerprint(structure), code(build), code(objective),
+           tuple((name, spec[0], spec[1] if spec[0] != "scalar" else None) for name, spec in variables.items()),
+           tuple(parameters), repr(float(margin)))
+    problem = _TRACED.get(key)
+    if problem is None:
+        problem = _TRACED[key] = ConicProblem(variables, parameters, build, objective, margin)
+        while len(_TRACED) > TRACED_KEPT:
+            _TRACED.popitem(last=False)
+    else:
+        _TRACED.move_to_end(key)
+    return problem

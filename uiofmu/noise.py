@@ -256,7 +256,8 @@ def lemma_certificate(steps: list, storages: int, sigma: float, label: str = "ga
         return out
 
     variables = {**{f"X{s}": symmetric(n) for s in range(storages)}, "g": scalar()}
-    system = LmiSystem(f"noise {label}", variables, {}, build, objective=lambda v: v["g"])
+    system = LmiSystem(f"noise {label}", variables, {}, build, objective=lambda v: v["g"],
+                       structure=([step[:6] for step in steps], sigma, scale))
     sol = system.solve()
     if not sol.values:
         return {"gamma": None, "why": f"the bounded real lemma's LMIs have no solution (CLARABEL: {sol.status})"}
