@@ -174,11 +174,12 @@ def lemma_checks(steps: list, X, gamma: float, label: str = "gain_y") -> list:
     positive = [scaled_definite_check(f"noise {label}: eig_min(X_{s + 1})", 0.5 * (X[s] + X[s].T), np.abs(X[s]), 1)
                 for s in range(len(X))]
     lemma = []
+    at = f"at gamma = {figure_text(gamma, NOISE_DIGITS)}"
     for A, B, C, D, s_in, s_out, name in steps:
         A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
-        lemma.append(scaled_definite_check(
-            f"noise {label}: bounded real lemma {name} at gamma = {figure_text(gamma, NOISE_DIGITS)}",
-            *_brl_matrix(A, B, C, D, X[s_in], X[s_out], gamma), 2 * n + C.shape[0] + 2))
+        lemma.append(scaled_definite_check(f"noise {label}: bounded real lemma {name} {at}",
+                                           *_brl_matrix(A, B, C, D, X[s_in], X[s_out], gamma),
+                                           2 * n + C.shape[0] + 2))
     return [_worst(positive), _worst(lemma)]
 
 
