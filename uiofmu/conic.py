@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import math
+import threading
 import time
 from collections import OrderedDict
 from functools import lru_cache
@@ -306,6 +307,7 @@ class ConicProblem:
 
     def __init__(self, variables: dict, parameters: dict, build, objective, margin: float):
         self.specs = variables
+        self._forms = {}                 # the forms margin_form derived, by their arguments
         self.offsets, self.sizes, self._basis = {}, {}, {}
         traced = {}
         total = 0
@@ -368,7 +370,8 @@ class ConicProblem:
 
     def margin_form(self, name: str, margin: float, tie_break: float,
                     held: float | None = None) -> tuple["ConicProblem", int]:
-        """The largest-margin problem of these LMIs, from the assembled data (no second tracing).
+        """The largest-margin problem of these LMIs, from the assembled data (no second tracing), derived once
+        for each set of arguments and kept (the systems that share this problem share its forms too).
 
         Every strict LMI ``F(x) - margin I`` becomes ``F(x) - t I``; every normalisation (a non-strict
         LMI with a constant, parameter-free part, such as ``X - I``) loses its constant and becomes
@@ -391,14 +394,13 @@ class ConicProblem:
         ValueError
             When there is no normalisation (the margin would be unbounded).
         """
-        memo = self.__dict__.setdefault("_forms", {})
         key = (name, margin, tie_break, held)
-        if key not in memo:
-            memo[key] = self._margin_form(name, margin, tie_break, held)
-        return memo[key]
+        if key not in self._forms:
+            self._forms[key] = self._margin_form(name, margin, tie_break, held)
+        return self._forms[key]
 
     def _margin_form(self, name: str, margin: float, tie_break: float, held: float | None) -> tuple:
-        """:meth:`margin_form`, derived (it keeps what it derived for the next call)."""
+        """:meth:`margin_form`, derived afresh (:meth:`margin_form` keeps each form it derived)."""
         def diagonal(first, m):
             j = np.arange(m)
             return first + j * (j + 1) // 2 + j
@@ -513,6 +515,7 @@ class ConicProblem:
 TRACED_KEPT = 32
 
 _TRACED: OrderedDict = OrderedDict()
+_TRACED_LOCK = threading.Lock()
 
 
 def fingerprint(item):
@@ -553,11 +556,14 @@ def traced(structure, variables: dict, parameters: dict, build, objective, margi
     key = (fingerprint(structure), code(build), code(objective),
            tuple((name, spec[0], spec[1] if spec[0] != "scalar" else None) for name, spec in variables.items()),
            tuple(parameters), repr(float(margin)))
-    problem = _TRACED.get(key)
-    if problem is None:
-        problem = _TRACED[key] = ConicProblem(variables, parameters, build, objective, margin)
+    with _TRACED_LOCK:
+        problem = _TRACED.get(key)
+        if problem is not None:
+            _TRACED.move_to_end(key)
+            return problem
+    problem = ConicProblem(variables, parameters, build, objective, margin)
+    with _TRACED_LOCK:
+        _TRACED[key] = problem
         while len(_TRACED) > TRACED_KEPT:
             _TRACED.popitem(last=False)
-    else:
-        _TRACED.move_to_end(key)
     return problem
