@@ -84,6 +84,8 @@ def _cmd_design(args) -> int:
 def _cmd_tradeoff(args) -> int:
     from .problem import load_problem
     from .progress import progress
+    from .runtime.files import check_output_file
+    from .runtime.text import identifier
     from .tradeoff import tradeoff, write
 
     problem = load_problem(args.problem)
@@ -259,6 +261,7 @@ def _cmd_ssp(args) -> int:
     from .cosim.master import load_inputs
     from .cosim.ssp import write_ssp
     from .runtime.errors import ProblemError
+    from .runtime.files import check_output_file
 
     pair = (args.plant, args.observer)
     if args.problem is not None and any(pair):

@@ -297,7 +297,8 @@ def _lmis(PA, C, gain_cap: float | None = None):
     variables = {"X": symmetric(n), "W": matrix((n, p)), "t": scalar(UPPER_BOUND)}
     if gain_cap is not None:
         variables["s"] = scalar()
-    return LmiSystem(f"{NAME} decay", variables, {"rho2": 0.98}, build, objective=lambda v: v["t"], homogeneous=True)
+    return LmiSystem(f"{NAME} decay", variables, {"rho2": 0.98}, build, objective=lambda v: v["t"], homogeneous=True,
+                     structure=(PA, C, gain_cap))
 
 
 def _noise_lmis(PA, C, M, T, sigma: float, gain_cap: float | None = None) -> LmiSystem:
@@ -337,7 +338,8 @@ def _noise_lmis(PA, C, M, T, sigma: float, gain_cap: float | None = None) -> Lmi
                  "g": scalar()}
     if gain_cap is not None:
         variables["s"] = scalar()
-    return LmiSystem(f"{NAME} least noise gain", variables, {"rho2": 0.98}, build, objective=lambda v: v["g"])
+    return LmiSystem(f"{NAME} least noise gain", variables, {"rho2": 0.98}, build, objective=lambda v: v["g"],
+                     structure=(PA, C, M, T, sigma, gain_cap))
 
 
 def _noise_point(values: dict) -> dict:
