@@ -145,7 +145,8 @@ def _delayed_too_large(card: Card) -> str | None:
 C_KERNELS = {
     "affine": CKernel("kernel_affine.c", "kernel_affine.h", "UIOFMU_KERNEL_AFFINE", "affine"),
     "window": CKernel("kernel_window.c", "kernel_window.h", "UIOFMU_KERNEL_WINDOW", "window"),
-    "delayed": CKernel("kernel_delayed.c", "kernel_delayed.h", "UIOFMU_KERNEL_DELAYED", "delayed", _delayed_too_large),
+    "delayed": CKernel("kernel_delayed.c", "kernel_delayed.h", "UIOFMU_KERNEL_DELAYED", "delayed",
+                       too_large=_delayed_too_large),
 }
 
 _PLANT = CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", "plant")
