@@ -8,7 +8,7 @@ time, finite outputs; the checker's only warning is the fixed-step one, fmusim's
 and prints one ``ok`` line per FMU and importer; a step the observer refuses fails, in one line naming
 the FMU and the FMU's own line.
 (c) An importer that is absent, not executable or missing a shared library is named, not run, and
-``make fmus`` goes on; the importers see ``PATH`` and no Python variable.
+``make fmus`` goes on; the importers see ``PATH`` and no Python variable; a non-finite output is an error.
 
 The importers are ``../shared/importers/`` next to the repository, or ``$UIOFMU_FMUCHECK`` and
 ``$UIOFMU_FMUSIM``; where one is not there, (a) and (b) skip with the reason.
@@ -160,3 +160,12 @@ def test_the_importers_see_path_and_no_python_variable(monkeypatch, tmp_path):
     assert f"PATH={os.environ['PATH']}" in run.log.splitlines()
     assert "PYTHON" not in run.log and "VIRTUAL_ENV" not in run.log, run.log
     assert not run.ok and "the checker wrote no summary (it stopped early)" in run.errors
+
+
+def test_a_non_finite_output_is_an_error(monkeypatch, tmp_path):
+    script = ('#!/bin/sh\nwhile [ $# -gt 0 ]; do [ "$1" = --output-file ] && out=$2; shift; done\n'
+              'printf \'"time","x[1]"\\n0,1\\n0.1,nan\\n\' > "$out"\n')
+    monkeypatch.setenv(FMUSIM[1], str(_program(tmp_path / "fmusim", script)))
+    run = run_fmusim(tmp_path / "any.fmu", 0.1, 0.1, workdir=tmp_path / "run")
+    assert run.times == (0.0, 0.1) and run.reached_stop
+    assert run.errors == ("the output x[1] is nan at t = 0.1",) and not run.ok

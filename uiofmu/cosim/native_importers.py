@@ -67,8 +67,8 @@ class ImporterRun:
         The program's and the FMU's warning lines.
     last_time : float or None
         The time of the last row of the output CSV (None when there is none).
-    rows : list of list of str
-        The output CSV without its header, one list of cells per row.
+    rows : tuple of list of str
+        The output CSV without its header, one list of cells per row (time first).
     log : str
         Everything the program wrote (the checker's log file, fmusim's stdout and stderr).
     """
@@ -230,11 +230,12 @@ def _read_output(path: Path) -> tuple:
                 break
         if errors:
             break
-    try:
-        last = float(rows[-1][0]) if rows else None
-    except ValueError:
-        return tuple(rows), None, [f"the last output row's time {rows[-1][0]!r} is not a number"]
-    return tuple(rows), last, errors
+    for row in rows:
+        try:
+            float(row[0])
+        except ValueError:
+            return (), None, errors + [f"an output row's time {row[0]!r} is not a number"]
+    return tuple(rows), float(rows[-1][0]) if rows else None, errors
 
 
 def _checker_lines(log: str) -> tuple:
