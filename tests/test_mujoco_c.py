@@ -34,15 +34,13 @@ from cfmu import NEEDS_CC, random_calls, run_sanitized, script_main  # noqa: E40
 from conftest import ROOT  # noqa: E402
 from importers import check_state_round_trip  # noqa: E402
 from uiofmu.cosim.fmi import Fmu, FmuCallError  # noqa: E402
+from uiofmu.cosim.native_importers import bare_environment, run_compliance_checker, run_fmusim  # noqa: E402
 from uiofmu.fmu.c_backend import build_host  # noqa: E402
 from uiofmu.runtime.ports import plant_experiment  # noqa: E402
 
 pytestmark = [pytest.mark.mujoco, NEEDS_CC]
 
 FOLDER = ROOT / "plants" / "quarter_car"
-IMPORTERS = ROOT.parent / "shared" / "importers"
-FMUCHECK = os.environ.get("UIOFMU_FMUCHECK", str(IMPORTERS / "fmuCheck.linux64"))
-FMUSIM = os.environ.get("UIOFMU_FMUSIM", str(IMPORTERS / "fmusim"))
 STEP = 0.005
 ERROR = 3
 #: Physical parameters and an initial state a master sets before initialisation ends.
@@ -192,7 +190,7 @@ def _host(fmu: Path, tmp_path: Path, location, mjcf=None) -> tuple:
     cmd = [str(host), str(unzip / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"), md.guid,
            location(unzip / "resources"), f"{refs['u[1]']},{refs['d[1]']}", ",".join(map(str, outs)),
            str(tmp_path / "steps.txt")]
-    return subprocess.run(cmd, capture_output=True, text=True, env={"PATH": os.environ.get("PATH", "")}), \
+    return subprocess.run(cmd, capture_output=True, text=True, env=bare_environment()), \
         np.array(expect)
 
 
@@ -244,36 +242,20 @@ def test_the_kernel_and_the_builder_name_the_same_mjcf_file():
     assert f'#define UIOFMU_MJCF_FILE "{MJCF_FILE}"' in header
 
 
-def _needs(tool: str) -> None:
-    if not Path(tool).is_file():
-        pytest.skip(f"{tool} is not there (see ../shared/importers/README.md)")
+def _alone(run):
+    """A native importer's run of the default experiment: 0 errors or warnings, 201 finite rows to t = 1 s."""
+    if not run.ran:
+        pytest.skip(run.unavailable)
+    assert not run.errors and not run.warnings, run.log[-2000:]
+    assert len(run.rows) == 201 and run.last_time == pytest.approx(1.0, rel=1e-12)
 
 
 def test_the_compliance_checker_runs_its_default_experiment(fmus, tmp_path):
-    _needs(FMUCHECK)
-    log = tmp_path / "check.log"
-    proc = subprocess.run([FMUCHECK, "-h", repr(STEP), "-s", "1", "-t", str(tmp_path), "-o", str(tmp_path / "out.csv"),
-                           "-e", str(log), str(fmus["c"])], capture_output=True, text=True,
-                          env={"PATH": os.environ.get("PATH", "")})
-    text = log.read_text()
-    assert proc.returncode == 0, text[-2000:]
-    assert "\t0 Error(s)" in text and "\t0 Warning(s)" in text and "0 warning(s) and error(s)" in text, text[-2000:]
-    out = np.loadtxt(tmp_path / "out.csv", delimiter=",", skiprows=1, ndmin=2)
-    assert out[-1, 0] == pytest.approx(1.0, rel=1e-12) and len(out) == 201 and np.all(np.isfinite(out))
+    _alone(run_compliance_checker(fmus["c"], STEP, 1.0, workdir=tmp_path))
 
 
 def test_fmusim_runs_its_default_experiment(fmus, tmp_path):
-    _needs(FMUSIM)
-    if shutil.which("ldd") and "not found" in subprocess.run(["ldd", FMUSIM], capture_output=True, text=True).stdout:
-        pytest.skip("fmusim needs the Debian packages libxml2 libminizip1 libsundials-cvode6")
-    out = tmp_path / "out.csv"
-    proc = subprocess.run([FMUSIM, "--interface-type", "cs", "--output-interval", repr(STEP), "--stop-time", "1",
-                           "--log-level", "warning", "--output-file", str(out), str(fmus["c"])],
-                          capture_output=True, text=True, env={"PATH": os.environ.get("PATH", "")})
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    assert "Error" not in proc.stdout + proc.stderr
-    rows = np.loadtxt(out, delimiter=",", skiprows=1, ndmin=2)
-    assert len(rows) == 201 and rows[-1, 0] == pytest.approx(1.0, rel=1e-12) and np.all(np.isfinite(rows))
+    _alone(run_fmusim(fmus["c"], STEP, 1.0, workdir=tmp_path))
 
 
 # -- (d) states -----------------------------------------------------------------------------------------------
