@@ -28,6 +28,7 @@ import hashlib
 import itertools
 import os
 import shutil
+import stat
 import tempfile
 import threading
 from collections import OrderedDict
@@ -73,10 +74,21 @@ _NAMES = itertools.count(1)
 _LOCK = threading.RLock()          # instances may be made and freed from several threads
 
 
+def _open_regular(path):
+    """``path`` opened for reading as a regular file: a FIFO or a device is refused before a byte is read (it
+    is opened without blocking and looked at by its descriptor), with the message every reader of an FMU
+    gives (:func:`uiofmu.cosim.fmi.check_regular`)."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise FmuError(f"{path}: an FMU is a regular file")
+    return os.fdopen(fd, "rb")
+
+
 def digest_of(path) -> str:
-    """The SHA-256 of a file's bytes (hex)."""
+    """The SHA-256 of a regular file's bytes (hex)."""
     h = hashlib.sha256()
-    with open(path, "rb") as f:
+    with _open_regular(path) as f:
         while chunk := f.read(CHUNK):
             h.update(chunk)
     return h.hexdigest()
@@ -93,7 +105,8 @@ def _add(path: Path, describe, checked: tuple) -> Unit:
     """The unit of the bytes ``path`` holds now: a private copy, checked and described as ``path``."""
     snapshot = _root() / f"new-{next(_NAMES)}.fmu"
     try:
-        shutil.copyfile(path, snapshot)
+        with _open_regular(path) as src, open(snapshot, "wb") as dst:
+            shutil.copyfileobj(src, dst, CHUNK)
         digest = digest_of(snapshot)
     except OSError:
         snapshot.unlink(missing_ok=True)
