@@ -179,6 +179,7 @@ struct FmuInstance {
     int time_known;
     int rounding_noted; /* the line of a rounding step was logged (once per instance) */
     char *resources;    /* the fmuResourceLocation of fmi2Instantiate (a copy), or NULL */
+    double **storage;   /* by value reference: where each Real variable lives (kernel->real_storage), or NULL */
 };
 
 static unsigned category_of(fmi2Status status) {
@@ -317,7 +318,8 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
         return uiofmu_design_error(msg, len, "the design's GUID is empty or longer than %d bytes", MAX_GUID);
     if (!k || !k->check_design || !k->port || !k->instantiate || !k->free_instance || !k->reset ||
         !k->exit_initialization || !k->calculate || !k->get_real || !k->set_real || !k->step || !k->state_count ||
-        !k->state_shape || !k->save_state || !k->check_state || !k->load_state || k->ports < 1 || k->ports > MAX_PORTS)
+        !k->state_shape || !k->save_state || !k->check_state || !k->load_state || !k->real_storage != !k->changed ||
+        k->ports < 1 || k->ports > MAX_PORTS)
         return uiofmu_design_error(msg, len, "the FMU's kernel is incomplete");
     if (!k->check_design(msg, len)) return 0;
     if (f->steps) {
@@ -364,6 +366,29 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
         if (k->port(id, &p) && seen[id] != p.size)
             return uiofmu_design_error(msg, len, "port %s has %d elements in this design, the variable table lists %d",
                                        p.name, p.size, seen[id]);
+    return 1;
+}
+
+/* s->storage: where each Real variable lives, when the kernel says so for every one (else NULL:
+   get_real and set_real). 0 after a log line when out of memory. */
+static int find_storage(FmuInstance *s) {
+    const UiofmuFmu *f = s->fmu;
+    if (!s->kernel->real_storage || f->nvariables < 1) return 1;
+    s->storage = (double **)calloc((size_t)f->nvariables, sizeof(double *));
+    if (!s->storage) {
+        uiofmu_log(s, fmi2Error, "fmi2Instantiate: out of memory");
+        return 0;
+    }
+    for (int vr = 0; vr < f->nvariables; vr++) {
+        const UiofmuVariable *v = &f->variables[vr];
+        if (v->type != UIOFMU_REAL) continue;
+        s->storage[vr] = s->kernel->real_storage(s->model, v->port, v->index);
+        if (!s->storage[vr]) {
+            free(s->storage);
+            s->storage = NULL;
+            return 1;
+        }
+    }
     return 1;
 }
 
@@ -428,7 +453,8 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         memcpy(s->resources, fmuResourceLocation, len + 1);
     }
     s->model = s->kernel->instantiate(s);
-    if (!s->model) {
+    if (!s->model || !find_storage(s)) {
+        if (s->model) s->kernel->free_instance(s->model);
         free(s->resources);
         free(s);
         return NULL;
@@ -442,6 +468,7 @@ void fmi2FreeInstance(fmi2Component c) {
     if (!s) return;
     s->kernel->free_instance(s->model);
     s->magic = 0;
+    free(s->storage);
     free(s->resources);
     free(s);
 }
@@ -570,6 +597,12 @@ static int settable(FmuInstance *s, const char *fn, fmi2ValueReference vr, const
     return 1;
 }
 
+/* Whether vr[i] is a variable of type `type` (variable() without its lines: the check of every
+   element of a call, in one pass; variable() says why not). */
+static int of_type(const FmuInstance *s, fmi2ValueReference vr, int type) {
+    return (size_t)vr < (size_t)s->fmu->nvariables && s->fmu->variables[vr].type == type;
+}
+
 /* fmi2Get<type>: every reference checked, then the outputs brought up to date, then read. */
 static fmi2Status get_values(FmuInstance *s, int call, int type, const fmi2ValueReference vr[], size_t nvr,
                              void *values) {
@@ -577,9 +610,16 @@ static fmi2Status get_values(FmuInstance *s, int call, int type, const fmi2Value
     if (!nvr) return fmi2OK;
     if (!vr || !values) return refuse(s, fn, "null argument");
     for (size_t i = 0; i < nvr; i++)
-        if (!variable(s, fn, vr[i], type)) return fmi2Error;
+        if (!of_type(s, vr[i], type)) {
+            variable(s, fn, vr[i], type);
+            return fmi2Error;
+        }
     fmi2Status st = outcome(s, s->kernel->calculate(s->model, fn));
     if (st != fmi2OK) return st;
+    if (type == T_REAL && s->storage) {
+        for (size_t i = 0; i < nvr; i++) ((fmi2Real *)values)[i] = *s->storage[vr[i]];
+        return fmi2OK;
+    }
     for (size_t i = 0; i < nvr; i++) {
         const UiofmuVariable *v = &s->fmu->variables[vr[i]];
         if (type == T_REAL) ((fmi2Real *)values)[i] = s->kernel->get_real(s->model, v->port, v->index);
@@ -595,8 +635,17 @@ static fmi2Status set_values(FmuInstance *s, int call, int type, const fmi2Value
     if (!nvr) return fmi2OK;
     if (!vr || !values) return refuse(s, fn, "null argument");
     for (size_t i = 0; i < nvr; i++) {
-        const UiofmuVariable *v = variable(s, fn, vr[i], type);
-        if (!v || !settable(s, fn, vr[i], v)) return fmi2Error;
+        if (!of_type(s, vr[i], type)) {
+            variable(s, fn, vr[i], type);
+            return fmi2Error;
+        }
+        const UiofmuVariable *v = &s->fmu->variables[vr[i]];
+        if (v->causality != UIOFMU_INPUT && !settable(s, fn, vr[i], v)) return fmi2Error;
+    }
+    if (type == T_REAL && s->storage) {
+        for (size_t i = 0; i < nvr; i++) *s->storage[vr[i]] = ((const fmi2Real *)values)[i];
+        s->kernel->changed(s->model);
+        return fmi2OK;
     }
     for (size_t i = 0; i < nvr; i++) {
         const UiofmuVariable *v = &s->fmu->variables[vr[i]];
@@ -653,6 +702,17 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 /* ---------------------------------------------------------------------------------------- */
 /* stepping                                                                                  */
 
+/* nextafter(a, INFINITY) - a for a finite a >= 0, without the library call: the next double above a
+   is the one whose bits are a's plus one (DBL_MAX's plus one are infinity's). */
+static double ulp_of(double a) {
+    uint64_t bits;
+    double above;
+    memcpy(&bits, &a, sizeof bits);
+    bits += 1u;
+    memcpy(&above, &bits, sizeof above);
+    return above - a;
+}
+
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior) {
     FmuInstance *s = instance_of(c);
     if (!s) return fmi2Error;
@@ -681,7 +741,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
         return fmi2OK;
     }
     if (rule) { /* within a few ulps of t of an admissible step: that step */
-        double slack = rule->ulps * (nextafter(fabs(t), INFINITY) - fabs(t));
+        double slack = rule->ulps * ulp_of(fabs(t));
         for (int i = 0; i < rule->nsteps; i++)
             if (fabs(h - rule->steps[i]) <= slack && slack <= rule->ulps_limit * rule->steps[i]) {
                 h = rule->steps[i];

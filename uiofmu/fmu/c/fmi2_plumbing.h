@@ -32,9 +32,11 @@
 #if defined(__GNUC__) || defined(__clang__)
 #define UIOFMU_INTERNAL __attribute__((visibility("hidden")))
 #define UIOFMU_PRINTF(f, a) __attribute__((format(printf, f, a)))
+#define UIOFMU_COLD __attribute__((cold, noinline)) /* a refusal's path: kept out of the calls it leaves */
 #else
 #define UIOFMU_INTERNAL
 #define UIOFMU_PRINTF(f, a)
+#define UIOFMU_COLD
 #endif
 
 /* The number of elements of an array as the C compiler counts it. */
@@ -106,6 +108,13 @@ typedef struct {
     void (*set_real)(void *self, int port, int index, double value);
     int (*get_integer)(void *self, int port, int index);
     void (*set_integer)(void *self, int port, int index, int value);
+    /* Optional, both or neither: where element `index` of Real port `port` lives for the instance's
+       whole life (NULL: nowhere), and what the kernel does once the plumbing stored values there.
+       When every Real variable has its storage, fmi2GetReal reads those doubles after calculate and
+       fmi2SetReal writes them (the value as it is, as set_real would) and then calls changed once,
+       instead of get_real and set_real for each element. */
+    double *(*real_storage)(void *self, int port, int index);
+    void (*changed)(void *self);
     /* fmi2DoStep(t, h) with h > 0 finite and t finite (the plumbing checked both). */
     UiofmuResult (*step)(void *self, double t, double h);
     /* The FMU state: `count` doubles after the plumbing's header, which records the shape

@@ -56,6 +56,15 @@ static const char *const PORT_NAME[UIOFMU_AFFINE_PORTS] = UIOFMU_AFFINE_PORT_NAM
 static const int PORT_CAUSALITY[UIOFMU_AFFINE_PORTS] = UIOFMU_AFFINE_PORT_CAUSALITIES;
 static const int PORT_TYPE[UIOFMU_AFFINE_PORTS] = UIOFMU_AFFINE_PORT_TYPES;
 
+/* Where pick() finds a matrix's block for the step indices (i, j): base + i * si + j * sj doubles,
+   for i and j in 0 .. range - 1 (worked out once, at fmi2Instantiate: pick() depends on (which, i, j)
+   alone, the design being constant and the geometric work arrays staying where they are). base is
+   NULL where pick() finds nothing. */
+typedef struct {
+    const double *base;
+    size_t si, sj;
+} Place;
+
 typedef struct {
     FmuInstance *fmu; /* the plumbing's instance: log lines go through it */
     const UiofmuDesign *d;
@@ -68,6 +77,10 @@ typedef struct {
     double *z, *pred, *xhat0, *y, *u;
     /* outputs and work space */
     int dirty;
+    int xhat_current; /* xhat is xhat_k of the state and inputs: estimate computed it since they changed */
+    Place place[M_COUNT];
+    int range; /* N of an interval or mode schedule, else 1 (i = j = 0) */
+    int sorted; /* the design intervals increase strictly: nearest() bisects them */
     double *xhat, *r, *dhat, *tmp, *pt;
     double *work[M_COUNT];
     long work_k;
@@ -108,6 +121,28 @@ static int nearest_interval(const UiofmuDesign *d, double h, int *best, int *exa
     return 1;
 }
 
+/* nearest_interval() for an instance, by bisection when the intervals increase strictly. Then the
+   distance |h - x|, rounded, does not decrease away from h on either side, so the nearest is the
+   last interval <= h or the one after it, and of equal distances nearest_interval() takes the
+   first: the start of the run of equals that ends at the last interval <= h. */
+static int nearest(const Instance *s, double h, int *best, int *exact) {
+    const UiofmuDesign *d = s->d;
+    if (!s->sorted) return nearest_interval(d, h, best, exact);
+    const double *x = d->intervals;
+    int lo = 0, hi = d->nintervals; /* lo becomes the number of intervals <= h (none for a NaN) */
+    while (lo < hi) {
+        int mid = lo + (hi - lo) / 2;
+        if (x[mid] <= h) lo = mid + 1;
+        else hi = mid;
+    }
+    int b = lo == 0 ? 0 : lo == d->nintervals || !(fabs(h - x[lo]) < fabs(h - x[lo - 1])) ? lo - 1 : lo;
+    if (b < lo)
+        while (b > 0 && fabs(h - x[b - 1]) == fabs(h - x[b])) b--;
+    *best = b;
+    *exact = fabs(h - x[b]) <= d->step_rtol * x[b];
+    return 1;
+}
+
 /* Whether the runtime can take h as a step before another one (h_prev): a positive finite
    number that is a design interval, or that the policy 'nearest' maps to one. */
 static int resolves(const UiofmuDesign *d, double h) {
@@ -120,7 +155,7 @@ static int resolves(const UiofmuDesign *d, double h) {
 static int interval_index(Instance *s, double h, char *msg, size_t len) {
     const UiofmuDesign *d = s->d;
     int best, exact;
-    if (!nearest_interval(d, h, &best, &exact)) {
+    if (!nearest(s, h, &best, &exact)) {
         if (msg) snprintf(msg, len, "this design has no intervals");
         return -1;
     }
@@ -187,7 +222,7 @@ static const double *pick(const Instance *s, int which, int i, int j) {
 }
 
 /* pick(), and a log line from `fn` when there is no such matrix. */
-static const double *need(Instance *s, const char *fn, int which, int i, int j) {
+UIOFMU_COLD static const double *need(Instance *s, const char *fn, int which, int i, int j) {
     const double *M = pick(s, which, i, j);
     if (!M) {
         char b1[32];
@@ -195,6 +230,44 @@ static const double *need(Instance *s, const char *fn, int which, int i, int j) 
               "the instance's state does not fit its design", fn, MATRIX_NAME[which], i, j, s->k, uiofmu_num(s->h_prev, b1));
     }
     return M;
+}
+
+/* s->place: pick()'s blocks as offsets (see Place). */
+static void find_places(Instance *s) {
+    const UiofmuDesign *d = s->d;
+    int scheduled = d->kind == UIOFMU_INTERVAL || d->kind == UIOFMU_MODE;
+    s->range = d->kind == UIOFMU_MODE ? d->modes : d->kind == UIOFMU_INTERVAL ? d->nintervals : 1;
+    s->sorted = d->kind == UIOFMU_INTERVAL && d->nintervals >= 1;
+    for (int i = 1; i < d->nintervals && s->sorted; i++) s->sorted = d->intervals[i - 1] < d->intervals[i];
+    for (int w = 0; w < M_COUNT; w++) {
+        size_t sz = msize(&d->mat[w]), N = (size_t)s->range;
+        Place *p = &s->place[w];
+        p->base = pick(s, w, 0, 0);
+        p->si = p->sj = 0;
+        if (!scheduled || w == M_C) continue;
+        if (w == M_N || w == M_L) {
+            p->si = N * sz;
+            p->sj = sz;
+        } else if (w == M_Xz || w == M_Xy || w == M_Dy) {
+            p->sj = sz;
+        } else {
+            p->si = sz;
+        }
+    }
+}
+
+/* pick() (and need()'s line where it finds nothing) for the step indices (i, j), by its offsets. */
+static const double *matrix(Instance *s, const char *fn, int which, int i, int j) {
+    const Place *p = &s->place[which];
+    if (p->base && (unsigned)i < (unsigned)s->range && (unsigned)j < (unsigned)s->range)
+        return p->base + (size_t)i * p->si + (size_t)j * p->sj;
+    return need(s, fn, which, i, j);
+}
+
+/* Every change of the state, an input or a parameter: the outputs, xhat among them, are out of date. */
+static void touched(Instance *s) {
+    s->dirty = 1;
+    s->xhat_current = 0;
 }
 
 /* Index of h_prev among the design intervals (mode schedules: of mode_prev among the modes; 0 for
@@ -206,7 +279,7 @@ static int prev_index(Instance *s) {
     return s->j_prev;
 }
 
-static void bad_prev(Instance *s, const char *fn) {
+UIOFMU_COLD static void bad_prev(Instance *s, const char *fn) {
     char b1[32];
     if (s->d->kind == UIOFMU_MODE) {
         uiofmu_log(s->fmu, fmi2Error, "%s: mode_prev = %d at step k = %ld is not a mode (1 to %d): the instance's state "
@@ -217,22 +290,26 @@ static void bad_prev(Instance *s, const char *fn) {
           fn, uiofmu_num(s->h_prev, b1), s->k);
 }
 
-/* xhat_k alone (what a step needs); 0 (with a log line) when a matrix is missing. */
+/* xhat_k alone (what a step needs), computed once until the state or an input changes (j is
+   prev_index(), a function of the state); 0 (with a log line) when a matrix is missing. */
 static int estimate(Instance *s, const char *fn, int j) {
     const UiofmuDesign *d = s->d;
     if (d->kind == UIOFMU_GEOMETRIC) evaluate(s, s->k);
+    if (s->xhat_current) return 1;
     if (s->k == 0) {
         memcpy(s->xhat, s->xhat0, d->n * sizeof(double));
+        s->xhat_current = 1;
         return 1;
     }
     if (j < 0) {
         bad_prev(s, fn);
         return 0;
     }
-    const double *Xz = need(s, fn, M_Xz, 0, j), *Xy = Xz ? need(s, fn, M_Xy, 0, j) : NULL;
+    const double *Xz = matrix(s, fn, M_Xz, 0, j), *Xy = Xz ? matrix(s, fn, M_Xy, 0, j) : NULL;
     if (!Xz || !Xy) return 0;
     matvec(Xz, d->n, d->nz, s->z, s->xhat);
     matvec_add(Xy, d->n, d->p, s->y, s->xhat, s->pt);
+    s->xhat_current = 1;
     return 1;
 }
 
@@ -240,13 +317,13 @@ static int refresh(Instance *s, const char *fn) {
     const UiofmuDesign *d = s->d;
     if (!s->dirty) return 1;
     int j = prev_index(s);
-    const double *C = need(s, fn, M_C, 0, 0);
+    const double *C = matrix(s, fn, M_C, 0, 0);
     if (!C || !estimate(s, fn, j)) return 0;
     matvec(C, d->p, d->n, s->xhat, s->r);
     for (int i = 0; i < d->p; i++) s->r[i] = s->y[i] - s->r[i];
     if (d->has_dhat) {
         if (s->k > 0) {
-            const double *Dy = need(s, fn, M_Dy, 0, j);
+            const double *Dy = matrix(s, fn, M_Dy, 0, j);
             if (!Dy) return 0;
             for (int i = 0; i < d->p; i++) s->tmp[i] = s->y[i] - s->pred[i];
             matvec(Dy, d->q, d->p, s->tmp, s->dhat);
@@ -267,7 +344,7 @@ static void reset_state(Instance *s) {
     memset(s->z, 0, s->d->nz * sizeof(double));
     memset(s->pred, 0, s->d->p * sizeof(double));
     s->work_k = -1;
-    s->dirty = 1;
+    touched(s);
 }
 
 /* ---------------------------------------------------------------------------------------- */
@@ -419,6 +496,7 @@ static void *affine_instantiate(FmuInstance *fmu) {
     memcpy(s->xhat0, d->xhat0, d->n * sizeof(double));
     s->h_prev0 = d->h_prev0;
     s->mode_prev0 = s->mode = d->mode_prev0;
+    find_places(s);
     reset_state(s);
     return s;
 }
@@ -483,6 +561,11 @@ static double *element(Instance *s, int port, int index) {
     }
 }
 
+/* The plumbing's direct access: where a Real element lives, and the note that it stored values there. */
+static double *affine_real_storage(void *self, int port, int index) { return element((Instance *)self, port, index); }
+
+static void affine_changed(void *self) { touched((Instance *)self); }
+
 static double affine_get_real(void *self, int port, int index) {
     const double *v = element((Instance *)self, port, index);
     return v ? *v : 0.0;
@@ -493,7 +576,7 @@ static void affine_set_real(void *self, int port, int index, double value) {
     double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element(s, port, index) : NULL; /* parameters and inputs */
     if (!v) return;
     *v = value;
-    s->dirty = 1;
+    touched(s);
 }
 
 /* The Integer ports (mode schedules): mode_prev0 (parameter) and mode (input). */
@@ -509,7 +592,7 @@ static void affine_set_integer(void *self, int port, int index, int value) {
     if (port == UIOFMU_AFFINE_MODE_PREV0) s->mode_prev0 = value;
     else if (port == UIOFMU_AFFINE_MODE) s->mode = value;
     else return;
-    s->dirty = 1;
+    touched(s);
 }
 
 static UiofmuResult affine_step(void *self, double t, double h) {
@@ -551,14 +634,14 @@ static UiofmuResult affine_step(void *self, double t, double h) {
         return UIOFMU_DISCARDED;
     }
     /* every matrix of the step before anything changes: a missing one refuses the step whole */
-    const double *Xy = need(s, fn, M_Xy, i, j), *N = need(s, fn, M_N, i, j), *L = need(s, fn, M_L, i, j),
-                 *G = need(s, fn, M_G, i, j), *cc = need(s, fn, M_c, i, j);
+    const double *Xy = matrix(s, fn, M_Xy, i, j), *N = matrix(s, fn, M_N, i, j), *L = matrix(s, fn, M_L, i, j),
+                 *G = matrix(s, fn, M_G, i, j), *cc = matrix(s, fn, M_c, i, j);
     const double *Yx = NULL, *Yu = NULL, *Yc = NULL;
     if (!Xy || !N || !L || !G || !cc) return UIOFMU_BROKEN;
     if (d->has_dhat) {
-        Yx = need(s, fn, M_Yx, i, j);
-        Yu = need(s, fn, M_Yu, i, j);
-        Yc = need(s, fn, M_Yc, i, j);
+        Yx = matrix(s, fn, M_Yx, i, j);
+        Yu = matrix(s, fn, M_Yu, i, j);
+        Yc = matrix(s, fn, M_Yc, i, j);
         if (!Yx || !Yu || !Yc) return UIOFMU_BROKEN;
     }
     if (!estimate(s, fn, j)) return UIOFMU_BROKEN; /* xhat_k (and the geometric matrices of step k) */
@@ -579,7 +662,7 @@ static UiofmuResult affine_step(void *self, double t, double h) {
     s->j_prev = i;
     if (d->kind == UIOFMU_MODE) s->mode_prev = s->mode;
     s->k += 1;
-    s->dirty = 1;
+    touched(s);
     return UIOFMU_DONE;
 }
 
@@ -779,7 +862,7 @@ static void apply_state(Instance *s, const Byte *v) {
     }
     s->work_k = -1;
     s->j_prev = -1;
-    s->dirty = 1;
+    touched(s);
 }
 static int affine_check_state(void *self, const char *ctx, const Byte *v, int *phase) {
     if (!check_values((Instance *)self, ctx, v)) return 0;
@@ -801,6 +884,8 @@ const UiofmuKernel UIOFMU_KERNEL_AFFINE = {
     .calculate = affine_calculate,
     .get_real = affine_get_real,
     .set_real = affine_set_real,
+    .real_storage = affine_real_storage,
+    .changed = affine_changed,
     .get_integer = affine_get_integer, /* mode schedules: mode_prev0 and mode */
     .set_integer = affine_set_integer,
     .step = affine_step,
