@@ -225,8 +225,8 @@ const char *uiofmu_num(double v, char *buf) {
     return buf;
 }
 
-static fmi2Status refuse(FmuInstance *s, const char *fn, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
-static fmi2Status refuse(FmuInstance *s, const char *fn, const char *fmt, ...) {
+UIOFMU_COLD static fmi2Status refuse(FmuInstance *s, const char *fn, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
+UIOFMU_COLD static fmi2Status refuse(FmuInstance *s, const char *fn, const char *fmt, ...) {
     char buf[768];
     va_list ap;
     va_start(ap, fmt);
@@ -256,7 +256,7 @@ static void states_text(unsigned mask, char *buf, size_t len) {
         }
 }
 
-static fmi2Status illegal(FmuInstance *s, int call) {
+UIOFMU_COLD static fmi2Status illegal(FmuInstance *s, int call) {
     char legal[200];
     const char *hint = CALLS[call].hint[0] ? CALLS[call].hint : "illegal call";
     if (!CALLS[call].mask)
@@ -564,7 +564,7 @@ static const char *const TYPE_NAME[] = {"Real", "Integer", "Boolean", "String"};
 static const char *const A_TYPE[] = {"a Real", "an Integer", "a Boolean", "a String"};
 
 /* The variable of value reference vr, if it is one of type `type` (else NULL and a log line). */
-static const UiofmuVariable *variable(FmuInstance *s, const char *fn, fmi2ValueReference vr, int type) {
+UIOFMU_COLD static const UiofmuVariable *variable(FmuInstance *s, const char *fn, fmi2ValueReference vr, int type) {
     UiofmuPort p = {"?", 0, 0, 0};
     if ((size_t)vr >= (size_t)s->fmu->nvariables) { /* unsigned all the way: no reference wraps */
         refuse(s, fn, "unknown value reference %u", vr);
@@ -581,7 +581,7 @@ static const UiofmuVariable *variable(FmuInstance *s, const char *fn, fmi2ValueR
 }
 
 /* Whether the variable may be set now (else a log line). */
-static int settable(FmuInstance *s, const char *fn, fmi2ValueReference vr, const UiofmuVariable *v) {
+UIOFMU_COLD static int settable(FmuInstance *s, const char *fn, fmi2ValueReference vr, const UiofmuVariable *v) {
     UiofmuPort p = {"?", 0, 0, 0};
     if (v->causality == UIOFMU_INPUT) return 1;
     s->kernel->port(v->port, &p);

@@ -81,7 +81,7 @@ typedef struct {
     Place place[M_COUNT];
     int range; /* N of an interval or mode schedule, else 1 (i = j = 0) */
     int sorted; /* the design intervals increase strictly: nearest() bisects them */
-    double *xhat, *r, *dhat, *tmp, *pt;
+    double *xhat, *r, *dhat, *tmp;
     double *work[M_COUNT];
     long work_k;
     double *block; /* everything above, one allocation */
@@ -95,7 +95,7 @@ static const char *const MATRIX_NAME[M_COUNT] = {"N", "L", "G", "c", "Xz", "Xy",
 
 static size_t msize(const UiofmuMatrix *M) { return (size_t)M->rows * (size_t)M->cols; }
 
-/* y = A x (rows x cols), y += A x */
+/* y = A x (rows x cols); y += A x (each row's sum first, then added: the bits of y + (A x)) */
 static void matvec(const double *A, int rows, int cols, const double *x, double *y) {
     for (int i = 0; i < rows; i++) {
         double acc = 0.0;
@@ -104,9 +104,12 @@ static void matvec(const double *A, int rows, int cols, const double *x, double 
     }
 }
 
-static void matvec_add(const double *A, int rows, int cols, const double *x, double *y, double *t) {
-    matvec(A, rows, cols, x, t);
-    for (int i = 0; i < rows; i++) y[i] += t[i];
+static void matvec_add(const double *A, int rows, int cols, const double *x, double *y) {
+    for (int i = 0; i < rows; i++) {
+        double acc = 0.0;
+        for (int j = 0; j < cols; j++) acc += A[i * cols + j] * x[j];
+        y[i] += acc;
+    }
 }
 
 /* The design interval nearest to h (the first of equals) in *best, and whether h lies within
@@ -308,7 +311,7 @@ static int estimate(Instance *s, const char *fn, int j) {
     const double *Xz = matrix(s, fn, M_Xz, 0, j), *Xy = Xz ? matrix(s, fn, M_Xy, 0, j) : NULL;
     if (!Xz || !Xy) return 0;
     matvec(Xz, d->n, d->nz, s->z, s->xhat);
-    matvec_add(Xy, d->n, d->p, s->y, s->xhat, s->pt);
+    matvec_add(Xy, d->n, d->p, s->y, s->xhat);
     s->xhat_current = 1;
     return 1;
 }
@@ -474,7 +477,7 @@ static void *affine_instantiate(FmuInstance *fmu) {
         }
     size_t mx = (size_t)(d->nz > d->n ? d->nz : d->n);
     if ((size_t)d->p > mx) mx = (size_t)d->p;
-    s->nblock = (size_t)d->nz + d->p + d->n + d->p + d->m + d->n + d->p + d->q + mx + mx + nwork;
+    s->nblock = (size_t)d->nz + d->p + d->n + d->p + d->m + d->n + d->p + d->q + mx + nwork;
     s->block = (double *)uiofmu_alloc(fmu, s->nblock, sizeof(double));
     if (!s->block) {
         free(s);
@@ -490,7 +493,6 @@ static void *affine_instantiate(FmuInstance *fmu) {
     s->r = b; b += d->p;
     s->dhat = b; b += d->q;
     s->tmp = b; b += mx;
-    s->pt = b; b += mx;
     for (int w = 0; w < M_COUNT; w++)
         if (d->kind == UIOFMU_GEOMETRIC && w != M_C && d->mat[w].count) { s->work[w] = b; b += msize(&d->mat[w]); }
     memcpy(s->xhat0, d->xhat0, d->n * sizeof(double));
@@ -651,12 +653,12 @@ static UiofmuResult affine_step(void *self, double t, double h) {
     }
     if (d->has_dhat) {
         matvec(Yx, d->p, d->n, s->xhat, s->pred);
-        matvec_add(Yu, d->p, d->m, s->u, s->pred, s->pt);
+        matvec_add(Yu, d->p, d->m, s->u, s->pred);
         for (int e = 0; e < d->p; e++) s->pred[e] += Yc[e];
     }
     matvec(N, d->nz, d->nz, s->z, s->tmp);
-    matvec_add(L, d->nz, d->p, s->y, s->tmp, s->pt);
-    matvec_add(G, d->nz, d->m, s->u, s->tmp, s->pt);
+    matvec_add(L, d->nz, d->p, s->y, s->tmp);
+    matvec_add(G, d->nz, d->m, s->u, s->tmp);
     for (int e = 0; e < d->nz; e++) s->z[e] = s->tmp[e] + cc[e];
     s->h_prev = h;
     s->j_prev = i;
