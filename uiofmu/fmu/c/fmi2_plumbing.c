@@ -86,6 +86,7 @@
 #define MAX_VARIABLES 16777216
 #define MAX_PORTS 64
 #define MAX_STEPS 4096
+#define MAX_KNOWN_STEPS 256 /* admissible steps whose gap fmi2Instantiate works out (pairs: 32640) */
 #define INSTANCE_MAGIC 0x75696e73u /* "uins" */
 
 /* ---------------------------------------------------------------------------------------- */
@@ -178,6 +179,8 @@ struct FmuInstance {
     double time;    /* for fmi2LastSuccessfulTime */
     int time_known;
     int rounding_noted; /* the line of a rounding step was logged (once per instance) */
+    int known[UIOFMU_SLOTS]; /* by uiofmu_slot(H) of each admissible step H: its index (-1: none) */
+    double gap; /* the least |H - H'| of two different admissible steps (inf: fewer than two; 0: not worked out) */
     char *resources;    /* the fmuResourceLocation of fmi2Instantiate (a copy), or NULL */
     double **storage;   /* by value reference: where each Real variable lives (kernel->real_storage), or NULL */
 };
@@ -392,6 +395,23 @@ static int find_storage(FmuInstance *s) {
     return 1;
 }
 
+/* s->known and s->gap of the admissible steps (see fmi2DoStep). */
+static void know_steps(FmuInstance *s) {
+    const UiofmuSteps *rule = s->fmu->steps;
+    s->gap = INFINITY;
+    for (int k = 0; k < UIOFMU_SLOTS; k++) s->known[k] = -1;
+    if (!rule || rule->nsteps > MAX_KNOWN_STEPS) {
+        s->gap = 0.0;
+        return;
+    }
+    for (int i = rule->nsteps - 1; i >= 0; i--) { /* the first of equal steps keeps its slot */
+        s->known[uiofmu_slot(rule->steps[i])] = i;
+        for (int k = i + 1; k < rule->nsteps; k++)
+            if (rule->steps[k] != rule->steps[i] && fabs(rule->steps[k] - rule->steps[i]) < s->gap)
+                s->gap = fabs(rule->steps[k] - rule->steps[i]);
+    }
+}
+
 /* A log line before there is an instance (fmi2Instantiate refusing). */
 static void log_early(const fmi2CallbackFunctions *f, fmi2String name, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
 static void log_early(const fmi2CallbackFunctions *f, fmi2String name, const char *fmt, ...) {
@@ -442,6 +462,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     s->state = INSTANTIATED;
     s->time = 0.0;
     s->time_known = 1;
+    know_steps(s);
     if (fmuResourceLocation) {
         size_t len = strlen(fmuResourceLocation);
         s->resources = (char *)malloc(len + 1);
@@ -742,7 +763,10 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
     }
     if (rule) { /* within a few ulps of t of an admissible step: that step */
         double slack = rule->ulps * ulp_of(fabs(t));
-        for (int i = 0; i < rule->nsteps; i++)
+        /* h an admissible step, and every other one further from it than slack: the loop below would
+           find h itself or nothing, and leave h as it is */
+        int at = s->known[uiofmu_slot(h)], settled = at >= 0 && rule->steps[at] == h && slack < s->gap;
+        for (int i = 0; i < rule->nsteps && !settled; i++)
             if (fabs(h - rule->steps[i]) <= slack && slack <= rule->ulps_limit * rule->steps[i]) {
                 h = rule->steps[i];
                 break;

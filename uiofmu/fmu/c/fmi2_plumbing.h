@@ -25,6 +25,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "fmi2Functions.h"
 
@@ -178,6 +179,15 @@ UIOFMU_INTERNAL int uiofmu_design_error(char *msg, size_t len, const char *fmt, 
 /* check_state's refusal (and the plumbing's of a state image): the fmi2Error line "ctx: <text>";
    returns 0. */
 UIOFMU_INTERNAL int uiofmu_state_refused(FmuInstance *fmu, const char *ctx, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
+
+/* A slot 0 .. UIOFMU_SLOTS - 1 for the double v (a hash of its bits): where a table of a few steps
+   (the design's) keeps the index of each, so that a step equal to one is found at once. */
+#define UIOFMU_SLOTS 64
+static inline int uiofmu_slot(double v) {
+    uint64_t bits;
+    memcpy(&bits, &v, sizeof bits);
+    return (int)((bits * UINT64_C(0x9E3779B97F4A7C15)) >> 58);
+}
 
 /* The shortest text that reads back as v, as Python's repr writes it (600.0, 0.1, 1e-05);
    buf holds 32 bytes. */

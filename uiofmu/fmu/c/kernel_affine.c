@@ -81,6 +81,7 @@ typedef struct {
     Place place[M_COUNT];
     int range; /* N of an interval or mode schedule, else 1 (i = j = 0) */
     int sorted; /* the design intervals increase strictly: nearest() bisects them */
+    int known[UIOFMU_SLOTS]; /* by uiofmu_slot(x) of each design interval x: its index (-1: none) */
     double *xhat, *r, *dhat, *tmp;
     double *work[M_COUNT];
     long work_k;
@@ -95,21 +96,13 @@ static const char *const MATRIX_NAME[M_COUNT] = {"N", "L", "G", "c", "Xz", "Xy",
 
 static size_t msize(const UiofmuMatrix *M) { return (size_t)M->rows * (size_t)M->cols; }
 
-/* y = A x (rows x cols); y += A x (each row's sum first, then added: the bits of y + (A x)) */
-static void matvec(const double *A, int rows, int cols, const double *x, double *y) {
-    for (int i = 0; i < rows; i++) {
-        double acc = 0.0;
-        for (int j = 0; j < cols; j++) acc += A[i * cols + j] * x[j];
-        y[i] = acc;
-    }
-}
-
-static void matvec_add(const double *A, int rows, int cols, const double *x, double *y) {
-    for (int i = 0; i < rows; i++) {
-        double acc = 0.0;
-        for (int j = 0; j < cols; j++) acc += A[i * cols + j] * x[j];
-        y[i] += acc;
-    }
+/* The sum of a[j] x[j] over j < n, from 0.0 in the order of j (a row of a matrix times x; 0.0 for
+   n = 0). Every product below is written with it, row by row, and the sums of a row added in the
+   order of the formula: the same bits as the whole products added in turn. */
+static inline double dot(const double *a, const double *x, int n) {
+    double acc = 0.0;
+    for (int j = 0; j < n; j++) acc += a[j] * x[j];
+    return acc;
 }
 
 /* The design interval nearest to h (the first of equals) in *best, and whether h lies within
@@ -124,7 +117,8 @@ static int nearest_interval(const UiofmuDesign *d, double h, int *best, int *exa
     return 1;
 }
 
-/* nearest_interval() for an instance, by bisection when the intervals increase strictly. Then the
+/* nearest_interval() for an instance: a step that is a design interval (the usual case) found in
+   Instance.known, any other by bisection when the intervals increase strictly. Then the
    distance |h - x|, rounded, does not decrease away from h on either side, so the nearest is the
    last interval <= h or the one after it, and of equal distances nearest_interval() takes the
    first: the start of the run of equals that ends at the last interval <= h. */
@@ -132,6 +126,12 @@ static int nearest(const Instance *s, double h, int *best, int *exact) {
     const UiofmuDesign *d = s->d;
     if (!s->sorted) return nearest_interval(d, h, best, exact);
     const double *x = d->intervals;
+    int i = s->known[uiofmu_slot(h)];
+    if (i >= 0 && x[i] == h) { /* distinct intervals: the only one at distance 0 */
+        *best = i;
+        *exact = fabs(h - x[i]) <= d->step_rtol * x[i];
+        return 1;
+    }
     int lo = 0, hi = d->nintervals; /* lo becomes the number of intervals <= h (none for a NaN) */
     while (lo < hi) {
         int mid = lo + (hi - lo) / 2;
@@ -242,6 +242,8 @@ static void find_places(Instance *s) {
     s->range = d->kind == UIOFMU_MODE ? d->modes : d->kind == UIOFMU_INTERVAL ? d->nintervals : 1;
     s->sorted = d->kind == UIOFMU_INTERVAL && d->nintervals >= 1;
     for (int i = 1; i < d->nintervals && s->sorted; i++) s->sorted = d->intervals[i - 1] < d->intervals[i];
+    for (int k = 0; k < UIOFMU_SLOTS; k++) s->known[k] = -1;
+    for (int i = 0; i < d->nintervals && s->sorted; i++) s->known[uiofmu_slot(d->intervals[i])] = i;
     for (int w = 0; w < M_COUNT; w++) {
         size_t sz = msize(&d->mat[w]), N = (size_t)s->range;
         Place *p = &s->place[w];
@@ -310,8 +312,8 @@ static int estimate(Instance *s, const char *fn, int j) {
     }
     const double *Xz = matrix(s, fn, M_Xz, 0, j), *Xy = Xz ? matrix(s, fn, M_Xy, 0, j) : NULL;
     if (!Xz || !Xy) return 0;
-    matvec(Xz, d->n, d->nz, s->z, s->xhat);
-    matvec_add(Xy, d->n, d->p, s->y, s->xhat);
+    for (int i = 0; i < d->n; i++)
+        s->xhat[i] = dot(Xz + (size_t)i * d->nz, s->z, d->nz) + dot(Xy + (size_t)i * d->p, s->y, d->p);
     s->xhat_current = 1;
     return 1;
 }
@@ -322,14 +324,13 @@ static int refresh(Instance *s, const char *fn) {
     int j = prev_index(s);
     const double *C = matrix(s, fn, M_C, 0, 0);
     if (!C || !estimate(s, fn, j)) return 0;
-    matvec(C, d->p, d->n, s->xhat, s->r);
-    for (int i = 0; i < d->p; i++) s->r[i] = s->y[i] - s->r[i];
+    for (int i = 0; i < d->p; i++) s->r[i] = s->y[i] - dot(C + (size_t)i * d->n, s->xhat, d->n);
     if (d->has_dhat) {
         if (s->k > 0) {
             const double *Dy = matrix(s, fn, M_Dy, 0, j);
             if (!Dy) return 0;
             for (int i = 0; i < d->p; i++) s->tmp[i] = s->y[i] - s->pred[i];
-            matvec(Dy, d->q, d->p, s->tmp, s->dhat);
+            for (int i = 0; i < d->q; i++) s->dhat[i] = dot(Dy + (size_t)i * d->p, s->tmp, d->p);
         } else {
             for (int i = 0; i < d->q; i++) s->dhat[i] = 0.0;
         }
@@ -648,18 +649,16 @@ static UiofmuResult affine_step(void *self, double t, double h) {
     }
     if (!estimate(s, fn, j)) return UIOFMU_BROKEN; /* xhat_k (and the geometric matrices of step k) */
     if (s->k == 0) {
-        matvec(Xy, d->n, d->p, s->y, s->tmp);
-        for (int e = 0; e < d->nz; e++) s->z[e] = s->xhat0[e] - s->tmp[e];
+        for (int e = 0; e < d->nz; e++) s->z[e] = s->xhat0[e] - dot(Xy + (size_t)e * d->p, s->y, d->p);
     }
     if (d->has_dhat) {
-        matvec(Yx, d->p, d->n, s->xhat, s->pred);
-        matvec_add(Yu, d->p, d->m, s->u, s->pred);
-        for (int e = 0; e < d->p; e++) s->pred[e] += Yc[e];
+        for (int e = 0; e < d->p; e++)
+            s->pred[e] = dot(Yx + (size_t)e * d->n, s->xhat, d->n) + dot(Yu + (size_t)e * d->m, s->u, d->m) + Yc[e];
     }
-    matvec(N, d->nz, d->nz, s->z, s->tmp);
-    matvec_add(L, d->nz, d->p, s->y, s->tmp);
-    matvec_add(G, d->nz, d->m, s->u, s->tmp);
-    for (int e = 0; e < d->nz; e++) s->z[e] = s->tmp[e] + cc[e];
+    for (int e = 0; e < d->nz; e++)
+        s->tmp[e] = dot(N + (size_t)e * d->nz, s->z, d->nz) + dot(L + (size_t)e * d->p, s->y, d->p) +
+                    dot(G + (size_t)e * d->m, s->u, d->m) + cc[e];
+    for (int e = 0; e < d->nz; e++) s->z[e] = s->tmp[e];
     s->h_prev = h;
     s->j_prev = i;
     if (d->kind == UIOFMU_MODE) s->mode_prev = s->mode;
