@@ -277,7 +277,7 @@ static void touched(Instance *s) {
 
 /* Index of h_prev among the design intervals (mode schedules: of mode_prev among the modes; 0 for
    the other schedules); -1 when it is none. */
-static int prev_index(Instance *s) {
+static inline int prev_index(Instance *s) {
     if (s->d->kind == UIOFMU_MODE) return s->mode_prev >= 1 && s->mode_prev <= s->d->modes ? s->mode_prev - 1 : -1;
     if (s->d->kind != UIOFMU_INTERVAL) return 0;
     if (s->j_prev < 0 || s->j_prev >= s->d->nintervals) s->j_prev = interval_index(s, s->h_prev, NULL, 0);
