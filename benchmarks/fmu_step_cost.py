@@ -12,6 +12,11 @@ plant of the two-room building on the observer's aperiodic steps (the exact disc
 each step length from the C plant's cache) and the discrete plant of seed 000 Example 1 at its
 dt; their input is u. Median of 5 runs.
 
+Then the delayed UIO of seed 001 (``examples/seed001_example.toml``), whose observer integrates itself
+between communication points: its C FMU and its pythonfmu FMU fed the same plant signals (y, ydot, u of
+the plant runtime at 1 ms steps) through fmpy; past the premise's start (1 s) the CPU time of
+``--delayed-steps`` steps (fmi2SetReal of y, ydot, u and fmi2DoStep), per step, and python / C.
+
 Last, the building's whole observer step as a master makes it, in a C host (benchmarks/observer_step.c:
 fmi2SetReal of y and u, fmi2GetReal of xhat, r and dhat, fmi2DoStep, on 1000 random aperiodic steps
 played over and over): the process CPU time per step (median of 5 runs, the C sources of
@@ -96,7 +101,7 @@ def via_host(path, steps, n, host, tmp, python=False, port="y"):
 
 #: The C sources before the observer step was made lean (xhat computed twice a step, every matrix
 #: looked up by its schedule, every element's checks in turn).
-REFERENCE = "973a582e29ac11216b7c800b4c1986ffafd4d891"
+REFERENCE = "a3d145ba2275e44649a75706c549f998693cfeef"
 C_DIR = "uiofmu/fmu/c"
 
 
@@ -211,9 +216,62 @@ def host_step(reference: str, tmp) -> None:
         print(f"outputs of the first 1000 steps: {'equal bit for bit' if same else 'DIFFERENT'}")
 
 
+def plant_signals(problem, card, h: float, count: int) -> list:
+    """``count`` points of the plant's signals at steps of ``h``: ``(y, ydot, u)`` with the problem's input (the
+    ``[signals]`` its card records)."""
+    from uiofmu.cosim.master import default_inputs
+    from uiofmu.runtime.parametric_plant import ParametricPlantRuntime
+
+    plant = ParametricPlantRuntime(problem.plant.to_data())
+    source = default_inputs(card)
+    points = []
+    for k in range(count):
+        plant.u[:] = source.values(k * h)["u"]
+        points.append((plant.y().copy(), plant.ydot().copy(), plant.u.copy()))
+        plant.step(h)
+    return points
+
+
+def delayed_cost(path, points, lead_in: int, h: float):
+    """CPU seconds per step of the delayed observer FMU at ``path`` (inputs set, then fmi2DoStep) over the
+    points after the first ``lead_in``, and the fraction of those steps it was valid at."""
+    with Fmu(path, "bench") as fmu:
+        fmu.initialize(0.0)
+        refs = [fmu.refs(name) for name in ("y", "ydot", "u")]
+        set_real, step, get_integer = fmu.slave.setReal, fmu.slave.doStep, fmu.slave.getInteger
+        valid_ref = fmu.refs("valid")
+        valid, t0 = 0, 0.0
+        for k, values in enumerate(points):
+            if k == lead_in:
+                t0 = time.process_time()
+            for ref, value in zip(refs, values):
+                set_real(ref, value)
+            step(k * h, h)
+            if k >= lead_in:
+                valid += get_integer(valid_ref)[0]
+        spent = time.process_time() - t0
+    timed = len(points) - lead_in
+    return spent / timed, valid / timed
+
+
+def delayed_row(tmp, n: int) -> dict:
+    """The delayed UIO's observer, C against pythonfmu (:func:`delayed_cost`)."""
+    problem = uiofmu.load_problem(ROOT / "examples" / "seed001_example.toml")
+    card = uiofmu.design(problem)
+    h = float(card.schedule["step"])
+    lead_in = int(round(float(card.schedule["valid_from"]) / h)) + 50
+    points = plant_signals(problem, card, h, lead_in + n)
+    c = build_observer(card, Path(tmp) / f"{card.name}_c.fmu", backend="c")
+    py = build_observer(card, Path(tmp) / f"{card.name}_py.fmu", backend="python")
+    (c_cost, c_valid), (py_cost, py_valid) = (delayed_cost(p, points, lead_in, h) for p in (c, py))
+    return {"case": f"{card.family} ({card.name})", "c": c_cost, "py": py_cost, "valid": (c_valid, py_valid),
+            "from": lead_in * h, "steps": n, "h": h}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=20000)
+    parser.add_argument("--delayed-steps", type=int, default=500)
     parser.add_argument("--reference", default=REFERENCE, help="the git revision of the C sources to compare with")
     parser.add_argument("--host-step-only", action="store_true", help="only the observer step in a C host")
     args = parser.parse_args()
@@ -252,6 +310,7 @@ def main():
             r["c_host"], r["floor_host"] = (via_host(p, steps, n * 10, host, tmp, port="u") for p in (c, floor))
             r["py_host"] = via_host(py, steps, n, host, tmp, python=True, port="u")
             plants.append(r)
+        delayed = delayed_row(tmp, args.delayed_steps)
     us = lambda v: f"{v * 1e6:8.3f}" if v is not None else "     n/a"  # noqa: E731
     print(f"per fmi2DoStep, median of 5 runs ({n} steps through fmpy, {10 * n} through the C host), in µs")
     for what, table in (("observer", rows), ("plant", plants)):
@@ -261,6 +320,12 @@ def main():
                 c, f, p = r[f"c_{imp}"], r[f"floor_{imp}"], r[f"py_{imp}"]
                 ratio = f"{p / c:8.1f}" if p else "     n/a"
                 print(f"{r['case']:36s} {imp:8s} {us(c)} {us(f)} {us(p)}  {c / f:7.2f}  {ratio}")
+    d = delayed
+    print(f"\ndelayed observer: CPU per step (fmi2SetReal of y, ydot, u + fmi2DoStep of {d['h']:g} s) through fmpy, "
+          f"{d['steps']} steps from t = {d['from']:g} s (valid at {d['valid'][0]:.0%} of them in C, "
+          f"{d['valid'][1]:.0%} in python), in µs")
+    print(f"{'observer':36s} {'C FMU':>10s} {'python':>10s}  python/C")
+    print(f"{d['case']:36s} {d['c'] * 1e6:10.1f} {d['py'] * 1e6:10.1f}  {d['py'] / d['c']:8.1f}")
     with tempfile.TemporaryDirectory() as tmp:
         host_step(args.reference, tmp)
 

@@ -30,6 +30,7 @@ def test_demo(cli, tmp_path):
     ("two_room_building.py", ["figure1.png", "figure2.png", "report.png", "metrics.json"]),
     ("noise_building.py", ["report.png", "metrics.json", "results.csv"]),
     ("noise_tradeoff.py", ["tradeoff.png", "tradeoff.csv", "plant.fmu"]),
+    ("ssp_libcosim.py", ["loop.ssp", "loop_held.ssp", "held_inputs.csv"]),
     pytest.param("quarter_car.py", ["dhat_vs_d.png", "quarter-car/report.png", "quarter-car-ltv/metrics.json"],
                  marks=pytest.mark.mujoco),
     ("seed000_ltv_vs_classical.py", ["fig1_x2_estimates.png", "fig2_eigenvalues.png", "fig6_alpha.png",
@@ -53,6 +54,10 @@ def test_example_scripts(script, outputs, tmp_path):
         assert "unchanged after the refused builds: True" in proc.stdout
         assert "PWNED exists: False" in proc.stdout and proc.stdout.count("exit 2") == 2
         assert not (tmp_path / "PWNED").exists()
+    if script == "ssp_libcosim.py":
+        assert "plant state, libcosim against our master: largest difference 0\n" in proc.stdout
+        held = float(proc.stdout.split("with held inputs: first ")[1].split("last ")[1])
+        assert held < 1e-2, proc.stdout
     if script == "noise_tradeoff.py":
         assert proc.stdout.count("(respected: True)") == 2 and "noise_gain = 1.5: decay" in proc.stdout
     if script == "seed001_delayed.py":
