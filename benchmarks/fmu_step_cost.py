@@ -16,12 +16,22 @@ Then the delayed UIO of seed 001 (``examples/seed001_example.toml``), whose obse
 between communication points: its C FMU and its pythonfmu FMU fed the same plant signals (y, ydot, u of
 the plant runtime at 1 ms steps) through fmpy; past the premise's start (1 s) the CPU time of
 ``--delayed-steps`` steps (fmi2SetReal of y, ydot, u and fmi2DoStep), per step, and python / C.
+
+Last, the building's whole observer step as a master makes it, in a C host (benchmarks/observer_step.c:
+fmi2SetReal of y and u, fmi2GetReal of xhat, r and dhat, fmi2DoStep, on 1000 random aperiodic steps
+played over and over): the process CPU time per step (median of 5 runs, the C sources of
+``--reference``, the commit before the step was made lean, alternating with today's in the same run),
+the instructions per step where valgrind is installed (callgrind, the timed passes only), and the
+ratio to the step's own arithmetic at 1 flop/ns: its flops counted from the design's sizes
+(:func:`step_flops`; goal: within 1.5x). Both builds run the same design data, and their outputs are
+compared bit for bit. ``--host-step-only`` runs this part alone.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -39,7 +49,8 @@ from fmpy import read_model_description  # noqa: E402
 
 import uiofmu  # noqa: E402
 from uiofmu.fmu.export import build_observer, build_plant, model_identifier  # noqa: E402
-from uiofmu.fmu.c_backend import build_c_observer, build_c_plant, build_host  # noqa: E402
+from uiofmu.fmu.c_backend import (build_c_observer, build_c_plant, build_host, c_compiler, fmi_headers,  # noqa: E402
+                                   rebuild_c_fmu)
 from uiofmu.cosim.fmi import Fmu  # noqa: E402
 
 
@@ -86,6 +97,123 @@ def via_host(path, steps, n, host, tmp, python=False, port="y"):
                   f"({proc.stderr.strip().splitlines()[-1]})", file=sys.stderr)
         times.append(float(timing[-1].split()[1]) * 1e-9)
     return statistics.median(times)
+
+
+#: The C sources before the observer step was made lean (xhat computed twice a step, every matrix
+#: looked up by its schedule, every element's checks in turn).
+REFERENCE = "a3d145ba2275e44649a75706c549f998693cfeef"
+C_DIR = "uiofmu/fmu/c"
+
+
+def step_flops(dims: dict, has_dhat: bool) -> int:
+    """Flops of one observer step of the affine kernel (outputs and doStep), counted from its sizes: an
+    r x c product costs r c multiplications and r (c - 1) additions, a vector sum or difference one per
+    element.
+
+    xhat = Xz z + Xy y, r = y - C xhat, dhat = Dy (y - pred), pred = Yx xhat + Yu u + Yc,
+    z = N z + L y + G u + c.
+    """
+    n, m, p, q, nz = (dims[k] for k in ("n", "m", "p", "q", "nz"))
+
+    def product(rows, cols):
+        return rows * (2 * cols - 1) if cols else 0
+
+    def plus(rows, cols):   # adding an r x c product to a vector
+        return product(rows, cols) + (rows if cols else 0)
+
+    flops = product(n, nz) + plus(n, p) + product(p, n) + p
+    if has_dhat:
+        flops += p + product(q, p) + product(p, n) + plus(p, m) + p
+    return flops + product(nz, nz) + plus(nz, p) + plus(nz, m) + nz
+
+
+def git_sources(rev: str) -> dict | None:
+    """``{name: text}`` of the C sources at ``rev``, or None (no git, or no such commit)."""
+    def git(*args):
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+
+    try:
+        names = git("ls-tree", "--name-only", f"{rev}:{C_DIR}").split()
+        return {name: git("show", f"{rev}:{C_DIR}/{name}") for name in names}
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
+def step_host(tmp) -> Path:
+    """benchmarks/observer_step.c compiled."""
+    exe = Path(tmp) / "observer_step"
+    subprocess.run([c_compiler(), "-std=c99", "-O2", f"-I{fmi_headers()}", "-o", str(exe),
+                    str(ROOT / "benchmarks" / "observer_step.c"), "-ldl"], check=True)
+    return exe
+
+
+def step_run(host, fmu: Path, plan: Path, repeat: int, tmp, callgrind: bool = False):
+    """(CPU ns a step, the first pass's outputs) of one run of the C host, or with ``callgrind`` the
+    instructions a step of its timed passes."""
+    unzip = Path(tmp) / f"{fmu.stem}_x"
+    if not unzip.exists():
+        with zipfile.ZipFile(fmu) as z:
+            z.extractall(unzip)
+    md = read_model_description(str(fmu))
+    lib = unzip / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+    refs = lambda causality: ",".join(str(v.valueReference) for v in md.modelVariables  # noqa: E731
+                                      if v.causality == causality)
+    args = [str(host), str(lib), md.guid, refs("input"), refs("output"), str(plan), str(repeat)]
+    if callgrind:
+        out = Path(tmp) / f"{fmu.stem}.callgrind"
+        proc = subprocess.run(["valgrind", "--tool=callgrind", "--toggle-collect=run_passes",
+                               f"--callgrind-out-file={out}", *args], capture_output=True, text=True)
+        steps = [float(line.split()[1]) for line in proc.stderr.splitlines() if line.startswith("steps ")]
+        events = [line for line in out.read_text().splitlines() if line.startswith("summary:")]
+        return int(events[0].split()[1]) / steps[0] if steps and events else None
+    proc = subprocess.run(args, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"{lib.name} in the C host: {proc.stderr.strip()[-300:]}")
+    cpu = [float(line.split()[1]) for line in proc.stderr.splitlines() if line.startswith("cpu_ns_per_step")]
+    return cpu[0], proc.stdout
+
+
+def host_step(reference: str, tmp) -> None:
+    """The building's observer step in a C host, today's C sources against ``reference``'s."""
+    card = uiofmu.design(uiofmu.load_problem(ROOT / "plants" / "two_room_building"))
+    now = build_observer(card, Path(tmp) / "step_now.fmu", backend="c")
+    sources = git_sources(reference)
+    builds = {"current": now}
+    if sources is None:
+        print(f"note: no git history with {reference}: the current C sources alone", file=sys.stderr)
+    else:
+        with zipfile.ZipFile(now) as z:
+            carried = {name[len("sources/"):] for name in z.namelist() if name.startswith("sources/")}
+        builds = {f"{reference[:7]} (before)": rebuild_c_fmu(now, Path(tmp) / "step_reference.fmu",
+                                                             {k: v for k, v in sources.items() if k in carried}),
+                  **builds}
+    steps = uiofmu.Runtime(card).schedule.admissible_steps()
+    md = read_model_description(str(now))
+    width = sum(v.causality == "input" for v in md.modelVariables)
+    rng = np.random.default_rng(11)
+    plan = Path(tmp) / "step_plan.txt"
+    plan.write_text("".join(" ".join(repr(float(v)) for v in (steps[rng.integers(len(steps))], *rng.normal(size=width)))
+                            + "\n" for _ in range(1000)))
+    host = step_host(tmp)
+    cpu = {label: [] for label in builds}
+    shown = {}
+    for _ in range(5):                      # alternating, so that both see the same load
+        for label, fmu in builds.items():
+            ns, text = step_run(host, fmu, plan, 1000, tmp)
+            cpu[label].append(ns)
+            shown[label] = text
+    grind = shutil.which("valgrind") is not None
+    flops = step_flops(card.data["dims"], card.has_dhat)
+    print(f"\nthe building's observer step in a C host (fmi2SetReal y, u; fmi2GetReal xhat, r, dhat; fmi2DoStep), "
+          f"{flops} flops; CPU time, median of 5 runs of 1e6 steps")
+    print(f"{'C sources':22s} {'CPU ns/step':>11s} {'instructions/step':>17s} {'ns/flop (goal <= 1.5)':>22s}")
+    for label, fmu in builds.items():
+        ns = statistics.median(cpu[label])
+        ir = step_run(host, fmu, plan, 5, tmp, callgrind=True) if grind else None
+        print(f"{label:22s} {ns:11.1f} {f'{ir:.0f}' if ir else 'n/a':>17s} {ns / flops:22.2f}")
+    if len(shown) > 1:
+        same = len(set(shown.values())) == 1
+        print(f"outputs of the first 1000 steps: {'equal bit for bit' if same else 'DIFFERENT'}")
 
 
 def plant_signals(problem, card, h: float, count: int) -> list:
@@ -144,8 +272,14 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=20000)
     parser.add_argument("--delayed-steps", type=int, default=500)
+    parser.add_argument("--reference", default=REFERENCE, help="the git revision of the C sources to compare with")
+    parser.add_argument("--host-step-only", action="store_true", help="only the observer step in a C host")
     args = parser.parse_args()
     n = args.steps
+    if args.host_step_only:
+        with tempfile.TemporaryDirectory() as tmp:
+            host_step(args.reference, tmp)
+        return
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         host = build_host(Path(tmp) / "host")
@@ -192,6 +326,8 @@ def main():
           f"{d['valid'][1]:.0%} in python), in µs")
     print(f"{'observer':36s} {'C FMU':>10s} {'python':>10s}  python/C")
     print(f"{d['case']:36s} {d['c'] * 1e6:10.1f} {d['py'] * 1e6:10.1f}  {d['py'] / d['c']:8.1f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        host_step(args.reference, tmp)
 
 
 if __name__ == "__main__":

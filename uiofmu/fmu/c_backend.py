@@ -33,7 +33,7 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
-from xml.etree.ElementTree import Element, SubElement, tostring
+from xml.etree.ElementTree import Element, SubElement, fromstring, tostring
 
 import numpy as np
 
@@ -954,6 +954,43 @@ def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, desc
             z.writestr("resources/model.json", json.dumps(spec))
             for name, data in sorted((resources or {}).items()):
                 z.writestr(f"resources/{name}", data)
+    return output
+
+
+def rebuild_c_fmu(fmu, output, replace: dict | None = None) -> Path:
+    """Rebuild the binary of a C FMU from the sources it carries (``sources/``, the files its
+    ``<SourceFiles>`` lists compiled as :func:`compile_binary` does), with the files of ``replace``
+    (``{name: text}``, only names it has) in place of its own; that FMU written to ``output``.
+
+    Other C sources of the same generated design data (the plumbing and kernels of another version,
+    say) run through the same FMU this way.
+    """
+    output = check_output_file(output, "FMU", ".fmu")
+    with zipfile.ZipFile(fmu) as z:
+        members = {name: z.read(name) for name in z.namelist() if not name.endswith("/")}
+    cs = fromstring(members["modelDescription.xml"]).find("CoSimulation")
+    if cs is None or cs.find("SourceFiles") is None:
+        raise FmuError(f"{fmu}: not an FMU with C sources (no CoSimulation SourceFiles)")
+    identifier = cs.get("modelIdentifier")
+    sources = [f.get("name") for f in cs.find("SourceFiles").findall("File")]
+    unknown = sorted(set(replace or {}) - {name[len("sources/"):] for name in members if name.startswith("sources/")})
+    if unknown:
+        raise FmuError(f"{fmu}: has no sources/{unknown[0]} to replace")
+    with tempfile.TemporaryDirectory(prefix="uiofmu_c_") as tmp:
+        src = Path(tmp) / "sources"
+        src.mkdir()
+        for name, data in members.items():
+            if name.startswith("sources/"):
+                (src / name[len("sources/"):]).write_bytes(data)
+        for name, text in (replace or {}).items():
+            (src / name).write_text(text)
+        lib = compile_binary(src, identifier, Path(tmp) / "binaries", sources=sources)
+        members[f"binaries/linux64/{identifier}.so"] = lib.read_bytes()
+        for name, text in (replace or {}).items():
+            members[f"sources/{name}"] = text.encode()
+        with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
+            for name, data in members.items():
+                z.writestr(name, data)
     return output
 
 

@@ -86,6 +86,7 @@
 #define MAX_VARIABLES 16777216
 #define MAX_PORTS 64
 #define MAX_STEPS 4096
+#define MAX_KNOWN_STEPS 256 /* admissible steps whose gap fmi2Instantiate works out (pairs: 32640) */
 #define INSTANCE_MAGIC 0x75696e73u /* "uins" */
 
 /* ---------------------------------------------------------------------------------------- */
@@ -178,7 +179,10 @@ struct FmuInstance {
     double time;    /* for fmi2LastSuccessfulTime */
     int time_known;
     int rounding_noted; /* the line of a rounding step was logged (once per instance) */
+    int known[UIOFMU_SLOTS]; /* by uiofmu_slot(H) of each admissible step H: its index (-1: none) */
+    double gap; /* the least |H - H'| of two different admissible steps (inf: fewer than two; 0: not worked out) */
     char *resources;    /* the importer's fmuResourceLocation (a copy; NULL when it gave none) */
+    double **storage;   /* by value reference: where each Real variable lives (kernel->real_storage), or NULL */
 };
 
 static unsigned category_of(fmi2Status status) {
@@ -277,8 +281,8 @@ const char *uiofmu_num(double v, char *buf) {
     return buf;
 }
 
-static fmi2Status refuse(FmuInstance *s, const char *fn, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
-static fmi2Status refuse(FmuInstance *s, const char *fn, const char *fmt, ...) {
+UIOFMU_COLD static fmi2Status refuse(FmuInstance *s, const char *fn, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
+UIOFMU_COLD static fmi2Status refuse(FmuInstance *s, const char *fn, const char *fmt, ...) {
     char buf[768];
     va_list ap;
     va_start(ap, fmt);
@@ -308,7 +312,7 @@ static void states_text(unsigned mask, char *buf, size_t len) {
         }
 }
 
-static fmi2Status illegal(FmuInstance *s, int call) {
+UIOFMU_COLD static fmi2Status illegal(FmuInstance *s, int call) {
     char legal[200];
     const char *hint = CALLS[call].hint[0] ? CALLS[call].hint : "illegal call";
     if (!CALLS[call].mask)
@@ -370,7 +374,8 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
         return uiofmu_design_error(msg, len, "the design's GUID is empty or longer than %d bytes", MAX_GUID);
     if (!k || !k->check_design || !k->port || !k->instantiate || !k->free_instance || !k->reset ||
         !k->exit_initialization || !k->calculate || !k->get_real || !k->set_real || !k->step || !k->state_count ||
-        !k->state_shape || !k->save_state || !k->check_state || !k->load_state || k->ports < 1 || k->ports > MAX_PORTS)
+        !k->state_shape || !k->save_state || !k->check_state || !k->load_state || !k->real_storage != !k->changed ||
+        k->ports < 1 || k->ports > MAX_PORTS)
         return uiofmu_design_error(msg, len, "the FMU's kernel is incomplete");
     if (!k->check_design(msg, len)) return 0;
     if (f->steps) {
@@ -418,6 +423,46 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
             return uiofmu_design_error(msg, len, "port %s has %d elements in this design, the variable table lists %d",
                                        p.name, p.size, seen[id]);
     return 1;
+}
+
+/* s->storage: where each Real variable lives, when the kernel says so for every one (else NULL:
+   get_real and set_real). 0 after a log line when out of memory. */
+static int find_storage(FmuInstance *s) {
+    const UiofmuFmu *f = s->fmu;
+    if (!s->kernel->real_storage || f->nvariables < 1) return 1;
+    s->storage = (double **)calloc((size_t)f->nvariables, sizeof(double *));
+    if (!s->storage) {
+        uiofmu_log(s, fmi2Error, "fmi2Instantiate: out of memory");
+        return 0;
+    }
+    for (int vr = 0; vr < f->nvariables; vr++) {
+        const UiofmuVariable *v = &f->variables[vr];
+        if (v->type != UIOFMU_REAL) continue;
+        s->storage[vr] = s->kernel->real_storage(s->model, v->port, v->index);
+        if (!s->storage[vr]) {
+            free(s->storage);
+            s->storage = NULL;
+            return 1;
+        }
+    }
+    return 1;
+}
+
+/* s->known and s->gap of the admissible steps (see fmi2DoStep). */
+static void know_steps(FmuInstance *s) {
+    const UiofmuSteps *rule = s->fmu->steps;
+    s->gap = INFINITY;
+    for (int k = 0; k < UIOFMU_SLOTS; k++) s->known[k] = -1;
+    if (!rule || rule->nsteps > MAX_KNOWN_STEPS) {
+        s->gap = 0.0;
+        return;
+    }
+    for (int i = rule->nsteps - 1; i >= 0; i--) { /* the first of equal steps keeps its slot */
+        s->known[uiofmu_slot(rule->steps[i])] = i;
+        for (int k = i + 1; k < rule->nsteps; k++)
+            if (rule->steps[k] != rule->steps[i] && fabs(rule->steps[k] - rule->steps[i]) < s->gap)
+                s->gap = fabs(rule->steps[k] - rule->steps[i]);
+    }
 }
 
 /* A log line before there is an instance (fmi2Instantiate refusing). */
@@ -470,6 +515,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     s->state = INSTANTIATED;
     s->time = 0.0;
     s->time_known = 1;
+    know_steps(s);
     if (fmuResourceLocation) {
         size_t len = strlen(fmuResourceLocation);
         s->resources = (char *)malloc(len + 1);
@@ -481,7 +527,8 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         memcpy(s->resources, fmuResourceLocation, len + 1);
     }
     s->model = s->kernel->instantiate(s);
-    if (!s->model) {
+    if (!s->model || !find_storage(s)) {
+        if (s->model) s->kernel->free_instance(s->model);
         free(s->resources);
         free(s);
         return NULL;
@@ -495,6 +542,7 @@ void fmi2FreeInstance(fmi2Component c) {
     if (!s) return;
     s->kernel->free_instance(s->model);
     s->magic = 0;
+    free(s->storage);
     free(s->resources);
     free(s);
 }
@@ -590,7 +638,7 @@ static const char *const TYPE_NAME[] = {"Real", "Integer", "Boolean", "String"};
 static const char *const A_TYPE[] = {"a Real", "an Integer", "a Boolean", "a String"};
 
 /* The variable of value reference vr, if it is one of type `type` (else NULL and a log line). */
-static const UiofmuVariable *variable(FmuInstance *s, const char *fn, fmi2ValueReference vr, int type) {
+UIOFMU_COLD static const UiofmuVariable *variable(FmuInstance *s, const char *fn, fmi2ValueReference vr, int type) {
     UiofmuPort p = {"?", 0, 0, 0};
     if ((size_t)vr >= (size_t)s->fmu->nvariables) { /* unsigned all the way: no reference wraps */
         refuse(s, fn, "unknown value reference %u", vr);
@@ -607,7 +655,7 @@ static const UiofmuVariable *variable(FmuInstance *s, const char *fn, fmi2ValueR
 }
 
 /* Whether the variable may be set now (else a log line). */
-static int settable(FmuInstance *s, const char *fn, fmi2ValueReference vr, const UiofmuVariable *v) {
+UIOFMU_COLD static int settable(FmuInstance *s, const char *fn, fmi2ValueReference vr, const UiofmuVariable *v) {
     UiofmuPort p = {"?", 0, 0, 0};
     if (v->causality == UIOFMU_INPUT) return 1;
     s->kernel->port(v->port, &p);
@@ -623,6 +671,12 @@ static int settable(FmuInstance *s, const char *fn, fmi2ValueReference vr, const
     return 1;
 }
 
+/* Whether vr[i] is a variable of type `type` (variable() without its lines: the check of every
+   element of a call, in one pass; variable() says why not). */
+static int of_type(const FmuInstance *s, fmi2ValueReference vr, int type) {
+    return (size_t)vr < (size_t)s->fmu->nvariables && s->fmu->variables[vr].type == type;
+}
+
 /* fmi2Get<type>: every reference checked, then the outputs brought up to date, then read. */
 static fmi2Status get_values(FmuInstance *s, int call, int type, const fmi2ValueReference vr[], size_t nvr,
                              void *values) {
@@ -630,9 +684,16 @@ static fmi2Status get_values(FmuInstance *s, int call, int type, const fmi2Value
     if (!nvr) return fmi2OK;
     if (!vr || !values) return refuse(s, fn, "null argument");
     for (size_t i = 0; i < nvr; i++)
-        if (!variable(s, fn, vr[i], type)) return fmi2Error;
+        if (!of_type(s, vr[i], type)) {
+            variable(s, fn, vr[i], type);
+            return fmi2Error;
+        }
     fmi2Status st = outcome(s, s->kernel->calculate(s->model, fn));
     if (st != fmi2OK) return st;
+    if (type == T_REAL && s->storage) {
+        for (size_t i = 0; i < nvr; i++) ((fmi2Real *)values)[i] = *s->storage[vr[i]];
+        return fmi2OK;
+    }
     for (size_t i = 0; i < nvr; i++) {
         const UiofmuVariable *v = &s->fmu->variables[vr[i]];
         if (type == T_REAL) ((fmi2Real *)values)[i] = s->kernel->get_real(s->model, v->port, v->index);
@@ -648,8 +709,17 @@ static fmi2Status set_values(FmuInstance *s, int call, int type, const fmi2Value
     if (!nvr) return fmi2OK;
     if (!vr || !values) return refuse(s, fn, "null argument");
     for (size_t i = 0; i < nvr; i++) {
-        const UiofmuVariable *v = variable(s, fn, vr[i], type);
-        if (!v || !settable(s, fn, vr[i], v)) return fmi2Error;
+        if (!of_type(s, vr[i], type)) {
+            variable(s, fn, vr[i], type);
+            return fmi2Error;
+        }
+        const UiofmuVariable *v = &s->fmu->variables[vr[i]];
+        if (v->causality != UIOFMU_INPUT && !settable(s, fn, vr[i], v)) return fmi2Error;
+    }
+    if (type == T_REAL && s->storage) {
+        for (size_t i = 0; i < nvr; i++) *s->storage[vr[i]] = ((const fmi2Real *)values)[i];
+        s->kernel->changed(s->model);
+        return fmi2OK;
     }
     for (size_t i = 0; i < nvr; i++) {
         const UiofmuVariable *v = &s->fmu->variables[vr[i]];
@@ -706,6 +776,17 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 /* ---------------------------------------------------------------------------------------- */
 /* stepping                                                                                  */
 
+/* nextafter(a, INFINITY) - a for a finite a >= 0, without the library call: the next double above a
+   is the one whose bits are a's plus one (DBL_MAX's plus one are infinity's). */
+static double ulp_of(double a) {
+    uint64_t bits;
+    double above;
+    memcpy(&bits, &a, sizeof bits);
+    bits += 1u;
+    memcpy(&above, &bits, sizeof above);
+    return above - a;
+}
+
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSetPrior) {
     FmuInstance *s = instance_of(c);
     if (!s) return fmi2Error;
@@ -734,8 +815,11 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
         return fmi2OK;
     }
     if (rule) { /* within a few ulps of t of an admissible step: that step */
-        double slack = rule->ulps * (nextafter(fabs(t), INFINITY) - fabs(t));
-        for (int i = 0; i < rule->nsteps; i++)
+        double slack = rule->ulps * ulp_of(fabs(t));
+        /* h an admissible step, and every other one further from it than slack: the loop below would
+           find h itself or nothing, and leave h as it is */
+        int at = s->known[uiofmu_slot(h)], settled = at >= 0 && rule->steps[at] == h && slack < s->gap;
+        for (int i = 0; i < rule->nsteps && !settled; i++)
             if (fabs(h - rule->steps[i]) <= slack && slack <= rule->ulps_limit * rule->steps[i]) {
                 h = rule->steps[i];
                 break;

@@ -25,6 +25,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "fmi2Functions.h"
 
@@ -32,9 +33,11 @@
 #if defined(__GNUC__) || defined(__clang__)
 #define UIOFMU_INTERNAL __attribute__((visibility("hidden")))
 #define UIOFMU_PRINTF(f, a) __attribute__((format(printf, f, a)))
+#define UIOFMU_COLD __attribute__((cold, noinline)) /* a refusal's path: kept out of the calls it leaves */
 #else
 #define UIOFMU_INTERNAL
 #define UIOFMU_PRINTF(f, a)
+#define UIOFMU_COLD
 #endif
 
 /* The number of elements of an array as the C compiler counts it. */
@@ -106,6 +109,13 @@ typedef struct {
     void (*set_real)(void *self, int port, int index, double value);
     int (*get_integer)(void *self, int port, int index);
     void (*set_integer)(void *self, int port, int index, int value);
+    /* Optional, both or neither: where element `index` of Real port `port` lives for the instance's
+       whole life (NULL: nowhere), and what the kernel does once the plumbing stored values there.
+       When every Real variable has its storage, fmi2GetReal reads those doubles after calculate and
+       fmi2SetReal writes them (the value as it is, as set_real would) and then calls changed once,
+       instead of get_real and set_real for each element. */
+    double *(*real_storage)(void *self, int port, int index);
+    void (*changed)(void *self);
     /* fmi2DoStep(t, h) with h > 0 finite and t finite (the plumbing checked both). */
     UiofmuResult (*step)(void *self, double t, double h);
     /* The FMU state: `count` doubles after the plumbing's header, which records the shape
@@ -172,6 +182,15 @@ UIOFMU_INTERNAL int uiofmu_state_refused(FmuInstance *fmu, const char *ctx, cons
    plain absolute path "/dir", into out (len bytes). 0 after an fmi2Error log line when there is no
    location, or it is none of those, or the path does not fit. For a kernel's instantiate. */
 UIOFMU_INTERNAL int uiofmu_resource_path(FmuInstance *fmu, const char *file, char *out, size_t len);
+
+/* A slot 0 .. UIOFMU_SLOTS - 1 for the double v (a hash of its bits): where a table of a few steps
+   (the design's) keeps the index of each, so that a step equal to one is found at once. */
+#define UIOFMU_SLOTS 64
+static inline int uiofmu_slot(double v) {
+    uint64_t bits;
+    memcpy(&bits, &v, sizeof bits);
+    return (int)((bits * UINT64_C(0x9E3779B97F4A7C15)) >> 58);
+}
 
 /* The shortest text that reads back as v, as Python's repr writes it (600.0, 0.1, 1e-05);
    buf holds 32 bytes. */

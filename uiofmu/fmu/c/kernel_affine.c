@@ -56,6 +56,15 @@ static const char *const PORT_NAME[UIOFMU_AFFINE_PORTS] = UIOFMU_AFFINE_PORT_NAM
 static const int PORT_CAUSALITY[UIOFMU_AFFINE_PORTS] = UIOFMU_AFFINE_PORT_CAUSALITIES;
 static const int PORT_TYPE[UIOFMU_AFFINE_PORTS] = UIOFMU_AFFINE_PORT_TYPES;
 
+/* Where pick() finds a matrix's block for the step indices (i, j): base + i * si + j * sj doubles,
+   for i and j in 0 .. range - 1 (worked out once, at fmi2Instantiate: pick() depends on (which, i, j)
+   alone, the design being constant and the geometric work arrays staying where they are). base is
+   NULL where pick() finds nothing. */
+typedef struct {
+    const double *base;
+    size_t si, sj;
+} Place;
+
 typedef struct {
     FmuInstance *fmu; /* the plumbing's instance: log lines go through it */
     const UiofmuDesign *d;
@@ -68,7 +77,12 @@ typedef struct {
     double *z, *pred, *xhat0, *y, *u;
     /* outputs and work space */
     int dirty;
-    double *xhat, *r, *dhat, *tmp, *pt;
+    int xhat_current; /* xhat is xhat_k of the state and inputs: estimate computed it since they changed */
+    Place place[M_COUNT];
+    int range; /* N of an interval or mode schedule, else 1 (i = j = 0) */
+    int sorted; /* the design intervals increase strictly: nearest() bisects them */
+    int known[UIOFMU_SLOTS]; /* by uiofmu_slot(x) of each design interval x: its index (-1: none) */
+    double *xhat, *r, *dhat, *tmp;
     double *work[M_COUNT];
     long work_k;
     double *block; /* everything above, one allocation */
@@ -83,18 +97,13 @@ static const char *const MATRIX_NAME[M_COUNT] = {"N", "L", "G", "c", "Xz", "Xy",
 
 static size_t msize(const UiofmuMatrix *M) { return (size_t)M->rows * (size_t)M->cols; }
 
-/* y = A x (rows x cols), y += A x */
-static void matvec(const double *A, int rows, int cols, const double *x, double *y) {
-    for (int i = 0; i < rows; i++) {
-        double acc = 0.0;
-        for (int j = 0; j < cols; j++) acc += A[i * cols + j] * x[j];
-        y[i] = acc;
-    }
-}
-
-static void matvec_add(const double *A, int rows, int cols, const double *x, double *y, double *t) {
-    matvec(A, rows, cols, x, t);
-    for (int i = 0; i < rows; i++) y[i] += t[i];
+/* The sum of a[j] x[j] over j < n, from 0.0 in the order of j (a row of a matrix times x; 0.0 for
+   n = 0). Every product below is written with it, row by row, and the sums of a row added in the
+   order of the formula: the same bits as the whole products added in turn. */
+static inline double dot(const double *a, const double *x, int n) {
+    double acc = 0.0;
+    for (int j = 0; j < n; j++) acc += a[j] * x[j];
+    return acc;
 }
 
 /* The design interval nearest to h (the first of equals) in *best, and whether h lies within
@@ -106,6 +115,35 @@ static int nearest_interval(const UiofmuDesign *d, double h, int *best, int *exa
     for (int i = 1; i < d->nintervals; i++)
         if (fabs(h - d->intervals[i]) < fabs(h - d->intervals[*best])) *best = i;
     *exact = fabs(h - d->intervals[*best]) <= d->step_rtol * d->intervals[*best];
+    return 1;
+}
+
+/* nearest_interval() for an instance: a step that is a design interval (the usual case) found in
+   Instance.known, any other by bisection when the intervals increase strictly. Then the
+   distance |h - x|, rounded, does not decrease away from h on either side, so the nearest is the
+   last interval <= h or the one after it, and of equal distances nearest_interval() takes the
+   first: the start of the run of equals that ends at the last interval <= h. */
+static int nearest(const Instance *s, double h, int *best, int *exact) {
+    const UiofmuDesign *d = s->d;
+    if (!s->sorted) return nearest_interval(d, h, best, exact);
+    const double *x = d->intervals;
+    int i = s->known[uiofmu_slot(h)];
+    if (i >= 0 && x[i] == h) { /* distinct intervals: the only one at distance 0 */
+        *best = i;
+        *exact = fabs(h - x[i]) <= d->step_rtol * x[i];
+        return 1;
+    }
+    int lo = 0, hi = d->nintervals; /* lo becomes the number of intervals <= h (none for a NaN) */
+    while (lo < hi) {
+        int mid = lo + (hi - lo) / 2;
+        if (x[mid] <= h) lo = mid + 1;
+        else hi = mid;
+    }
+    int b = lo == 0 ? 0 : lo == d->nintervals || !(fabs(h - x[lo]) < fabs(h - x[lo - 1])) ? lo - 1 : lo;
+    if (b < lo)
+        while (b > 0 && fabs(h - x[b - 1]) == fabs(h - x[b])) b--;
+    *best = b;
+    *exact = fabs(h - x[b]) <= d->step_rtol * x[b];
     return 1;
 }
 
@@ -121,7 +159,7 @@ static int resolves(const UiofmuDesign *d, double h) {
 static int interval_index(Instance *s, double h, char *msg, size_t len) {
     const UiofmuDesign *d = s->d;
     int best, exact;
-    if (!nearest_interval(d, h, &best, &exact)) {
+    if (!nearest(s, h, &best, &exact)) {
         if (msg) snprintf(msg, len, "this design has no intervals");
         return -1;
     }
@@ -188,7 +226,7 @@ static const double *pick(const Instance *s, int which, int i, int j) {
 }
 
 /* pick(), and a log line from `fn` when there is no such matrix. */
-static const double *need(Instance *s, const char *fn, int which, int i, int j) {
+UIOFMU_COLD static const double *need(Instance *s, const char *fn, int which, int i, int j) {
     const double *M = pick(s, which, i, j);
     if (!M) {
         char b1[32];
@@ -198,16 +236,56 @@ static const double *need(Instance *s, const char *fn, int which, int i, int j) 
     return M;
 }
 
+/* s->place: pick()'s blocks as offsets (see Place). */
+static void find_places(Instance *s) {
+    const UiofmuDesign *d = s->d;
+    int scheduled = d->kind == UIOFMU_INTERVAL || d->kind == UIOFMU_MODE;
+    s->range = d->kind == UIOFMU_MODE ? d->modes : d->kind == UIOFMU_INTERVAL ? d->nintervals : 1;
+    s->sorted = d->kind == UIOFMU_INTERVAL && d->nintervals >= 1;
+    for (int i = 1; i < d->nintervals && s->sorted; i++) s->sorted = d->intervals[i - 1] < d->intervals[i];
+    for (int k = 0; k < UIOFMU_SLOTS; k++) s->known[k] = -1;
+    for (int i = 0; i < d->nintervals && s->sorted; i++) s->known[uiofmu_slot(d->intervals[i])] = i;
+    for (int w = 0; w < M_COUNT; w++) {
+        size_t sz = msize(&d->mat[w]), N = (size_t)s->range;
+        Place *p = &s->place[w];
+        p->base = pick(s, w, 0, 0);
+        p->si = p->sj = 0;
+        if (!scheduled || w == M_C) continue;
+        if (w == M_N || w == M_L) {
+            p->si = N * sz;
+            p->sj = sz;
+        } else if (w == M_Xz || w == M_Xy || w == M_Dy) {
+            p->sj = sz;
+        } else {
+            p->si = sz;
+        }
+    }
+}
+
+/* pick() (and need()'s line where it finds nothing) for the step indices (i, j), by its offsets. */
+static const double *matrix(Instance *s, const char *fn, int which, int i, int j) {
+    const Place *p = &s->place[which];
+    if (p->base && (unsigned)i < (unsigned)s->range && (unsigned)j < (unsigned)s->range)
+        return p->base + (size_t)i * p->si + (size_t)j * p->sj;
+    return need(s, fn, which, i, j);
+}
+
+/* Every change of the state, an input or a parameter: the outputs, xhat among them, are out of date. */
+static void touched(Instance *s) {
+    s->dirty = 1;
+    s->xhat_current = 0;
+}
+
 /* Index of h_prev among the design intervals (mode schedules: of mode_prev among the modes; 0 for
    the other schedules); -1 when it is none. */
-static int prev_index(Instance *s) {
+static inline int prev_index(Instance *s) {
     if (s->d->kind == UIOFMU_MODE) return s->mode_prev >= 1 && s->mode_prev <= s->d->modes ? s->mode_prev - 1 : -1;
     if (s->d->kind != UIOFMU_INTERVAL) return 0;
     if (s->j_prev < 0 || s->j_prev >= s->d->nintervals) s->j_prev = interval_index(s, s->h_prev, NULL, 0);
     return s->j_prev;
 }
 
-static void bad_prev(Instance *s, const char *fn) {
+UIOFMU_COLD static void bad_prev(Instance *s, const char *fn) {
     char b1[32];
     if (s->d->kind == UIOFMU_MODE) {
         uiofmu_log(s->fmu, fmi2Error, "%s: mode_prev = %d at step k = %ld is not a mode (1 to %d): the instance's state "
@@ -218,24 +296,30 @@ static void bad_prev(Instance *s, const char *fn) {
           fn, uiofmu_num(s->h_prev, b1), s->k);
 }
 
-/* xhat_k alone (what a step needs); 0 (with a log line) when a matrix is missing. */
+/* xhat_k alone (what a step needs), computed once until the state or an input changes (j is
+   prev_index(), a function of the state); 0 (with a log line) when a matrix is missing. */
 static int estimate(Instance *s, const char *fn, int j) {
     const UiofmuDesign *d = s->d;
     if (d->kind == UIOFMU_GEOMETRIC) evaluate(s, s->k);
+    if (s->xhat_current) return 1;
     if (s->k == 0) {
         memcpy(s->xhat, s->xhat0, d->n * sizeof(double));
+        s->xhat_current = 1;
         return 1;
     }
     if (j < 0) {
         bad_prev(s, fn);
         return 0;
     }
-    const double *Xz = need(s, fn, M_Xz, 0, j), *Xy = Xz ? need(s, fn, M_Xy, 0, j) : NULL;
+    const double *Xz = matrix(s, fn, M_Xz, 0, j), *Xy = Xz ? matrix(s, fn, M_Xy, 0, j) : NULL;
     if (!Xz || !Xy) return 0;
-    matvec(Xz, d->n, d->nz, s->z, s->xhat);
-    matvec_add(Xy, d->n, d->p, s->y, s->xhat, s->pt);
-    const double *Xu = pick(s, M_Xu, 0, j); /* absent: no direct term of u */
-    if (Xu) matvec_add(Xu, d->n, d->m, s->u, s->xhat, s->pt);
+    for (int i = 0; i < d->n; i++)
+        s->xhat[i] = dot(Xz + (size_t)i * d->nz, s->z, d->nz) + dot(Xy + (size_t)i * d->p, s->y, d->p);
+    /* absent: no direct term of u; only a constant schedule has one, pick()'s for every (i, j) */
+    const double *Xu = s->place[M_Xu].base;
+    if (Xu)
+        for (int i = 0; i < d->n; i++) s->xhat[i] += dot(Xu + (size_t)i * d->m, s->u, d->m);
+    s->xhat_current = 1;
     return 1;
 }
 
@@ -243,16 +327,15 @@ static int refresh(Instance *s, const char *fn) {
     const UiofmuDesign *d = s->d;
     if (!s->dirty) return 1;
     int j = prev_index(s);
-    const double *C = need(s, fn, M_C, 0, 0);
+    const double *C = matrix(s, fn, M_C, 0, 0);
     if (!C || !estimate(s, fn, j)) return 0;
-    matvec(C, d->p, d->n, s->xhat, s->r);
-    for (int i = 0; i < d->p; i++) s->r[i] = s->y[i] - s->r[i];
+    for (int i = 0; i < d->p; i++) s->r[i] = s->y[i] - dot(C + (size_t)i * d->n, s->xhat, d->n);
     if (d->has_dhat) {
         if (s->k > 0) {
-            const double *Dy = need(s, fn, M_Dy, 0, j);
+            const double *Dy = matrix(s, fn, M_Dy, 0, j);
             if (!Dy) return 0;
             for (int i = 0; i < d->p; i++) s->tmp[i] = s->y[i] - s->pred[i];
-            matvec(Dy, d->q, d->p, s->tmp, s->dhat);
+            for (int i = 0; i < d->q; i++) s->dhat[i] = dot(Dy + (size_t)i * d->p, s->tmp, d->p);
         } else {
             for (int i = 0; i < d->q; i++) s->dhat[i] = 0.0;
         }
@@ -270,7 +353,7 @@ static void reset_state(Instance *s) {
     memset(s->z, 0, s->d->nz * sizeof(double));
     memset(s->pred, 0, s->d->p * sizeof(double));
     s->work_k = -1;
-    s->dirty = 1;
+    touched(s);
 }
 
 /* ---------------------------------------------------------------------------------------- */
@@ -403,7 +486,7 @@ static void *affine_instantiate(FmuInstance *fmu) {
         }
     size_t mx = (size_t)(d->nz > d->n ? d->nz : d->n);
     if ((size_t)d->p > mx) mx = (size_t)d->p;
-    s->nblock = (size_t)d->nz + d->p + d->n + d->p + d->m + d->n + d->p + d->q + mx + mx + nwork;
+    s->nblock = (size_t)d->nz + d->p + d->n + d->p + d->m + d->n + d->p + d->q + mx + nwork;
     s->block = (double *)uiofmu_alloc(fmu, s->nblock, sizeof(double));
     if (!s->block) {
         free(s);
@@ -419,12 +502,12 @@ static void *affine_instantiate(FmuInstance *fmu) {
     s->r = b; b += d->p;
     s->dhat = b; b += d->q;
     s->tmp = b; b += mx;
-    s->pt = b; b += mx;
     for (int w = 0; w < M_COUNT; w++)
         if (d->kind == UIOFMU_GEOMETRIC && w != M_C && d->mat[w].count) { s->work[w] = b; b += msize(&d->mat[w]); }
     memcpy(s->xhat0, d->xhat0, d->n * sizeof(double));
     s->h_prev0 = d->h_prev0;
     s->mode_prev0 = s->mode = d->mode_prev0;
+    find_places(s);
     reset_state(s);
     return s;
 }
@@ -489,6 +572,11 @@ static double *element(Instance *s, int port, int index) {
     }
 }
 
+/* The plumbing's direct access: where a Real element lives, and the note that it stored values there. */
+static double *affine_real_storage(void *self, int port, int index) { return element((Instance *)self, port, index); }
+
+static void affine_changed(void *self) { touched((Instance *)self); }
+
 static double affine_get_real(void *self, int port, int index) {
     const double *v = element((Instance *)self, port, index);
     return v ? *v : 0.0;
@@ -499,7 +587,7 @@ static void affine_set_real(void *self, int port, int index, double value) {
     double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element(s, port, index) : NULL; /* parameters and inputs */
     if (!v) return;
     *v = value;
-    s->dirty = 1;
+    touched(s);
 }
 
 /* The Integer ports (mode schedules): mode_prev0 (parameter) and mode (input). */
@@ -515,7 +603,7 @@ static void affine_set_integer(void *self, int port, int index, int value) {
     if (port == UIOFMU_AFFINE_MODE_PREV0) s->mode_prev0 = value;
     else if (port == UIOFMU_AFFINE_MODE) s->mode = value;
     else return;
-    s->dirty = 1;
+    touched(s);
 }
 
 static UiofmuResult affine_step(void *self, double t, double h) {
@@ -557,40 +645,36 @@ static UiofmuResult affine_step(void *self, double t, double h) {
         return UIOFMU_DISCARDED;
     }
     /* every matrix of the step before anything changes: a missing one refuses the step whole */
-    const double *Xy = need(s, fn, M_Xy, i, j), *N = need(s, fn, M_N, i, j), *L = need(s, fn, M_L, i, j),
-                 *G = need(s, fn, M_G, i, j), *cc = need(s, fn, M_c, i, j);
+    const double *Xy = matrix(s, fn, M_Xy, i, j), *N = matrix(s, fn, M_N, i, j), *L = matrix(s, fn, M_L, i, j),
+                 *G = matrix(s, fn, M_G, i, j), *cc = matrix(s, fn, M_c, i, j);
     const double *Yx = NULL, *Yu = NULL, *Yc = NULL;
     if (!Xy || !N || !L || !G || !cc) return UIOFMU_BROKEN;
     if (d->has_dhat) {
-        Yx = need(s, fn, M_Yx, i, j);
-        Yu = need(s, fn, M_Yu, i, j);
-        Yc = need(s, fn, M_Yc, i, j);
+        Yx = matrix(s, fn, M_Yx, i, j);
+        Yu = matrix(s, fn, M_Yu, i, j);
+        Yc = matrix(s, fn, M_Yc, i, j);
         if (!Yx || !Yu || !Yc) return UIOFMU_BROKEN;
     }
     if (!estimate(s, fn, j)) return UIOFMU_BROKEN; /* xhat_k (and the geometric matrices of step k) */
     if (s->k == 0) {
-        matvec(Xy, d->n, d->p, s->y, s->tmp);
-        for (int e = 0; e < d->nz; e++) s->z[e] = s->xhat0[e] - s->tmp[e];
-        const double *Xu = pick(s, M_Xu, i, j);
-        if (Xu) {
-            matvec(Xu, d->n, d->m, s->u, s->tmp);
-            for (int e = 0; e < d->nz; e++) s->z[e] -= s->tmp[e];
-        }
+        for (int e = 0; e < d->nz; e++) s->z[e] = s->xhat0[e] - dot(Xy + (size_t)e * d->p, s->y, d->p);
+        const double *Xu = s->place[M_Xu].base; /* as in estimate() */
+        if (Xu)
+            for (int e = 0; e < d->nz; e++) s->z[e] -= dot(Xu + (size_t)e * d->m, s->u, d->m);
     }
     if (d->has_dhat) {
-        matvec(Yx, d->p, d->n, s->xhat, s->pred);
-        matvec_add(Yu, d->p, d->m, s->u, s->pred, s->pt);
-        for (int e = 0; e < d->p; e++) s->pred[e] += Yc[e];
+        for (int e = 0; e < d->p; e++)
+            s->pred[e] = dot(Yx + (size_t)e * d->n, s->xhat, d->n) + dot(Yu + (size_t)e * d->m, s->u, d->m) + Yc[e];
     }
-    matvec(N, d->nz, d->nz, s->z, s->tmp);
-    matvec_add(L, d->nz, d->p, s->y, s->tmp, s->pt);
-    matvec_add(G, d->nz, d->m, s->u, s->tmp, s->pt);
-    for (int e = 0; e < d->nz; e++) s->z[e] = s->tmp[e] + cc[e];
+    for (int e = 0; e < d->nz; e++)
+        s->tmp[e] = dot(N + (size_t)e * d->nz, s->z, d->nz) + dot(L + (size_t)e * d->p, s->y, d->p) +
+                    dot(G + (size_t)e * d->m, s->u, d->m) + cc[e];
+    for (int e = 0; e < d->nz; e++) s->z[e] = s->tmp[e];
     s->h_prev = h;
     s->j_prev = i;
     if (d->kind == UIOFMU_MODE) s->mode_prev = s->mode;
     s->k += 1;
-    s->dirty = 1;
+    touched(s);
     return UIOFMU_DONE;
 }
 
@@ -790,7 +874,7 @@ static void apply_state(Instance *s, const Byte *v) {
     }
     s->work_k = -1;
     s->j_prev = -1;
-    s->dirty = 1;
+    touched(s);
 }
 static int affine_check_state(void *self, const char *ctx, const Byte *v, int *phase) {
     if (!check_values((Instance *)self, ctx, v)) return 0;
@@ -812,6 +896,8 @@ const UiofmuKernel UIOFMU_KERNEL_AFFINE = {
     .calculate = affine_calculate,
     .get_real = affine_get_real,
     .set_real = affine_set_real,
+    .real_storage = affine_real_storage,
+    .changed = affine_changed,
     .get_integer = affine_get_integer, /* mode schedules: mode_prev0 and mode */
     .set_integer = affine_set_integer,
     .step = affine_step,

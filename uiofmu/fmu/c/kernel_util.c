@@ -54,15 +54,18 @@ int uiofmu_parameter_finite(FmuInstance *fmu, const char *name, const double *v,
     return 1;
 }
 
-int uiofmu_inputs_finite(FmuInstance *fmu, double t, long k, const double *v, int len, const char *name) {
+/* uiofmu_inputs_finite's refusal of element i, v = name[i + 1]. */
+UIOFMU_COLD static int input_not_finite(FmuInstance *fmu, double t, long k, double v, int i, const char *name) {
     char bt[32], at[48] = "";
+    if (k >= 0) snprintf(at, sizeof at, " at step k = %ld", k);
+    uiofmu_log(fmu, fmi2Error, "t = %s: " UIOFMU_REFUSAL_INPUT_NOT_FINITE, uiofmu_num(t, bt), name, i + 1,
+               isnan(v) ? "nan" : (v > 0 ? "inf" : "-inf"), at);
+    return 0;
+}
+
+int uiofmu_inputs_finite(FmuInstance *fmu, double t, long k, const double *v, int len, const char *name) {
     for (int i = 0; i < len; i++)
-        if (!isfinite(v[i])) {
-            if (k >= 0) snprintf(at, sizeof at, " at step k = %ld", k);
-            uiofmu_log(fmu, fmi2Error, "t = %s: " UIOFMU_REFUSAL_INPUT_NOT_FINITE, uiofmu_num(t, bt), name, i + 1,
-                       isnan(v[i]) ? "nan" : (v[i] > 0 ? "inf" : "-inf"), at);
-            return 0;
-        }
+        if (!isfinite(v[i])) return input_not_finite(fmu, t, k, v[i], i, name);
     return 1;
 }
 
