@@ -2,11 +2,11 @@
 
 The plumbing and the kernels were reworked for speed (xhat computed once a step, the matrices found by
 offsets, the design intervals bisected, set/get through the variables' storage). The numbers must not
-move: every example card with a C kernel (``examples/*.toml`` and ``plants/*/problem.toml``) gets its C
-observer FMU built twice from the same generated design data, once with today's C sources and once with
-those of :data:`REFERENCE` (the commit before the rework), and both run the same random aperiodic plan
-(random inputs, modes and design steps) from the same random ``xhat0``: every output at every point equal
-bit for bit. :data:`NO_C_OBSERVER` names the examples left out.
+move: an example card of each schedule kind the rework touched (:data:`PROBLEMS`) gets its C observer FMU
+built twice from the same generated design data, once with today's C sources and once with those of
+:data:`REFERENCE` (the commit before the rework), and both run the same random aperiodic plan (random
+inputs, modes and design steps) from the same random ``xhat0``: every output at every point equal bit for
+bit.
 """
 
 from __future__ import annotations
@@ -29,13 +29,11 @@ ROOT = Path(__file__).resolve().parents[1]
 C_DIR = "uiofmu/fmu/c"
 #: The last commit whose C sources computed xhat twice a step and looked each matrix up by its schedule.
 REFERENCE = "a3d145ba2275e44649a75706c549f998693cfeef"
-#: The example problems without a C observer, and why.
-NO_C_OBSERVER = {"seed000_example2_printed.toml": "no observer exists (the paper's printed matrices)",
-                 "seed002_setup1.toml": "no observer exists (the paper's first setup)"}
-PROBLEMS = sorted(p for p in (ROOT / "examples").glob("*.toml")
-                  if not p.name.startswith("campaign") and p.name not in NO_C_OBSERVER)
-PROBLEMS += sorted((ROOT / "plants").glob("*/problem.toml"))
-
+#: One example problem per schedule kind of the reworked kernels (constant, geometric, interval, mode, the
+#: window kernel) and the feedthrough term ``Xu``: what the rework touched, each once.
+PROBLEMS = [ROOT / "examples" / name for name in (
+    "seed000_example1.toml", "seed000_example1_ltv.toml", "seed002_three_modes.toml", "seed003_example.toml",
+    "accelerometer_feedthrough.toml")] + [ROOT / "plants" / "two_room_building" / "problem.toml"]
 
 def reference_sources() -> dict | None:
     """``{name: text}`` of the C sources at :data:`REFERENCE`, or None outside a git checkout holding it."""
