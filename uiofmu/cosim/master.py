@@ -178,14 +178,18 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         cpu4 = time.process_time()
     timing = {"steps": cpu4 - cpu1, "loop": cpu3 - cpu2, "fmi_calls_per_step": loop.calls_per_step}
     return _timed(_with_plant(cosim_kernel(card).result(card, T, steps, X, Y, U, D, H, MODE, theta_true),
-                              plant_path, card), timing, cpu0)
+                              plant_path, card, plant_parameters), timing, cpu0)
 
 
-def _with_plant(result: CosimResult, plant_path, card: Card) -> CosimResult:
-    """The result with ``metrics["plant"]["is_design_model"]`` (:func:`plant_is_design_model`) where its bound
-    is violated (what the summary's explanation needs)."""
+def _with_plant(result: CosimResult, plant_path, card: Card, plant_parameters: dict | None) -> CosimResult:
+    """The result with ``metrics["plant"]["is_design_model"]`` (:func:`plant_is_design_model`, and no plant
+    perturbed by a ``mismatch`` above 0 is) where its bound is violated (what the summary's explanation
+    needs), with the ``mismatch`` when one was asked for."""
+    mismatch = float(np.ravel((plant_parameters or {}).get("mismatch", [0.0]))[0])
     if result.metrics.get("bound_respected") is False:
-        result.metrics["plant"] = {"is_design_model": plant_is_design_model(plant_path, card)}
+        result.metrics["plant"] = {"is_design_model": mismatch == 0 and plant_is_design_model(plant_path, card)}
+    if mismatch:
+        result.metrics.setdefault("plant", {})["mismatch"] = mismatch
     return result
 
 
@@ -257,7 +261,8 @@ def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs,
     if obs.has("mode"):
         MODE = recorded["mode"][:, 0].copy() if "mode" in fed else np.round(source["mode"])[:, 0]
     kernel = cosim_kernel(card)
-    result = _with_plant(kernel.result(card, T, steps, X, Y, U, D, H_twin, MODE, theta_true), plant_path, card)
+    result = _with_plant(kernel.result(card, T, steps, X, Y, U, D, H_twin, MODE, theta_true), plant_path, card,
+                         plant_parameters)
     noisy = kernel.result(card, T, steps, X, Y, U, D, H, MODE, theta_true)
     if "y" in noise or quantum:
         truth = X if kernel.estimate == "xhat" else noisy.functional["true"]

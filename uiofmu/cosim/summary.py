@@ -72,6 +72,9 @@ def _why_not(metrics: dict) -> str:
     """Why a bound may fail, by what the run knows of its plant: a plant other than the design model has a
     mismatch floor; the design's own plant does not, and its leaks say whether round-off explains the run."""
     plant = metrics.get("plant")
+    if isinstance(plant, dict) and plant.get("mismatch"):
+        return (f"the plant FMU's A, B, E are perturbed by a relative mismatch of {plant['mismatch']:.3g}: a model "
+                "mismatch, which has a mismatch floor")
     if not (isinstance(plant, dict) and plant.get("is_design_model")):
         return "a plant other than the design model has a mismatch floor"
     leaks = metrics.get("roundoff_floor")

@@ -43,6 +43,11 @@ def _linear_ports(rt, physical: list) -> list:
     return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical)
 
 
+def _mujoco_ports(rt, physical: list) -> list:
+    """A MuJoCo plant's: a linear plant's without the mismatch (MuJoCo's model has no matrices to perturb)."""
+    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, mismatch=False)
+
+
 def _switched_ports(rt, physical: list) -> list:
     return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, rt.rule)
 
@@ -71,8 +76,12 @@ def _no_arrays(rt) -> dict:
     return {}
 
 
+def _mismatch_arrays(rt) -> dict:
+    return {"mismatch": np.array([rt.mismatch]), "mismatch_seed": np.array([float(rt.mismatch_seed)])}
+
+
 def _switched_arrays(rt) -> dict:
-    return {"seed": np.array([float(rt.seed)]), "mode": np.array([float(rt.mode_in)])}
+    return {"seed": np.array([float(rt.seed)]), "mode": np.array([float(rt.mode_in)]), **_mismatch_arrays(rt)}
 
 
 def _lpv_arrays(rt) -> dict:
@@ -145,8 +154,8 @@ PLANT_KINDS = {k.name: k for k in (
               variant=("theta", "kind"), what="LPV plant"),
     PlantKind("switched", "modes", _plant_runtime(SwitchedPlantRuntime), _switched_ports, _switched_arrays,
               c_kernel="switched", variant=("switching", "rule"), what="switched plant"),
-    PlantKind("linear", None, _plant_runtime(PlantRuntime), _linear_ports, c_kernel="linear"),
-    PlantKind("mujoco", "mujoco", _mujoco_runtime, _linear_ports, fmu_kind="mujoco", steps=_any_step,
+    PlantKind("linear", None, _plant_runtime(PlantRuntime), _linear_ports, _mismatch_arrays, c_kernel="linear"),
+    PlantKind("mujoco", "mujoco", _mujoco_runtime, _mujoco_ports, fmu_kind="mujoco", steps=_any_step,
               python_only="the C backend has no kernel for a MuJoCo plant (MuJoCo steps it)"),
 )}
 #: The kind of plant data that has none of the kinds' keys.

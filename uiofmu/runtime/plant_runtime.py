@@ -13,11 +13,15 @@ from __future__ import annotations
 import numpy as np
 
 from .matrix_exponential import expm
+from .mismatch import mismatch_problem, perturb
 from .refusals import refusal
 from .stepping import check_step
 from .schedules import StepRejected, matches
-from .state import StateReader
+from .state import StateReader, StateRejected
 from .tolerances import STEP_RTOL
+
+#: The range of an FMI Integer (fmi2Integer is a C int).
+INT_MIN, INT_MAX = -2 ** 31, 2 ** 31 - 1
 
 
 class PlantRuntime:
@@ -29,6 +33,12 @@ class PlantRuntime:
         The ``[plant]`` table as data: ``time``, ``A``, ``B``, ``E``, ``C``, ``w``, ``dt``, ``x0``.
     cache_size : int
         How many step lengths keep their discretisation (aperiodic masters reuse a few).
+
+    Notes
+    -----
+    ``mismatch`` and ``mismatch_seed`` (default 0: the design model) perturb ``A``, ``B``, ``E`` as
+    :mod:`uiofmu.runtime.mismatch` says when :meth:`set_mismatch` applies them; the design's matrices are
+    kept to start from.
     """
 
     def __init__(self, data: dict, cache_size: int = 256):
@@ -48,7 +58,37 @@ class PlantRuntime:
         self.params = np.zeros(0)
         self._cache: dict = {}
         self._cache_size = cache_size
+        self.mismatch, self.mismatch_seed = 0.0, 0
+        self._design = [(self.A, self.B, self.E)]
         self.reset()
+
+    def blocks(self) -> list:
+        """The matrices the mismatch perturbs: ``[(A, B, E)]`` (one block per mode)."""
+        return [(self.A, self.B, self.E)]
+
+    def _set_blocks(self, blocks: list) -> None:
+        self.A, self.B, self.E = blocks[0]
+
+    def set_mismatch(self, mismatch: float, seed: int) -> None:
+        """Perturb the design's ``A``, ``B``, ``E`` by ``mismatch`` drawn from ``seed``
+        (:func:`uiofmu.runtime.mismatch.perturb`; 0: the design's matrices) and forget the cached
+        discretisations.
+
+        Raises
+        ------
+        StepRejected
+            For a mismatch that is not a finite number >= 0, or one that makes an entry overflow
+            (nothing changes).
+        """
+        problem = mismatch_problem(mismatch)
+        if problem:
+            raise StepRejected(problem)
+        blocks = perturb(self._design, float(mismatch), int(seed))
+        if not all(np.all(np.isfinite(M)) for block in blocks for M in block):
+            raise StepRejected(f"parameter mismatch = {mismatch!r}: a perturbed entry of A, B or E is not finite")
+        self._set_blocks(blocks)
+        self.mismatch, self.mismatch_seed = float(mismatch), int(seed)
+        self._cache.clear()
 
     def apply_parameters(self) -> None:
         """Nothing to apply: the matrices are the parameters (kept for the FMU model's interface)."""
@@ -104,11 +144,11 @@ class PlantRuntime:
         Returns
         -------
         dict
-            ``x``, ``x0``, ``u``, ``d`` as lists of Python floats and ``params`` (empty: a linear
-            plant has no physical parameters).
+            ``x``, ``x0``, ``u``, ``d`` as lists of Python floats, ``params`` (empty: a linear
+            plant has no physical parameters) and the ``mismatch`` and ``mismatch_seed`` applied.
         """
         return {"x": self.x.tolist(), "x0": self.x0.tolist(), "u": self.u.tolist(), "d": self.d.tolist(),
-                "params": []}
+                "params": [], "mismatch": self.mismatch, "mismatch_seed": self.mismatch_seed}
 
     def set_state(self, state: dict) -> None:
         """Restore :meth:`get_state`, after checking every field (nothing changes otherwise).
@@ -118,16 +158,23 @@ class PlantRuntime:
         state : dict
             Exactly the keys of :meth:`get_state`: ``x`` and ``x0`` (n finite numbers), ``u`` (m)
             and ``d`` (q) numbers (inputs may be non-finite, as through fmi2SetReal: the step
-            refuses them), ``params`` an empty list.
+            refuses them), ``params`` an empty list, ``mismatch`` (finite, >= 0) and ``mismatch_seed``
+            (an fmi2Integer): the perturbed matrices are computed again from them.
 
         Raises
         ------
         StateRejected
             For a missing or unknown field, or one of the wrong type, length or value (named).
         """
-        r = StateReader(state, ("x", "x0", "u", "d", "params"), "plant")
+        r = StateReader(state, ("x", "x0", "u", "d", "params", "mismatch", "mismatch_seed"), "plant")
         new = {"x": r.vector("x", self.n), "x0": r.vector("x0", self.n), "u": r.vector("u", self.m, finite=False),
-               "d": r.vector("d", self.q, finite=False), "params": r.vector("params", 0)}
+               "d": r.vector("d", self.q, finite=False), "params": r.vector("params", 0),
+               "mismatch": r.vector("mismatch", 1, value=[state["mismatch"]])[0],
+               "mismatch_seed": r.integer("mismatch_seed", INT_MIN, INT_MAX)}
+        try:
+            self.set_mismatch(new["mismatch"], new["mismatch_seed"])
+        except StepRejected as exc:
+            raise StateRejected(f"plant state field 'mismatch': {exc}") from None
         self.x, self.x0 = new["x"], new["x0"]
         self.u[:] = new["u"]
         self.d[:] = new["d"]

@@ -187,6 +187,8 @@ KERNEL_PORTS = {
         PortSpec("x", 0, "output", "true state (for validation)"),
         PortSpec("seed", 0, "parameter", "seed of the random switching", type="Integer"),
         PortSpec("mode", 0, "output", "mode of the step from the current point (1..N)", type="Integer"),
+        PortSpec("mismatch", 0, "parameter", "relative std of the perturbation of A, B, E (0: the design model)"),
+        PortSpec("mismatch_seed", 0, "parameter", "seed of the perturbation of A, B, E", type="Integer"),
     ),
     "lpv": (
         PortSpec("x0", 0, "parameter", "initial state"),
@@ -272,14 +274,17 @@ def window_ports(p: int, d: int, s: int) -> list:
     return ports + [port("gx", d, depends=("y", "theta") if s else ("y",)), port("gx_valid", 1)]
 
 
-def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | None = None) -> list:
+def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | None = None,
+                mismatch: bool = True) -> list:
     """The declaration of a plant: parameters ``x0`` and the physical ``(name, what)`` pairs,
     inputs ``u``, ``d`` (held over the step), outputs ``y = C x`` and ``x`` (no feedthrough).
 
     A switched plant (``switching``: its rule, :mod:`uiofmu.runtime.switching`) adds the Integer
     ``mode`` of the step from the current point: an output that depends on no input (rules
     ``threshold``, ``random``; ``random`` also has the Integer parameter ``seed``), or an input
-    (rule ``input``)."""
+    (rule ``input``). A plant of matrices (``mismatch``, :mod:`uiofmu.runtime.mismatch`) ends with the
+    parameters ``mismatch`` (Real) and ``mismatch_seed`` (Integer), after every other port so that
+    the value references of the others are those of a plant without them."""
     def port(key, size, **changes):
         return kernel_port("plant", key, size, **changes)
 
@@ -293,6 +298,8 @@ def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | 
     ports += [port("y", p), port("x", n)]
     if switching in ("threshold", "random"):
         ports.append(port("mode", 1, causality="output"))
+    if mismatch:
+        ports += [port("mismatch", 1), port("mismatch_seed", 1)]
     return ports
 
 

@@ -144,6 +144,14 @@ def prepare(campaign: Campaign, out=None, say=None) -> Setup:
         campaign.noise_y.check_size(p)
     if campaign.quantization is not None:
         campaign.quantization.check_size(1)
+    if campaign.plant_mismatch is not None:
+        campaign.plant_mismatch.check_size(1)
+        if "mismatch" not in parameters:
+            raise ProblemError(f"axes.plant_mismatch: the plant FMU {plant} takes no mismatch (no parameter "
+                               "mismatch: only plants of matrices, linear or switched, perturb their A, B, E; "
+                               "LPV, parametric and MuJoCo plants do not)")
+        if any(name in ("mismatch", "mismatch_seed") for name, _ in campaign.plant_parameters):
+            raise ProblemError("axes.plant_parameters: mismatch and mismatch_seed are set by axes.plant_mismatch")
     plant_bytes = read_bytes(plant, "plant FMU", error=FmuError)
     observer_bytes = read_bytes(observer, "observer FMU", error=FmuError)
     t_end = campaign.t_end if campaign.t_end is not None else default_t_end(card)

@@ -103,6 +103,8 @@ def run_scenario(setup: Setup, sc: dict):
     inputs = scaled_inputs(loaded.inputs, sc["d_scale"]) if "d_scale" in sc else loaded.inputs
     xhat0 = loaded.xhat0 + np.asarray(sc["xhat0_error"]) if "xhat0_error" in sc else None
     params = {k[6:]: v for k, v in sc.items() if k.startswith("plant.")}
+    if "plant_mismatch" in sc:
+        params.update(mismatch=[sc["plant_mismatch"]], mismatch_seed=[sc["mismatch_seed"]])
     noise = Noise("y", tuple(sc["noise_y"]), sc["noise_seed"]) if any(s > 0 for s in sc.get("noise_y", ())) else None
     quantum = sc.get("quantization") or None
     return cosimulate(loaded.plant, loaded.observer, steps, inputs, xhat0=xhat0, plant_parameters=params or None,

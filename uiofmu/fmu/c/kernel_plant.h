@@ -24,7 +24,9 @@
 /* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.plant_ports):
    x0[n] parameter, u[m] and d[q] inputs (held over the step), y[p] = C x and x[n] outputs; all Real.
    A switched plant adds the Integer mode[1]: an input (rule input) or an output (rules threshold
-   and random), and rule random the Integer parameter seed[1]. Their ids, names, causalities
+   and random), and rule random the Integer parameter seed[1]. Every plant ends with the Real
+   parameter mismatch[1] and the Integer parameter mismatch_seed[1], the perturbation of its A, B, E
+   (kernel_plant.c, uiofmu/runtime/mismatch.py). Their ids, names, causalities
    (the one of mode as the FMU declares it) and types are generated at build time from
    uiofmu/runtime/ports.py (KERNEL_PORTS["plant"]). */
 #include "kernel_plant_ports.h"
