@@ -40,7 +40,7 @@ def _mujoco_runtime(spec: dict, resources: str):
 
 
 def _linear_ports(rt, physical: list) -> list:
-    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical)
+    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, r=rt.r)
 
 
 def _mujoco_ports(rt, physical: list) -> list:
@@ -78,6 +78,10 @@ def _no_arrays(rt) -> dict:
 
 def _mismatch_arrays(rt) -> dict:
     return {"mismatch": np.array([rt.mismatch]), "mismatch_seed": np.array([float(rt.mismatch_seed)])}
+
+
+def _linear_arrays(rt) -> dict:
+    return {**_mismatch_arrays(rt), "w_noise": rt.w_noise}
 
 
 def _switched_arrays(rt) -> dict:
@@ -154,7 +158,7 @@ PLANT_KINDS = {k.name: k for k in (
               variant=("theta", "kind"), what="LPV plant"),
     PlantKind("switched", "modes", _plant_runtime(SwitchedPlantRuntime), _switched_ports, _switched_arrays,
               c_kernel="switched", variant=("switching", "rule"), what="switched plant"),
-    PlantKind("linear", None, _plant_runtime(PlantRuntime), _linear_ports, _mismatch_arrays, c_kernel="linear"),
+    PlantKind("linear", None, _plant_runtime(PlantRuntime), _linear_ports, _linear_arrays, c_kernel="linear"),
     PlantKind("mujoco", "mujoco", _mujoco_runtime, _mujoco_ports, fmu_kind="mujoco", steps=_any_step,
               python_only="the C backend has no kernel for a MuJoCo plant (MuJoCo steps it)"),
 )}

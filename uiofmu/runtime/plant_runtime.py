@@ -30,7 +30,9 @@ class PlantRuntime:
     Parameters
     ----------
     data : dict
-        The ``[plant]`` table as data: ``time``, ``A``, ``B``, ``E``, ``C``, ``w``, ``dt``, ``x0``.
+        The ``[plant]`` table as data: ``time``, ``A``, ``B``, ``E``, ``C``, ``w``, ``dt``, ``x0`` and, where
+        the problem declares process noise, ``W`` (n x r): the input ``w_noise`` enters as ``W w_noise``, held
+        over the step (a continuous plant samples it as it samples ``E``).
     cache_size : int
         How many step lengths keep their discretisation (aperiodic masters reuse a few).
 
@@ -54,6 +56,9 @@ class PlantRuntime:
         self.x0 = np.array(data.get("x0") or np.zeros(n), dtype=float)
         self.u = np.zeros(self.m)
         self.d = np.zeros(self.q)
+        self.W = np.array(data.get("W") or np.zeros((n, 0)), dtype=float).reshape(n, -1)
+        self.r = self.W.shape[1]
+        self.w_noise = np.zeros(self.r)
         self.param_names: list = []            # a linear plant has no physical parameters to set
         self.params = np.zeros(0)
         self._cache: dict = {}
@@ -113,20 +118,25 @@ class PlantRuntime:
         hit = self._cache.get(h)
         if hit is None:
             n, k = self.n, self.m + self.q
-            aug = np.zeros((n + k, n + k))
+            aug = np.zeros((n + k + self.r, n + k + self.r))
             aug[:n, :n] = self.A
-            aug[:n, n:] = np.hstack([self.B, self.E])
+            aug[:n, n:] = np.hstack([self.B, self.E, self.W])
             with np.errstate(over="ignore", invalid="ignore"):
                 ex = expm(aug * h)
             if not np.all(np.isfinite(ex)):
                 raise StepRejected(f"communication step h = {h!r} s: the plant's exact step exp([A B E] h) "
                                         f"overflows (|A| h up to {float(np.abs(self.A).max()) * h:.3g}); take "
                                         "shorter steps")
-            hit = (ex[:n, :n], ex[:n, n:n + self.m], ex[:n, n + self.m:], np.zeros(n))
+            hit = (ex[:n, :n], ex[:n, n:n + self.m], ex[:n, n + self.m:n + k], np.zeros(n), ex[:n, n + k:])
             if len(self._cache) >= self._cache_size:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[h] = hit
-        return hit
+        return hit[:4]
+
+    def noise_matrix(self, h: float) -> np.ndarray:
+        """``W`` over one step of length ``h`` (after :meth:`matrices` of the same ``h``): a discrete plant's
+        own, a continuous plant's sampled as ``E`` is."""
+        return self._cache[h][4] if self.continuous else self.W
 
     def y(self) -> np.ndarray:
         """Measured outputs ``C x``."""
@@ -134,9 +144,10 @@ class PlantRuntime:
 
     def step(self, h: float) -> None:
         """Advance by ``h`` with ``u`` and ``d`` held."""
-        check_step(h, {"u": self.u, "d": self.d})
+        check_step(h, {"u": self.u, "d": self.d, **({"w_noise": self.w_noise} if self.r else {})})
         Ad, Bd, Ed, wd = self.matrices(h)
-        self.x = Ad @ self.x + Bd @ self.u + Ed @ self.d + wd
+        x = Ad @ self.x + Bd @ self.u + Ed @ self.d + wd
+        self.x = x + self.noise_matrix(h) @ self.w_noise if self.r else x
 
     def get_state(self) -> dict:
         """JSON-ready state.
@@ -145,10 +156,12 @@ class PlantRuntime:
         -------
         dict
             ``x``, ``x0``, ``u``, ``d`` as lists of Python floats, ``params`` (empty: a linear
-            plant has no physical parameters) and the ``mismatch`` and ``mismatch_seed`` applied.
+            plant has no physical parameters), the ``mismatch`` and ``mismatch_seed`` applied and, with
+            process noise, ``w_noise``.
         """
         return {"x": self.x.tolist(), "x0": self.x0.tolist(), "u": self.u.tolist(), "d": self.d.tolist(),
-                "params": [], "mismatch": self.mismatch, "mismatch_seed": self.mismatch_seed}
+                "params": [], "mismatch": self.mismatch, "mismatch_seed": self.mismatch_seed,
+                **({"w_noise": self.w_noise.tolist()} if self.r else {})}
 
     def set_state(self, state: dict) -> None:
         """Restore :meth:`get_state`, after checking every field (nothing changes otherwise).
@@ -166,11 +179,13 @@ class PlantRuntime:
         StateRejected
             For a missing or unknown field, or one of the wrong type, length or value (named).
         """
-        r = StateReader(state, ("x", "x0", "u", "d", "params", "mismatch", "mismatch_seed"), "plant")
+        r = StateReader(state, ("x", "x0", "u", "d", "params", "mismatch", "mismatch_seed")
+                        + (("w_noise",) if self.r else ()), "plant")
         new = {"x": r.vector("x", self.n), "x0": r.vector("x0", self.n), "u": r.vector("u", self.m, finite=False),
                "d": r.vector("d", self.q, finite=False), "params": r.vector("params", 0),
                "mismatch": r.vector("mismatch", 1, value=[state["mismatch"]])[0],
-               "mismatch_seed": r.integer("mismatch_seed", INT_MIN, INT_MAX)}
+               "mismatch_seed": r.integer("mismatch_seed", INT_MIN, INT_MAX),
+               "w_noise": r.vector("w_noise", self.r, finite=False) if self.r else None}
         try:
             self.set_mismatch(new["mismatch"], new["mismatch_seed"])
         except StepRejected as exc:
@@ -178,3 +193,5 @@ class PlantRuntime:
         self.x, self.x0 = new["x"], new["x0"]
         self.u[:] = new["u"]
         self.d[:] = new["d"]
+        if self.r:
+            self.w_noise[:] = new["w_noise"]

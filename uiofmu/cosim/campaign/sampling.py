@@ -35,7 +35,8 @@ def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
         ``row``, ``steps`` (a SPEC), ``steps_seed``, and per axis its drawn value: ``xhat0_error``
         (a list), ``d_scale`` (a float), ``plant.NAME`` (lists), ``noise_y`` (a list) with ``noise_seed``
         (drawn after the axes: they draw what they draw without it), ``quantization`` (a float),
-        ``plant_mismatch`` (a float) with ``mismatch_seed`` (drawn after ``noise_seed``).
+        ``plant_mismatch`` (a float) with ``mismatch_seed`` (drawn after ``noise_seed``), ``noise_w`` (a list)
+        with ``noise_w_seed`` (drawn last).
     """
     if not 0 <= row < campaign.runs:
         raise ProblemError(f"--replay: row {row} is not a row of the campaign (0 to {campaign.runs - 1})")
@@ -49,7 +50,7 @@ def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
     spec = specs[picks["steps"]] if "steps" in picks else specs[int(rng.integers(len(specs)))]
     out = {"row": row, "steps": spec, "steps_seed": int(rng.integers(2**32))}
     sizes = {"xhat0_error": setup.n, "d_scale": 1, "noise_y": setup.p, "quantization": 1, "plant_mismatch": 1,
-             **{f"plant.{k}": v for k, v in setup.parameters.items()}}
+             "noise_w": setup.r, **{f"plant.{k}": v for k, v in setup.parameters.items()}}
     integers = {f"plant.{k}" for k in setup.integers}
     for name, axis in campaign.named_axes():
         size = sizes[name]
@@ -60,6 +61,8 @@ def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
         out["noise_seed"] = int(rng.integers(2**32))
     if campaign.plant_mismatch is not None:
         out["mismatch_seed"] = int(rng.integers(MISMATCH_SEEDS))
+    if campaign.noise_w is not None:
+        out["noise_w_seed"] = int(rng.integers(2**32))
     return out
 
 

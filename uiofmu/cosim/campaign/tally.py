@@ -19,7 +19,7 @@ MAX_REASONS = 1000
 #: Metrics whose quantiles the summary gives.
 QUANTILE_KEYS = ("steps_to_1pct", "time_to_1pct", "final_error_norm", "max_bound_ratio", "dhat_rms_error",
                  "dhat_rms_error_second_half", "rms_error", "noise_rms_error", "noise_gain_measured",
-                 "noise_gain_ratio")
+                 "noise_gain_ratio", "noise_w_rms_error", "noise_gain_w_measured", "noise_gain_w_ratio")
 QUANTILES = (0.0, 0.05, 0.25, 0.5, 0.75, 0.95, 1.0)
 #: Added to :data:`QUANTILE_KEYS` with a ``plant_mismatch`` axis: the error a mismatched plant settles at.
 MISMATCH_KEYS = ("error_floor",)
@@ -80,10 +80,12 @@ class Tally:
             if self.worst is None or ratio > self.worst[0]:
                 self.worst = (ratio, row, result.get("bound_respected"), result.get("max_bound_ratio_step"))
         self.violations += result.get("bound_respected") is False
-        ratio = result.get("noise_gain_ratio")
-        if ratio is not None and not math.isnan(ratio) and (self.worst_noise is None or ratio > self.worst_noise[0]):
-            self.worst_noise = (ratio, row, result.get("noise_gain_respected"))
-        self.noise_violations += result.get("noise_gain_respected") is False
+        for gain in ("noise_gain", "noise_gain_w"):                   # sensor noise, process noise
+            ratio = result.get(f"{gain}_ratio")
+            worse = self.worst_noise is None or (ratio is not None and ratio > self.worst_noise[0])
+            if ratio is not None and not math.isnan(ratio) and worse:
+                self.worst_noise = (ratio, row, result.get(f"{gain}_respected"))
+            self.noise_violations += result.get(f"{gain}_respected") is False
         if result.get("noise_std_norm") is not None and result.get("noise_rms_error") is not None:
             self.noise_pairs[0].append(result["noise_std_norm"])
             self.noise_pairs[1].append(result["noise_rms_error"])
@@ -147,7 +149,7 @@ def summary(campaign: Campaign, setup: Setup, tally: Tally, cancelled: bool = Fa
         out["bound_violations"] = tally.violations
     else:
         out["worst_max_bound_ratio"] = None
-    if campaign.noise_y is not None or campaign.quantization is not None:
+    if campaign.noise_y is not None or campaign.quantization is not None or campaign.noise_w is not None:
         worst = tally.worst_noise
         out["worst_noise_gain_ratio"] = None if worst is None else {
             "value": worst[0], "row": worst[1], "scenario": scenario(campaign, setup, worst[1]),

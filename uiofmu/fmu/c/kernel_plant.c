@@ -6,10 +6,11 @@
  *
  *   outputs:          y = C x, x                (no input feeds through)
  *   initialisation:   x = the parameter x0      (before it: the design's x0)
- *   fmi2DoStep(t, h): x <- Ad x + Bd u + Ed d + wd, inputs u, d held over the step
+ *   fmi2DoStep(t, h): x <- Ad x + Bd u + Ed d + wd + Wd w_noise, inputs u, d, w_noise held over the step
  *
- * Continuous plants, any step h > 0: [Ad Bd Ed wd] is the first n rows of
- * exp(h [[A, B, E, w], [0, 0]]), the exact zero-order-hold solution (w is 0 for the continuous
+ * The input w_noise[r] (process noise) exists where the problem declares W (n x r; r = 0 otherwise).
+ * Continuous plants, any step h > 0: [Ad Bd Ed Wd wd] is the first n rows of
+ * exp(h [[A, B, E, W, w], [0, 0]]), the exact zero-order-hold solution (w is 0 for the continuous
  * plants uiofmu makes; the column costs nothing). The exponential is computed by scaling and
  * squaring with a Padé approximant, Higham's algorithm of 2005 (degrees 3, 5, 7, 9 and 13 by
  * the 1-norm, its theta bounds), and kept in a cache of the last CACHE_SIZE = 16 step lengths
@@ -43,15 +44,15 @@
  * refused the same way. Either way nothing changes.
  *
  * FMU state: after the plumbing's header (magic, layout, size, GUID, the shape words n, m, p, q
- * and the count of doubles), 3 + 2n + m + q doubles, written and read with memcpy:
+ * and the count of doubles), 3 + 2n + m + q + r doubles, written and read with memcpy:
  *
- *   phase, x0[n], x[n], u[m], d[q], mismatch, mismatch_seed
+ *   phase, x0[n], x[n], u[m], d[q], w_noise[r], mismatch, mismatch_seed
  *
  * checked before any of it is used (check_values): phase one of 0 (instantiated), 1
  * (initialisation mode), 2 (initialised; a discarded step is saved as 2: it changed nothing),
  * 3 (terminated); x0 and x finite (fmi2ExitInitializationMode refuses a non-finite x0, so a
  * state holding one is refused whatever its phase); before initialisation ended (phase 0 and
- * 1) x is the design's x0, bit for bit (only initialisation moves it there); u and d any value,
+ * 1) x is the design's x0, bit for bit (only initialisation moves it there); u, d and w_noise any value,
  * NaN and Inf included (inputs that fmi2SetReal takes and fmi2DoStep refuses); mismatch_seed an
  * fmi2Integer; mismatch any value before initialisation ended (a parameter fmi2ExitInitializationMode
  * checks), after it a finite number >= 0 whose perturbation is finite. The perturbed matrices are
@@ -75,7 +76,7 @@
 #include "kernel_plant.h"
 #include "kernel_util.h"
 
-/* Bounds of what a plant may ask for: the augmented matrix is K x K, K = n + m + q + 1. */
+/* Bounds of what a plant may ask for: the augmented matrix is K x K, K = n + m + q + r + 1. */
 #define MAX_DIM 2048
 #define CACHE_SIZE 16
 #define MAX_MODES 4096
@@ -88,14 +89,14 @@ static const int PORT_TYPE[UIOFMU_PLANT_PORTS] = UIOFMU_PLANT_PORT_TYPES;
 typedef struct {
     double h;
     int valid;
-    double *phi; /* n x K: [Ad Bd Ed wd] */
+    double *phi; /* n x K: [Ad Bd Ed Wd wd] */
 } CacheEntry;
 
 typedef struct {
     FmuInstance *fmu;
     const UiofmuPlant *d;
     int K;
-    double *x0, *u, *dv, *x, *y, *tmp;
+    double *x0, *u, *dv, *wn, *x, *y, *tmp;
     int dirty;
     double *aug, *ex, *work; /* K x K, K x K, 7 K x K */
     int *piv;
@@ -281,9 +282,11 @@ static int switching_ok(const UiofmuPlant *d, char *msg, size_t len) {
 
 static int plant_check_design(char *msg, size_t len) {
     const UiofmuPlant *d = &UIOFMU_PLANT;
-    const int dims[4] = {d->n, d->m, d->p, d->q}, low[4] = {1, 0, 1, 0};
-    const char *const dim_name[4] = {"n", "m", "p", "q"};
-    if (!uiofmu_check_dims(msg, len, "plant dims.", 4, dims, dim_name, low, MAX_DIM)) return 0;
+    const int dims[5] = {d->n, d->m, d->p, d->q, d->r}, low[5] = {1, 0, 1, 0, 0};
+    const char *const dim_name[5] = {"n", "m", "p", "q", "r"};
+    if (!uiofmu_check_dims(msg, len, "plant dims.", 5, dims, dim_name, low, MAX_DIM)) return 0;
+    if (d->r && d->modes)
+        return uiofmu_design_error(msg, len, "plant r = %d: a switched plant takes no process noise", d->r);
     if (d->time != UIOFMU_DISCRETE && d->time != UIOFMU_CONTINUOUS)
         return uiofmu_design_error(msg, len, "plant time = %d is neither discrete (0) nor continuous (1)", d->time);
     if (d->time == UIOFMU_DISCRETE && !(isfinite(d->dt) && d->dt > 0))
@@ -302,11 +305,12 @@ static int plant_check_design(char *msg, size_t len) {
                                    d->rule == UIOFMU_RULE_INPUT ? "an input" : "an output");
     if (!switching_ok(d, msg, len)) return 0;
     size_t blocks = d->modes ? (size_t)d->modes : 1;
-    struct { const char *name; const double *data; size_t length, want; } M[6] = {
+    struct { const char *name; const double *data; size_t length, want; } M[7] = {
         {"A", d->A, d->A_length, blocks * d->n * d->n}, {"B", d->B, d->B_length, blocks * d->n * d->m},
         {"E", d->E, d->E_length, blocks * d->n * d->q}, {"C", d->C, d->C_length, (size_t)d->p * d->n},
-        {"w", d->w, d->w_length, blocks * d->n}, {"x0", d->x0, d->x0_length, (size_t)d->n}};
-    for (int i = 0; i < 6; i++) {
+        {"w", d->w, d->w_length, blocks * d->n}, {"x0", d->x0, d->x0_length, (size_t)d->n},
+        {"W", d->W, d->W_length, (size_t)d->n * d->r}};
+    for (int i = 0; i < 7; i++) {
         size_t want = M[i].want ? M[i].want : 1; /* an empty array is written as {0.0} */
         if (!M[i].data || M[i].length != want)
             return uiofmu_design_error(msg, len, "plant %s: %zu numbers compiled in, expected %zu", M[i].name,
@@ -325,6 +329,7 @@ static int plant_port(int id, UiofmuPort *out) {
     case UIOFMU_PLANT_X0: case UIOFMU_PLANT_X: size = d->n; break;
     case UIOFMU_PLANT_U: size = d->m; break;
     case UIOFMU_PLANT_D: size = d->q; break;
+    case UIOFMU_PLANT_W_NOISE: size = d->r; break;
     case UIOFMU_PLANT_Y: size = d->p; break;
     case UIOFMU_PLANT_SEED: size = d->rule == UIOFMU_RULE_RANDOM ? 1 : 0; break;
     case UIOFMU_PLANT_MODE: size = d->modes ? 1 : 0; break;
@@ -425,6 +430,7 @@ static void plant_reset(void *self) {
     memcpy(s->x, d->x0, (size_t)d->n * sizeof(double));
     memset(s->u, 0, (size_t)d->m * sizeof(double));
     memset(s->dv, 0, (size_t)d->q * sizeof(double));
+    memset(s->wn, 0, (size_t)d->r * sizeof(double));
     s->mode_in = d->mode0;
     s->seed = d->seed;
     restart(s);
@@ -440,11 +446,12 @@ static void *plant_instantiate(FmuInstance *fmu) {
     if (!s) return NULL;
     s->fmu = fmu;
     s->d = d;
-    s->K = d->n + d->m + d->q + 1;
+    s->K = d->n + d->m + d->q + d->r + 1;
     size_t n = (size_t)d->n, K = (size_t)s->K, kk = K * K;
     int continuous = d->time == UIOFMU_CONTINUOUS;
     size_t blocks = d->modes ? (size_t)d->modes : 1;
-    size_t total = 4 * n + (size_t)d->m + (size_t)d->q + (size_t)d->p + blocks * n * (n + (size_t)d->m + (size_t)d->q) +
+    size_t total = 4 * n + (size_t)d->m + (size_t)d->q + (size_t)d->r + (size_t)d->p +
+                   blocks * n * (n + (size_t)d->m + (size_t)d->q) +
                    (continuous ? 9 * kk + CACHE_SIZE * n * K : 0);
     s->block = (double *)uiofmu_alloc(fmu, total, sizeof(double));
     s->piv = continuous && s->block ? (int *)uiofmu_alloc(fmu, K, sizeof(int)) : NULL;
@@ -460,6 +467,7 @@ static void *plant_instantiate(FmuInstance *fmu) {
     s->tmp = b; b += 2 * n;
     s->u = b; b += d->m;
     s->dv = b; b += d->q;
+    s->wn = b; b += d->r;
     s->y = b; b += d->p;
     s->A = b; b += blocks * n * n;
     s->B = b; b += blocks * n * (size_t)d->m;
@@ -523,6 +531,7 @@ static double *element(Plant *s, int port, int index) {
     case UIOFMU_PLANT_X0: return &s->x0[index];
     case UIOFMU_PLANT_U: return &s->u[index];
     case UIOFMU_PLANT_D: return &s->dv[index];
+    case UIOFMU_PLANT_W_NOISE: return &s->wn[index];
     case UIOFMU_PLANT_Y: return &s->y[index];
     case UIOFMU_PLANT_X: return &s->x[index];
     case UIOFMU_PLANT_MISMATCH: return &s->mismatch;
@@ -567,7 +576,7 @@ static const double *discretisation(Plant *s, double t, double h) {
             s->last = i;
             return s->cache[i].phi;
         }
-    int n = d->n, m = d->m, q = d->q, K = s->K;
+    int n = d->n, m = d->m, q = d->q, r = d->r, K = s->K;
     double *M = s->aug;
     memset(M, 0, (size_t)K * K * sizeof(double));
     for (int i = 0; i < n; i++) {
@@ -575,6 +584,7 @@ static const double *discretisation(Plant *s, double t, double h) {
         for (int j = 0; j < n; j++) row[j] = s->A[(size_t)i * n + j] * h;
         for (int j = 0; j < m; j++) row[n + j] = s->B[(size_t)i * m + j] * h;
         for (int j = 0; j < q; j++) row[n + m + j] = s->E[(size_t)i * q + j] * h;
+        for (int j = 0; j < r; j++) row[n + m + q + j] = d->W[(size_t)i * r + j] * h;
         row[K - 1] = d->w[i] * h;
     }
     if (!uiofmu_expm(M, K, s->ex, s->work, s->piv)) {
@@ -595,10 +605,11 @@ static const double *discretisation(Plant *s, double t, double h) {
 static UiofmuResult plant_step(void *self, double t, double h) {
     Plant *s = (Plant *)self;
     const UiofmuPlant *d = s->d;
-    int n = d->n, m = d->m, q = d->q;
+    int n = d->n, m = d->m, q = d->q, r = d->r;
     char bt[32];
     if (!uiofmu_inputs_finite(s->fmu, t, -1, s->u, m, PORT_NAME[UIOFMU_PLANT_U]) ||
-        !uiofmu_inputs_finite(s->fmu, t, -1, s->dv, q, PORT_NAME[UIOFMU_PLANT_D]))
+        !uiofmu_inputs_finite(s->fmu, t, -1, s->dv, q, PORT_NAME[UIOFMU_PLANT_D]) ||
+        !uiofmu_inputs_finite(s->fmu, t, -1, s->wn, r, PORT_NAME[UIOFMU_PLANT_W_NOISE]))
         return UIOFMU_REFUSED;
     int mode = current_mode(s);
     if (!(mode >= 1 && mode <= (d->modes ? d->modes : 1))) { /* only an input can be out of range */
@@ -617,6 +628,11 @@ static UiofmuResult plant_step(void *self, double t, double h) {
             for (int j = 0; j < m; j++) bu += B[(size_t)i * m + j] * s->u[j];
             for (int j = 0; j < q; j++) ed += E[(size_t)i * q + j] * s->dv[j];
             xn[i] = ax + bu + ed + w[i];
+            if (r) {
+                double wv = 0.0;
+                for (int j = 0; j < r; j++) wv += d->W[(size_t)i * r + j] * s->wn[j];
+                xn[i] += wv;
+            }
         }
     } else {
         const double *phi = discretisation(s, t, h);
@@ -629,6 +645,11 @@ static UiofmuResult plant_step(void *self, double t, double h) {
             for (int j = 0; j < m; j++) bu += row[n + j] * s->u[j];
             for (int j = 0; j < q; j++) ed += row[n + m + j] * s->dv[j];
             xn[i] = ax + bu + ed + row[K - 1];
+            if (r) {
+                double wv = 0.0;
+                for (int j = 0; j < r; j++) wv += row[n + m + q + j] * s->wn[j];
+                xn[i] += wv;
+            }
         }
     }
     if (!uiofmu_next_state_finite(s->fmu, t, h, xn, n)) return UIOFMU_REFUSED;
@@ -646,7 +667,9 @@ typedef unsigned char Byte;
 enum { SV_MISMATCH, SV_MISMATCH_SEED, SV_PLANT }; /* after d[q] */
 enum { SV_MODE_IN, SV_SEED, SV_RNG_HI, SV_RNG_LO, SV_DRAWN, SV_SWITCHED }; /* after those, switched plants only */
 
-static size_t mismatch_at(const UiofmuPlant *d) { return 1 + 2 * (size_t)d->n + (size_t)d->m + (size_t)d->q; }
+static size_t mismatch_at(const UiofmuPlant *d) {
+    return 1 + 2 * (size_t)d->n + (size_t)d->m + (size_t)d->q + (size_t)d->r;
+}
 
 static size_t switched_at(const UiofmuPlant *d) { return mismatch_at(d) + SV_PLANT; }
 
@@ -671,6 +694,7 @@ static void plant_save_state(void *self, int phase, Byte *o) {
     o = uiofmu_put(o, s->x, (size_t)d->n);
     o = uiofmu_put(o, s->u, (size_t)d->m);
     o = uiofmu_put(o, s->dv, (size_t)d->q);
+    o = uiofmu_put(o, s->wn, (size_t)d->r);
     double mm[SV_PLANT] = {s->mismatch, (double)s->mismatch_seed};
     o = uiofmu_put(o, mm, SV_PLANT);
     if (d->modes) {
@@ -686,7 +710,7 @@ static int plant_check_state(void *self, const char *ctx, const Byte *v, int *ph
     char b1[32], b2[32], b3[32];
     double ph = uiofmu_getd(v, 0);
     if (!uiofmu_phase_ok(s->fmu, ctx, ph) || !uiofmu_plant_x_ok(s->fmu, ctx, v, 1, d->n, ph, d->x0)) return 0;
-    /* u[m], d[q]: taken as they are (see the header comment) */
+    /* u[m], d[q], w_noise[r]: taken as they are (see the header comment) */
     double mismatch = uiofmu_getd(v, mismatch_at(d) + SV_MISMATCH);
     double mseed = uiofmu_getd(v, mismatch_at(d) + SV_MISMATCH_SEED);
     if (!(mseed == floor(mseed) && mseed >= INT_MIN && mseed <= INT_MAX))
@@ -724,7 +748,8 @@ static void plant_load_state(void *self, const Byte *v) {
     o = uiofmu_take(o, s->x0, (size_t)d->n);
     o = uiofmu_take(o, s->x, (size_t)d->n);
     o = uiofmu_take(o, s->u, (size_t)d->m);
-    uiofmu_take(o, s->dv, (size_t)d->q);
+    o = uiofmu_take(o, s->dv, (size_t)d->q);
+    uiofmu_take(o, s->wn, (size_t)d->r);
     s->mismatch = uiofmu_getd(v, mismatch_at(d) + SV_MISMATCH);
     s->mismatch_seed = (int)uiofmu_getd(v, mismatch_at(d) + SV_MISMATCH_SEED);
     /* the matrices the steps use: perturbed once initialisation ended, the design's before */

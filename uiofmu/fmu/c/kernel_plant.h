@@ -2,7 +2,8 @@
  *
  * A linear plant (uiofmu.plant.Plant.to_data()) becomes one constant UiofmuPlant
  * (design_data.c, generated; numbers only). Matrices are row-major:
- *   A n x n, B n x m, E n x q, C p x n, w n, x0 n
+ *   A n x n, B n x m, E n x q, C p x n, w n, x0 n, W n x r (process noise; r = 0 but for a linear plant
+ *   whose problem declares it)
  * A switched plant (uiofmu.switched_plant.SwitchedPlant.to_data(), modes = N >= 1; discrete) has
  * N blocks of each of A, B, E and w, mode i (1..N) the block i - 1, and its switching rule:
  *   threshold: mode 1 + #{thresholds[t] <= x[state]} (N - 1 increasing thresholds)
@@ -36,11 +37,12 @@ enum { UIOFMU_RULE_NONE = 0, UIOFMU_RULE_THRESHOLD = 1, UIOFMU_RULE_INPUT = 2, U
 
 typedef struct {
     int n, m, p, q;
+    int r;             /* process-noise inputs w_noise: the columns of W (0: none declared) */
     int time;          /* UIOFMU_DISCRETE or UIOFMU_CONTINUOUS */
     double dt;         /* discrete plants: the period (0 for continuous ones) */
     double step_rtol;  /* discrete plants: a step within step_rtol * dt of dt is dt */
-    const double *A, *B, *E, *C, *w, *x0;
-    size_t A_length, B_length, E_length, C_length, w_length, x0_length;
+    const double *A, *B, *E, *C, *w, *x0, *W;
+    size_t A_length, B_length, E_length, C_length, w_length, x0_length, W_length;
     /* switched plants (modes = 0 for a linear one) */
     int modes, rule;
     int state;          /* rule threshold: the 0-based index of the state compared */
