@@ -758,5 +758,5 @@ def load_inputs(csv_path, plant_path, observer_path=None):
     return CsvInputs(csv_path, sizes, owners, integers)
 
 
-__all__ = ["CosimResult", "cosimulate", "default_inputs", "default_steps", "default_t_end", "load_inputs",
-           "observer_card", "routes", "step_sequence", "write_outputs"]
+__all__ = ["OPTIONAL_PLANT_INPUTS", "CosimResult", "cosimulate", "default_inputs", "default_steps", "default_t_end",
+           "driven_inputs", "load_inputs", "observer_card", "routes", "step_sequence", "write_outputs"]

@@ -124,4 +124,4 @@ def scaled_inputs(inputs, scale: float):
     return SignalInputs(signals["u"], d, signals.get("mode", ()), signals.get("theta", ()))
 
 
-__all__ = ["SCALAR_AXES", "batches", "scaled_inputs", "scenario", "scenarios"]
+__all__ = ["MISMATCH_SEEDS", "SCALAR_AXES", "batches", "scaled_inputs", "scenario", "scenarios"]

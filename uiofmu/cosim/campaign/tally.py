@@ -168,4 +168,4 @@ def summary(campaign: Campaign, setup: Setup, tally: Tally, cancelled: bool = Fa
     return out
 
 
-__all__ = ["MAX_REASONS", "QUANTILES", "QUANTILE_KEYS", "Tally", "reason_kind", "summary"]
+__all__ = ["MAX_REASONS", "MISMATCH_KEYS", "QUANTILES", "QUANTILE_KEYS", "Tally", "reason_kind", "summary"]
