@@ -58,8 +58,9 @@ fuzz: $(STAMP)
 	$(PY) tests/cfuzz.py --seconds $(FUZZ_SECONDS) --family all
 	$(PY) tests/fuzz_campaign.py --cases 4000 --seed $(FUZZ_SEED) --seconds $(FUZZ_SECONDS)
 
-# the FMU catalogue: every example's observer and plant FMU, checked (validate, our master, fmpy, ecospy);
-# writes fmus/README.md (in git; tests/test_fmus_catalogue.py fails when it is stale)
+# the FMU catalogue: every example's observer and plant FMU, checked (validate, our master, fmpy, ecospy;
+# each FMU alone in the Compliance Checker and fmusim of ../shared/importers/ where they are, results on the
+# console only); writes fmus/README.md (in git; tests/test_fmus_catalogue.py fails when it is stale)
 fmus: $(STAMP)
 	$(PY) examples/build_fmus.py --out fmus
 

@@ -11,6 +11,11 @@ the linear plant FMUs (``uiofmu plant --backend c`` against ``--backend python``
 plant of the two-room building on the observer's aperiodic steps (the exact discretisation of
 each step length from the C plant's cache) and the discrete plant of seed 000 Example 1 at its
 dt; their input is u. Median of 5 runs.
+
+Then the delayed UIO of seed 001 (``examples/seed001_example.toml``), whose observer integrates itself
+between communication points: its C FMU and its pythonfmu FMU fed the same plant signals (y, ydot, u of
+the plant runtime at 1 ms steps) through fmpy; past the premise's start (1 s) the CPU time of
+``--delayed-steps`` steps (fmi2SetReal of y, ydot, u and fmi2DoStep), per step, and python / C.
 """
 
 from __future__ import annotations
@@ -83,10 +88,64 @@ def via_host(path, steps, n, host, tmp, python=False, port="y"):
     return statistics.median(times)
 
 
+def plant_signals(problem, card, h: float, count: int) -> list:
+    """``count`` points of the plant's signals at steps of ``h``: ``(y, ydot, u)`` with the problem's input (the
+    ``[signals]`` its card records)."""
+    from uiofmu.cosim.master import default_inputs
+    from uiofmu.runtime.parametric_plant import ParametricPlantRuntime
+
+    plant = ParametricPlantRuntime(problem.plant.to_data())
+    source = default_inputs(card)
+    points = []
+    for k in range(count):
+        plant.u[:] = source.values(k * h)["u"]
+        points.append((plant.y().copy(), plant.ydot().copy(), plant.u.copy()))
+        plant.step(h)
+    return points
+
+
+def delayed_cost(path, points, lead_in: int, h: float):
+    """CPU seconds per step of the delayed observer FMU at ``path`` (inputs set, then fmi2DoStep) over the
+    points after the first ``lead_in``, and the fraction of those steps it was valid at."""
+    with Fmu(path, "bench") as fmu:
+        fmu.initialize(0.0)
+        refs = [fmu.refs(name) for name in ("y", "ydot", "u")]
+        set_real, step, get_integer = fmu.slave.setReal, fmu.slave.doStep, fmu.slave.getInteger
+        valid_ref = fmu.refs("valid")
+        valid, t0 = 0, 0.0
+        for k, values in enumerate(points):
+            if k == lead_in:
+                t0 = time.process_time()
+            for ref, value in zip(refs, values):
+                set_real(ref, value)
+            step(k * h, h)
+            if k >= lead_in:
+                valid += get_integer(valid_ref)[0]
+        spent = time.process_time() - t0
+    timed = len(points) - lead_in
+    return spent / timed, valid / timed
+
+
+def delayed_row(tmp, n: int) -> dict:
+    """The delayed UIO's observer, C against pythonfmu (:func:`delayed_cost`)."""
+    problem = uiofmu.load_problem(ROOT / "examples" / "seed001_example.toml")
+    card = uiofmu.design(problem)
+    h = float(card.schedule["step"])
+    lead_in = int(round(float(card.schedule["valid_from"]) / h)) + 50
+    points = plant_signals(problem, card, h, lead_in + n)
+    c = build_observer(card, Path(tmp) / f"{card.name}_c.fmu", backend="c")
+    py = build_observer(card, Path(tmp) / f"{card.name}_py.fmu", backend="python")
+    (c_cost, c_valid), (py_cost, py_valid) = (delayed_cost(p, points, lead_in, h) for p in (c, py))
+    return {"case": f"{card.family} ({card.name})", "c": c_cost, "py": py_cost, "valid": (c_valid, py_valid),
+            "from": lead_in * h, "steps": n, "h": h}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=20000)
-    n = parser.parse_args().steps
+    parser.add_argument("--delayed-steps", type=int, default=500)
+    args = parser.parse_args()
+    n = args.steps
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         host = build_host(Path(tmp) / "host")
@@ -117,6 +176,7 @@ def main():
             r["c_host"], r["floor_host"] = (via_host(p, steps, n * 10, host, tmp, port="u") for p in (c, floor))
             r["py_host"] = via_host(py, steps, n, host, tmp, python=True, port="u")
             plants.append(r)
+        delayed = delayed_row(tmp, args.delayed_steps)
     us = lambda v: f"{v * 1e6:8.3f}" if v is not None else "     n/a"  # noqa: E731
     print(f"per fmi2DoStep, median of 5 runs ({n} steps through fmpy, {10 * n} through the C host), in µs")
     for what, table in (("observer", rows), ("plant", plants)):
@@ -126,6 +186,12 @@ def main():
                 c, f, p = r[f"c_{imp}"], r[f"floor_{imp}"], r[f"py_{imp}"]
                 ratio = f"{p / c:8.1f}" if p else "     n/a"
                 print(f"{r['case']:36s} {imp:8s} {us(c)} {us(f)} {us(p)}  {c / f:7.2f}  {ratio}")
+    d = delayed
+    print(f"\ndelayed observer: CPU per step (fmi2SetReal of y, ydot, u + fmi2DoStep of {d['h']:g} s) through fmpy, "
+          f"{d['steps']} steps from t = {d['from']:g} s (valid at {d['valid'][0]:.0%} of them in C, "
+          f"{d['valid'][1]:.0%} in python), in µs")
+    print(f"{'observer':36s} {'C FMU':>10s} {'python':>10s}  python/C")
+    print(f"{d['case']:36s} {d['c'] * 1e6:10.1f} {d['py'] * 1e6:10.1f}  {d['py'] / d['c']:8.1f}")
 
 
 if __name__ == "__main__":

@@ -6,15 +6,22 @@ The two-room building (``plants/two_room_building``, sampled-data observer with 
 drop-outs, with the C plant FMU and with the pythonfmu plant FMU. For each pair, alternately in one
 process, ``--repeat`` times:
 
-(a) ``cosimulate`` (uiofmu's master): its own CPU clocks (``CosimResult.timing``) give the stepping
-    loop, the steps (the loop with the input evaluation for all points, the buffers and the
-    histories) and the whole call (design card re-check, FMU loading, initialisation, metrics);
+(a) ``cosimulate`` (uiofmu's master) on its Python loop (``native=False``): its own CPU clocks
+    (``CosimResult.timing``) give the stepping loop, the steps (the loop with the input evaluation for
+    all points, the buffers and the histories) and the whole call (design card re-check, FMU loading,
+    initialisation, metrics);
 (b) the bare loop: the same FMI calls on the same step sequence through fmpy's ctypes functions with
     value references and buffers prepared beforehand, and nothing else (no inputs, no histories, no
-    status checks), on freshly loaded and initialised instances of the same FMUs.
+    status checks), on freshly loaded and initialised instances of the same FMUs;
+(c) ``cosimulate`` on its native loop (the default: the C driver of :mod:`uiofmu.cosim.native` makes the
+    calls where both FMUs have native binaries; a pythonfmu plant keeps the Python loop);
+(d) a campaign worker's run, both ways: ``cosimulate`` on FMU instances kept open and a card read once
+    (``instances=``, ``card=``), the whole call's CPU time.
 
-Medians over the repeats; the ratio (a)/(b) is the master's overhead over the FMI calls it makes.
-Wall times vary with the other work on the machine; the ratio, measured side by side, much less.
+Medians over the repeats; the ratio (a)/(b) is the master's overhead over the FMI calls it makes, (a)/(c)
+and the two runs of (d) what the native loop gains (the goal: a worker's building run with C FMUs at
+least 2x faster). Wall times vary with the other work on the machine; the ratios, measured side by side,
+much less.
 """
 
 from __future__ import annotations
@@ -96,17 +103,25 @@ def default_inputs_at_zero(observer_path) -> dict:
 
 def measure(plant, observer, steps, repeat: int) -> dict:
     K = len(steps)
-    runs = {"loop": [], "steps": [], "total": [], "bare": [], "bare_addresses": []}
-    for _ in range(repeat):
-        result = cosimulate(plant, observer, steps, show_progress=False)
-        for key in ("loop", "steps", "total"):
-            runs[key].append(result.timing[key] / K)
-        for key, addresses in (("bare", False), ("bare_addresses", True)):
-            bare, calls = bare_loop(plant, observer, steps, addresses)
-            assert calls == result.timing["fmi_calls_per_step"], (calls, result.timing)
-            runs[key].append(bare / K)
-    out = {key: statistics.median(v) * 1e6 for key, v in runs.items()}
-    out["calls"] = calls
+    card = observer_card(observer)
+    runs = {key: [] for key in ("loop", "steps", "total", "bare", "bare_addresses", "native_loop", "native_steps",
+                                "native_total", "worker", "native_worker")}
+    native = set()
+    with Fmu(plant, "plant") as p, Fmu(observer, "observer") as o:
+        for _ in range(repeat):
+            for prefix, loop in (("", False), ("native_", True)):
+                result = cosimulate(plant, observer, steps, show_progress=False, native=loop)
+                for key in ("loop", "steps", "total"):
+                    runs[prefix + key].append(result.timing[key] / K)
+                kept = cosimulate(plant, observer, steps, show_progress=False, native=loop, instances=(p, o), card=card)
+                runs[prefix + "worker"].append(kept.timing["total"])
+                native |= {result.timing["native"], kept.timing["native"]} - {False}
+            for key, addresses in (("bare", False), ("bare_addresses", True)):
+                bare, calls = bare_loop(plant, observer, steps, addresses)
+                assert calls == result.timing["fmi_calls_per_step"], (calls, result.timing)
+                runs[key].append(bare / K)
+    out = {key: statistics.median(v) * (1e3 if "worker" in key else 1e6) for key, v in runs.items()}
+    out["calls"], out["native"] = calls, bool(native)
     return out
 
 
@@ -136,6 +151,17 @@ def main(argv=None) -> int:
         print(f"| {label} | {m['calls']} | {m['bare']:.1f} | {m['bare_addresses']:.1f} | {m['loop']:.1f} | "
               f"{m['steps']:.1f} | {m['steps'] / m['bare']:.2f} | {m['steps'] / m['bare_addresses']:.2f} | "
               f"{m['total']:.0f} |")
+    print()
+    print("The native loop against the Python loop (a worker's run: FMUs kept, card read once; CPU ms a run)")
+    print()
+    print("| pair | stepped in C | Python loop (µs) | native loop (µs) | loop ratio | Python steps (µs) "
+          "| native steps (µs) | steps ratio | worker run, Python (ms) | worker run, native (ms) | worker ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for label, m in rows:
+        print(f"| {label} | {'yes' if m['native'] else 'no (pythonfmu)'} | {m['loop']:.2f} | {m['native_loop']:.2f} | "
+              f"{m['loop'] / m['native_loop']:.1f}x | {m['steps']:.2f} | {m['native_steps']:.2f} | "
+              f"{m['steps'] / m['native_steps']:.1f}x | {m['worker']:.2f} | {m['native_worker']:.2f} | "
+              f"{m['worker'] / m['native_worker']:.2f}x |")
     return 0
 
 

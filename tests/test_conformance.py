@@ -18,10 +18,10 @@ same way:
   nothing changed (the state serialises to the same bytes, and the run goes on equal to the runtime);
 - C only: the call fuzzer's short run: tests/c/fmu_fuzz.c under ASan and UBSan (cfuzz.py) for the
   schedule kinds it models (constant, interval, geometric), fmpy-driven random call sequences
-  (:func:`cfmu.random_calls`) for the others.
+  (:func:`cfmu.random_calls`) for the others (tests/test_c_functional.py and tests/test_c_delayed.py run
+  those with the FMU's sources under ASan and UBSan).
 
-The C backend has no delayed kernel: its pair checks that ``--backend c`` refuses such a card, naming the
-kernel (:data:`NO_C_KERNEL`).
+Every kernel has a C kernel (its descriptor names it); a kernel without one would have no C pair.
 """
 
 from __future__ import annotations
@@ -41,9 +41,7 @@ from cfmu import DISCARD, ERROR, NEEDS_CC, check_restores, random_calls
 from test_c_hardening import _layout
 from uiofmu.cosim.fmi import Fmu, FmuCallError
 from uiofmu.fmu import c_backend
-from uiofmu.fmu.export import build_observer
 from uiofmu.runtime.delayed import MAX_SUBSTEPS
-from uiofmu.runtime.errors import FmuError
 from uiofmu.runtime.kernels import KERNELS as KERNEL_DESCRIPTORS
 from uiofmu.runtime.kernels import SCHEDULES
 from uiofmu.runtime.observer import Runtime
@@ -85,12 +83,14 @@ CASES = [
     ("delayed", "delayed", "continuous", "delayed_card"),      # conftest.DELAYED_SHORT: valid from 0.1 s
 ]
 BACKENDS = ("c", "python")
-#: The kernels the C backend has none for, from their descriptors (the pair checks the refusal instead).
-NO_C_KERNEL = {name: f"the C backend has no {name} kernel" for name, k in KERNEL_DESCRIPTORS.items()
-               if k.c_kernel is None}
+#: The kernels the C backend has a kernel for, from their descriptors.
+C_KERNEL = {name for name, k in KERNEL_DESCRIPTORS.items() if k.c_kernel is not None}
 #: The schedule kinds the C call fuzzer (tests/c/fmu_fuzz.c) models; the others get fmpy-driven random calls.
 FUZZER_KINDS = ("constant", "interval", "geometric")
-#: Steps of the runs against the runtime (the delayed kernel integrates some 20 RK4 substeps a step).
+#: Steps of the runs against the runtime (the delayed kernel integrates some 20 RK4 substeps a step). The
+#: delayed kernel's 60 stay inside its start-up: on independent random y and ydot its observer is so
+#: ill-conditioned (||Gamma|| ~ 1e4) that one ulp of y moves the runtime's own next estimate by 1e-8, so the C
+#: backend is held to its runtime on a plant's signals instead (tests/test_c_delayed.py).
 STEPS = {"delayed": 60}
 DEFAULT_STEPS = 200
 #: Largest difference from the runtime relative to 1 + |reference| (python: the same arithmetic, bit for bit).
@@ -99,9 +99,7 @@ RTOL = {"c": 1e-12, "python": 0.0}
 KIND = {case: (kernel, kind) for case, kernel, kind, _ in CASES}
 SOURCE = {case: fixture for case, _, _, fixture in CASES}
 PAIRS = [pytest.param(case, backend, id=f"{case}-{backend}", marks=[NEEDS_CC] if backend == "c" else [])
-         for case, kernel, _, _ in CASES for backend in BACKENDS if not (backend == "c" and kernel in NO_C_KERNEL)]
-REFUSED_PAIRS = [pytest.param(case, "c", id=f"{case}-c-{NO_C_KERNEL[kernel].replace(' ', '-')}")
-                 for case, kernel, _, _ in CASES if kernel in NO_C_KERNEL]
+         for case, kernel, _, _ in CASES for backend in BACKENDS if backend == "python" or kernel in C_KERNEL]
 
 
 # -- designs and FMUs, once per module ----------------------------------------------------------------------
@@ -250,15 +248,6 @@ def test_the_model_description_declares_the_kernel(fmus, case, backend):
         assert sources | {f"binaries/linux64/{md.coSimulation.modelIdentifier}.so"} <= names, sorted(names)
 
 
-@pytest.mark.parametrize("case, backend", REFUSED_PAIRS)
-def test_a_backend_without_the_kernel_refuses_the_card(cards, tmp_path, case, backend):
-    card = cards(case)
-    with pytest.raises(FmuError) as info:
-        build_observer(card, tmp_path / "o.fmu", backend=backend)
-    assert f"the C backend has no kernel {card.kernel!r}" in str(info.value) and "--backend python" in str(info.value)
-    assert not (tmp_path / "o.fmu").exists()
-
-
 @pytest.mark.parametrize("case, backend", PAIRS)
 def test_the_fmu_equals_the_runtime_on_random_steps(fmus, case, backend):
     card, path = fmus(case, backend)
@@ -388,7 +377,7 @@ def test_bad_value_references_are_errors_and_change_nothing(fmus, case, backend)
 
 # -- the C call fuzzer ---------------------------------------------------------------------------------------
 
-C_PAIRS = [pytest.param(case, id=case, marks=NEEDS_CC) for case, kernel, _, _ in CASES if kernel not in NO_C_KERNEL]
+C_PAIRS = [pytest.param(case, id=case, marks=NEEDS_CC) for case, kernel, _, _ in CASES if kernel in C_KERNEL]
 PLUMBING_SCENARIOS = ("state-masks", "status-after-discard", "log-categories")
 
 
@@ -439,4 +428,4 @@ def test_the_call_fuzzers_short_run(fmus, tmp_path, case):
     if card.schedule["kind"] in FUZZER_KINDS:
         fuzz_with_the_c_fuzzer(case, path, tmp_path)
     else:
-        random_calls(path, card.dt, seed=1)
+        random_calls(path, design_steps(card)[0], seed=1)

@@ -146,8 +146,7 @@ def test_fmpy_default_experiment_runs(fmus, family, kind):
 
 
 @pytest.mark.parametrize("family, kind", DEFAULT_RUNS + [
-    pytest.param(family, kind, id=f"{family}-{kind}") for family in MORE_PROBLEMS for kind in (*BACKENDS, "plant")
-    if (family, kind) != ("delayed-uio", "c")])  # the delayed UIO has no C kernel
+    pytest.param(family, kind, id=f"{family}-{kind}") for family in MORE_PROBLEMS for kind in (*BACKENDS, "plant")])
 def test_fmpy_ends_at_once_on_a_step_the_fmu_refuses(fmus, family, kind):
     """``fmpy simulate --output-interval H`` with an H the FMU will never take: the FMU refuses the
     first step with fmi2Discard and one log line, answers fmi2Terminated = true, and fmpy ends the

@@ -164,3 +164,70 @@ def test_edge_cases_of_the_assembly():
         assert LmiSystem("edge", {"P": ("symmetric", 2)}, {}, build).solve().verified
     with pytest.raises(ValueError, match="must be square, found 2x1"):
         LmiSystem("non-square", {"P": ("symmetric", 2)}, {}, lambda v, p, o: [Lmi("F", v["P"] @ np.ones((2, 1)))])
+
+
+def test_systems_of_one_structure_share_one_traced_form():
+    """Two systems of the same LMIs and data share one traced conic form (and its largest-margin forms), whose
+    data equal a form traced afresh; other data, even a zero of the other sign, get their own."""
+    from uiofmu.conic import ConicProblem
+
+    ex1 = uiofmu.load_problem(EXAMPLES / "seed000_example1.toml")
+    s1 = ex1.plant.sampled(0.1)
+    C, PA = ex1.plant.C, projector(ex1.plant.C, s1.E) @ s1.A
+    first, second = lti_uio._lmis(PA, C), lti_uio._lmis(PA.copy(), C.copy())
+    assert second._conic is first._conic
+    fresh = ConicProblem(first.variables, first.parameters, first.build, first.objective, first.margin)
+    for got, want in zip(first._conic.data({"rho2": 0.97}), fresh.data({"rho2": 0.97})):
+        assert np.array_equal(got.toarray() if hasattr(got, "toarray") else got,
+                              want.toarray() if hasattr(want, "toarray") else want)
+    a, b = first.largest_margin(rho2=0.995 ** 2), second.largest_margin(rho2=0.995 ** 2)
+    assert a.verified and b.verified and a.relative_margin == b.relative_margin
+    assert all(np.array_equal(a.values[k], b.values[k]) for k in a.values)
+    other = PA.copy()
+    other[0, 0] += 1e-3
+    signed = PA.copy()
+    signed[PA == 0.0] = -0.0
+    assert (PA == 0.0).any()
+    for data in (other, signed):
+        assert lti_uio._lmis(data, C)._conic is not first._conic
+    assert lti_uio._lmis(PA, C, gain_cap=10.0)._conic is not first._conic
+
+
+def test_fingerprints_tell_the_data_apart():
+    """Equal data give equal fingerprints; a zero's sign, a number's type and an array's shape or dtype do not;
+    anything else is refused."""
+    from uiofmu.conic import fingerprint
+
+    assert fingerprint([np.eye(2), 0.5, None, "x"]) == fingerprint([np.eye(2).copy(), 0.5, None, "x"])
+    assert fingerprint(np.zeros(2)) != fingerprint(-np.zeros(2))
+    assert fingerprint(np.zeros(2)) != fingerprint(np.zeros((2, 1)))
+    assert fingerprint(np.zeros(2)) != fingerprint(np.zeros(2, dtype=np.float32))
+    assert len({fingerprint(1), fingerprint(1.0), fingerprint(True)}) == 3
+    assert fingerprint(0.0) != fingerprint(-0.0)
+    assert fingerprint((1, 2)) != fingerprint([1, 2])
+    with pytest.raises(TypeError, match="no fingerprint of a object"):
+        fingerprint(object())
+
+
+@pytest.mark.parametrize("path", ["plants/two_room_building", "examples/seed002_three_modes.toml"])
+def test_a_design_made_again_is_the_same_card(path):
+    """A design made again in the same process (its LMIs traced once) is the same card, timings aside, as the
+    first, whose LMIs were traced afresh."""
+    import json
+
+    from uiofmu import conic
+
+    problem = uiofmu.load_problem(ROOT / path)
+    conic._TRACED.clear()
+    first = uiofmu.design(problem)
+    kept = len(conic._TRACED)
+    again = uiofmu.design(problem)
+    assert kept >= 2 and len(conic._TRACED) == kept            # the decay's LMIs and the noise lemma's, reused
+    assert _timeless(json.loads(again.to_json())) == _timeless(json.loads(first.to_json()))
+
+
+def _timeless(data):
+    """A card's data without its times (``timing``, and every ``*_s`` or ``seconds`` entry)."""
+    if isinstance(data, dict):
+        return {k: _timeless(v) for k, v in data.items() if k != "timing" and not k.endswith("_s") and k != "seconds"}
+    return [_timeless(v) for v in data] if isinstance(data, list) else data

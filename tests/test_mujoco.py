@@ -28,9 +28,10 @@ def spec():
     return load_spec(FOLDER)
 
 
-@pytest.fixture(scope="module")
-def plant_fmu(spec, tmp_path_factory):
-    return build_mujoco_plant(spec, tmp_path_factory.mktemp("mj") / "qc.fmu")
+@pytest.fixture(scope="module", params=["c", "python"])
+def plant_fmu(spec, tmp_path_factory, request):
+    """The plant FMU of each backend (C, the default: libmujoco inside; python: pythonfmu)."""
+    return build_mujoco_plant(spec, tmp_path_factory.mktemp("mj") / "qc.fmu", backend=request.param)
 
 
 def test_linearisation_matches_finite_differences_and_the_committed_problem(spec):

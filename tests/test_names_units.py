@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import copy
 import json
-import os
 import subprocess
 import sys
 import zipfile
@@ -23,7 +22,8 @@ import pytest
 from fmpy import read_model_description
 
 import uiofmu
-from conftest import ROOT, run_cli
+from conftest import run_cli
+from uiofmu.cosim.native_importers import FIXED_STEP_WARNING, run_compliance_checker
 from uiofmu.fmu.c_backend import c_compiler
 from uiofmu.fmu.export import build_observer, build_plant
 from uiofmu.problem import load_problem, problem_from_data
@@ -150,24 +150,17 @@ def test_no_name_reaches_the_c_source(fmus):
             assert word.encode() not in sources, (role, word)
 
 
-#: The FMU Compliance Checker (``../shared/importers/`` next to the checkout, or ``$UIOFMU_FMUCHECK``).
-FMUCHECK = os.environ.get("UIOFMU_FMUCHECK", str(ROOT.parent / "shared" / "importers" / "fmuCheck.linux64"))
-
-
 @pytest.mark.parametrize("role", ["observer", "plant"])
 def test_the_compliance_checker_accepts_the_c_fmus(fmus, role, tmp_path):
-    if ("observer", "c") not in fmus or not os.access(FMUCHECK, os.X_OK):
-        pytest.skip(f"needs a C compiler and the FMU Compliance Checker at {FMUCHECK}")
-    log = tmp_path / "check.log"
-    proc = subprocess.run([FMUCHECK, "-h", "0.1", "-s", "1", "-t", str(tmp_path), "-o", str(tmp_path / "out.csv"),
-                           "-e", str(log), str(fmus[(role, "c")])], capture_output=True, text=True)
-    text = log.read_text()
-    assert proc.returncode == 0, text[-2000:]
-    assert "0 warning(s) and error(s)" in text and "\t0 Error(s)" in text, text[-2000:]
+    if ("observer", "c") not in fmus:
+        pytest.skip("the C backend needs a C compiler")
+    run = run_compliance_checker(fmus[(role, "c")], 0.1, 1.0, workdir=tmp_path)
+    if not run.ran:
+        pytest.skip(run.unavailable)
+    assert not run.errors, run.log[-2000:]
     # its only warnings: an FMU of one step (honest canHandleVariableCommunicationStepSize="false") does not let
     # the checker shorten its last step to the stop time
-    warnings = [line for line in text.splitlines() if line.startswith("[WARNING]")]
-    assert all("does not support variable communication stepsize" in line for line in warnings), warnings
+    assert all(FIXED_STEP_WARNING in line for line in run.warnings), run.warnings
 
 
 def test_fmpy_info_lists_them(fmus):

@@ -54,7 +54,7 @@ CASES = [
     ("w-continuous", edit('time = "discrete"\ndt = 0.1', 'time = "continuous"\nw = [0.0, 0.0]'),
      "plant.w: the affine term is defined for discrete plants only"),
     ("dt-continuous", edit('"discrete"', '"continuous"'), "plant.dt: only discrete plants have a period"),
-    ("unknown-plant-key", edit("C = [[1.0, 0.0]]", "C = [[1.0, 0.0]]\nD = [[0.0]]"), "plant.D: unknown key"),
+    ("unknown-plant-key", edit("C = [[1.0, 0.0]]", "C = [[1.0, 0.0]]\nH = [[0.0]]"), "plant.H: unknown key"),
     ("unknown-top-key", "solver = 'scs'\n" + GOOD, "solver: unknown key"),
     ("unknown-family", edit('"lti-uio"', '"kalman"'), "observer.family: unknown family 'kalman'"),
     ("missing-family", edit('family = "lti-uio"\n', ""), "observer.family: required key is missing"),

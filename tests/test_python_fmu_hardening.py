@@ -332,7 +332,7 @@ def fmus(building_card, building_path, observer_fmus, tmp_path_factory):
     return {"obs": str(observer_fmus("building_card", "python")[1]),
             "obs_nearest": str(build_observer(card_from_data(data), d / "obs_nearest.fmu", backend="python")),
             "plant": str(build_plant(problem.plant, problem.name, d / "plant.fmu", backend="python")),
-            "mj": str(build_mujoco_plant(load_spec(QUARTER_CAR), d / "mj.fmu"))}
+            "mj": str(build_mujoco_plant(load_spec(QUARTER_CAR), d / "mj.fmu", backend="python"))}
 
 
 def _refused(case, *fragments):

@@ -16,9 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
-import subprocess
 import zipfile
 from xml.etree import ElementTree
 
@@ -29,6 +26,7 @@ from fmpy import read_model_description
 import cfuzz
 from conftest import ROOT
 from importers import Slave, debug_logging_status
+from uiofmu.cosim.native_importers import FIXED_STEP_WARNING, run_compliance_checker, run_fmusim
 from uiofmu.fmu.c_backend import c_compiler
 from uiofmu.fmu.export import build_observer, build_plant
 from uiofmu.problem import load_problem
@@ -36,13 +34,7 @@ from uiofmu.runtime.kernels import SCHEDULES
 from uiofmu.runtime.step_rules import StepRule, step_rule
 from uiofmu.runtime.tolerances import STEP_RTOL, STEP_ULPS, TINY_STEP_RTOL
 
-IMPORTERS = ROOT.parent / "shared" / "importers"
-#: The FMU Compliance Checker (``../shared/importers/``, or ``$UIOFMU_FMUCHECK``) and Reference-FMUs' fmusim.
-FMUCHECK = os.environ.get("UIOFMU_FMUCHECK", str(IMPORTERS / "fmuCheck.linux64"))
-FMUSIM = os.environ.get("UIOFMU_FMUSIM", str(IMPORTERS / "fmusim"))
 BACKENDS = ["c", "python"] if c_compiler() else ["python"]
-#: The one warning the checker gives an FMU of one step: it does not shorten the last step to its stop time.
-FIXED_STEP_WARNING = "FMU does not support variable communication stepsize"
 
 
 def _observer_spec(schedule: dict) -> dict:
@@ -272,54 +264,43 @@ def test_every_declared_log_category_is_known(fmus, backend):
 
 # -- (e) the native importers ----------------------------------------------------------------------
 
-def _needs(tool: str):
-    if not BACKENDS[0] == "c" or not os.access(tool, os.X_OK):
-        pytest.skip(f"needs a C compiler and {tool}")
+def _needs_c():
+    if not BACKENDS[0] == "c":
+        pytest.skip("needs a C compiler")
 
 
-def _check(fmu, h: float, stop: float, tmp_path) -> str:
-    log = tmp_path / "check.log"
-    proc = subprocess.run([FMUCHECK, "-h", repr(h), "-s", repr(stop), "-t", str(tmp_path), "-o",
-                           str(tmp_path / "out.csv"), "-e", str(log), str(fmu)], capture_output=True, text=True,
-                          env={"PATH": os.environ.get("PATH", "")})
-    text = log.read_text()
-    assert proc.returncode == 0, text[-2000:]
-    assert "Checker reported:" in text and "\t0 Error(s)" in text, text[-2000:]
-    assert "0 warning(s) and error(s)" in text, text[-2000:]                 # none from the FMU
-    warnings = [line for line in text.splitlines() if line.startswith("[WARNING]")]
-    assert all(FIXED_STEP_WARNING in line for line in warnings), warnings
-    return text
+def _check(fmu, h: float, stop: float, tmp_path):
+    """The checker's run: it ran, 0 errors (the FMU's lines included), its only warning the fixed-step one."""
+    run = run_compliance_checker(fmu, h, stop, workdir=tmp_path)
+    if not run.ran:
+        pytest.skip(run.unavailable)
+    assert not run.errors, run.log[-2000:]
+    assert all(FIXED_STEP_WARNING in line for line in run.warnings), run.warnings
+    return run
 
 
 @pytest.mark.parametrize("role, h, variable", [("fixed", 0.1, False), ("intervals", 600.0, True),
                                                ("discrete plant", 0.1, False), ("continuous plant", 600.0, True)])
 def test_the_compliance_checker_runs_them_to_their_stop_time(fmus, role, h, variable, tmp_path):
-    _needs(FMUCHECK)
-    text = _check(fmus[role, "c"], h, 10 * h, tmp_path)
-    assert (FIXED_STEP_WARNING in text) is (not variable)
-    times = np.loadtxt(tmp_path / "out.csv", delimiter=",", skiprows=1, usecols=0, ndmin=1)
-    assert times[-1] >= 10 * h * (1 - 1e-12)
+    _needs_c()
+    run = _check(fmus[role, "c"], h, 10 * h, tmp_path)
+    assert bool(run.warnings) is (not variable)
+    assert run.reached_stop and run.last_time >= 10 * h * (1 - 1e-12)
 
 
 def test_the_checker_ends_on_the_stop_time_within_rounding(fmus, tmp_path):
-    _needs(FMUCHECK)
+    _needs_c()
     stop = 6000.000001                                            # the last step: 600 s and its rounding
-    _check(fmus["intervals", "c"], 600.0, stop, tmp_path)
-    times = np.loadtxt(tmp_path / "out.csv", delimiter=",", skiprows=1, usecols=0, ndmin=1)
-    assert times[-1] == pytest.approx(stop, rel=1e-15)
+    run = _check(fmus["intervals", "c"], 600.0, stop, tmp_path)
+    assert run.last_time == pytest.approx(stop, rel=1e-15)
 
 
 @pytest.mark.parametrize("role, h", [("fixed", 0.1), ("intervals", 600.0), ("discrete plant", 0.1),
                                      ("continuous plant", 600.0)])
 def test_fmusim_runs_them_to_their_stop_time(fmus, role, h, tmp_path):
-    _needs(FMUSIM)
-    if shutil.which("ldd") and "not found" in subprocess.run(["ldd", FMUSIM], capture_output=True, text=True).stdout:
-        pytest.skip("fmusim needs the Debian packages libxml2 libminizip1 libsundials-cvode6")
-    out = tmp_path / "out.csv"
-    proc = subprocess.run([FMUSIM, "--interface-type", "cs", "--output-interval", repr(h), "--stop-time",
-                           repr(10 * h), "--log-level", "warning", "--output-file", str(out), str(fmus[role, "c"])],
-                          capture_output=True, text=True, env={"PATH": os.environ.get("PATH", "")})
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    assert "Error" not in proc.stdout + proc.stderr and "Discard" not in proc.stdout + proc.stderr
-    times = np.loadtxt(out, delimiter=",", skiprows=1, usecols=0, ndmin=1)
-    assert len(times) == 11 and times[-1] == pytest.approx(10 * h, rel=1e-12)
+    _needs_c()
+    run = run_fmusim(fmus[role, "c"], h, 10 * h, workdir=tmp_path)
+    if not run.ran:
+        pytest.skip(run.unavailable)
+    assert not run.errors and not run.warnings, run.log[-2000:]
+    assert len(run.rows) == 11 and run.last_time == pytest.approx(10 * h, rel=1e-12)

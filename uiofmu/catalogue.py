@@ -1,8 +1,8 @@
 """The FMU catalogue ``fmus/``: an observer FMU and its plant FMU for every example of every family.
 
 ``make fmus`` (``examples/build_fmus.py``, which calls :func:`main`) designs each example, builds its
-observer and plant FMUs with the default backend (C where the C backend has the kernel; pythonfmu for
-the delayed UIO, a plant with unknown parameters and the MuJoCo plant), checks every FMU's
+observer and plant FMUs with the default backend (C where the C backend has the kernel, which is every
+FMU of the catalogue; pythonfmu otherwise), checks every FMU's
 ``modelDescription.xml`` against the ports and ``<DefaultExperiment>`` its design declares, and runs:
 
 * ``uiofmu validate`` (:func:`uiofmu.cosim.validate.validate`) on every FMU;
@@ -11,7 +11,11 @@ the delayed UIO, a plant with unknown parameters and the MuJoCo plant), checks e
   ecospy (a native Jacobi engine, when it is importable), over the observer's default experiment
   with the problem's ``[signals]``; ecospy's ``x`` and estimate must equal our master's to 1e-12
   except for the delayed UIO, whose ``ydot`` reaches the observer with the previous ``u`` in
-  ecospy (the two loops agree exactly only for a constant ``u``; there ecospy must run to the end).
+  ecospy (the two loops agree exactly only for a constant ``u``; there ecospy must run to the end);
+* every FMU alone in the FMU Compliance Checker and in fmusim (:func:`run_native_importers`), where
+  they are found (:mod:`uiofmu.cosim.native_importers`), with no Python variable in their environment:
+  0 errors, to the stop time. Their results go to the console only, never to the README, which must
+  read the same on a machine without them.
 
 It then writes ``fmus/README.md`` (:func:`render`): one table per family, one row per FMU, all
 from the designed cards and the ports and experiments they declare (deterministic, numbers to 4
@@ -392,7 +396,7 @@ def mujoco_row(root=ROOT) -> Row:
     spec = load_spec(Path(root) / MUJOCO_FOLDER)
     specs = [p.spec for p in make_model({"kind": MUJOCO.fmu_kind, MUJOCO.key: spec.mujoco}, str(spec.folder)).ports]
     step = load_problem(Path(root) / MUJOCO_FOLDER / "problem.toml").options.step
-    return Row(MUJOCO_FILE, "plant", MUJOCO.name, MUJOCO_KEY, "python (MuJoCo runs in Python)",
+    return Row(MUJOCO_FILE, "plant", MUJOCO.name, MUJOCO_KEY, "C",
                [file_name(k, "observer") for k in MUJOCO_OBSERVERS],
                _ports(specs, "parameter"), _ports(specs, "input"), _ports(specs, "output"),
                f"any h > 0 (MuJoCo RK4 substeps of {num(spec.mujoco['timestep'])} s)", plant_experiment(step),
@@ -488,10 +492,11 @@ USE = """\
 ## Use it in your tool
 
 Every FMU is FMI 2.0 Co-Simulation; the C ones need nothing but the `.fmu` (its `sources/` rebuild it
-elsewhere: `fmpy compile`), the python ones (pythonfmu) need a Python with numpy where they run (the
-MuJoCo plant also `mujoco`). Step at the observer's DefaultExperiment `stepSize` (or one of the steps
-its row accepts): any other step is refused with fmi2Discard and a log line. At every communication
-point set the observer's inputs, then step both FMUs from t_k to t_k+1.
+elsewhere: `fmpy compile`; the MuJoCo plant ships MuJoCo's `libmujoco.so` next to its binary instead, so
+it runs on linux64 only), the python ones (pythonfmu) need a Python with numpy where they run. Step at
+the observer's DefaultExperiment `stepSize` (or one of the steps its row accepts): any other step is
+refused with fmi2Discard and a log line. At every communication point set the observer's inputs, then
+step both FMUs from t_k to t_k+1.
 
 Which output goes to which input:
 
@@ -557,8 +562,13 @@ def render(catalogue: Catalogue, checks: dict) -> str:
         "`simulate_fmu` on each alone with its DefaultExperiment, and each observer with its plant(s) over the "
         "observer's DefaultExperiment, with its problem's `[signals]`, in our co-simulation master "
         "(`uiofmu cosim`) and in ecospy (which must give the master's `x` and estimate to 1e-12, except where "
-        "the row says it was not compared); the column `checked by make fmus` records what passed. It exits "
-        "non-zero if anything fails. `tests/test_fmus_catalogue.py` fails when this file is stale.",
+        "the row says it was not compared); the column `checked by make fmus` records what passed. Where the FMU "
+        "Compliance Checker and Reference-FMUs' `fmusim` are found (`../shared/importers/`, or `$UIOFMU_FMUCHECK` "
+        "and `$UIOFMU_FMUSIM`), it also runs every FMU alone in both, at its DefaultExperiment's step to its stop "
+        "time, with no Python variable in their environment (`PATH` only): 0 errors, and an output row at "
+        "the stop time; where they are not found it says so and goes on. Their results are printed, not recorded "
+        "here, so this file is the same on every machine. It exits non-zero if anything fails. "
+        "`tests/test_fmus_catalogue.py` fails when this file is stale.",
         "",
         "Numbers have 4 significant digits. `y[1..3]` is the FMI variables `y[1]`, `y[2]`, `y[3]`.",
         "",
@@ -798,6 +808,59 @@ def run_checks(catalogue: Catalogue, paths: dict) -> tuple[dict, list]:
     return results, failures
 
 
+def _span(row: Row):
+    """``(step, stop)`` of an FMU's run alone: its DefaultExperiment, shortened as its fmpy run is."""
+    spec = row.experiment
+    steps = row.limited.get("fmpy")
+    return spec["stepSize"], steps * spec["stepSize"] if steps else spec["stopTime"]
+
+
+def run_native_importers(catalogue: Catalogue, paths: dict) -> list:
+    """Run every built FMU alone in the FMU Compliance Checker and in fmusim, printing what each found.
+
+    Each FMU runs at its DefaultExperiment's step to its stop time
+    (:func:`uiofmu.cosim.native_importers.run_compliance_checker`, :func:`~uiofmu.cosim.native_importers.run_fmusim`).
+    An importer that is not found or cannot start is named once on the console and left out; nothing of
+    this reaches the README.
+
+    Parameters
+    ----------
+    catalogue : Catalogue
+    paths : dict
+        ``{file: path}`` from :func:`build`.
+
+    Returns
+    -------
+    list of str
+        One line per FMU and importer that reported an error or stopped before the stop time, naming the
+        FMU and the importer's first error line.
+    """
+    from .cosim.native_importers import run_compliance_checker, run_fmusim
+
+    failures = []
+    print("native importers (alone, no Python variable in the environment):", flush=True)
+    for name, run in (("fmuCheck", run_compliance_checker), ("fmusim", run_fmusim)):
+        for row in catalogue.rows:
+            if row.experiment is None:
+                print(f"  {row.file}: {name} not run (no DefaultExperiment)", flush=True)
+                continue
+            t0 = time.perf_counter()
+            found = run(paths[row.file], *_span(row))
+            if not found.ran:
+                print(f"  {name} not run: {found.unavailable}", flush=True)
+                break
+            seconds = f"({time.perf_counter() - t0:.1f} s)"
+            if not found.ok:
+                failures.append(f"{row.file}: {name}: {found.problem()}")
+                print(f"  {row.file}: {name} FAILED {seconds}", flush=True)
+                continue
+            warned = "; ".join(dict.fromkeys(re.sub(r"^(\[[^\]]*\])+\s*", "", w) for w in found.warnings))
+            past = f" and one step past it, to {found.last_time!r}" if found.past_stop else ""
+            warned = f", warned: {warned}" if warned else ""
+            print(f"  {row.file}: {name} ok to t = {found.stop_time!r}{past}{warned} {seconds}", flush=True)
+    return failures
+
+
 def main(argv=None, root=ROOT) -> int:
     """``make fmus``: build, check, and write ``OUT/README.md``.
 
@@ -824,6 +887,7 @@ def main(argv=None, root=ROOT) -> int:
     paths = build(catalogue, out, root)
     print("checks:", flush=True)
     results, failures = run_checks(catalogue, paths)
+    failures += run_native_importers(catalogue, paths)
     if args.only is None:
         text = render(catalogue, {r.file: check_text(results.get(r.file), r.limited) for r in catalogue.rows})
         write_atomic(out / "README.md", text, "catalogue")

@@ -2,6 +2,10 @@
 
 Exit codes: 0 success; 2 a problem the user can fix (one message on stderr, no traceback);
 1 an internal error.
+
+Each command imports what it uses when it runs: ``uiofmu --help`` and the parser load neither numpy nor
+the runtime package, and ``check``, ``design``, ``build`` and ``verify`` neither cvxpy, scipy.optimize,
+matplotlib, fmpy nor dask (``tests/test_cli_imports.py``).
 """
 
 from __future__ import annotations
@@ -13,10 +17,6 @@ import os
 import sys
 import warnings
 from pathlib import Path
-
-from .runtime.files import check_output_dir, check_output_file, write_atomic
-from .runtime.text import identifier
-from .threads import one_blas_thread
 
 EPILOG = """\
 typical session:
@@ -67,6 +67,8 @@ def check_summary(report) -> list[str]:
 
 def _cmd_design(args) -> int:
     from .problem import load_problem
+    from .runtime.files import check_output_file
+    from .runtime.text import identifier
     from .synthesis import design
 
     problem = load_problem(args.problem)
@@ -82,6 +84,8 @@ def _cmd_design(args) -> int:
 def _cmd_tradeoff(args) -> int:
     from .problem import load_problem
     from .progress import progress
+    from .runtime.files import check_output_file
+    from .runtime.text import identifier
     from .tradeoff import tradeoff, write
 
     problem = load_problem(args.problem)
@@ -152,6 +156,7 @@ def design_summary(card, timing: bool = True) -> list[str]:
 
 def _cmd_build(args) -> int:
     from .runtime.card import read_card
+    from .runtime.files import check_output_file
     from .fmu.export import build_observer, choose_backend, model_identifier
     from .synthesis import recheck
 
@@ -183,19 +188,17 @@ def _cmd_plant(args) -> int:
     from .fmu.export import build_plant, choose_backend, model_identifier, plant_kind
     from .mujoco_plant import build_mujoco_plant, is_mujoco_plant, load_spec
     from .problem import load_problem
-    from .runtime.errors import FmuError
+    from .runtime.files import check_output_file
 
     if is_mujoco_plant(args.problem):
-        if args.backend == "c":
-            raise FmuError("--backend c: MuJoCo plants are pythonfmu FMUs only (the simulator runs in Python); "
-                           "leave --backend out or use --backend python")
         spec = load_spec(args.problem)
         out = check_output_file(args.output or f"{model_identifier(spec.name, 'plant')}.fmu", "FMU", ".fmu")
         linearised = Path(args.problem) / "problem.toml"          # its observer's step, for the default experiment
         step = load_problem(linearised).options.step if linearised.is_file() else None
-        path = build_mujoco_plant(spec, out, step=step)
-        print(f"{spec.name}: MuJoCo plant FMU ({spec.mujoco['integrator']}, substeps of {spec.mujoco['timestep']:g} s) "
-              f"written to {path}")
+        backend, _ = choose_backend(None, args.backend)
+        path = build_mujoco_plant(spec, out, step=step, backend=backend)
+        print(f"{spec.name}: MuJoCo plant FMU ({spec.mujoco['integrator']}, substeps of {spec.mujoco['timestep']:g} s; "
+              f"{backend} backend) written to {path}")
         return 0
     problem = load_problem(args.problem)
     out = check_output_file(args.output or f"{model_identifier(problem.name, 'plant')}.fmu", "FMU", ".fmu")
@@ -211,6 +214,7 @@ def _cmd_plant(args) -> int:
 def _cmd_linearize(args) -> int:
     from .mujoco_plant import linearize, load_spec, problem_document
     from .problem import to_toml
+    from .runtime.files import check_output_file, write_atomic
 
     spec = load_spec(args.plant)
     out = check_output_file(args.output or spec.folder / "problem.toml", "problem file")
@@ -232,6 +236,7 @@ def _cmd_cosim(args) -> int:
     from .cosim.noise import noises
     from .cosim.steps import short_spec
     from .cosim.summary import print_summary
+    from .runtime.files import check_output_dir
 
     check_output_dir(args.out, "--out folder")
     check_format(args.format)
@@ -241,7 +246,8 @@ def _cmd_cosim(args) -> int:
     steps = step_sequence(spec, t_end, seed=args.seed)
     inputs = load_inputs(args.inputs, args.plant, args.observer) if args.inputs else None
     noise = noises(args.noise)
-    result = cosimulate(args.plant, args.observer, steps, inputs, noise=list(noise.values()))
+    result = cosimulate(args.plant, args.observer, steps, inputs, noise=list(noise.values()),
+                        native=not args.python_loop)
     paths = write_outputs(result, args.out, title=f"{card.name}: {card.family} observer, steps {short_spec(spec)}",
                           report=not args.no_report, fmt=args.format)
     print(f"{card.name}: co-simulation of {Path(args.observer).name} against {Path(args.plant).name}")
@@ -255,6 +261,7 @@ def _cmd_ssp(args) -> int:
     from .cosim.master import load_inputs
     from .cosim.ssp import write_ssp
     from .runtime.errors import ProblemError
+    from .runtime.files import check_output_file
 
     pair = (args.plant, args.observer)
     if args.problem is not None and any(pair):
@@ -305,6 +312,7 @@ def _cmd_campaign(args) -> int:
     from .cosim.campaign import load_campaign, replay, run_campaign
     from .cosim.steps import short_spec
     from .cosim.summary import print_summary
+    from .runtime.files import check_output_dir
 
     campaign = load_campaign(args.spec)
     check_output_dir(args.out, "--out folder")
@@ -398,6 +406,12 @@ class Parser(argparse.ArgumentParser):
         """Print one line naming the argument and exit with code 2."""
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
+    def format_help(self):
+        """The help text; a description given as a function is written when the help is shown."""
+        if callable(self.description):
+            self.description = self.description()
+        return super().format_help()
+
 
 def _add_check(sub) -> None:
     """The arguments of ``uiofmu check``."""
@@ -411,17 +425,21 @@ def _add_check(sub) -> None:
     p.set_defaults(func=_cmd_check)
 
 
-def _add_design(sub) -> None:
-    """The arguments of ``uiofmu design``."""
+def _design_description() -> str:
+    """The description of ``uiofmu design`` (the families' list needs the runtime package: written on demand)."""
     from .runtime.registry import summary
 
+    return ("Solve the family's LMIs with CLARABEL, re-check the certificate with numpy at the stored matrices, and "
+            "write the design card (JSON). A tunable set to \"max\" is searched from the limit the existence "
+            "analysis gives. Prints the bounds, the search and where the time went (CLARABEL, LMI assembly, the "
+            "rest); the card keeps the times under \"timing\". Families (observer.family): "
+            f"{summary()}.")
+
+
+def _add_design(sub) -> None:
+    """The arguments of ``uiofmu design``."""
     p = sub.add_parser("design", help="solve the LMI design, re-check the certificate, write the design card",
-                       description="Solve the family's LMIs with CLARABEL, re-check the certificate with numpy "
-                                   "at the stored matrices, and write the design card (JSON). A tunable set to "
-                                   "\"max\" is searched from the limit the existence analysis gives. Prints the "
-                                   "bounds, the search and where the time went (CLARABEL, LMI assembly, the rest); "
-                                   "the card keeps the times under \"timing\". Families (observer.family): "
-                                   f"{summary()}.")
+                       description=_design_description)
     p.add_argument("problem", help="problem file (TOML) or a plants/NAME folder")
     p.add_argument("-o", "--output", metavar="DESIGN.json", help="card path (default: NAME.design.json)")
     p.set_defaults(func=_cmd_design)
@@ -456,8 +474,7 @@ def _add_build(sub) -> None:
                                    "(family deadbeat-functional) has inputs y[i] (and theta[i]), outputs gx[i] and "
                                    "the Integer gx_valid[1]; a delayed observer (family delayed-uio) has inputs y[i], "
                                    "ydot[i], u[i], outputs xhat[i], thetahat[i], r[i], sigma_min[1] and the Integer "
-                                   "valid[1], and is a pythonfmu FMU only (the C backend has no kernel for it: the "
-                                   "default picks python and says so).")
+                                   "valid[1].")
     p.add_argument("design", help="design card (JSON) from `uiofmu design`")
     p.add_argument("-o", "--output", metavar="OBS.fmu", help="FMU path (default: NAME_observer.fmu)")
     p.add_argument("--backend", choices=["c", "python"],
@@ -494,7 +511,8 @@ def _add_plant(sub) -> None:
     p.add_argument("--backend", choices=["c", "python"],
                    help="linear plants: c, a standalone native binary with its sources (no Python needed by the "
                         "importer; the default when a C compiler is found); python: pythonfmu (the importer needs "
-                        "Python and numpy). MuJoCo plants are pythonfmu FMUs always")
+                        "Python and numpy). MuJoCo plants too: c links the mujoco wheel's libmujoco and ships it in "
+                        "the FMU; python needs Python, numpy and mujoco where it runs")
     p.set_defaults(func=_cmd_plant)
 
 
@@ -549,6 +567,9 @@ def _add_cosim(sub) -> None:
     p.add_argument("--format", default="csv", metavar="FORMAT",
                    help="results table: csv (default, DIR/results.csv), npz (numpy, DIR/results.npz) or parquet "
                         "(DIR/results.parquet, needs pyarrow); binary ones write a long run's table many times faster")
+    p.add_argument("--python-loop", action="store_true",
+                   help="step the FMUs from Python even where both have native binaries (by default a small C "
+                        "loop, built once with the C compiler, makes their calls: the same results, bit for bit)")
     p.set_defaults(func=_cmd_cosim)
 
 
@@ -657,6 +678,8 @@ def main(argv: list[str] | None = None) -> int:
     if extra:
         parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)[:200]}")
     try:
+        from .threads import one_blas_thread
+
         with warnings.catch_warnings():
             # numbers that overflow become an exit-2 message of the step that meets them; numpy's
             # warnings on the way there would only add lines to it

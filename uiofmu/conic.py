@@ -6,14 +6,17 @@ LMI as an affine map of the variables, with dense coefficient tensors per variab
 are small; there are many of them). :class:`ConicProblem` turns the traced LMIs into CLARABEL's
 form ``A x + s = b``, ``s`` in zero and PSD-triangle cones, once, with one sparsity pattern
 for every parameter value: a solve for new values forms ``A`` and ``b`` with one small matrix
-product each and calls the solver.
+product each and calls the solver. Systems of one structure (:func:`traced`: the same LMIs of the same data,
+whatever their parameters' values) share one traced problem.
 """
 
 from __future__ import annotations
 
 import copy
 import math
+import threading
 import time
+from collections import OrderedDict
 from functools import lru_cache
 from types import SimpleNamespace
 
@@ -304,6 +307,7 @@ class ConicProblem:
 
     def __init__(self, variables: dict, parameters: dict, build, objective, margin: float):
         self.specs = variables
+        self._forms = {}                 # the forms margin_form derived, by their arguments
         self.offsets, self.sizes, self._basis = {}, {}, {}
         traced = {}
         total = 0
@@ -366,7 +370,8 @@ class ConicProblem:
 
     def margin_form(self, name: str, margin: float, tie_break: float,
                     held: float | None = None) -> tuple["ConicProblem", int]:
-        """The largest-margin problem of these LMIs, from the assembled data (no second tracing).
+        """The largest-margin problem of these LMIs, from the assembled data (no second tracing), derived once
+        for each set of arguments and kept (the systems that share this problem share its forms too).
 
         Every strict LMI ``F(x) - margin I`` becomes ``F(x) - t I``; every normalisation (a non-strict
         LMI with a constant, parameter-free part, such as ``X - I``) loses its constant and becomes
@@ -389,6 +394,13 @@ class ConicProblem:
         ValueError
             When there is no normalisation (the margin would be unbounded).
         """
+        key = (name, margin, tie_break, held)
+        if key not in self._forms:
+            self._forms[key] = self._margin_form(name, margin, tie_break, held)
+        return self._forms[key]
+
+    def _margin_form(self, name: str, margin: float, tie_break: float, held: float | None) -> tuple:
+        """:meth:`margin_form`, derived afresh (:meth:`margin_form` keeps each form it derived)."""
         def diagonal(first, m):
             j = np.arange(m)
             return first + j * (j + 1) // 2 + j
@@ -416,6 +428,7 @@ class ConicProblem:
         vals = np.vstack([self._values, trace_vals, trace_t, t_vals])
         order = np.lexsort((rows, cols))
         out = copy.copy(self)
+        out._forms = {}
         out.nvar, out.nrows = self.nvar + 1, self.nrows + 1
         out._indices, out._values = rows[order], vals[order]
         out._indptr = np.searchsorted(cols[order], np.arange(out.nvar + 1))
@@ -496,3 +509,61 @@ class ConicProblem:
             if spec[0] == "scalar":
                 out[name] = np.array(out[name][0, 0])
         return out
+
+
+#: Traced problems kept for systems of the same structure (:func:`traced`), the least recently used dropped first.
+TRACED_KEPT = 32
+
+_TRACED: OrderedDict = OrderedDict()
+_TRACED_LOCK = threading.Lock()
+
+
+def fingerprint(item):
+    """A hashable stand-in for the data an LMI system's ``build`` reads, equal exactly when the data are.
+
+    Arrays by dtype, shape and bytes (so ``-0.0`` and ``0.0`` differ, as they may in a product), numbers by type and
+    ``repr``, strings and None as they are, tuples, lists and dicts of them recursively.
+
+    Raises
+    ------
+    TypeError
+        For anything else (its equality is not the data's).
+    """
+    if isinstance(item, (np.ndarray, np.generic)):
+        arr = np.ascontiguousarray(item)
+        return ("array", arr.dtype.str, arr.shape, arr.tobytes())
+    if isinstance(item, (tuple, list)):
+        return (type(item).__name__, *(fingerprint(x) for x in item))
+    if isinstance(item, dict):
+        return ("dict", *((fingerprint(k), fingerprint(v)) for k, v in item.items()))
+    if item is None or isinstance(item, str):
+        return item
+    if isinstance(item, (bool, int, float, complex)):
+        return (type(item).__name__, repr(item))
+    raise TypeError(f"no fingerprint of a {type(item).__name__}")
+
+
+def traced(structure, variables: dict, parameters: dict, build, objective, margin: float) -> ConicProblem:
+    """The :class:`ConicProblem` of a system, traced once per structure.
+
+    ``structure`` is everything ``build`` and ``objective`` read besides the variables and the parameters (the
+    family's matrices, as :func:`fingerprint` takes them). The key adds the code of ``build`` and ``objective``, the
+    variables' kinds and sizes, the parameters' names and the margin, so a system at other parameter values, or
+    the same design made again, reuses the traced problem (and the largest-margin forms derived from it); the
+    parameters' values are given per solve. The :data:`TRACED_KEPT` most recent are kept.
+    """
+    code = lambda f: None if f is None else (f.__code__, fingerprint(f.__defaults__))   # noqa: E731
+    key = (fingerprint(structure), code(build), code(objective),
+           tuple((name, spec[0], spec[1] if spec[0] != "scalar" else None) for name, spec in variables.items()),
+           tuple(parameters), repr(float(margin)))
+    with _TRACED_LOCK:
+        problem = _TRACED.get(key)
+        if problem is not None:
+            _TRACED.move_to_end(key)
+            return problem
+    problem = ConicProblem(variables, parameters, build, objective, margin)
+    with _TRACED_LOCK:
+        _TRACED[key] = problem
+        while len(_TRACED) > TRACED_KEPT:
+            _TRACED.popitem(last=False)
+    return problem

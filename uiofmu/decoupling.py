@@ -16,6 +16,7 @@ from itertools import combinations, islice
 import numpy as np
 
 from .existence import Condition, complex_list, format_complex
+from .feedthrough import feedthrough_pair, feedthrough_rank_condition, unit_scaled
 from .structure import invariant_zeros, pbh_margins, rank, unobservable_modes
 from .runtime.tolerances import RANK_RTOL, WEAK_MARGIN, ZERO_MARGIN
 
@@ -61,11 +62,22 @@ def identifiability_condition(C: np.ndarray, E: np.ndarray, where: str = "",
     return Condition("rank(CE) = q", holds, False, msg, {"rank_CE": rce, "q": q})
 
 
+def no_dhat_condition(plant) -> Condition:
+    """Informational: a plant whose inputs feed through to ``y`` gets no ``dhat`` output."""
+    keys = " and ".join(k for k, on in (("D", plant.feeds_u), ("F", plant.feeds_d)) if on)
+    return Condition("no dhat with feedthrough", False, False,
+                     f"y = C x + D u + F d with {keys} != 0: no dhat output (its formula reads y_(k+1) - C A xhat_k - "
+                     "C B u_k, which the feedthrough changes)", {"D": plant.feeds_u, "F": plant.feeds_d})
+
+
 def zeros_condition(A, E, C, continuous: bool, where: str = "", required: bool = True,
-                    rank_rtol: float = RANK_RTOL, zero_margin: float = ZERO_MARGIN) -> tuple[Condition, np.ndarray]:
-    """The invariant zeros of ``(A, E, C)`` and whether they are stable (in unit scale of ``C`` and ``E``)."""
-    C, E = in_unit_scale(C, E)
-    z = invariant_zeros(A, E, C, rank_rtol=rank_rtol)
+                    rank_rtol: float = RANK_RTOL, zero_margin: float = ZERO_MARGIN,
+                    F=None) -> tuple[Condition, np.ndarray]:
+    """The invariant zeros of ``(A, E, C)`` (of ``(A, E, C, F)`` with the feedthrough ``F`` of the unknown input)
+    and whether they are stable (in unit scale of ``C`` and ``E``, :func:`in_unit_scale`, or
+    :func:`uiofmu.feedthrough.unit_scaled`)."""
+    C, E, F = in_unit_scale(C, E) + (None,) if F is None else unit_scaled(C, E, F)
+    z = invariant_zeros(A, E, C, F, rank_rtol=rank_rtol)
     if continuous:
         holds = bool(np.all(z.real < -zero_margin))
         rule = "Re(z) < 0"
@@ -81,20 +93,29 @@ def zeros_condition(A, E, C, continuous: bool, where: str = "", required: bool =
 
 
 def fixed_modes_condition(A, E, C, where: str = "", rank_rtol: float = RANK_RTOL,
-                          zero_margin: float = ZERO_MARGIN) -> tuple[Condition, np.ndarray]:
+                          zero_margin: float = ZERO_MARGIN, F=None) -> tuple[Condition, np.ndarray]:
     """Detectability of the decoupled pair ``((I + MC) A, C)``: its unmovable modes in |z| < 1 (in unit scale of
-    ``C`` and ``E``, :func:`in_unit_scale`)."""
-    C, E = in_unit_scale(C, E)
-    fixed = unobservable_modes(projector(C, E) @ A, C, rank_rtol)
+    ``C`` and ``E``, :func:`in_unit_scale`); with the feedthrough ``F`` of the unknown input, of the pair
+    ``(A0, O)`` of :func:`uiofmu.feedthrough.feedthrough_pair` (in its unit scale)."""
+    if F is None:
+        C, E = in_unit_scale(C, E)
+        return _fixed(unobservable_modes(projector(C, E) @ A, C, rank_rtol), where, zero_margin, "((I+MC)A, C)")
+    C, E, F = unit_scaled(C, E, F)
+    pair = feedthrough_pair(A, E, C, F, rank_rtol)
+    return _fixed(unobservable_modes(pair.A0, pair.O, rank_rtol), where, zero_margin, "(A0, O)")
+
+
+def _fixed(fixed: np.ndarray, where: str, zero_margin: float, pair: str) -> tuple[Condition, np.ndarray]:
+    """The detectability condition of the fixed modes of a decoupled ``pair`` (named in the message)."""
     moduli = np.abs(fixed)
     holds = bool(np.all(moduli < 1 - zero_margin))
     largest = float(moduli.max()) if moduli.size else 0.0
     if not fixed.size:
-        msg = f"the decoupled pair ((I+MC)A, C){where} is observable: every mode can be placed"
+        msg = f"the decoupled pair {pair}{where} is observable: every mode can be placed"
     elif holds:
-        msg = f"fixed modes of ((I+MC)A, C){where}: {format_complex(fixed)} (largest modulus {largest:.6g} < 1)"
+        msg = f"fixed modes of {pair}{where}: {format_complex(fixed)} (largest modulus {largest:.6g} < 1)"
     else:
-        msg = (f"the decoupled pair ((I+MC)A, C){where} is not detectable: fixed mode(s) "
+        msg = (f"the decoupled pair {pair}{where} is not detectable: fixed mode(s) "
                f"{format_complex(fixed[moduli >= 1 - zero_margin])} with modulus >= 1")
     return Condition("detectable decoupled pair", holds, True, msg,
                      {"fixed_modes": complex_list(fixed), "moduli": moduli.tolist(),
@@ -322,17 +343,25 @@ def sampled_decoupling_conditions(plant, s, dt: float) -> tuple[list, np.ndarray
         Whether ``rank(CE) = rank(E)``.
     """
     where = f" (sampled at dt = {dt:g} s)" if plant.continuous else ""
+    F = plant.F if getattr(plant, "feeds_d", False) else None
     conds = []
     if plant.continuous:
-        conds.append(zeros_condition(plant.A, plant.E, plant.C, True, required=False)[0])
-    rank_c = rank_condition(plant.C, s.E, where)
-    conds += [rank_c, identifiability_condition(plant.C, s.E, where)]
+        conds.append(zeros_condition(plant.A, plant.E, plant.C, True, required=False, F=F)[0])
+    if F is None:
+        rank_c = rank_condition(plant.C, s.E, where)
+    else:
+        rank_c = feedthrough_rank_condition(plant.C, s.E, F, where)
+    conds += [rank_c, no_dhat_condition(plant) if getattr(plant, "feedthrough", False) else
+              identifiability_condition(plant.C, s.E, where)]
     fixed = np.zeros(0, dtype=complex)
     if rank_c.holds:
-        conds.append(zeros_condition(s.A, s.E, plant.C, False, where)[0])
-        fc, fixed = fixed_modes_condition(s.A, s.E, plant.C, where)
+        conds.append(zeros_condition(s.A, s.E, plant.C, False, where, F=F)[0])
+        fc, fixed = fixed_modes_condition(s.A, s.E, plant.C, where, F=F)
         conds.append(fc)
-        conds.append(weak_modes_condition(s.A, s.E, plant.C, where))
+        if F is None:
+            conds.append(weak_modes_condition(s.A, s.E, plant.C, where))
+    if F is not None:                    # the hints recompute the conditions without feedthrough
+        return conds, fixed, rank_c.holds
 
     def hint(failed: Condition) -> str:
         measure = measurement_hint(plant.C, lambda C2: decoupling_verdict(s.A, s.E, C2, failed.name, where))

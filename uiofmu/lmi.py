@@ -24,6 +24,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field, replace
+from functools import partial
 from types import SimpleNamespace
 from typing import Callable
 
@@ -259,6 +260,11 @@ class LmiSystem:
     figure : callable, optional
         ``figure(values) -> float``: the figure a card reads off a point (its overshoot), which
         :meth:`least_at_margin` reproduces before it counts as the problem's; the objective without it.
+    structure : optional
+        Everything ``build`` and ``objective`` read besides the variables and the parameters (the family's
+        matrices; see :func:`uiofmu.conic.fingerprint`). Systems of equal structure share one traced conic
+        form (:func:`uiofmu.conic.traced`): the same LMIs at other parameter values, or the same design made
+        again, are not traced again. None (the default): traced for this system alone.
 
     Attributes
     ----------
@@ -282,6 +288,7 @@ class LmiSystem:
     certify: Callable | None = None
     recentre: Callable | None = None
     figure: Callable | None = None
+    structure: object = None
     _conic: object = field(init=False, repr=False, default=None)
     _margin: tuple | None = field(init=False, repr=False, default=None)
     _held: dict = field(init=False, repr=False, default_factory=dict)
@@ -296,13 +303,14 @@ class LmiSystem:
 
     def __post_init__(self):
         if self.backend == "direct":        # imported here, before the clock: reading cards needs neither
-            from .conic import ConicProblem
+            from .conic import ConicProblem, traced
         else:
             _cvxpy()
         self._problem = None
         t0 = time.perf_counter()
         if self.backend == "direct":
-            self._conic = ConicProblem(self.variables, self.parameters, self.build, self.objective, self.margin)
+            self._conic = (ConicProblem if self.structure is None else partial(traced, self.structure))(
+                self.variables, self.parameters, self.build, self.objective, self.margin)
         else:
             self._compile_cvxpy()
         self.assembly_time = time.perf_counter() - t0

@@ -239,8 +239,8 @@ def problem_document(spec: MujocoSpec, lin: Linearization) -> dict:
     return doc
 
 
-def build_mujoco_plant(spec: MujocoSpec, output, step: float | None = None) -> Path:
-    """The MuJoCo plant FMU (pythonfmu; the MJCF packed as a resource).
+def build_mujoco_plant(spec: MujocoSpec, output, step: float | None = None, backend: str | None = None) -> Path:
+    """The MuJoCo plant FMU (the MJCF packed as a resource).
 
     Parameters
     ----------
@@ -249,12 +249,20 @@ def build_mujoco_plant(spec: MujocoSpec, output, step: float | None = None) -> P
         The ``.fmu`` file to write.
     step : float, optional
         The step of its ``<DefaultExperiment>`` (none without it).
+    backend : {"c", "python"}, optional
+        ``c``: MuJoCo's C library steps it, shipped in the FMU (:mod:`uiofmu.fmu.mujoco_c`; no Python where
+        it runs); ``python``: pythonfmu with the Python bindings. Default: ``c`` when a C compiler is found.
     """
     from . import __version__
+    from .fmu.c_backend import c_compiler
     from .fmu.export import _build_python, model_identifier
     from .runtime.ports import plant_experiment
 
     ident = model_identifier(spec.name, "plant")
+    if (backend or ("c" if c_compiler() else "python")) == "c":
+        from .fmu.mujoco_c import build_c_mujoco_plant
+
+        return build_c_mujoco_plant(spec, output, ident, plant_experiment(step) if step else None)
     desc = f"MuJoCo plant {spec.name}, {spec.mujoco['integrator']} substeps of {spec.mujoco['timestep']:g} s " \
            f"(uiofmu {__version__})"
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,7 +1,9 @@
 """Linear plants: the typed, immutable model every family designs on.
 
 A plant is either continuous, ``x' = A x + B u + E d`` (sampled at the communication points
-with inputs held), or discrete, ``x+ = A x + B u + E d + w`` with period ``dt``.
+with inputs held), or discrete, ``x+ = A x + B u + E d + w`` with period ``dt``; it is measured by
+``y = C x + D u + F d`` (``D`` and ``F`` zero unless given: direct feedthrough of the known and the unknown
+input).
 :meth:`Plant.sampled` gives the exact zero-order-hold discretisation for any step ``h``.
 """
 
@@ -126,6 +128,9 @@ class Plant:
     W : numpy.ndarray
         Process-noise input matrix, shape (n, r) (``x+ = ... + W w_k`` or ``x' = ... + W w``; r = 0: none
         declared). The noise is no input of the design; it is what the card's ``noise.gain_w`` is about.
+    D, F : numpy.ndarray
+        Direct feedthrough of the known input (p, m) and of the unknown input (p, q) into
+        ``y = C x + D u + F d`` (zeros unless given).
     """
 
     time: str
@@ -137,6 +142,8 @@ class Plant:
     dt: float | None
     x0: np.ndarray
     W: np.ndarray = None
+    D: np.ndarray = None
+    F: np.ndarray = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -165,13 +172,28 @@ class Plant:
         return 0 if self.W is None else self.W.shape[1]
 
     @property
+    def feeds_u(self) -> bool:
+        """Whether the known input feeds through to ``y`` (``D != 0``)."""
+        return self.D is not None and bool(np.any(self.D))
+
+    @property
+    def feeds_d(self) -> bool:
+        """Whether the unknown input feeds through to ``y`` (``F != 0``)."""
+        return self.F is not None and bool(np.any(self.F))
+
+    @property
+    def feedthrough(self) -> bool:
+        """Whether any input feeds through to ``y`` (``D != 0`` or ``F != 0``)."""
+        return self.feeds_u or self.feeds_d
+
+    @property
     def continuous(self) -> bool:
         """True for a continuous-time plant."""
         return self.time == "continuous"
 
     @classmethod
     def create(cls, A, C, E, B=None, *, time: str = "discrete", dt: float | None = None,
-               w=None, x0=None, W=None, prefix: str = "plant") -> "Plant":
+               w=None, x0=None, W=None, D=None, F=None, prefix: str = "plant") -> "Plant":
         """Check and normalise a plant.
 
         Parameters
@@ -190,6 +212,8 @@ class Plant:
             Initial state (default zeros).
         W : array_like, optional
             Process-noise input matrix, n rows (default none).
+        D, F : array_like, optional
+            Feedthrough of the known input (p x m) and of the unknown input (p x q) into ``y`` (default zeros).
         prefix : str
             Key prefix used in error messages (``"plant"`` gives ``plant.A``).
 
@@ -225,9 +249,12 @@ class Plant:
         w = freeze(np.zeros(n)) if w is None else as_vector(w, f"{prefix}.w", size=n)
         x0 = freeze(np.zeros(n)) if x0 is None else as_vector(x0, f"{prefix}.x0", size=n)
         W = freeze(np.zeros((n, 0))) if W is None else as_matrix(W, f"{prefix}.W", rows=n)
+        p = C.shape[0]
+        D = freeze(np.zeros((p, B.shape[1]))) if D is None else as_matrix(D, f"{prefix}.D", rows=p, cols=B.shape[1])
+        F = freeze(np.zeros((p, E.shape[1]))) if F is None else as_matrix(F, f"{prefix}.F", rows=p, cols=E.shape[1])
         check_entries({f"{prefix}.{key}": M for key, M in (("A", A), ("B", B), ("E", E), ("C", C), ("w", w),
-                                                            ("x0", x0), ("W", W))})
-        return cls(time=time, A=A, B=B, E=E, C=C, w=w, dt=dt, x0=x0, W=W)
+                                                            ("x0", x0), ("W", W), ("D", D), ("F", F))})
+        return cls(time=time, A=A, B=B, E=E, C=C, w=w, dt=dt, x0=x0, W=W, D=D, F=F)
 
     def sampled(self, h: float | None = None) -> Sampled:
         """The plant over one step of length ``h``.
@@ -269,6 +296,10 @@ class Plant:
                 "C": self.C.tolist(), "x0": self.x0.tolist()}
         if self.r:
             data["W"] = self.W.tolist()
+        if self.feeds_u:
+            data["D"] = self.D.tolist()
+        if self.feeds_d:
+            data["F"] = self.F.tolist()
         if not self.continuous:
             data["dt"] = self.dt
             data["w"] = self.w.tolist()
@@ -281,7 +312,7 @@ def plant_from_statespace(sys, E, x0=None) -> Plant:
     Parameters
     ----------
     sys : control.StateSpace
-        The plant with known inputs ``u``; its ``D`` must be zero (y = C x). ``sys.dt`` of
+        The plant with known inputs ``u``; its ``D`` is the feedthrough ``y = C x + D u``. ``sys.dt`` of
         0 (or None) means continuous time, a positive value a discrete plant of that period.
     E : array_like
         The unknown-input matrix, shape (n, q).
@@ -293,8 +324,6 @@ def plant_from_statespace(sys, E, x0=None) -> Plant:
     Plant
     """
     D = np.asarray(sys.D, dtype=float)
-    if D.size and np.any(D != 0):
-        raise ProblemError(f"statespace.D: uiofmu plants have y = C x; found a non-zero D of shape {D.shape}")
     dt = getattr(sys, "dt", 0) or 0
     if dt is True:
         raise ProblemError("statespace.dt: a discrete plant needs a numeric period, found dt=True")
@@ -302,4 +331,4 @@ def plant_from_statespace(sys, E, x0=None) -> Plant:
     B = np.asarray(sys.B, dtype=float)
     return Plant.create(np.asarray(sys.A, dtype=float), np.asarray(sys.C, dtype=float), E,
                         B if B.size else None, time=time, dt=float(dt) if dt else None, x0=x0,
-                        prefix="statespace")
+                        D=D if B.size and np.any(D != 0) else None, prefix="statespace")

@@ -22,14 +22,15 @@ from .switched_plant import SwitchedPlant, parse_switched
 
 
 def _parse_linear(pt) -> Plant:
-    """A linear plant from ``[plant]`` (``A, C, E`` and optional ``B, dt, w, x0, W``)."""
+    """A linear plant from ``[plant]`` (``A, C, E`` and optional ``B, dt, w, x0, W, D, F``)."""
     time = pt.choice("time", ("continuous", "discrete"))
     if pt.has("switching"):
         raise ProblemError("plant.switching: a switching rule needs the plant's [[plant.modes]]")
     if time == "discrete" and not pt.has("dt"):
         raise pt.missing("dt", "required for a discrete plant (seconds per step)")
     return Plant.create(pt.get("A"), pt.get("C"), pt.get("E"), pt.get("B", None), time=time, dt=pt.get("dt", None),
-                        w=pt.get("w", None), x0=pt.get("x0", None), W=pt.get("W", None))
+                        w=pt.get("w", None), x0=pt.get("x0", None), W=pt.get("W", None),
+                        D=pt.get("D", None), F=pt.get("F", None))
 
 
 def _families(name: str) -> str:

@@ -112,6 +112,11 @@ def problem_from_data(data: dict, default_name: str = "problem") -> Problem:
                            f"(families: {', '.join(KNOWN)})")
     module = available_family(family)
     check_family(kind, family)
+    if getattr(plant, "feedthrough", False) and not FAMILIES[family].feedthrough:
+        keys = " and ".join(k for k, on in (("plant.D", plant.feeds_u), ("plant.F", plant.feeds_d)) if on)
+        takes = " or ".join(f'"{e.name}"' for e in FAMILIES.values() if e.feedthrough)
+        raise ProblemError(f"{keys}: direct feedthrough into y = C x + D u + F d is designed for by observer.family "
+                           f"= {takes} only, found {family!r}")
     options = module.parse_options(ot, plant)
     ot.done()
     st = Table(top.get("signals", {}), "signals")

@@ -8,6 +8,8 @@ against how fast the estimate converges. The plot marks the problem's own design
 (and, with ``observer.noise_gain``, the fastest decay within that gain); a table with the same numbers is
 written next to it.
 
+The module imports what it uses when it runs (the command line's parser reads :data:`POINTS` only).
+
 A family offers the trade-off when its module has ``noise_options(options, decay, noise)``: its options at
 another decay with the noise objective ``"default"`` or ``"min"`` (:mod:`uiofmu.families`).
 """
@@ -19,12 +21,6 @@ import io
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-
-from .families import available_family
-from .runtime.errors import InfeasibleError, NoObserverError, ProblemError
-from .runtime.files import atomic_output, write_atomic
-from .runtime.registry import AVAILABLE
-from .synthesis import design
 
 #: Decays a trade-off designs at by default (besides the fastest), and the fraction of the way from the fastest
 #: decay to 1 the slowest of them lies at.
@@ -57,11 +53,17 @@ class Tradeoff:
 
 def families_with_tradeoff() -> list[str]:
     """The families whose module offers ``noise_options`` (the noise-aware designs a trade-off needs)."""
+    from .families import available_family
+    from .runtime.registry import AVAILABLE
+
     return [name for name in AVAILABLE if hasattr(available_family(name), "noise_options")]
 
 
 def _card(problem, options):
     """The card of ``problem`` with ``options``, or the reason there is none."""
+    from .runtime.errors import InfeasibleError, NoObserverError
+    from .synthesis import design
+
     try:
         return design(replace(problem, options=options)), None
     except (InfeasibleError, NoObserverError) as exc:
@@ -98,6 +100,10 @@ def tradeoff(problem, points: int = POINTS, progress=None) -> Tradeoff:
     NoObserverError, InfeasibleError
         When the problem has no certified design at all.
     """
+    from .families import available_family
+    from .runtime.errors import ProblemError
+    from .synthesis import design
+
     family = available_family(problem.family)
     if not hasattr(family, "noise_options"):
         raise ProblemError(f"uiofmu tradeoff: observer.family = {problem.family!r} has no noise-aware design; the "
@@ -156,6 +162,7 @@ def table_text(result: Tradeoff) -> str:
 def plot(result: Tradeoff, path) -> Path:
     """Draw the trade-off: ``gain_y`` and the overshoot bound against the decay, both designs, the marks."""
     from .cosim.report import pyplot
+    from .runtime.files import atomic_output
 
     plt, colors = pyplot()
     from matplotlib.ticker import FuncFormatter, NullFormatter
@@ -191,6 +198,8 @@ def plot(result: Tradeoff, path) -> Path:
 
 def write(result: Tradeoff, path) -> tuple:
     """Write the plot to ``path`` and its table next to it (same name, ``.csv``); returns both paths."""
+    from .runtime.files import write_atomic
+
     png = plot(result, path)
     table = write_atomic(Path(path).with_suffix(".csv"), table_text(result), "trade-off table")
     return png, table

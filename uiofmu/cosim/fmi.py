@@ -17,9 +17,7 @@ from __future__ import annotations
 
 import itertools
 import os
-import shutil
 import struct
-import tempfile
 import weakref
 import zipfile
 import ctypes
@@ -33,6 +31,8 @@ import numpy as np
 from ..runtime.card import MAX_DIM
 from ..runtime.errors import FmuError
 from ..runtime.files import MAX_INPUT_BYTES, parse_json
+from . import fmu_cache
+from .fmu_cache import release_python_state as _release_python_state  # noqa: F401 - also its name here
 
 STATUS = ["ok", "warning", "discard", "error", "fatal", "pending"]
 
@@ -76,6 +76,13 @@ MAX_ELEMENTS = 10 * MAX_VARIABLES
 #: output of an FMU uiofmu builds (at most 3 MAX_DIM of them: ``xhat``, ``r``, ``dhat``) depends on at most the
 #: MAX_DIM measured outputs. fmpy spends about 1 us on an entry (15,000,000 in a 30 MB description took 16 s).
 MAX_DEPENDENCIES = 3 * MAX_DIM**2
+
+
+def limits() -> tuple:
+    """The limits above as they are now: a file checked under others is checked again
+    (:mod:`uiofmu.cosim.fmu_cache`)."""
+    return (MAX_ENTRIES, MAX_DIRECTORY_BYTES, MAX_ENTRY_BYTES, MAX_UNPACKED_BYTES, MAX_RATIO, RATIO_FLOOR,
+            MAX_DESCRIPTION_BYTES, MAX_VARIABLES, MAX_OWN_VARIABLES, MAX_ELEMENTS, MAX_DEPENDENCIES)
 
 
 #: The range of an fmi2Integer (a C int of 32 bits).
@@ -125,6 +132,13 @@ class FmuCallError(FmuError):
         label = STATUS[status] if 0 <= status < len(STATUS) else "illegal"
         detail = f": {messages[-1]}" if messages else ""
         super().__init__(f"{function} returned fmi2{label.capitalize()}{detail}")
+
+
+def refused_step(who: str, k: int, t: float, h: float, exc: FmuCallError) -> FmuError:
+    """The error of a master whose ``who`` FMU (``"plant"``, ``"observer"``, ...) refused step ``k`` from
+    ``t`` over ``h``: its last log line, or the call's status without one."""
+    return FmuError(f"the {who} FMU refused step {k} (t = {t:g} s, h = {h:g} s): "
+                    + (exc.messages[-1] if exc.messages else str(exc)))
 
 
 def _over(path, found: str, limit: int, name: str) -> FmuError:
@@ -178,13 +192,15 @@ def _check_entries(path: Path, infos: list) -> None:
         raise _over(path, f"the FMU unpacks to {total} bytes", MAX_UNPACKED_BYTES, "MAX_UNPACKED_BYTES")
 
 
-def open_archive(path) -> zipfile.ZipFile:
+def open_archive(path, source=None) -> zipfile.ZipFile:
     """An FMU's zip archive, opened after its entry count and declared sizes were checked against the limits.
 
     Parameters
     ----------
     path : str or Path
         A regular file.
+    source : str or Path, optional
+        The file to open in its place, named ``path`` in the messages (a private copy of its bytes).
 
     Returns
     -------
@@ -200,15 +216,16 @@ def open_archive(path) -> zipfile.ZipFile:
         For a file that is not a zip archive.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FmuError(f"{path}: no such FMU" if not path.exists() else f"{path}: an FMU is a regular file")
-    declared, directory = _declared_entries(path)
+    if source is None:
+        check_regular(path)
+    source = path if source is None else Path(source)
+    declared, directory = _declared_entries(source)
     if declared > MAX_ENTRIES:
         raise _over(path, f"the FMU declares {declared} entries", MAX_ENTRIES, "MAX_ENTRIES")
     if directory > MAX_DIRECTORY_BYTES:          # a directory whose end record understates its entries
         raise _over(path, f"the FMU's central directory has {directory} bytes", MAX_DIRECTORY_BYTES,
                     "MAX_DIRECTORY_BYTES")
-    archive = zipfile.ZipFile(path)
+    archive = zipfile.ZipFile(source)
     try:
         _check_entries(path, archive.infolist())
     except FmuError:
@@ -289,7 +306,20 @@ def check_description(path, archive: zipfile.ZipFile, own: bool = False) -> None
         raise FmuError(f"{path}: modelDescription.xml is not well-formed XML ({exc})") from None
 
 
-def check_archive(path, own: bool = False) -> None:
+def check_regular(path) -> None:
+    """Refuse a path that is not a regular file, the way every reader of an FMU says it.
+
+    Raises
+    ------
+    FmuError
+        ``PATH: no such FMU`` or ``PATH: an FMU is a regular file``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FmuError(f"{path}: no such FMU" if not path.exists() else f"{path}: an FMU is a regular file")
+
+
+def check_archive(path, own: bool = False, source=None) -> None:
     """Refuse an FMU larger than uiofmu needs (:func:`open_archive`, :func:`check_description`) before
     anything of it is extracted or parsed.
 
@@ -299,6 +329,8 @@ def check_archive(path, own: bool = False) -> None:
         The FMU.
     own : bool
         An FMU that uiofmu built (:func:`check_description`).
+    source : str or Path, optional
+        The file to read in its place (:func:`open_archive`).
 
     Raises
     ------
@@ -306,19 +338,21 @@ def check_archive(path, own: bool = False) -> None:
         For an FMU beyond a limit, naming it and the numbers, and for a file that is not a zip archive.
     """
     try:
-        with open_archive(path) as archive:
+        with open_archive(path, source) as archive:
             check_description(path, archive, own)
     except (OSError, zipfile.BadZipFile, RuntimeError, NotImplementedError) as exc:
         raise FmuError(f"{path}: not a readable FMU ({_first_line(exc)})") from None
 
 
-def read_description(path):
+def read_description(path, source=None):
     """fmpy's model description of an FMU that passed :func:`check_archive`.
 
     Parameters
     ----------
     path : str or Path
         The FMU.
+    source : str or Path, optional
+        The file to read in its place, named ``path`` in the messages (:func:`open_archive`).
 
     Returns
     -------
@@ -331,14 +365,27 @@ def read_description(path):
     """
     from fmpy import read_model_description
 
-    check_archive(path)
+    check_archive(path, source=source)
     try:
-        return read_model_description(str(path))
+        return read_model_description(str(path if source is None else source))
     except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for broken archives
         raise FmuError(f"{path}: not a readable FMU ({_first_line(exc)})") from None
 
 
-def read_model_json(path) -> dict:
+def read_model_text(path) -> str:
+    """The text of ``resources/model.json`` packed in an FMU built by uiofmu (see :func:`read_model_json`)."""
+    path = Path(path)
+    try:
+        with open_archive(path) as z:
+            info = z.getinfo("resources/model.json")
+            if info.file_size > MAX_INPUT_BYTES:
+                raise FmuError(f"{path}: resources/model.json has {info.file_size} bytes, more than {MAX_INPUT_BYTES}")
+            return z.read(info).decode("utf-8")
+    except (KeyError, OSError, zipfile.BadZipFile, UnicodeDecodeError, RuntimeError, NotImplementedError):
+        raise FmuError(f"{path}: not an FMU built by uiofmu (no readable resources/model.json)") from None
+
+
+def read_model_json(path, text: str | None = None) -> dict:
     """The uiofmu model (``resources/model.json``) packed in an FMU built by uiofmu.
 
     Parameters
@@ -346,23 +393,17 @@ def read_model_json(path) -> dict:
     path : str or Path
         A regular file within the limits of :func:`open_archive`; its ``resources/model.json`` is read only up to
         :data:`uiofmu.runtime.files.MAX_INPUT_BYTES` and nested at most :data:`uiofmu.runtime.files.MAX_DEPTH` deep.
+    text : str, optional
+        That file's text, already read (:func:`read_model_text`).
 
     Returns
     -------
     dict
     """
-    path = Path(path)
-    try:
-        with open_archive(path) as z:
-            info = z.getinfo("resources/model.json")
-            if info.file_size > MAX_INPUT_BYTES:
-                raise FmuError(f"{path}: resources/model.json has {info.file_size} bytes, more than {MAX_INPUT_BYTES}")
-            text = z.read(info).decode("utf-8")
-    except (KeyError, OSError, zipfile.BadZipFile, UnicodeDecodeError, RuntimeError, NotImplementedError):
-        raise FmuError(f"{path}: not an FMU built by uiofmu (no readable resources/model.json)") from None
-    spec = parse_json(text, f"{path}: resources/model.json", error=FmuError)
+    text = read_model_text(path) if text is None else text
+    spec = parse_json(text, f"{Path(path)}: resources/model.json", error=FmuError)
     if not isinstance(spec, dict):
-        raise FmuError(f"{path}: resources/model.json is not a uiofmu model")
+        raise FmuError(f"{Path(path)}: resources/model.json is not a uiofmu model")
     return spec
 
 
@@ -378,6 +419,7 @@ def _log(environment, instance, status, category, message) -> None:
     fmu = _INSTANCES.get(environment or 0)
     if fmu is not None:
         fmu.messages.append(message.decode("utf-8", "replace") if message else "")
+        fmu.logged.value = len(fmu.messages)
 
 
 @lru_cache(maxsize=None)
@@ -387,26 +429,6 @@ def _logger():
     from fmpy.fmi2 import fmi2CallbackLoggerTYPE
 
     return fmi2CallbackLoggerTYPE(_log)
-
-
-def _release_python_state(dll) -> None:
-    """Release a pythonfmu binary's interpreter state while the library is still loaded.
-
-    pythonfmu 0.7.0 keeps it in a static ``shared_ptr`` and resets that pointer again in a
-    library destructor. For the first copy of the library in a process (which the dynamic
-    loader keeps until exit) the static is destroyed first, and the destructor then writes
-    into the freed block: glibc aborts at exit ("corrupted double-linked list") when a later
-    exit handler meets that heap chunk. Resetting the pointer here, through the library's own
-    exported ``finalizePythonInterpreter``, leaves nothing for either to free; the host's
-    Python is not touched (the state owns the interpreter only when the library started it).
-    Other binaries do not export the function and are left alone.
-    """
-    try:
-        finalize = dll.finalizePythonInterpreter
-    except AttributeError:
-        return
-    finalize.argtypes, finalize.restype = [], None
-    finalize()
 
 
 def _first_line(exc: BaseException) -> str:
@@ -443,7 +465,7 @@ class Fmu:
     """
 
     def __init__(self, path, instance_name: str):
-        from fmpy import calloc, extract, free
+        from fmpy import calloc, free
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                                fmi2CallbackFunctions)
         from fmpy.fmi1 import FMICallException
@@ -452,19 +474,18 @@ class Fmu:
         _FMPY_ERROR[0] = FMICallException
 
         self.path = Path(path)
-        self.description = read_description(self.path)      # checked against the limits before it is extracted
+        check_regular(self.path)
+        self._copy = fmu_cache.take(self.path, read_description, limits())   # checked against the limits, extracted
+        self.description = self._copy.unit.description
         if self.description.coSimulation is None:
+            fmu_cache.give_back(self._copy)
             raise FmuError(f"{self.path}: not a Co-Simulation FMU")
         self.messages: list[str] = []
+        self.logged = ctypes.c_int64(0)        # len(messages), where the native loop reads it
         self._refs = {v.name: v.valueReference for v in self.description.modelVariables}
         self._types = {v.name: v.type for v in self.description.modelVariables}
         self._vectors: dict = {}
-        self._unzipdir = tempfile.mkdtemp(prefix="uiofmu_fmu_")
-        try:
-            extract(str(self.path), unzipdir=self._unzipdir)
-        except Exception as exc:  # noqa: BLE001 - zipfile and OS errors of a broken archive
-            shutil.rmtree(self._unzipdir, ignore_errors=True)
-            raise FmuError(f"{self.path}: cannot extract the FMU ({_first_line(exc)})") from None
+        self._unzipdir = str(self._copy.folder)
 
         self._key = next(_KEYS)
         _INSTANCES[self._key] = self
@@ -475,19 +496,24 @@ class Fmu:
         self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         addLoggerProxy(byref(self._callbacks))
         cwd = os.getcwd()
-        try:
-            self.slave = FMU2Slave(guid=self.description.guid, unzipDirectory=self._unzipdir,
-                                   modelIdentifier=self.description.coSimulation.modelIdentifier,
-                                   instanceName=instance_name)
-        except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for a missing binary
-            os.chdir(cwd)             # fmpy enters the binary's folder to load it, and stays there when that fails
-            shutil.rmtree(self._unzipdir, ignore_errors=True)
-            _INSTANCES.pop(self._key, None)
-            raise FmuError(f"{self.path}: its binary for this platform cannot be loaded ({_first_line(exc)})") from None
+        if self._copy.slave is None:          # a new copy: load its binary (a kept one has it loaded)
+            try:
+                self._copy.slave = FMU2Slave(guid=self.description.guid, unzipDirectory=self._unzipdir,
+                                             modelIdentifier=self.description.coSimulation.modelIdentifier,
+                                             instanceName=instance_name)
+            except Exception as exc:  # noqa: BLE001 - fmpy raises plain exceptions for a missing binary
+                os.chdir(cwd)         # fmpy enters the binary's folder to load it, and stays there when that fails
+                fmu_cache.drop(self._copy)
+                _INSTANCES.pop(self._key, None)
+                raise FmuError(f"{self.path}: its binary for this platform cannot be loaded "
+                               f"({_first_line(exc)})") from None
+        self.slave = self._copy.slave
+        self.slave.instanceName = instance_name
         try:
             self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
         except Exception:  # noqa: BLE001 - fmpy raises a bare Exception here
-            self._unload()
+            fmu_cache.drop(self._copy)
+            _INSTANCES.pop(self._key, None)
             why = self.messages[-1] if self.messages else "no message"
             raise FmuError(f"{self.path}: fmi2Instantiate failed ({why})") from None
         self.slave.setDebugLogging(True, [])
@@ -601,7 +627,8 @@ class Fmu:
         self._call("reset")
 
     def close(self) -> None:
-        """Terminate, free the instance and remove the extracted files."""
+        """Terminate and free the instance; its copy of the FMU goes back to :mod:`uiofmu.cosim.fmu_cache`
+        for the next instance of the same bytes."""
         if not self._alive:
             return
         self._alive = False
@@ -611,16 +638,12 @@ class Fmu:
             pass
         try:
             self.slave.fmi2FreeInstance(self.slave.component)
+        except BaseException:
+            fmu_cache.drop(self._copy)             # an instance that could not be freed: its binary goes too
+            raise
+        else:
+            fmu_cache.give_back(self._copy)
         finally:
-            self._unload()
-
-    def _unload(self) -> None:
-        """Release a pythonfmu binary's state, unload the library, remove the extracted files."""
-        try:
-            _release_python_state(self.slave.dll)
-        finally:
-            self.slave.freeLibrary()
-            shutil.rmtree(self._unzipdir, ignore_errors=True)
             _INSTANCES.pop(self._key, None)
 
     def __enter__(self):

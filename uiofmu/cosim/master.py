@@ -8,6 +8,9 @@ A delayed observer (kernel ``delayed``, seed 001) also takes the plant's ``ydot`
 plant's ``u`` of t_k, so it is ``C x'`` with the input of the step about to be taken); the master
 records its ``thetahat``, ``sigma_min`` and ``valid`` at every point and compares ``thetahat`` with the
 true ``theta``, read from the plant FMU's parameter ``theta`` (the observer never reads it).
+
+Where both FMUs have native binaries, the C driver of :mod:`uiofmu.cosim.native` makes the loop's calls (the
+same ones, on the same buffers: the same results bit for bit); ``native=False`` keeps the loop in Python.
 """
 
 from __future__ import annotations
@@ -18,17 +21,21 @@ import ctypes
 import json
 import math
 import time
+from collections import OrderedDict
 
 import numpy as np
 
 from ..runtime.card import Card, card_from_data
 from ..runtime.errors import FmuError, ProblemError
 from ..runtime.files import atomic_output, check_output_dir, write_atomic
-from .fmi import Fmu, FmuCallError, first_non_integer, not_an_integer, read_description, read_model_json, vector_sizes
+from .fmu_cache import MAX_FILES, digest_of
+from .fmi import (Fmu, FmuCallError, first_non_integer, not_an_integer, read_description, read_model_json, refused_step,
+                  vector_sizes)
 from .inputs import CsvInputs, SignalInputs, values_at
 from .kernels import cosim_kernel
 from .noise import certified_noise_gain, noise_metrics, noises, process_noise_metrics
-from .twin import run_twin_loop
+from .native import available as native_available
+from .twin import native_applies, run_twin_loop
 from .result import CosimResult
 from ..progress import progress
 from ..runtime.observer import Runtime
@@ -37,15 +44,42 @@ from .steps import step_sequence
 from ..threads import single_blas_thread
 
 
+#: The observer FMUs whose card re-checked in this process (the last MAX_FILES), by the SHA-256 of their bytes
+#: and the archive limits they were read under: the text of their ``resources/model.json`` and the card's
+#: read-only matrices.
+_CHECKED: "OrderedDict[str, tuple]" = OrderedDict()
+
+
+def _digest(path) -> str | None:
+    """The SHA-256 of a file's bytes; None where it cannot be read (the reader then says why)."""
+    try:
+        return digest_of(path)
+    except OSError:
+        return None
+
+
 def observer_card(path) -> Card:
     """The design card packed in an observer FMU built by uiofmu, checked against the card schema,
     with its certificate re-checked at the stored matrices (:func:`uiofmu.synthesis.recheck`) and,
-    for a C FMU (whose binary holds the matrices), bound to the binary by the GUID both carry."""
+    for a C FMU (whose binary holds the matrices), bound to the binary by the GUID both carry.
+
+    The reading, the re-check and the binding are done once per content in a process: a file whose bytes
+    (their SHA-256) passed them before gives its card again, its document parsed afresh from the text kept
+    (the same before and after it was first read)."""
     from ..fmu.c_backend import guid_of
     from ..synthesis import recheck
-    from .fmi import open_archive, read_description
+    from .fmi import limits, open_archive, read_description, read_model_text
 
-    spec = read_model_json(path)
+    digest = _digest(path)
+    key = (digest, limits())
+    hit = _CHECKED.get(key)
+    if hit is not None:
+        with contextlib.suppress(KeyError):      # another thread may have let it go meanwhile
+            _CHECKED.move_to_end(key)
+        text, matrices = hit
+        return Card(json.loads(text)["card"], dict(matrices))
+    text = read_model_text(path)
+    spec = read_model_json(path, text)
     if spec.get("kind") != "observer" or "card" not in spec:
         raise FmuError(f"{path}: this FMU is not an observer built by uiofmu (its model is a "
                        f"{str(spec.get('kind'))[:40]!r})")
@@ -58,6 +92,10 @@ def observer_card(path) -> Card:
         raise FmuError(f"{path}: the card in resources/model.json is not the one its binary was built from (the "
                        f"FMU's GUID {str(guid)[:40]} is not the card's {guid_of(spec['card'])}): rebuild the FMU "
                        "from its card")
+    if digest is not None and _digest(path) == digest:
+        _CHECKED[key] = (text, card.matrices)
+        while len(_CHECKED) > MAX_FILES:
+            _CHECKED.popitem(last=False)
     return card
 
 
@@ -79,8 +117,8 @@ def default_inputs(card: Card):
 @single_blas_thread
 def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, plant_x0=None, xhat0=None,
                plant_parameters: dict | None = None, show_progress: bool | None = None,
-               instances=None, card: Card | None = None, noise=None, quantization: float | None = None
-               ) -> CosimResult:
+               instances=None, card: Card | None = None, noise=None, quantization: float | None = None,
+               native: bool = True) -> CosimResult:
     """Run the plant and observer FMUs together on the given communication steps.
 
     Parameters
@@ -125,12 +163,17 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
     quantization : float, optional
         An output quantum Q > 0: the observer receives ``Q round((y + v) / Q)`` (after the noise), the twin
         still the plant's own ``y``; the noise gain is then measured on what the observer received minus ``y``.
+    native : bool
+        Step in C (:mod:`uiofmu.cosim.native`) where every FMU of the run has a native binary (no pythonfmu FMU)
+        and a C compiler built the driver; the results are the same bit for bit as with ``native=False``, the
+        loop in Python.
 
     Returns
     -------
     CosimResult
         Its ``timing`` holds the CPU seconds of the run (``total``; ``steps``: from the initialised
-        FMUs to the histories, inputs included; ``loop``: the stepping alone) and ``fmi_calls_per_step``.
+        FMUs to the histories, inputs included; ``loop``: the stepping alone), ``fmi_calls_per_step`` and
+        ``native`` (whether the C driver stepped).
 
     Raises
     ------
@@ -142,7 +185,8 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
     The loop makes one ``fmi2SetReal`` and one ``fmi2GetReal`` (and ``fmi2SetInteger``,
     ``fmi2GetInteger`` where an FMU has Integer ports) per FMU and step, through fmpy's ctypes
     functions on value references resolved once and buffers allocated once: the plant writes its
-    outputs into the same memory the observer reads its inputs from.
+    outputs into the same memory the observer reads its inputs from. With ``native``, the C driver makes
+    the same calls through the same functions on the same buffers.
     """
     cpu0 = time.process_time()
     card = observer_card(observer_path) if card is None else card
@@ -159,8 +203,9 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         raise ProblemError(f"--noise {noise['w'].text()}: process noise is measured alone (its twin loop is the "
                            "noise-free plant and observer); leave out the sensor noise and the quantization")
     if noise or quantum:
-        return _timed(_noisy_run(plant_path, observer_path, card, steps, inputs, noise, quantum, plant_x0, xhat0,
-                                 plant_parameters, show_progress, instances), {}, cpu0)
+        result = _noisy_run(plant_path, observer_path, card, steps, inputs, noise, quantum, plant_x0, xhat0,
+                            plant_parameters, show_progress, instances, native)
+        return _timed(result, result.timing, cpu0)
     if instances is not None:
         for fmu in instances:
             fmu.reset()
@@ -176,13 +221,18 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         check_integers(inputs, source, T, [n for n in plant_inputs if plant.integer(n)]
                        + [n for n in sourced if obs.integer(n)])
         loop = _Loop(plant, obs, plant_inputs, fed, sourced, ["y", "x"], list(obs.ports("output")), source, K)
+        program = loop.native_program(plant, obs, T, steps) if native and native_available(plant, obs) else None
         cpu2 = time.process_time()
         with progress(total=K, desc="co-simulation", unit="step", enabled=show_progress) as bar:
-            loop.run(T.tolist(), steps.tolist(), bar)
+            if program is not None:
+                program.run(bar)
+            else:
+                loop.run(T.tolist(), steps.tolist(), bar)
         cpu3 = time.process_time()
         X, Y, U, D, H, MODE = _histories(loop, plant, obs, source, fed, K)
         cpu4 = time.process_time()
-    timing = {"steps": cpu4 - cpu1, "loop": cpu3 - cpu2, "fmi_calls_per_step": loop.calls_per_step}
+    timing = {"steps": cpu4 - cpu1, "loop": cpu3 - cpu2, "fmi_calls_per_step": loop.calls_per_step,
+              "native": program is not None}
     return _timed(_with_plant(cosim_kernel(card).result(card, T, steps, X, Y, U, D, H, MODE, theta_true),
                               plant_path, card, plant_parameters), timing, cpu0)
 
@@ -227,7 +277,7 @@ def check_quantum(quantization) -> float | None:
 
 
 def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs, noise: dict, quantum, plant_x0,
-               xhat0, plant_parameters, show_progress, instances) -> CosimResult:
+               xhat0, plant_parameters, show_progress, instances, native: bool = True) -> CosimResult:
     """:func:`cosimulate` with noise: the plant, the observer fed the noisy ``y`` and its noise-free twin
     (:func:`uiofmu.cosim.twin.run_twin_loop`); the twin's result, with the noisy run in ``result.noise``."""
     K = len(steps)
@@ -258,14 +308,10 @@ def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs,
                        + [n for n in sourced if obs.integer(n)])
         p = len(plant.refs("y"))
         v = noise["y"].samples(K + 1, p) if "y" in noise else np.zeros((K + 1, p))
-
-        def measured(k, y):
-            noisy = y + v[k]
-            return quantum * np.round(noisy / quantum) if quantum else noisy
-
+        native = native and native_applies(plant, obs, twin, fed, twin_plant)
         with progress(total=K, desc="co-simulation with noise", unit="step", enabled=show_progress) as bar:
             recorded, H, H_twin, twin_recorded = run_twin_loop(plant, obs, twin, plant_inputs, fed, sourced, source,
-                                                               measured, T, steps, bar, twin_plant)
+                                                               v, quantum, T, steps, bar, native, twin_plant)
     X, Y = recorded["x"], recorded["y"]
     X_twin, Y_twin = twin_recorded["x"], twin_recorded["y"]
     U = source["u"] if "u" in source else np.zeros((K + 1, 0))
@@ -287,6 +333,7 @@ def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs,
         result.noise = {"v": v, "std": np.asarray(result.metrics["noise"]["effective_std"]),
                         "estimate": kernel.estimate_of(noisy), "error": kernel.estimate_of(noisy) - truth,
                         "twin_error": kernel.estimate_of(result) - truth}
+    result.timing = {"native": native}
     if "w" in noise:
         truth, truth_twin = ((X, X_twin) if kernel.estimate == "xhat"
                              else (noisy.functional["true"], result.functional["true"]))
@@ -437,6 +484,30 @@ class _Loop:
                       (plant.function("fmi2DoStep"), plant.component, plant.messages)]
         self.calls_per_step = sum(1 for c in self.calls if c[1] is not None) + len(self.steps)
 
+    def native_program(self, plant: Fmu, obs: Fmu, times: np.ndarray, steps: np.ndarray):
+        """This loop as a program of the C driver (:class:`uiofmu.cosim.native.Program`): the same calls on the
+        same buffers in the same order, the conversions of :meth:`_convert` in C (a refused one raises
+        :meth:`_convert`'s error), both doSteps last."""
+        from .native import Program, call_failed
+
+        program = Program(times, steps)
+        program.keep(self)                  # the value references and buffers the calls point into
+        owners = {id(plant.messages): plant, id(obs.messages): obs}
+
+        def refused(k, status, mark):
+            self._convert(None, None, None, k)
+
+        for function, component, refs, count, base, stride, log, name in self.calls:
+            if component is None:                   # the conversions between differently typed vectors
+                for _, (ts, a, width), (td, b, _) in self.conversions:
+                    program.convert(self.buffers[ts][0], a, self.buffers[td][0], b, width, refused)
+                continue
+            fmu = owners[id(log)]
+            program.call(fmu, function, refs, count, base, stride, call_failed(fmu, name))
+        program.step(obs, "observer")
+        program.step(plant, "plant")
+        return program
+
     def _convert(self, component, refs, count, k) -> int:
         """Copy the differently typed fed vectors of point ``k`` into the observer's columns (a plant's
         Real output that is not an fmi2Integer raises :class:`FmuError` naming it)."""
@@ -564,17 +635,12 @@ def _chunk4(calls: list, steps_: list, times: list, steps: list, k0: int, count:
 
 def _do_steps(steps_: list, k: int, t: float, h: float) -> None:
     """fmi2DoStep(t, h) on the observer, then on the plant (``steps_``: their function, component and
-    log); a refusal raises the :class:`FmuError` of :func:`_refused`."""
+    log); a refusal raises the :class:`FmuError` of :func:`~.fmi.refused_step`."""
     for who, (do, component, log) in zip(("observer", "plant"), steps_):
         start = len(log)
         status = do(component, t, h, 1)
         if status > 1:
-            raise _refused(who, k, t, h, FmuCallError("fmi2DoStep", status, log[start:]))
-
-
-def _refused(who: str, k: int, t: float, h: float, exc: FmuCallError) -> FmuError:
-    return FmuError(f"the {who} FMU refused step {k} (t = {t:g} s, h = {h:g} s): "
-                    + (exc.messages[-1] if exc.messages else str(exc)))
+            raise refused_step(who, k, t, h, FmuCallError("fmi2DoStep", status, log[start:]))
 
 
 #: A plant input that a run without it leaves at its start value (0): process noise, given by ``--noise w=...``.

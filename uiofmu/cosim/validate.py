@@ -147,7 +147,7 @@ def _linear_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng) -> 
     """A linear plant FMU against the exact discretisation of its plant (scipy's matrix exponential), on random
     inputs and (for a continuous plant) random steps."""
     plant = Plant.create(data["A"], data["C"], data["E"], data["B"] or None, time=data["time"],
-                         dt=data.get("dt"), w=data.get("w"), x0=data["x0"])
+                         dt=data.get("dt"), w=data.get("w"), x0=data["x0"], D=data.get("D"), F=data.get("F"))
     report.tolerance = PLANT_RTOL
     x = rng.normal(size=plant.n)
     fmu.initialize(0.0, {"x0": x})
@@ -157,7 +157,8 @@ def _linear_plant(fmu: Fmu, data: dict, report: Validation, steps: int, rng) -> 
         u, d = rng.normal(size=plant.m), rng.normal(size=plant.q)
         fmu.set("u", u)
         fmu.set("d", d)
-        _compare(report, np.concatenate([fmu.get("x"), fmu.get("y")]), np.concatenate([x, plant.C @ x]))
+        y = plant.C @ x + plant.D @ u + plant.F @ d
+        _compare(report, np.concatenate([fmu.get("x"), fmu.get("y")]), np.concatenate([x, y]))
         h = plant.dt if not plant.continuous else float(rng.uniform(0.01, 1.0) * scale)
         s = plant.sampled(h)
         fmu.step(t, h)

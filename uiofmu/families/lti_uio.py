@@ -28,6 +28,26 @@ the discrete Lyapunov equation ``(N/rho)' X (N/rho) - X = -I`` certifies it
 Riccati design when the LMI finds no certificate; the card's ``design_method`` says which one
 certified it. With ``observer.gain_cap`` the LMI bounds ``||K||`` (:func:`uiofmu.gains.cap_lmis`) and
 ``"auto"`` does not fall back (the Riccati gain knows no cap).
+
+**Feedthrough** (``y = C x + D u + F d``, ``[plant] D`` and ``F``): ``D`` alone is a known-input correction. The
+observer runs on ``y - D u``: ``xhat = z - M (y - D u)``, ``z+ = N z + L (y - D u) + P B u + P w``, so the card
+stores ``G = P B - L D`` and the direct term ``Xu = M D`` of ``xhat`` (the FMU's ``xhat`` then depends on ``u``);
+``N``, the conditions and the certificate are those of ``D = 0``. ``F != 0`` changes the decoupling
+(:mod:`uiofmu.feedthrough`): ``[H K] [[CE, F], [F, 0]] = [E 0]``, ``M = -H``, with the free gain ``Y`` of
+``N = A0 - Y O`` designed as ``K`` is without feedthrough (the same LMI, Riccati and pole placement on the pair
+``(A0, O)``); the card's checks add ``MF = 0`` and ``(I+MC)E = LF``. A card with feedthrough has no ``dhat``
+(its formula reads ``y_(k+1) - C A xhat_k - C B u_k``, which the feedthrough changes); its residual stays
+``r = y - C xhat``, which tends to ``D u + F d``.
+
+**Pole placement** (``observer.poles``): the modes of ``(PA, C)`` (``(A0, O)`` with ``F != 0``) that output
+injection moves are placed exactly at the poles given (``scipy.signal.place_poles`` on the observable part of an
+orthogonal observability split), the fixed modes stay. With ``N = V diag(lambda) V^-1`` (unit columns of ``V``)
+and ``X = (V V^H)^-1`` scaled to ``X >= I``, ``||e_k|| <= cond(V) rho^k ||e_0||`` for ``rho`` the largest modulus of
+``N``'s eigenvalues; the card certifies it at ``decay_bound = sqrt(rho^2 + POLE_ROOM)`` rounded up to 4
+significant digits (the margin the Lyapunov re-check at the stored matrices needs), with
+``overshoot_bound = sqrt(cond X) = cond(V)``. ``poles`` lists ``N``'s eigenvalues. With one output direction the
+gain is unique and the overshoot is the problem's; with more, ``place_poles`` picks one of many gains (its
+robust algorithm), so the card's ``overshoot_digits`` says the problem does not determine it.
 """
 
 from __future__ import annotations
@@ -38,7 +58,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..certificate import (
+    Check,
+    FIGURE_DIGITS,
     certificate,
+    round_up,
     decay_check,
     identity_check,
     lyapunov_check,
@@ -60,14 +83,15 @@ from ..decoupling import (
 from ..consistency import computed_values, condition, conditioned, dhat_record, first, spectrum
 from ..runtime.card import DHAT
 from ..runtime.errors import InfeasibleError, ProblemError
-from ..existence import Condition, Existence, complex_list, from_pairs
+from ..existence import Condition, Existence, complex_list, format_complex, from_pairs
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..gains import cap_lmis
 from ..noise import NORM, certified, hinf_norm, recheck, section
 from ..reductions import LYAPUNOV, UPPER_BOUND, matrix, scalar, symmetric
 from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
-from ..structure import decay_gain
+from ..feedthrough import feedthrough_pair
+from ..structure import controllable_split, decay_gain, rank
 from ..runtime.tolerances import SEARCH_TOL, ZERO_MARGIN
 from . import Analysis, DesignResult
 
@@ -98,6 +122,9 @@ class Options:
     noise_gain : float or None
         The fastest decay whose least-noise gain has a certified ``gain_y`` of at most this (see
         :func:`_fastest_within`), None for none.
+    poles : tuple of complex or None
+        ``observer.poles``: where to place the assignable modes of the error dynamics (conjugates included), or
+        None for a decay design.
     """
 
     decay: object
@@ -108,6 +135,7 @@ class Options:
     gain_cap: float | None = None
     noise: str = "default"
     noise_gain: float | None = None
+    poles: tuple | None = None
 
     @property
     def step(self) -> float:
@@ -135,13 +163,53 @@ def parse_options(table, plant) -> Options:
     if noise == "min" and method == "riccati":
         raise ProblemError('observer.noise = "min" designs with the LMI: use method = "auto" or "lmi" (the Riccati '
                            "gain minimises nothing)")
+    if plant.feeds_d and noise == "min":
+        raise ProblemError('observer.noise = "min": the least-noise LMI is written for F = 0; a plant whose '
+                           "unknown input feeds through (plant.F) has the default design")
     noise_gain = table.scalar("noise_gain", None, low=0.0, open_low=True)
-    if noise_gain is not None and (decay != "max" or method == "riccati"):
+    if noise_gain is not None and (decay != "max" or method == "riccati" or plant.feeds_d):
         raise ProblemError(f"observer.noise_gain = {noise_gain:g} asks for the fastest decay whose certified gain_y "
-                           f"is at most {noise_gain:g}, designed with the LMI: leave observer.decay out (or \"max\") "
-                           f"and use method = \"auto\" or \"lmi\" (given: decay = {decay!r}, method = {method!r})")
+                           f"is at most {noise_gain:g}, designed with the least-noise LMI (written for F = 0): leave "
+                           f"observer.decay out (or \"max\") and use method = \"auto\" or \"lmi\" (given: decay = "
+                           f"{decay!r}, method = {method!r}{', plant.F' if plant.feeds_d else ''})")
+    poles = _parse_poles(table) if table.has("poles") else None
+    if poles is not None:
+        given = [k for k in ("decay", "method", "gain_cap", "noise", "noise_gain") if table.has(k)]
+        if given:
+            raise ProblemError(f"observer.poles places the error dynamics' poles exactly: remove observer."
+                               f"{given[0]} (the decay is the poles' largest modulus)")
     return Options(decay, dt, xhat0, method, table.choice("scaling", SCALINGS, "balance"),
-                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise, noise_gain)
+                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise, noise_gain, poles)
+
+
+#: Most poles a problem file lists.
+MAX_POLES = 1000
+
+
+def _parse_poles(table) -> tuple:
+    """``observer.poles``: a list of real poles and ``[re, im]`` pairs (each pair places ``re +- im j``), every
+    one inside the unit circle; the poles as complex numbers, conjugates included."""
+    raw = table.get("poles")
+    key = "observer.poles"
+    if not isinstance(raw, list) or not 1 <= len(raw) <= MAX_POLES:
+        raise ProblemError(f"{key}: expected a list of 1 to {MAX_POLES} poles (numbers, or [re, im] pairs for "
+                           f"complex conjugates), found {str(raw)[:60]}")
+    out = []
+    for i, item in enumerate(raw):
+        where = f"{key}[{i}]"
+        parts = item if isinstance(item, list) else [item]
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in parts)
+        if len(parts) != (2 if isinstance(item, list) else 1) or not numbers:
+            raise ProblemError(f"{where}: expected a number or an [re, im] pair of numbers, found {str(item)[:60]}")
+        value = complex(float(parts[0]), float(parts[1]) if len(parts) == 2 else 0.0)
+        if not np.isfinite(value) or not abs(value) < 1.0:
+            raise ProblemError(f"{where}: the pole {format_complex([value])} has modulus {abs(value):.6g}, expected "
+                               "< 1 (a discrete-time error dynamics that converges)")
+        if value.imag == 0.0:
+            out.append(value)
+        else:
+            out += [complex(value.real, abs(value.imag)), complex(value.real, -abs(value.imag))]
+    return tuple(out)
 
 
 #: The card's ``design_method`` of a least-noise design (its overshoot is not what the LMIs minimise: the problem
@@ -167,7 +235,9 @@ def _analysis(problem):
     plant, opts = problem.plant, problem.options
     s = plant.sampled(opts.dt)
     conds, fixed, decouplable = sampled_decoupling_conditions(plant, s, opts.dt)
-    if opts.decay != "max" and decouplable and detectable(conds):
+    if opts.poles is not None and decouplable and detectable(conds):
+        conds.append(_poles_condition(opts.poles, fixed, plant.n))
+    if opts.poles is None and opts.decay != "max" and decouplable and detectable(conds):
         largest = float(np.abs(fixed).max()) if fixed.size else 0.0
         ok = opts.decay > largest + ZERO_MARGIN
         conds.append(Condition(
@@ -178,6 +248,19 @@ def _analysis(problem):
             {"decay": opts.decay, "largest_fixed_modulus": largest},
             hint="" if ok else _decay_hint(largest)))
     return Existence(NAME, tuple(conds)), s, fixed
+
+
+def _poles_condition(poles: tuple, fixed: np.ndarray, n: int) -> Condition:
+    """``observer.poles`` lists one pole per assignable mode of the decoupled pair (``n`` minus the fixed modes)."""
+    assignable = n - len(fixed)
+    ok = len(poles) == assignable
+    fixed_text = f"fixed modes {format_complex(fixed)}" if len(fixed) else "no fixed mode"
+    msg = (f"{len(poles)} pole(s) given (conjugates counted) for the {assignable} assignable mode(s) of the decoupled "
+           f"pair ({n} states, {fixed_text})")
+    if not ok:
+        msg += ": observer.poles needs exactly one pole per assignable mode (the fixed modes stay where they are)"
+    return Condition("poles for the assignable modes", ok, True, msg,
+                     {"poles": complex_list(poles), "assignable": assignable, "fixed_modes": complex_list(fixed)})
 
 
 def _decay_hint(largest: float) -> str:
@@ -214,7 +297,8 @@ def _lmis(PA, C, gain_cap: float | None = None):
     variables = {"X": symmetric(n), "W": matrix((n, p)), "t": scalar(UPPER_BOUND)}
     if gain_cap is not None:
         variables["s"] = scalar()
-    return LmiSystem(f"{NAME} decay", variables, {"rho2": 0.98}, build, objective=lambda v: v["t"], homogeneous=True)
+    return LmiSystem(f"{NAME} decay", variables, {"rho2": 0.98}, build, objective=lambda v: v["t"], homogeneous=True,
+                     structure=(PA, C, gain_cap))
 
 
 def _noise_lmis(PA, C, M, T, sigma: float, gain_cap: float | None = None) -> LmiSystem:
@@ -254,7 +338,8 @@ def _noise_lmis(PA, C, M, T, sigma: float, gain_cap: float | None = None) -> Lmi
                  "g": scalar()}
     if gain_cap is not None:
         variables["s"] = scalar()
-    return LmiSystem(f"{NAME} least noise gain", variables, {"rho2": 0.98}, build, objective=lambda v: v["g"])
+    return LmiSystem(f"{NAME} least noise gain", variables, {"rho2": 0.98}, build, objective=lambda v: v["g"],
+                     structure=(PA, C, M, T, sigma, gain_cap))
 
 
 def _noise_point(values: dict) -> dict:
@@ -401,10 +486,23 @@ def checks(matrices: dict, rho: float) -> list:
     g = {k: np.asarray(v, dtype=float) for k, v in matrices.items()}
     P, A, B, E, C = g["P"], g["A_sampled"], g["B_sampled"], g["E_sampled"], g["C"]
     N, L, G, X = g["N"], g["L"], g["G"], g["X"]
+    if "F" in g:         # y = C x + D u + F d: P E = L F and M F = 0 (uiofmu.feedthrough)
+        F = g["F"]
+        decoupling = [identity_check("decoupling ||(I+MC)E - LF||", P @ E - L @ F,
+                                     magnitude([E], [g["M"], C, E], [L, F])),
+                      identity_check("decoupling ||MF||", g["M"] @ F, magnitude([g["M"], F]))]
+    else:
+        decoupling = [identity_check("decoupling ||(I+MC)E||", P @ E, magnitude([E], [g["M"], C, E]))]
+    if "D" in g:         # the observer runs on y - D u
+        D = g["D"]
+        inputs = [identity_check("||PB - LD - G||", P @ B - L @ D - G, magnitude([P, B], [L, D], [G])),
+                  identity_check("||Xu - MD||", g["Xu"] - g["M"] @ D, magnitude([g["M"], D]))]
+    else:
+        inputs = [identity_check("||PB - G||", P @ B - G, magnitude([P, B], [G]) if B.size else 0.0)]
     return [
-        identity_check("decoupling ||(I+MC)E||", P @ E, magnitude([E], [g["M"], C, E])),
+        *decoupling,
         identity_check("||PA - NP - LC||", P @ A - N @ P - L @ C, magnitude([P, A], [N, P], [L, C])),
-        identity_check("||PB - G||", P @ B - G, magnitude([P, B], [G]) if B.size else 0.0),
+        *inputs,
         identity_check("||P - (I + MC)||", P - np.eye(len(P)) - g["M"] @ C, magnitude([g["M"], C])),
         identity_check("||K - (L + NM)|| (the gain the card reports)", g["K"] - L - N @ g["M"],
                        magnitude([L], [N, g["M"]])),
@@ -421,7 +519,7 @@ def verify(card) -> list:
     """Re-check a card's certificate from its matrices alone (no solver), the overshoot and the noise gain it claims."""
     d = card.data
     return (checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
-            + noise_checks(d))
+            + noise_checks(d) + pole_checks(d))
 
 
 def error_system(matrices: dict) -> tuple:
@@ -518,10 +616,21 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     plant, opts = problem.plant, problem.options
     s, C = plant.sampled(opts.dt), plant.C
     figures = figures_of(analysis, card_data, problem)
-    dhat = _dhat(s, C) if identifiability_condition(C, s.E).holds else dict.fromkeys(DHAT)
-    mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C,
-            "M": conditioned(decoupling_gain(C, s.E), condition(C @ s.E)), **dhat}
+    identifiable = not plant.feedthrough and identifiability_condition(C, s.E).holds
+    dhat = _dhat(s, C) if identifiable else dict.fromkeys(DHAT)
+    mats = {"A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w, "C": C}
+    if not plant.feeds_d:                # with F != 0, M is part of the designed gain
+        mats["M"] = conditioned(decoupling_gain(C, s.E), condition(C @ s.E))
+    mats.update(dhat)
+    if plant.feeds_u:
+        mats["D"] = plant.D
+    if plant.feeds_d:
+        mats["F"] = plant.F
     requested = {} if opts.decay == "max" else {"decay_bound": float(opts.decay)}     # a fixed decay is the card's
+    if opts.poles is not None:           # the placed poles and the fixed modes decide the decay
+        moduli = np.abs(np.concatenate([np.asarray(opts.poles), analysis.data["fixed"]]))
+        requested = {"decay_bound": pole_decay(moduli), "poles_placed": complex_list(opts.poles),
+                     "poles": spectrum(np.asarray(card_data["matrices"]["N"], dtype=float))}
     noise = {"noise.norm": NORM}                                       # the gains: verify re-checks them
     if dhat["Dy"] is None:
         noise["noise.gain_dhat_y"] = None
@@ -586,14 +695,65 @@ def _riccati(PA, C, rho: float) -> Tuned:
     return Tuned(rho, LmiSolution(values, {"rho2": rho * rho}, status, {}, True, 0.0, 0.0), None)
 
 
-def _runtime(s, C, M, X, K) -> dict:
-    """The card's matrices of a gain ``K`` and its Lyapunov matrix ``X`` (plant coordinates)."""
+def _runtime(s, C, M, X, K, D=None, F=None) -> dict:
+    """The card's matrices of a gain ``K`` and its Lyapunov matrix ``X`` (plant coordinates); with the
+    feedthrough ``D`` of the known input the observer runs on ``y - D u`` (``G = PB - LD``, ``Xu = MD``), and the
+    feedthrough ``F`` of the unknown input is stored for the checks."""
     n = len(X)
     P = np.eye(n) + M @ C
     N = P @ s.A - K @ C
-    return {"N": N, "L": K - N @ M, "G": P @ s.B, "c": P @ s.w, "Xz": np.eye(n), "Xy": -M, "C": C,
-            "M": M, "K": K, "P": P, "X": 0.5 * (X + X.T), "A_sampled": s.A, "B_sampled": s.B,
-            "E_sampled": s.E, "w_sampled": s.w}
+    out = {"N": N, "L": K - N @ M, "G": P @ s.B, "c": P @ s.w, "Xz": np.eye(n), "Xy": -M, "C": C,
+           "M": M, "K": K, "P": P, "X": 0.5 * (X + X.T), "A_sampled": s.A, "B_sampled": s.B,
+           "E_sampled": s.E, "w_sampled": s.w}
+    if D is not None:
+        out.update(G=P @ s.B - out["L"] @ D, Xu=M @ D, D=D)
+    if F is not None:
+        out["F"] = F
+    return out
+
+
+@dataclass(frozen=True)
+class Pair:
+    """The decoupled pair the design's gain acts on (``N = A - gain C``) and the card's matrices of a gain.
+
+    Attributes
+    ----------
+    A, C : numpy.ndarray
+        ``((I+MC)A, C)`` without feedthrough of the unknown input; ``(A0, O)`` with it
+        (:func:`uiofmu.feedthrough.feedthrough_pair`).
+    runtime : callable
+        ``runtime(X, gain) -> dict``: the card's matrices (:func:`_runtime`).
+    """
+
+    A: np.ndarray
+    C: np.ndarray
+    runtime: object
+
+    def lmi_runtime(self, values: dict) -> dict:
+        """:attr:`runtime` of an LMI point in the plant's coordinates (``X`` and ``W = X gain``)."""
+        X = values["X"]
+        return self.runtime(X, self.gain(values))
+
+    @staticmethod
+    def gain(values: dict) -> np.ndarray:
+        """``gain = X^-1 W`` of an LMI point."""
+        X = values["X"]
+        return np.linalg.solve(0.5 * (X + X.T), values["W"])
+
+
+def decoupled_pair(plant, s) -> Pair:
+    """The :class:`Pair` of the plant sampled as ``s`` (its feedthrough included)."""
+    C = plant.C
+    D = plant.D if plant.feeds_u else None
+    if plant.feeds_d:
+        fp = feedthrough_pair(s.A, s.E, C, plant.F)
+
+        def runtime(X, Y):
+            H, K = fp.gains(Y)
+            return _runtime(s, C, -H, X, K, D, plant.F)
+        return Pair(fp.A0, fp.O, runtime)
+    M = decoupling_gain(C, s.E)
+    return Pair((np.eye(len(M)) + M @ C) @ s.A, C, lambda X, K: _runtime(s, C, M, X, K, D))
 
 
 def _lmi_runtime(s, C, M, values: dict) -> dict:
@@ -602,16 +762,17 @@ def _lmi_runtime(s, C, M, values: dict) -> dict:
     return _runtime(s, C, M, X, np.linalg.solve(0.5 * (X + X.T), values["W"]))
 
 
-def _tuned(s, C, M, t, largest: float, opts: Options, name: str) -> tuple[Tuned, str, LmiSystem]:
+def _tuned(s, pair: Pair, t, largest: float, opts: Options, name: str) -> tuple[Tuned, str, LmiSystem]:
     """The decay and its certificate by the requested method (see the module docstring), and
     the LMI system (solved in the coordinates scaled by ``t``, :class:`uiofmu.scaling.StateScaling`): a point
-    is accepted only where the certificate's checks at the runtime's matrices hold too."""
-    PA = (np.eye(len(M)) + M @ C) @ s.A
+    is accepted only where the certificate's checks at the runtime's matrices hold too. The point's ``K`` is the
+    gain of ``pair`` (``N = pair.A - K pair.C``)."""
+    PA, C = pair.A, pair.C
     scaling = StateScaling(t)
     system, inverse = scaling.apply(PlantLmis(lambda steps, Cs: _lmis(steps[0].A, Cs, opts.gain_cap),
                                               [replace(s, A=PA)], C))
     back = lambda v: scaling.invert(v, inverse)                    # noqa: E731
-    system.certify = lambda v, prm: all(c.holds for c in checks(_lmi_runtime(s, C, M, back(v)),
+    system.certify = lambda v, prm: all(c.holds for c in checks(pair.lmi_runtime(back(v)),
                                                                     float(np.sqrt(prm["rho2"]))))
     system.figure = lambda v: overshoot(back(v)["X"])
     if opts.method == "riccati":
@@ -621,7 +782,7 @@ def _tuned(s, C, M, t, largest: float, opts: Options, name: str) -> tuple[Tuned,
                      safe_end=1.0, tol=SEARCH_TOL, label=f"{name}: fastest decay", transform=lambda r: r * r,
                      name="decay", diagnose=opts.method == "lmi")
         values = back(tuned.solution.values)
-        values["K"] = _lmi_runtime(s, C, M, values)["K"]
+        values["K"] = pair.gain(values)
         return replace(tuned, solution=replace(tuned.solution, values=values)), "lmi", system
     except InfeasibleError as exc:
         if opts.method == "lmi" or opts.gain_cap is not None:       # the Riccati gain knows no cap
@@ -633,15 +794,106 @@ def _tuned(s, C, M, t, largest: float, opts: Options, name: str) -> tuple[Tuned,
             raise type(exc)(f"{exc}; the solver-free fallback fails too: {fallback}") from None
 
 
+#: The room a pole-placed design's certificate takes above the largest modulus ``rho`` of its error dynamics:
+#: ``decay_bound = sqrt(rho^2 + POLE_ROOM)`` rounded up to :data:`POLE_DIGITS` significant digits, so that
+#: ``decay_bound^2 X - N'XN >= POLE_ROOM I`` (with ``X >= I``) clears the Lyapunov re-check's margin.
+POLE_ROOM, POLE_DIGITS = 1e-5, 4
+#: Largest condition number of the eigenvector matrix of a pole-placed ``N`` (the overshoot bound) a design accepts:
+#: beyond it the poles nearly coincide (with each other or with fixed modes) and ``N`` is nearly defective.
+MAX_EIGENVECTOR_CONDITION = 1e6
+#: How far (relative to ``max(1, ||N||)``) an eigenvalue of the stored ``N`` may lie from a placed pole.
+PLACED_RTOL = 1e-6
+
+
+def pole_decay(moduli) -> float:
+    """The certified decay of an error dynamics whose eigenvalues have these moduli (:data:`POLE_ROOM`)."""
+    rho = float(np.max(moduli, initial=0.0))
+    return round_up(float(np.sqrt(rho * rho + POLE_ROOM)), POLE_DIGITS)
+
+
+def _sorted(values) -> np.ndarray:
+    """Complex numbers by decreasing modulus, then real part, then imaginary part."""
+    values = np.asarray(values, dtype=complex).ravel()
+    return values[np.lexsort((values.imag, values.real, -np.abs(values)))]
+
+
+def _placement(pair: Pair, poles: tuple, fixed_count: int, name: str) -> tuple:
+    """``observer.poles``: the gain that places ``poles`` exactly on the observable part of ``pair`` (the fixed
+    modes kept), and its certificate (module docstring).
+
+    Returns
+    -------
+    tuple
+        ``(Tuned, design_method, None, record)``, the record holding ``placed`` (the poles asked for),
+        ``overshoot_digits`` and the card's ``placement`` entry.
+    """
+    from scipy.signal import place_poles
+
+    A, C = pair.A, pair.C
+    Vo, _ = controllable_split(A.T, C.T)                 # the observable subspace of (A, C)
+    if Vo.shape[1] != len(poles):
+        raise InfeasibleError(f"{name}: observer.poles lists {len(poles)} pole(s) (conjugates counted), the "
+                              f"decoupled pair has {Vo.shape[1]} assignable mode(s)")
+    Co = C @ Vo
+    U, sv, _ = np.linalg.svd(Co, full_matrices=False)
+    r = rank(Co)
+    Ur = U[:, :r]
+    try:
+        placed = place_poles((Vo.T @ A @ Vo).T, (Ur.T @ Co).T, np.asarray(poles))
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise InfeasibleError(f"{name}: observer.poles cannot be placed on the decoupled pair with {r} independent "
+                              f"output direction(s): {str(exc).rstrip('.')} (a pole may repeat at most {r} "
+                              "time(s))") from None
+    K = Vo @ placed.gain_matrix.T @ Ur.T
+    N = A - K @ C
+    lam, V = np.linalg.eig(N)
+    kappa = float(np.linalg.cond(V))
+    if not kappa <= MAX_EIGENVECTOR_CONDITION:
+        raise InfeasibleError(f"{name}: the placed error dynamics has an eigenvector matrix of condition number "
+                              f"{kappa:.3g} > {MAX_EIGENVECTOR_CONDITION:g} (poles that nearly coincide with each "
+                              f"other or with the fixed modes make N nearly defective): spread the poles")
+    X = np.linalg.inv((V @ V.conj().T).real)
+    X = 0.5 * (X + X.T)
+    X = X / float(np.linalg.eigvalsh(X)[0])
+    rho = pole_decay(np.abs(lam))
+    values = {"X": X, "W": X @ K, "K": K, "t": np.array(float(np.linalg.eigvalsh(X)[-1]))}
+    status = "closed form (pole placement, eigenvector Lyapunov matrix)"
+    record = {"algorithm": f"scipy.signal.place_poles ({placed.rtol:.3g} rtol reached)"
+              if np.isfinite(placed.rtol) else "scipy.signal.place_poles",
+              "output_directions": r, "fixed_modes": fixed_count, "eigenvector_condition": kappa,
+              "bound": "||e_k|| <= cond(V) max|eig(N)|^k ||e_0||, certified at decay_bound with X = (V V^H)^-1"}
+    sol = LmiSolution(values, {"rho2": rho * rho}, status, {}, True, 0.0, 0.0)
+    return (Tuned(rho, sol, None), "pole placement", None,
+            {"placed": complex_list(poles), "overshoot_digits": FIGURE_DIGITS if r == 1 else UNDETERMINED,
+             "record": record})
+
+
+def pole_checks(card_data: dict) -> list:
+    """Each pole a card says it placed (``poles_placed``) is an eigenvalue of its stored ``N`` (none without)."""
+    placed = card_data.get("poles_placed")
+    if placed is None:
+        return []
+    N = np.asarray(card_data["matrices"]["N"], dtype=float)
+    eig = np.linalg.eigvals(N)
+    tol = PLACED_RTOL * max(1.0, float(np.linalg.norm(N, 2)))
+    return [Check(f"placed pole {p.real:.6g}{p.imag:+.6g}j: distance to the nearest eigenvalue of N",
+                  float(np.min(np.abs(eig - p))), tol) for p in from_pairs(placed)]
+
+
 def design(problem, analysis: Analysis) -> DesignResult:
     """Design the classical UIO: its gain, certificate and runtime matrices."""
     existence, s, fixed = analysis.existence, analysis.data["sampled"], analysis.data["fixed"]
     plant, opts = problem.plant, problem.options
     C = plant.C
     M = decoupling_gain(C, s.E)
+    pair = decoupled_pair(plant, s)
     t = state_scaling(plant.A, opts.scaling)
     largest = float(np.abs(fixed).max()) if fixed.size else 0.0
-    tuned, method, system = _tuned(s, C, M, t, largest, opts, problem.name)
+    placed = None
+    if opts.poles is not None:
+        tuned, method, system, placed = _placement(pair, opts.poles, len(fixed), problem.name)
+    else:
+        tuned, method, system = _tuned(s, pair, t, largest, opts, problem.name)
     rho, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
     noise_design = None
@@ -651,20 +903,24 @@ def design(problem, analysis: Analysis) -> DesignResult:
     elif opts.noise == "min":
         rho, sol, system, method, noise_design = _noise_design(s, C, M, t, rho, sol, system, method, opts,
                                                                problem.name)
-    matrices = _runtime(s, C, M, sol.values["X"], sol.values["K"])
+    matrices = pair.runtime(sol.values["X"], sol.values["K"])
     X, N = matrices["X"], matrices["N"]
     cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}",
                        solver="CLARABEL" if method.startswith("lmi") else "none")
-    if existence.holds("rank(CE) = q"):
+    if not plant.feedthrough and existence.holds("rank(CE) = q"):
         matrices.update({k: v.value for k, v in _dhat(s, C).items()})
     if plant.r:
         matrices["W_sampled"] = plant.sampled_noise(opts.dt)
     eigN = np.linalg.eigvals(N)
+    if placed is not None:
+        digits = placed["overshoot_digits"]
+    else:
+        digits = UNDETERMINED if method == NOISE_METHOD else figure_digits(sol)
     results = {
         "decay": rho,
         "decay_bound": rho,
         "overshoot_bound": overshoot(X),
-        "overshoot_digits": UNDETERMINED if method == NOISE_METHOD else figure_digits(sol),
+        "overshoot_digits": digits,
         "bound": BOUND,
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),
@@ -675,5 +931,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "scaling": scaling_data(t if method.startswith("lmi") else np.ones(plant.n), opts.scaling),
         "noise": noise_section(matrices),
         **({} if noise_design is None else {"noise_design": noise_design}),
+        **({} if placed is None else {"poles": complex_list(_sorted(eigN)), "poles_placed": placed["placed"],
+                                      "placement": placed["record"]}),
     }
     return DesignResult(plant.n, opts.dt, _schedule(opts), matrices, cert, results, system, opts.xhat0)

@@ -334,7 +334,8 @@ def _reduced_lmis(F, recentre: bool = True) -> LmiSystem:
 
     variables = {"mu": scalar(UPPER_BOUND), **{f"P{i}": symmetric(m) for i in range(N)}}
     return LmiSystem(f"{NAME} (15) on ker C", variables, {"c": 0.99}, build, objective=lambda v: v["mu"],
-                     homogeneous=True, recentre=_recentring(F, variables).frame if recentre else None)
+                     homogeneous=True, recentre=_recentring(F, variables).frame if recentre else None,
+                     structure=list(F))
 
 
 #: Most recentrings of :func:`best_margin` (it stops earlier once its coordinates settle).
@@ -382,7 +383,7 @@ def best_margin(F, c: float) -> tuple:
 
         variables = {"t": ("scalar",), **{f"P{i}": ("symmetric", m) for i in range(N)}}
         return LmiSystem(f"{NAME} best margin on ker C", variables, {"c": 0.99}, build,
-                         objective=lambda v: -1.0 * v["t"])
+                         objective=lambda v: -1.0 * v["t"], structure=list(maps))
 
     maps, t, status = list(F), None, ""
     for k in range(1, MARGIN_RECENTRINGS + 1):
@@ -571,7 +572,7 @@ def _lmis(samples, C, gain_cap: float | None = None):
     if gain_cap is not None:
         variables["s"] = scalar()
     return LmiSystem(f"{NAME} (15)-(16)", variables, {"c": 0.99}, build, objective=lambda v: v["mu"],
-                     homogeneous=True)
+                     homogeneous=True, structure=([s.A for s in samples], Es, C, gain_cap))
 
 
 def checks(matrices: dict, decay: float) -> list:

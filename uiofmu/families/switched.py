@@ -259,7 +259,7 @@ def _lmis(modes, gain_cap: float | None = None):
     if gain_cap is not None:
         variables["s"] = ("scalar",)
     return LmiSystem(f"{NAME} (16)", variables, {"lam2": 0.98}, build, objective=lambda v: v["t"],
-                     homogeneous=True)
+                     homogeneous=True, structure=([md.At for md in modes], [md.Ct for md in modes], gain_cap))
 
 
 def _gains(modes, values) -> list:

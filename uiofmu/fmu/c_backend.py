@@ -2,7 +2,8 @@
 
 The card's matrices become constant C data (``design_data.c``, with the variable table of the
 card's ports) next to the card's kernel (``c/kernel_affine.c``: the observer maths of every affine
-card; ``c/kernel_window.c``: the window formula of a dead-beat functional observer), what the kernels
+card; ``c/kernel_window.c``: the window formula of a dead-beat functional observer;
+``c/kernel_delayed.c``: the delayed UIO integrated inside the FMU), what the kernels
 share (``c/kernel_util.c``: their checks of design data, inputs and steps, and the pieces of their
 FMU state) and the shared FMI 2.0 Co-Simulation plumbing (``c/fmi2_plumbing.c``: states and legal
 calls, logging, get/set, FMU states, status queries). Two headers are generated with it: the kernel's
@@ -12,11 +13,14 @@ and the refusals the kernels share with the Python runtime (``uiofmu_refusals.h`
 ``binaries/linux64/<model>.so``. The sources and the FMI headers travel in ``sources/`` with a
 ``<SourceFiles>`` list, so ``fmpy compile`` rebuilds the binary on another platform. The interface
 (names, value references, start values) is the one of the python backend, enumerated from the same
-ports.
+ports. The MuJoCo plant's kernel (``c/kernel_mujoco.c``) links a prebuilt library instead
+(:class:`LinkedLibrary`: the mujoco wheel's libmujoco, shipped next to the binary, found through the run
+path ``$ORIGIN``); :mod:`uiofmu.fmu.mujoco_c` builds it.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import platform
@@ -28,6 +32,7 @@ import uuid
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 import numpy as np
@@ -40,7 +45,7 @@ from ..runtime.kernels import KERNELS
 from ..runtime.plant_kinds import LINEAR, PLANT_KINDS, data_kind
 from ..runtime.schedules import schedule_axes
 from ..runtime.ports import (DESIGN_CAUSALITY, KERNEL_PORTS, lpv_plant_ports, model_structure, observer_experiment,
-                             plant_ports, plant_spec, write_experiment)
+                             parametric_plant_ports, plant_ports, plant_spec, write_experiment)
 from ..runtime.labels import apply_labels
 from ..runtime.refusals import REFUSALS, fields
 from ..runtime.text import c_string
@@ -48,7 +53,7 @@ from ..runtime.step_rules import StepRule, step_rule
 from ..runtime.tolerances import STEP_RTOL, STEP_ULPS, STEP_ULPS_LIMIT
 
 HERE = Path(__file__).parent / "c"
-MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc")
+MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc", "Xu")
 KINDS = {"constant": "UIOFMU_CONSTANT", "interval": "UIOFMU_INTERVAL", "geometric": "UIOFMU_GEOMETRIC",
          "mode": "UIOFMU_MODE"}
 POLICIES = {"error": "UIOFMU_POLICY_ERROR", "nearest": "UIOFMU_POLICY_NEAREST", "count": "UIOFMU_POLICY_COUNT"}
@@ -87,12 +92,21 @@ class CKernel:
     ports : str
         Its ports: the key of :data:`uiofmu.runtime.ports.KERNEL_PORTS` (``"plant"``), whose entries,
         in order, are its port ids ``UIOFMU_<PORTS>_<KEY>`` (:func:`port_header`).
+    physical : str or None
+        The key of its port that holds the physical parameters, which a declaration names one port
+        each (Real parameters of one element, keys of their own): their elements, in declaration
+        order, are that port's (:func:`table_rows`). None: a kernel without them.
+    too_large : callable or None
+        ``too_large(card) -> str or None``: why it cannot take a card its descriptor names it for (a card
+        beyond its bounds), or None; None when it takes every such card.
     """
 
     source: str
     header: str
     symbol: str
     ports: str
+    physical: str | None = None
+    too_large: Callable | None = None
 
     @property
     def ports_header(self) -> str:
@@ -106,24 +120,55 @@ class CKernel:
         return f"UIOFMU_{self.ports.upper()}"
 
 
+#: What ``c/kernel_delayed.c`` takes (its ``MAX_AUGMENTED`` and ``MAX_BUFFER``): states, inputs and outputs of the
+#: augmented system (``n (len(delays) + 1)``, ...), and numbers in the delay buffer (``(rows + 1) (1 + 2 p + m)``).
+DELAYED_MAX_AUGMENTED = 512
+DELAYED_MAX_BUFFER = 16_777_216
+
+
+def _delayed_too_large(card: Card) -> str | None:
+    """Why ``c/kernel_delayed.c`` cannot take a delayed-kernel card (:data:`DELAYED_MAX_AUGMENTED`,
+    :data:`DELAYED_MAX_BUFFER`), or None."""
+    from ..runtime.delayed import buffer_rows
+
+    n, m, p = (int(card.dims[k]) for k in ("n", "m", "p"))
+    c = len(card.schedule["delays"]) + 1
+    rows, width = buffer_rows(card.schedule["delays"], card.schedule["step"]), 1 + 2 * p + m
+    if max(n, m, p) * c <= DELAYED_MAX_AUGMENTED and (rows + 1) * width <= DELAYED_MAX_BUFFER:
+        return None
+    return (f"the C delayed kernel takes at most {DELAYED_MAX_AUGMENTED} states, inputs and outputs of the augmented "
+            f"system and {DELAYED_MAX_BUFFER} numbers in its delay buffer; this card has (n, m, p) (len(delays) + 1) "
+            f"= ({n * c}, {m * c}, {p * c}) and {rows + 1} x {width}")
+
+
 #: The C kernels, by the card's ``kernel``.
 C_KERNELS = {
     "affine": CKernel("kernel_affine.c", "kernel_affine.h", "UIOFMU_KERNEL_AFFINE", "affine"),
     "window": CKernel("kernel_window.c", "kernel_window.h", "UIOFMU_KERNEL_WINDOW", "window"),
+    "delayed": CKernel("kernel_delayed.c", "kernel_delayed.h", "UIOFMU_KERNEL_DELAYED", "delayed",
+                       too_large=_delayed_too_large),
 }
 
 _PLANT = CKernel("kernel_plant.c", "kernel_plant.h", "UIOFMU_KERNEL_PLANT", "plant")
 _LPV = CKernel("kernel_lpv.c", "kernel_lpv.h", "UIOFMU_KERNEL_LPV", "lpv")
+#: The kernel of MuJoCo plants (``c/kernel_mujoco.c``, built by :mod:`uiofmu.fmu.mujoco_c`): the physical
+#: parameters are the elements of its port ``params``.
+MUJOCO_KERNEL = CKernel("kernel_mujoco.c", "kernel_mujoco.h", "UIOFMU_KERNEL_MUJOCO", "mujoco", physical="params")
+_PARAMETRIC = CKernel("kernel_parametric.c", "kernel_parametric.h", "UIOFMU_KERNEL_PARAMETRIC", "parametric")
 
 #: The C kernels of plants, by plant kind: linear, and switched by rule (one kernel,
 #: ``c/kernel_plant.c``, whose Integer port ``mode`` is an input for rule ``input``, else an output),
 #: and LPV by the kind of its theta (one kernel, ``c/kernel_lpv.c``, whose port ``theta`` is an input
 #: for kind ``input``, else the output ``T x``): the causality each declaration gives them
-#: (:data:`uiofmu.runtime.ports.DESIGN_CAUSALITY`), which the kernel checks against its design.
+#: (:data:`uiofmu.runtime.ports.DESIGN_CAUSALITY`), which the kernel checks against its design; plants with
+#: unknown parameters (``c/kernel_parametric.c``: RK4 substeps and the output ``ydot``); and MuJoCo plants
+#: (``c/kernel_mujoco.c``, which links MuJoCo's library: :mod:`uiofmu.fmu.mujoco_c` builds it).
 PLANT_KERNELS = {
     "linear": _PLANT,
+    "parametric": _PARAMETRIC,
     **{f"switched-{rule}": _PLANT for rule in ("threshold", "input", "random")},
     **{f"lpv-{kind}": _LPV for kind in ("state", "input")},
+    "mujoco": MUJOCO_KERNEL,
 }
 TIMES = {"discrete": "UIOFMU_DISCRETE", "continuous": "UIOFMU_CONTINUOUS"}
 RULES = {"threshold": "UIOFMU_RULE_THRESHOLD", "input": "UIOFMU_RULE_INPUT", "random": "UIOFMU_RULE_RANDOM"}
@@ -151,7 +196,8 @@ def c_refusal(model) -> str | None:
     if isinstance(model, Card):
         kernel = model.stepper
         if kernel.c_kernel in C_KERNELS:
-            return None
+            bounds = C_KERNELS[kernel.c_kernel].too_large
+            return bounds(model) if bounds else None
         return kernel.python_only or (f"the C backend has no kernel {kernel.name[:40]!r} "
                                       f"(it has {', '.join(C_KERNELS)})")
     data = model if isinstance(model, dict) else model.to_data()
@@ -196,12 +242,25 @@ def variable_table(card: Card) -> list:
 def table_rows(kernel: CKernel, label: str, ports) -> list:
     """The variable table of a declaration ``ports`` (PortSpecs) for ``kernel`` (``label`` names it
     in messages): see :func:`variable_table`."""
-    rows = []
+    rows, physical = [], 0
     for port in _checked_ports(kernel, label, ports):
+        if _is_physical(kernel, port):
+            rows.append(f"    {{{kernel.prefix}_{kernel.physical.upper()}, {physical}, {CAUSALITIES['parameter']}, "
+                        f"{PORT_TYPES['Real']}}},")
+            physical += 1
+            continue
         enum = f"{kernel.prefix}_{port.key.upper()}"
         rows += [f"    {{{enum}, {i}, {CAUSALITIES[port.causality]}, {PORT_TYPES[port.type]}}},"
                  for i in range(port.size)]
     return rows
+
+
+def _is_physical(kernel: CKernel, port) -> bool:
+    """Whether ``port`` is one of the physical parameters a kernel with :attr:`CKernel.physical` holds in that
+    port: a key that is none of the kernel's ports, a Real parameter of one element."""
+    known = {p.key for p in KERNEL_PORTS[kernel.ports]}
+    return (kernel.physical is not None and port.key not in known and port.causality == "parameter"
+            and port.type == "Real" and port.size == 1)
 
 
 def _checked_ports(kernel: CKernel, label: str, ports) -> list:
@@ -212,7 +271,9 @@ def _checked_ports(kernel: CKernel, label: str, ports) -> list:
     seen = set()
     for port in ports:
         want = known.get(port.key)
-        if want is None:
+        if _is_physical(kernel, port):
+            continue
+        if want is None or port.key == kernel.physical:
             raise FmuError(f"the C {label} kernel has no port {str(port.name)[:40]!r} "
                            f"(it implements {', '.join(p.name for p in known.values())})")
         causalities = DESIGN_CAUSALITY.get((kernel.ports, port.key), (want.causality,))
@@ -431,8 +492,47 @@ def _window_source(card: Card, guid: str, identifier: str) -> str:
     return "\n".join(lines)
 
 
+def _delayed_source(card: Card, guid: str, identifier: str) -> str:
+    """``design_data.c`` of a delayed-kernel card (the delayed UIO of seed 001): one constant ``UiofmuDelayed``
+    (``c/kernel_delayed.h``: the plant's ``Abar, Bbar, Cbar, D0, Dy``, the gain ``K``, the delays, the
+    default ``xhat0``, the schedule's numbers and the buffer's rows, :func:`uiofmu.runtime.delayed.buffer_rows`),
+    its variable table and ``UIOFMU_FMU``; numbers only, as :func:`design_source`."""
+    from ..runtime.delayed import buffer_rows
+
+    kernel = c_kernel(card)
+    table = variable_table(card)
+    sched, mats = card.schedule, card.matrices
+    n, m, p = (_count(card.dims[k], f"dims.{k}") for k in ("n", "m", "p"))
+    delays = [float(t) for t in sched["delays"]]
+    c = len(delays) + 1
+    D0 = np.asarray(mats["D0"], dtype=float)
+    nt = _count(D0.shape[1] if D0.ndim == 2 else -1, "matrices.D0 columns")
+    too_large = _delayed_too_large(card)
+    if too_large:
+        raise FmuError(f"--backend c: {too_large}; use --backend python")
+    rows = buffer_rows(delays, sched["step"])
+    arrays = (("A", mats["Abar"], n * n), ("B", mats["Bbar"], n * m), ("C", mats["Cbar"], p * n), ("D0", D0, n * nt),
+              ("Dy", mats["Dy"], p * n * nt), ("K", mats["K"], n * c * p * c), ("delays", delays, len(delays)),
+              ("xhat0", card.data["initial"].get("xhat0", [0.0] * n), n))
+    gamma = float(sched.get("gamma_bound", math.inf))
+    lines = ["/* Generated by uiofmu from a design card. */", f'#include "{kernel.header}"', "",
+             *(f"static const double m_{key}[] = {_doubles(values, f'matrices.{key}', size)};"
+               for key, values, size in arrays), "",
+             "const UiofmuDelayed UIOFMU_DELAYED = {",
+             f"    .n = {n}, .m = {m}, .p = {p}, .nt = {nt}, .ndelays = {len(delays)}, "
+             f".rows = {rows},",
+             f"    .max_substep = {_double(sched['max_substep'], 'schedule.max_substep')}, "
+             f".sigma_bound = {_double(sched['sigma_bound'], 'schedule.sigma_bound')},",
+             f"    .valid_from = {_double(sched.get('valid_from', max(delays)), 'schedule.valid_from')}, "
+             f".gamma_bound = {_double(gamma if math.isfinite(gamma) else 0.0, 'schedule.gamma_bound')}, "
+             f".has_gamma_bound = {int(math.isfinite(gamma))},",
+             "    " + ", ".join(f".{key} = m_{key}, .{key}_length = UIOFMU_LENGTH(m_{key})" for key, _, _ in arrays)
+             + ",", "};", "", *fmu_table(guid, identifier, kernel, table)]
+    return "\n".join(lines)
+
+
 #: The generator of ``design_data.c`` of each observer C kernel (the keys of :data:`C_KERNELS`).
-_OBSERVER_SOURCES = {"affine": _affine_source, "window": _window_source}
+_OBSERVER_SOURCES = {"affine": _affine_source, "window": _window_source, "delayed": _delayed_source}
 
 
 def fmu_table(guid: str, identifier: str, kernel: CKernel, table: list) -> list:
@@ -523,7 +623,8 @@ def _switched_source(data: dict, guid: str, identifier: str) -> str:
     table = table_rows(kernel, "switched plant", plant_ports(n, m, p, q, (), rule))
     arrays = (("A", A, N * n * n), ("B", B, N * n * m), ("E", E, N * n * q), ("C", C, p * n), ("w", w, N * n),
               ("x0", x0, n), ("W", [], 0), ("thresholds", thresholds, len(thresholds)),
-              ("cumulative", cumulative, len(cumulative)))
+              ("cumulative", cumulative, len(cumulative)), ("D", np.zeros((p, m)), p * m),
+              ("F", np.zeros((p, q)), p * q))
     switching = (f".modes = {N}, .rule = {RULES[rule]}, .state = {state}, .nthresholds = {len(thresholds)}, "
                  f".mode0 = {mode0}, .seed = {int(seed)},")
     return _plant_data_source("a switched plant", kernel, "UiofmuPlant UIOFMU_PLANT", arrays,
@@ -604,17 +705,62 @@ def _linear_source(data: dict, guid: str, identifier: str) -> str:
     x0 = np.asarray(data.get("x0") or np.zeros(n), dtype=float)
     W = np.asarray(data.get("W") or np.zeros((n, 0)), dtype=float).reshape(n, -1)
     m, q, p, r = B.shape[1], E.shape[1], C.shape[0], W.shape[1]
+    D, F = (np.asarray(data[k], dtype=float).reshape(p, cols) if data.get(k) else np.zeros((p, cols))
+            for k, cols in (("D", m), ("F", q)))
     dt = float(data.get("dt") or 0.0) if time == "discrete" else 0.0
-    table = table_rows(kernel, "linear plant", plant_ports(n, m, p, q, r=r))
+    feeds = tuple(name for name, M in (("u", D), ("d", F)) if np.any(M))
+    table = table_rows(kernel, "linear plant", plant_ports(n, m, p, q, r=r, feeds=feeds))
     arrays = (("A", A, n * n), ("B", B, n * m), ("E", E, n * q), ("C", C, p * n), ("w", w, n), ("x0", x0, n),
-              ("W", W, n * r), ("thresholds", [], 0), ("cumulative", [], 0))
+              ("W", W, n * r), ("thresholds", [], 0), ("cumulative", [], 0), ("D", D, p * m), ("F", F, p * q))
     return _plant_data_source("a linear plant", kernel, "UiofmuPlant UIOFMU_PLANT", arrays,
                               f".n = {n}, .m = {m}, .p = {p}, .q = {q}, .r = {r}, .time = {TIMES[time]},", dt,
                               [".modes = 0, .rule = UIOFMU_RULE_NONE, .mode0 = 1,"], guid, identifier, table)
 
 
+def _parametric_source(data: dict, guid: str, identifier: str) -> str:
+    """``design_data.c`` of a plant with unknown parameters (:meth:`uiofmu.parametric_plant.ParametricPlant.to_data`):
+    see :func:`plant_source`. ``Dy`` dense (``p x n x n_theta``, zero for an output without an entry, as the
+    runtime builds it) and the parts of the plant's rate that do not depend on theta as numpy computes them
+    (:func:`uiofmu.runtime.parametric_plant.rate`), so both runtimes take the same substeps."""
+    kernel = plant_kernel(data)
+    if data.get("time") != "continuous":
+        raise FmuError("plant time: a plant with unknown parameters is continuous, found "
+                       f"{str(data.get('time'))[:40]!r}")
+    A = np.asarray(data["A"], dtype=float)
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or not A.shape[0]:
+        raise FmuError(f"plant A: expected a square matrix, found shape {A.shape}")
+    n = A.shape[0]
+    B = np.asarray(data["B"], dtype=float).reshape(n, -1)
+    C = np.asarray(data["C"], dtype=float).reshape(-1, n)
+    par = data["parameters"]
+    theta = np.asarray(par["theta"], dtype=float).ravel()
+    D0 = np.asarray(par["D0"], dtype=float).reshape(n, theta.size)
+    m, p, nt = B.shape[1], C.shape[0], theta.size
+    Dy = np.zeros((p, n, nt))
+    for entry in par["Dy"]:
+        output = _count(entry["output"], "plant parameters.Dy.output")
+        if not 1 <= output <= p:
+            raise FmuError(f"plant parameters.Dy: output {output} is not one of 1..{p}")
+        Dy[output - 1] = np.asarray(entry["D"], dtype=float).reshape(n, nt)
+    x0 = np.asarray(data.get("x0") or np.zeros(n), dtype=float)
+    table = table_rows(kernel, "plant with unknown parameters", parametric_plant_ports(n, m, p, nt))
+    arrays = (("A", A, n * n), ("B", B, n * m), ("C", C, p * n), ("D0", D0, n * nt), ("Dy", Dy, p * n * nt),
+              ("x0", x0, n), ("theta", theta, nt))
+    rate = (f".norm_A = {_double(np.linalg.norm(A, 2), 'norm_A')}, "
+            f".norm_C = {_double(np.linalg.norm(C, 2), 'norm_C')}, "
+            f".sum_Dy = {_double(np.abs(Dy).sum(), 'sum_Dy')}, .sum_D0 = {_double(np.abs(D0).sum(), 'sum_D0')},")
+    lines = ["/* Generated by uiofmu from a plant with unknown parameters. */", f'#include "{kernel.header}"', "",
+             *(f"static const double m_{key}[] = {_doubles(arr, f'plant.{key}', size)};" for key, arr, size in arrays),
+             "", "const UiofmuParametric UIOFMU_PARAMETRIC = {", f"    .n = {n}, .m = {m}, .p = {p}, .nt = {nt},",
+             f"    {rate}",
+             "    " + ", ".join(f".{k} = m_{k}, .{k}_length = UIOFMU_LENGTH(m_{k})" for k, _, _ in arrays) + ",",
+             "};", "", *fmu_table(guid, identifier, kernel, table)]
+    return "\n".join(lines)
+
+
 #: The generator of ``design_data.c`` of each plant C kernel (:attr:`uiofmu.runtime.plant_kinds.PlantKind.c_kernel`).
-_PLANT_SOURCES = {"linear": _linear_source, "switched": _switched_source, "lpv": _lpv_source}
+_PLANT_SOURCES = {"linear": _linear_source, "switched": _switched_source, "lpv": _lpv_source,
+                  "parametric": _parametric_source}
 
 
 def _plant_data_source(what: str, kernel: CKernel, declaration: str, arrays, dims: str, dt: float, fields: list,
@@ -689,10 +835,11 @@ def plant_model_description(spec: dict, description: str, guid: str, identifier:
 def description_xml(identifier: str, guid: str, description: str, sources: list[str], experiment: dict | None,
                     ports, labels: dict | None = None, variable_steps: bool = True) -> bytes:
     """The ``modelDescription.xml`` of every C FMU: Co-Simulation without an execution tool, its
-    ``<SourceFiles>``, the plumbing's ``<LogCategories>``, ``<DefaultExperiment>`` (when given),
-    the variables and structure of ``ports`` (:func:`write_variables`) and their names and units
-    (``labels``: :func:`uiofmu.runtime.labels.apply_labels`); ``canHandleVariableCommunicationStepSize``
-    is ``variable_steps`` (:attr:`uiofmu.runtime.step_rules.StepRule.variable`)."""
+    ``<SourceFiles>`` (none when ``sources`` is empty), the plumbing's ``<LogCategories>``,
+    ``<DefaultExperiment>`` (when given), the variables and structure of ``ports`` (:func:`write_variables`)
+    and their names and units (``labels``: :func:`uiofmu.runtime.labels.apply_labels`);
+    ``canHandleVariableCommunicationStepSize`` is ``variable_steps``
+    (:attr:`uiofmu.runtime.step_rules.StepRule.variable`)."""
     root = Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": identifier, "guid": f"{{{guid}}}",
         "description": description,
@@ -704,9 +851,10 @@ def description_xml(identifier: str, guid: str, description: str, sources: list[
         "canInterpolateInputs": "false",
         "canBeInstantiatedOnlyOncePerProcess": "false", "canNotUseMemoryManagementFunctions": "true",
         "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true"})
-    files = SubElement(cs, "SourceFiles")
-    for name in sources:
-        SubElement(files, "File", {"name": name})
+    if sources:                                        # FMI 2.0: a <SourceFiles> lists one file at least
+        files = SubElement(cs, "SourceFiles")
+        for name in sources:
+            SubElement(files, "File", {"name": name})
     cats = SubElement(root, "LogCategories")
     for name in LOG_CATEGORIES:
         SubElement(cats, "Category", {"name": name})
@@ -717,9 +865,10 @@ def description_xml(identifier: str, guid: str, description: str, sources: list[
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8")
 
 
-def compile_binary(src: Path, identifier: str, out: Path, extra_flags=(), sources=None) -> Path:
+def compile_binary(src: Path, identifier: str, out: Path, extra_flags=(), sources=None, libraries=()) -> Path:
     """Compile the C files ``sources`` (names in ``src``; default: every ``*.c`` there) into
-    ``out/<identifier>.so`` with the system compiler."""
+    ``out/<identifier>.so`` with the system compiler, linked with ``libraries`` (linker arguments, after the
+    sources)."""
     cc = c_compiler()
     if cc is None:
         raise FmuError("--backend c needs a C compiler (cc or gcc) on PATH; use --backend python")
@@ -727,7 +876,7 @@ def compile_binary(src: Path, identifier: str, out: Path, extra_flags=(), source
     lib = out / f"{identifier}.so"
     files = [str(src / name) for name in sources] if sources is not None else sorted(map(str, src.glob("*.c")))
     cmd = [cc, "-std=c99", "-O2", "-shared", "-fPIC", "-fvisibility=hidden", "-Wall", "-Wextra",
-           f"-I{src}", *extra_flags, "-o", str(lib), *files, "-lm"]
+           f"-I{src}", *extra_flags, "-o", str(lib), *files, *libraries, "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise FmuError(f"the C compiler failed on the generated FMU: {proc.stderr.strip()[:2000]}")
@@ -735,10 +884,11 @@ def compile_binary(src: Path, identifier: str, out: Path, extra_flags=(), source
 
 
 def fmi_headers() -> Path:
-    """The FMI 2.0 headers that fmpy ships."""
-    import fmpy
-
-    return Path(fmpy.__file__).parent / "c-code"
+    """The FMI 2.0 headers that fmpy ships (found without importing fmpy)."""
+    spec = importlib.util.find_spec("fmpy")
+    if spec is None or not spec.submodule_search_locations:
+        raise FmuError("--backend c needs the FMI 2.0 headers that fmpy ships: install fmpy")
+    return Path(next(iter(spec.submodule_search_locations))) / "c-code"
 
 
 def _check_platform() -> None:
@@ -760,7 +910,8 @@ def declaration(spec: dict) -> list:
 
 
 def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, description, spec: dict,
-               extra_flags=(), *, ports=None, rule: StepRule | None = None, resources: dict | None = None) -> Path:
+               extra_flags=(), *, ports=None, rule: StepRule | None = None, resources: dict | None = None,
+               linked=None) -> Path:
     """Compile and zip one C FMU: the plumbing, what the kernels share, ``kernel`` with its port header
     (:func:`port_header` of the ports of ``spec``'s model, the ones ``modelDescription.xml`` declares) and
     the generated ``design`` (the text of ``design_data.c``) into ``binaries/linux64/<identifier>.so``,
@@ -768,8 +919,14 @@ def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, desc
     ``modelDescription.xml``) and ``spec`` as ``resources/model.json``; written atomically to ``output``.
 
     A model that is neither an observer nor a plant (a signal source) gives its declaration ``ports``,
-    its step ``rule`` and its data files ``resources`` (``{name: bytes}``, written to ``resources/``)."""
-    header = port_header(kernel, declaration(spec) if ports is None else ports)
+    its step ``rule`` and its data files ``resources`` (``{name: bytes}``, written to ``resources/``).
+    ``linked`` (a :class:`LinkedLibrary`) adds a prebuilt shared library: its headers to the compiler,
+    the library to the link with the run path ``$ORIGIN``, the library itself next to the binary and
+    its ``resources`` (name -> file) into ``resources/``, its ``ports`` as the declaration; ``description``
+    then gets no source list (the sources alone do not rebuild the FMU)."""
+    if ports is None:
+        ports = linked.ports if linked is not None else declaration(spec)
+    header = port_header(kernel, ports)
     with tempfile.TemporaryDirectory(prefix="uiofmu_c_") as tmp:
         src = Path(tmp) / "sources"
         src.mkdir()
@@ -782,16 +939,48 @@ def pack_c_fmu(output: Path, identifier: str, kernel: CKernel, design: str, desc
         (src / kernel.ports_header).write_text(header)
         (src / REFUSALS_HEADER).write_text(refusals_header())
         (src / "design_data.c").write_text(design + (steps_source(spec) if rule is None else rule_source(rule)))
-        lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64", list(extra_flags), sources)
+        flags, libraries = list(extra_flags), []
+        if linked is not None:
+            flags.append(f"-I{linked.include}")
+            libraries = [f"-L{linked.library.parent}", f"-l:{linked.library.name}", "-Wl,-rpath,$ORIGIN"]
+        lib = compile_binary(src, identifier, Path(tmp) / "binaries" / "linux64", flags, sources, libraries)
         with atomic_output(output, "FMU") as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
-            z.writestr("modelDescription.xml", description(sources))
+            z.writestr("modelDescription.xml", description(sources if linked is None else []))
             z.write(lib, f"binaries/linux64/{identifier}.so")
+            if linked is not None:
+                z.write(linked.library, f"binaries/linux64/{linked.library.name}")
+                for name, file in linked.resources.items():
+                    z.write(file, f"resources/{name}")
             for f in sorted(src.iterdir()):
                 z.write(f, f"sources/{f.name}")
             z.writestr("resources/model.json", json.dumps(spec))
             for name, data in sorted((resources or {}).items()):
                 z.writestr(f"resources/{name}", data)
     return output
+
+
+@dataclass(frozen=True)
+class LinkedLibrary:
+    """A prebuilt shared library a C FMU links with and ships (:func:`pack_c_fmu`).
+
+    Attributes
+    ----------
+    library : Path
+        The library file (``libmujoco.so.4.0.0``), copied into ``binaries/linux64/`` under its name,
+        which must be its soname.
+    include : Path
+        The folder of its headers (given to the compiler with ``-I``).
+    resources : dict
+        Files the kernel reads at run time: name in ``resources/`` -> file.
+    ports : list
+        The FMU's ports (PortSpecs, as ``modelDescription.xml`` declares them): its model reads files
+        that :func:`declaration` does not have.
+    """
+
+    library: Path
+    include: Path
+    resources: dict
+    ports: list
 
 
 def build_c_observer(card: Card, output, identifier: str, call_floor: bool = False) -> Path:
@@ -814,12 +1003,13 @@ def build_c_plant(plant, output, identifier: str, experiment: dict | None = None
     """Write the C FMU of a plant to ``output`` (``c/kernel_plant.c``: exact zero-order hold for
     any step of a continuous plant, dt only for a discrete one; a switched plant in its current
     mode, picked by its rule; ``c/kernel_lpv.c``: an LPV plant at its theta, from the state or
-    the input ``theta``).
+    the input ``theta``; ``c/kernel_parametric.c``: a plant with unknown parameters, RK4 substeps).
 
     Parameters
     ----------
-    plant : uiofmu.plant.Plant, uiofmu.switched_plant.SwitchedPlant or uiofmu.lpv_plant.LpvPlant
-        A checked linear, switched or LPV plant.
+    plant : Plant, SwitchedPlant, LpvPlant or ParametricPlant
+        A checked linear, switched or LPV plant (:mod:`uiofmu.plant`, :mod:`uiofmu.switched_plant`,
+        :mod:`uiofmu.lpv_plant`) or a plant with unknown parameters (:mod:`uiofmu.parametric_plant`).
     output : str or Path
         The ``.fmu`` file to write.
     identifier : str

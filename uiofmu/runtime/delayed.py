@@ -41,6 +41,19 @@ from .stepping import check_step, substeps
 #: Most RK4 substeps one communication step may take (observer or prediction): about 2 s of CPU at
 #: 0.2 ms a substep. A longer step is refused with the longest one accepted, never a hang.
 MAX_SUBSTEPS = 10_000
+#: The delay buffer keeps up to this many times the points that steps of the card's default ``step`` leave
+#: over the longest delay (:func:`buffer_rows`): steps may average a sixteenth of the default step.
+BUFFER_FACTOR = 16
+#: Most points the delay buffer keeps, whatever the card (a C FMU's state holds them all).
+MAX_BUFFER_ROWS = 262_144
+
+
+def buffer_rows(delays, step: float) -> int:
+    """The most past points the delay buffer keeps: ``16 (ceil(max tau / step) + 1)``, at most
+    :data:`MAX_BUFFER_ROWS`. A step after which it would hold more is refused (the buffer keeps the points
+    of the last ``max tau`` seconds: they are that many only when the steps are that short)."""
+    per_delay = max(float(t) for t in delays) / float(step)
+    return int(min(BUFFER_FACTOR * (math.ceil(min(per_delay, MAX_BUFFER_ROWS)) + 1), MAX_BUFFER_ROWS))
 
 
 def augmented(M: np.ndarray, copies: int) -> np.ndarray:
@@ -141,6 +154,7 @@ class DelayedRuntime:
         self.sigma_bound = float(spec["sigma_bound"])
         self.valid_from = max(float(spec.get("valid_from", self.tau)), self.tau)
         self.gamma_bound = float(spec.get("gamma_bound", math.inf))
+        self.rows_max = buffer_rows(self.delays, spec["step"])
         self.A, self.B, self.C = mats["Abar"], mats["Bbar"], mats["Cbar"]
         self.D0, self.Dy, self.K = mats["D0"], mats["Dy"], mats["K"]
         self.n, self.m, self.p = self.A.shape[0], self.B.shape[1], self.C.shape[0]
@@ -348,8 +362,9 @@ class DelayedRuntime:
         RuntimeInputError
             A non-finite input or a step h <= 0 (nothing changes).
         StepRejected
-            A step needing more than :data:`MAX_SUBSTEPS` substeps, or inputs (or a restored buffer) so
-            large that the step's arithmetic overflows (nothing changes).
+            A step needing more than :data:`MAX_SUBSTEPS` substeps, a step after which the delay buffer would
+            hold more than :func:`buffer_rows` points, or inputs (or a restored buffer) so large that the
+            step's arithmetic overflows (nothing changes).
         """
         check_step(h, {"y": self.y, "ydot": self.ydot, "u": self.u}, self.k)
         try:
@@ -366,6 +381,14 @@ class DelayedRuntime:
         """:meth:`step` after its checks (assigns the new state only at its end)."""
         if not math.isfinite(self.t + h):
             raise StepRejected(f"t + h = {self.t + h!r} is not a time")
+        times = np.append(self.buffer[:, 0], self.t)
+        keep = np.flatnonzero(times <= self.t + h - self.tau)
+        rows = times.size - (int(keep[-1]) if keep.size else 0)
+        if rows > self.rows_max:
+            raise StepRejected(f"step {self.k} at t = {self.t:.6g} s: the delay buffer would hold {rows} points, more "
+                               f"than the {self.rows_max} it keeps (steps must average at least "
+                               f"{self.tau / self.rows_max:.3g} s over the longest delay, {self.tau:.6g} s); nothing "
+                               "changed")
         valid = self.valid
         xa_now = self.xhat_augmented()
         theta_now = self.theta()

@@ -3,7 +3,8 @@
 A kernel (:class:`Kernel`) names the schedule kinds it steps, checks the matrices its card carries,
 declares the card's ports, and gives the runtime class (the Python reference) and the FMU model that
 wraps it, and the C kernel that packs it (or why there is none). ``affine``: ``z+ = N z + L y + G u + c``,
-``xhat = Xz z + Xy y`` with the matrices its schedule picks (:mod:`uiofmu.runtime.observer`). ``window``:
+``xhat = Xz z + Xy y`` (``+ Xu u`` where the card has ``Xu``: a plant whose known input feeds through to
+``y``) with the matrices its schedule picks (:mod:`uiofmu.runtime.observer`). ``window``:
 ``gx = sum_t w_t(theta) F_t [y window]`` on the last outputs (:mod:`uiofmu.runtime.window`). ``delayed``: a
 continuous-time delayed UIO integrated inside the FMU (:mod:`uiofmu.runtime.delayed`).
 
@@ -34,7 +35,7 @@ from .window import WindowRuntime
 RUNTIME_SHAPES = {
     "N": ("nz", "nz"), "L": ("nz", "p"), "G": ("nz", "m"), "c": ("nz",),
     "Xz": ("n", "nz"), "Xy": ("n", "p"), "C": ("p", "n"),
-    "Dy": ("q", "p"), "Yx": ("p", "n"), "Yu": ("p", "m"), "Yc": ("p",),
+    "Dy": ("q", "p"), "Yx": ("p", "n"), "Yu": ("p", "m"), "Yc": ("p",), "Xu": ("n", "m"),
 }
 #: Matrices every affine card has; the ``Dy, Yx, Yu, Yc`` group is present when ``dhat`` is estimated.
 CORE = ("N", "L", "G", "c", "Xz", "Xy", "C")
@@ -180,6 +181,9 @@ def _check_affine(mats: dict, dims: dict, schedule: dict) -> dict:
     absent = [k for k in CORE if k not in out]
     if absent:
         raise CardError(f"design card matrices: missing {', '.join(absent)}")
+    if "Xu" in out and kind != "constant":
+        raise CardError(f"design card matrices.Xu: the direct term of u in xhat is for a constant schedule only, "
+                        f"found a {kind} schedule")
     partial = [k for k in DHAT if k in out]
     if partial and len(partial) != len(DHAT):
         raise CardError(f"design card matrices: dhat needs all of {', '.join(DHAT)}, found only {', '.join(partial)}")
@@ -223,7 +227,8 @@ def _check_delayed(mats: dict, dims: dict, schedule: dict) -> dict:
 # -- the kernels' ports ------------------------------------------------------------------------
 def _affine_ports(data: dict, matrices: dict) -> list:
     feeds_y = bool(np.any(np.asarray(matrices["Xy"]) != 0))
-    return observer_ports(data["dims"], data["schedule"]["kind"], "Dy" in matrices, feeds_y)
+    feeds_u = "Xu" in matrices and bool(np.any(np.asarray(matrices["Xu"]) != 0))
+    return observer_ports(data["dims"], data["schedule"]["kind"], "Dy" in matrices, feeds_y, feeds_u)
 
 
 def _window_ports(data: dict, matrices: dict) -> list:
@@ -299,10 +304,7 @@ KERNELS = {k.name: k for k in (
     Kernel("window", ("window",), ("F", "Fexp"), _check_window, _window_ports, WindowRuntime, FunctionalModel,
            "window", estimates_x=False),
     Kernel("delayed", ("continuous",), ("Abar", "Bbar", "Cbar", "D0", "Dy", "K"), _check_delayed, _delayed_ports,
-           DelayedRuntime, DelayedModel, None,
-           python_only="the C backend has no kernel 'delayed' (the continuous-time delayed UIO with parameter "
-                       "identification: RK4 substeps, a time-stamped delay buffer and a rank test at every substep "
-                       "are implemented in the Python runtime only)"),
+           DelayedRuntime, DelayedModel, "delayed"),
 )}
 #: The kernel of a card without a ``kernel`` key.
 DEFAULT = next(iter(KERNELS))

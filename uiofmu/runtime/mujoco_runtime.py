@@ -46,27 +46,28 @@ def _object(model, kind: str, name: str) -> int:
     return i
 
 
-def set_parameter(model, target: str, value: float) -> None:
-    """Set ``"field:name"`` (e.g. ``"tendon_stiffness:suspension"``) to ``value``."""
+def parameter_address(model, target: str) -> tuple:
+    """Where ``"field:name"`` is in the model: ``(field, index)``, the element ``index`` of the flat
+    array ``field`` (a joint's ``dof_damping`` is its first dof's; an actuator's ``actuator_gear`` the
+    first of its row)."""
     field, _, name = target.partition(":")
     i = _object(model, PARAMETER_FIELDS[field], name)
     if field == "dof_damping":
         i = int(model.jnt_dofadr[i])
     arr = getattr(model, field)
-    if arr.ndim == 2:
-        arr[i, 0] = value
-    else:
-        arr[i] = value
+    return field, i * arr.shape[1] if arr.ndim == 2 else i
+
+
+def set_parameter(model, target: str, value: float) -> None:
+    """Set ``"field:name"`` (e.g. ``"tendon_stiffness:suspension"``) to ``value``."""
+    field, index = parameter_address(model, target)
+    getattr(model, field).reshape(-1)[index] = value
 
 
 def get_parameter(model, target: str) -> float:
     """The current value of ``"field:name"``."""
-    field, _, name = target.partition(":")
-    i = _object(model, PARAMETER_FIELDS[field], name)
-    if field == "dof_damping":
-        i = int(model.jnt_dofadr[i])
-    arr = getattr(model, field)
-    return float(arr[i, 0] if arr.ndim == 2 else arr[i])
+    field, index = parameter_address(model, target)
+    return float(getattr(model, field).reshape(-1)[index])
 
 
 class MujocoRuntime:

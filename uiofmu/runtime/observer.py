@@ -3,7 +3,7 @@
 numpy only (no cvxpy): this module is what runs inside a pythonfmu observer. At the
 communication point ``t_k`` the master sets ``y_k`` and ``u_k`` and reads the outputs::
 
-    xhat_k = Xz z_k + Xy y_k          (xhat_0 is the initial estimate itself)
+    xhat_k = Xz z_k + Xy y_k [+ Xu u_k]   (xhat_0 is the initial estimate itself; Xu where the card has it)
     r_k    = y_k - C xhat_k
     dhat_k = Dy (y_k - Yx xhat_{k-1} - Yu u_{k-1} - Yc)     (0 at k = 0)
 
@@ -14,7 +14,7 @@ then ``step(h_k)`` advances::
 with the matrices the schedule picks for (k, h_k, h_{k-1}), and for a switched plant for the
 modes (alpha_k, alpha_{k-1}): the input ``mode`` is the mode of the step about to be taken, and
 the runtime keeps the previous one (``mode_prev``, ``mode_prev0`` before the first step). At the first step
-``z_0 = xhat_0 - Xy y_0``, so the first output is the initial estimate and ``z`` takes over
+``z_0 = xhat_0 - Xy y_0 [- Xu u_0]``, so the first output is the initial estimate and ``z`` takes over
 from there. ``dhat_k`` estimates the unknown input held over ``[t_{k-1}, t_k)``.
 """
 
@@ -175,6 +175,8 @@ class Runtime:
         mats = self.schedule.output_matrices(self.k, self.h_prev, self.mode_prev)
         np.dot(mats["Xz"], self.z, out=self._xhat)
         self._xhat += np.dot(mats["Xy"], self.y, out=self._tn)
+        if "Xu" in mats:
+            self._xhat += np.dot(mats["Xu"], self.u, out=self._tn)
         return self._xhat
 
     def residual(self) -> np.ndarray:
@@ -212,6 +214,8 @@ class Runtime:
         if self.k == 0:
             out = self.schedule.output_matrices(0, self.h_prev, self.mode_prev)
             self.z = self.xhat0 - out["Xy"] @ self.y
+            if "Xu" in out:
+                self.z -= out["Xu"] @ self.u
         if self.has_dhat:
             np.dot(mats["Yx"], xhat, out=self.pred)
             self.pred += np.dot(mats["Yu"], self.u, out=self._tp)

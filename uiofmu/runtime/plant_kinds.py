@@ -40,12 +40,17 @@ def _mujoco_runtime(spec: dict, resources: str):
 
 
 def _linear_ports(rt, physical: list) -> list:
-    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, r=rt.r)
+    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, r=rt.r, feeds=_feeds(rt))
+
+
+def _feeds(rt) -> tuple:
+    """The inputs a plant's ``y`` depends on directly: ``"u"`` with a feedthrough ``D``, ``"d"`` with ``F``."""
+    return tuple(k for k in ("u", "d") if getattr(rt, {"u": "D", "d": "F"}[k], None) is not None)
 
 
 def _mujoco_ports(rt, physical: list) -> list:
     """A MuJoCo plant's: a linear plant's without the mismatch (MuJoCo's model has no matrices to perturb)."""
-    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, mismatch=False)
+    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, mismatch=False, feeds=_feeds(rt))
 
 
 def _switched_ports(rt, physical: list) -> list:
@@ -150,17 +155,15 @@ class PlantKind:
 #: The plant kinds, in the order a plant's data is tested for their keys (the first that matches).
 PLANT_KINDS = {k.name: k for k in (
     PlantKind("parametric", "parameters", _plant_runtime(ParametricPlantRuntime), _parametric_ports,
-              _parametric_arrays, theta_parameters=True,
-              python_only="the C backend has no kernel for a plant with unknown parameters (x' = A x + B u + "
-                          "D(y) theta with RK4 substeps and the output ydot are implemented in the Python runtime "
-                          "only)"),
+              _parametric_arrays, theta_parameters=True, c_kernel="parametric",
+              what="plant with unknown parameters"),
     PlantKind("lpv", "scheduling", _plant_runtime(LpvPlantRuntime), _lpv_ports, _lpv_arrays, c_kernel="lpv",
               variant=("theta", "kind"), what="LPV plant"),
     PlantKind("switched", "modes", _plant_runtime(SwitchedPlantRuntime), _switched_ports, _switched_arrays,
               c_kernel="switched", variant=("switching", "rule"), what="switched plant"),
     PlantKind("linear", None, _plant_runtime(PlantRuntime), _linear_ports, _linear_arrays, c_kernel="linear"),
-    PlantKind("mujoco", "mujoco", _mujoco_runtime, _mujoco_ports, fmu_kind="mujoco", steps=_any_step,
-              python_only="the C backend has no kernel for a MuJoCo plant (MuJoCo steps it)"),
+    PlantKind("mujoco", "mujoco", _mujoco_runtime, _mujoco_ports, c_kernel="mujoco", what="MuJoCo plant",
+              fmu_kind="mujoco", steps=_any_step),
 )}
 #: The kind of plant data that has none of the kinds' keys.
 LINEAR = PLANT_KINDS["linear"]

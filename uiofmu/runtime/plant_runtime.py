@@ -30,9 +30,10 @@ class PlantRuntime:
     Parameters
     ----------
     data : dict
-        The ``[plant]`` table as data: ``time``, ``A``, ``B``, ``E``, ``C``, ``w``, ``dt``, ``x0`` and, where
-        the problem declares process noise, ``W`` (n x r): the input ``w_noise`` enters as ``W w_noise``, held
-        over the step (a continuous plant samples it as it samples ``E``).
+        The ``[plant]`` table as data: ``time``, ``A``, ``B``, ``E``, ``C``, ``w``, ``dt``, ``x0``, the
+        feedthrough ``D`` and ``F`` of ``y = C x + D u + F d`` where the plant has it and, where the problem
+        declares process noise, ``W`` (n x r): the input ``w_noise`` enters as ``W w_noise``, held over the
+        step (a continuous plant samples it as it samples ``E``).
     cache_size : int
         How many step lengths keep their discretisation (aperiodic masters reuse a few).
 
@@ -54,6 +55,8 @@ class PlantRuntime:
         self.dt = data.get("dt")
         self.n, self.m, self.q, self.p = n, self.B.shape[1], self.E.shape[1], self.C.shape[0]
         self.x0 = np.array(data.get("x0") or np.zeros(n), dtype=float)
+        self.D = np.array(data["D"], dtype=float).reshape(self.p, self.m) if data.get("D") else None
+        self.F = np.array(data["F"], dtype=float).reshape(self.p, self.q) if data.get("F") else None
         self.u = np.zeros(self.m)
         self.d = np.zeros(self.q)
         self.W = np.array(data.get("W") or np.zeros((n, 0)), dtype=float).reshape(n, -1)
@@ -139,8 +142,13 @@ class PlantRuntime:
         return self._cache[h][4] if self.continuous else self.W
 
     def y(self) -> np.ndarray:
-        """Measured outputs ``C x``."""
-        return self.C @ self.x
+        """Measured outputs ``C x + D u + F d`` (with the inputs currently set)."""
+        y = self.C @ self.x
+        if self.D is not None:
+            y += self.D @ self.u
+        if self.F is not None:
+            y += self.F @ self.d
+        return y
 
     def step(self, h: float) -> None:
         """Advance by ``h`` with ``u`` and ``d`` held."""

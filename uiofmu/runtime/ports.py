@@ -206,8 +206,42 @@ KERNEL_PORTS = {
         PortSpec("mode", 0, "output", "mode of the step from the current communication point (1..N)",
                  type="Integer"),
     ),
+    "parametric": (
+        PortSpec("x0", 0, "parameter", "initial state"),
+        PortSpec("theta", 0, "parameter", "the unknown constant parameters the plant simulates"),
+        PortSpec("u", 0, "input", "known inputs (held over the step)"),
+        PortSpec("y", 0, "output",
+                 "measured outputs C x"),
+        PortSpec("ydot", 0, "output", "their derivative C x' at the current point", depends=("u",)),
+        PortSpec("x", 0, "output", "true state (for validation)"),
+    ),
+    "delayed": (
+        PortSpec("xhat0", 0, "parameter", "initial state estimate (also of the delayed copies)"),
+        PortSpec("y", 0, "input", "measured outputs at the current communication point"),
+        PortSpec("ydot", 0, "input", "their measured derivative"),
+        PortSpec("u", 0, "input", "known inputs (held over the step)"),
+        PortSpec("xhat", 0, "output", "state estimate (held while not valid)", depends=("y", "ydot", "u")),
+        PortSpec("thetahat", 0, "output", "parameter estimate (34) (held while not valid)",
+                 depends=("y", "ydot", "u")),
+        PortSpec("r", 0, "output", "output residual y - C xhat", depends=("y", "ydot", "u")),
+        PortSpec("sigma_min", 0, "output", "rank margin sigma_min(C D_y) now", depends=("y", "ydot")),
+        PortSpec("valid", 0, "output", "1 while the estimates are valid (delays filled, margin above the "
+                 "premise bound)", type="Integer", depends=("y", "ydot")),
+    ),
 }
 
+
+def _with_physical(plant: tuple) -> tuple:
+    """The ports of a plant kernel with physical parameters: ``x0``, ``u``, ``d``, ``y``, ``x`` of the plant
+    kernel's entries ``plant`` (what :func:`plant_ports` declares), and after ``x0`` the port ``params``, whose
+    elements are the physical parameters (each declared as a port of its own, named by the plant's spec)."""
+    by_key = {port.key: port for port in plant}
+    params = PortSpec("params", 0, "parameter", "the physical parameters, each declared as a port of its own")
+    return (by_key["x0"], params, *(by_key[key] for key in ("u", "d", "y", "x")))
+
+
+#: The MuJoCo plant kernel's ports (:func:`_with_physical`).
+KERNEL_PORTS = {**KERNEL_PORTS, "mujoco": _with_physical(KERNEL_PORTS["plant"])}
 
 #: The ports whose causality a kernel takes from its design, and the causalities it implements
 #: (every other port has the one of :data:`KERNEL_PORTS`): a switched plant's ``mode`` is an input
@@ -226,7 +260,8 @@ def kernel_port(kernel: str, key: str, size: int, **changes) -> PortSpec:
     return replace(ports[key], size=size, **changes)
 
 
-def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool = True) -> list:
+def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool = True,
+                   feeds_u: bool = False) -> list:
     """The declaration of the affine observer kernel (every family today).
 
     Parameters
@@ -240,6 +275,8 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
         Adds the output ``dhat``.
     feeds_y : bool
         Whether ``xhat`` depends on the ``y`` of the same communication point (``Xy != 0``).
+    feeds_u : bool
+        Whether ``xhat`` (and so ``r``) depends on the ``u`` of the same communication point (``Xu != 0``).
 
     Returns
     -------
@@ -258,7 +295,8 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
     ports += [port("y", p), port("u", m)]
     if schedule_kind == "mode":
         ports.append(port("mode", 1))
-    ports += [port("xhat", n, depends=("y",) if feeds_y else ()), port("r", p, depends=("y",))]
+    direct = (("y",) if feeds_y else ()) + (("u",) if feeds_u else ())
+    ports += [port("xhat", n, depends=direct), port("r", p, depends=("y",) + (("u",) if feeds_u else ()))]
     if has_dhat:
         ports.append(port("dhat", q, depends=("y",)))
     return ports
@@ -276,9 +314,10 @@ def window_ports(p: int, d: int, s: int) -> list:
 
 
 def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | None = None,
-                mismatch: bool = True, r: int = 0) -> list:
+                mismatch: bool = True, r: int = 0, feeds: tuple = ()) -> list:
     """The declaration of a plant: parameters ``x0`` and the physical ``(name, what)`` pairs,
-    inputs ``u``, ``d`` (held over the step), outputs ``y = C x`` and ``x`` (no feedthrough).
+    inputs ``u``, ``d`` (held over the step), outputs ``y = C x + D u + F d`` and ``x`` (``feeds``: the inputs
+    ``y`` depends on directly, ``"u"`` where ``D != 0`` and ``"d"`` where ``F != 0``; none by default).
 
     A switched plant (``switching``: its rule, :mod:`uiofmu.runtime.switching`) adds the Integer
     ``mode`` of the step from the current point: an output that depends on no input (rules
@@ -300,6 +339,8 @@ def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | 
     if switching == "input":
         ports.append(port("mode", 1, causality="input"))
     ports += [port("y", p), port("x", n)]
+    if feeds:                                        # y = C x + D u + F d
+        ports = [replace(spec, depends=tuple(feeds)) if spec.key == "y" else spec for spec in ports]
     if switching in ("threshold", "random"):
         ports.append(port("mode", 1, causality="output"))
     if mismatch:
@@ -329,29 +370,21 @@ def parametric_plant_ports(n: int, m: int, p: int, n_theta: int) -> list:
     """The declaration of a plant with unknown parameters (:mod:`uiofmu.runtime.parametric_plant`):
     parameters ``x0`` and ``theta`` (the true values it simulates), input ``u``, outputs ``y``, its
     derivative ``ydot = C x'`` (depending on ``u``) and ``x``."""
-    return [PortSpec("x0", n, "parameter", "initial state"),
-            PortSpec("theta", n_theta, "parameter", "the unknown constant parameters the plant simulates"),
-            PortSpec("u", m, "input", "known inputs (held over the step)"),
-            PortSpec("y", p, "output", "measured outputs C x"),
-            PortSpec("ydot", p, "output", "their derivative C x' at the current point", depends=("u",)),
-            PortSpec("x", n, "output", "true state (for validation)")]
+    def port(key, size):
+        return kernel_port("parametric", key, size)
+
+    return [port("x0", n), port("theta", n_theta), port("u", m), port("y", p), port("ydot", p), port("x", n)]
 
 
 def delayed_ports(n: int, m: int, p: int, n_theta: int) -> list:
     """The declaration of the delayed kernel (:mod:`uiofmu.runtime.delayed`): parameter ``xhat0``; inputs
     ``y``, ``ydot``, ``u``; outputs ``xhat``, ``thetahat``, ``r``, the rank margin ``sigma_min`` and the
     Integer ``valid`` (1 while the estimates are valid)."""
-    return [PortSpec("xhat0", n, "parameter", "initial state estimate (also of the delayed copies)"),
-            PortSpec("y", p, "input", "measured outputs at the current communication point"),
-            PortSpec("ydot", p, "input", "their measured derivative"),
-            PortSpec("u", m, "input", "known inputs (held over the step)"),
-            PortSpec("xhat", n, "output", "state estimate (held while not valid)", depends=("y", "ydot", "u")),
-            PortSpec("thetahat", n_theta, "output", "parameter estimate (34) (held while not valid)",
-                     depends=("y", "ydot", "u")),
-            PortSpec("r", p, "output", "output residual y - C xhat", depends=("y", "ydot", "u")),
-            PortSpec("sigma_min", 1, "output", "rank margin sigma_min(C D_y) now", depends=("y", "ydot")),
-            PortSpec("valid", 1, "output", "1 while the estimates are valid (delays filled, margin above the "
-                     "premise bound)", type="Integer", depends=("y", "ydot"))]
+    def port(key, size):
+        return kernel_port("delayed", key, size)
+
+    return [port("xhat0", n), port("y", p), port("ydot", p), port("u", m), port("xhat", n), port("thetahat", n_theta),
+            port("r", p), port("sigma_min", 1), port("valid", 1)]
 
 
 def source_ports(sizes: dict) -> list:

@@ -43,6 +43,9 @@ class Entry:
     own_bound : bool
         Whether its module computes its certified error bound (``certified_bound``); else the geometric bound
         of the card's ``decay_bound`` and ``overshoot_bound``.
+    feedthrough : bool
+        Whether it designs for a linear plant measured with direct feedthrough (``y = C x + D u + F d``);
+        a plant with ``[plant] D`` or ``F`` is refused to the others.
     """
 
     name: str
@@ -55,11 +58,13 @@ class Entry:
     random_code: int | None = None
     closed_form: bool = False
     own_bound: bool = False
+    feedthrough: bool = False
 
 
 #: Every family, in the order help texts list them.
 FAMILIES = {e.name: e for e in (
     Entry("lti-uio", "Darouach, Zasadzinski, Xu 1994 (seed 000)", "lti_uio", section=1, random_code=1,
+          feedthrough=True,
           certifies="classical unknown-input observer (constant step): a certified geometric decay of the error"),
     Entry("ltv-auid", "Ichalal, Mammar, CDC 2019 (seed 000)", "ltv_auid", section=2, random_code=2, own_bound=True,
           certifies="asymptotic unknown-input decoupling, time-varying gains (constant step): a certified bound "

@@ -86,8 +86,9 @@ def load(setup: Setup) -> Loaded:
     return loaded
 
 
-def run_scenario(setup: Setup, sc: dict):
-    """Co-simulate one scenario (:func:`uiofmu.cosim.master.cosimulate`).
+def run_scenario(setup: Setup, sc: dict, native: bool = True):
+    """Co-simulate one scenario (:func:`uiofmu.cosim.master.cosimulate`), stepped in C where both FMUs have
+    native binaries (``native``, :mod:`uiofmu.cosim.native`; the same results as the Python loop).
 
     Returns
     -------
@@ -114,7 +115,8 @@ def run_scenario(setup: Setup, sc: dict):
     quantum = sc.get("quantization") or None
     instances = loaded.fmus(twin=bool(noise or quantum), twin_plant=noise is not None and noise.signal == "w")
     return cosimulate(loaded.plant, loaded.observer, steps, inputs, xhat0=xhat0, plant_parameters=params or None,
-                      show_progress=False, instances=instances, card=loaded.card, noise=noise, quantization=quantum)
+                      show_progress=False, instances=instances, card=loaded.card, noise=noise, quantization=quantum,
+                      native=native)
 
 
 def scalar_metrics(metrics: dict) -> dict:

@@ -178,7 +178,7 @@ struct FmuInstance {
     double time;    /* for fmi2LastSuccessfulTime */
     int time_known;
     int rounding_noted; /* the line of a rounding step was logged (once per instance) */
-    char *resources;    /* the fmuResourceLocation of fmi2Instantiate (a copy), or NULL */
+    char *resources;    /* the importer's fmuResourceLocation (a copy; NULL when it gave none) */
 };
 
 static unsigned category_of(fmi2Status status) {
@@ -198,15 +198,68 @@ static void vlog(FmuInstance *s, fmi2Status status, const char *fmt, va_list ap)
     s->cb.logger(s->cb.componentEnvironment, s->name, status, CATEGORY[cat], "%s", buf);
 }
 
-const char *uiofmu_resource_location(FmuInstance *s) {
-    return s ? s->resources : NULL;
-}
 
 void uiofmu_log(FmuInstance *s, fmi2Status status, const char *fmt, ...) {
     va_list ap;
     va_start(ap, fmt);
     vlog(s, status, fmt, ap);
     va_end(ap);
+}
+
+static int hex_digit(char c) {
+    if (c >= '0' && c <= '9') return c - '0';
+    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+    return -1;
+}
+
+int uiofmu_resource_path(FmuInstance *s, const char *file, char *out, size_t len) {
+    const char *location = s->resources, *p = location;
+    int uri = 0;
+    if (!location || !location[0]) {
+        uiofmu_log(s, fmi2Error, "fmi2Instantiate: no resource location was given; the FMU reads resources/%s",
+                   file);
+        return 0;
+    }
+    if (strncmp(p, "file:", 5) == 0) {
+        uri = 1;
+        p += 5;
+        if (strncmp(p, "//", 2) == 0) {
+            p += 2;
+            if (strncmp(p, "localhost/", 10) == 0) p += 9;
+            else if (p[0] != '/') p = NULL; /* another host */
+        }
+    }
+    if (!p || p[0] != '/') {
+        uiofmu_log(s, fmi2Error, "fmi2Instantiate: the resource location \"%.200s\" is no file URI or absolute "
+                   "path of this machine", location);
+        return 0;
+    }
+    size_t o = 0;
+    for (; *p; p++) {
+        char c = *p;
+        if (uri && c == '%') {
+            int hi = hex_digit(p[1]), lo = hi < 0 ? -1 : hex_digit(p[2]);
+            if (lo < 0 || (hi == 0 && lo == 0)) {
+                uiofmu_log(s, fmi2Error, "fmi2Instantiate: the resource location \"%.200s\" has a bad percent "
+                           "escape", location);
+                return 0;
+            }
+            c = (char)(hi * 16 + lo);
+            p += 2;
+        }
+        if (o + 1 >= len) break;
+        out[o++] = c;
+    }
+    size_t need = strlen(file) + 2;
+    if (*p || o + need > len) {
+        uiofmu_log(s, fmi2Error, "fmi2Instantiate: the resource location is longer than %zu bytes", len - need);
+        return 0;
+    }
+    if (out[o - 1] != '/') out[o++] = '/';
+    memcpy(out + o, file, need - 1);
+    out[o + need - 1] = 0;
+    return 1;
 }
 
 const char *uiofmu_num(double v, char *buf) {

@@ -158,9 +158,6 @@ UIOFMU_INTERNAL extern const UiofmuSteps UIOFMU_STEPS;
    when the master has that category on and gave a logger. */
 UIOFMU_INTERNAL void uiofmu_log(FmuInstance *fmu, fmi2Status status, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
 
-/* The fmuResourceLocation the master gave fmi2Instantiate (a URI, as given), or NULL when it gave none:
-   what a kernel with data files in resources/ reads them from, in its instantiate. */
-UIOFMU_INTERNAL const char *uiofmu_resource_location(FmuInstance *fmu);
 
 /* check_design's refusal: the reason, formatted into msg (len bytes), which fmi2Instantiate
    logs; returns 0. */
@@ -169,6 +166,12 @@ UIOFMU_INTERNAL int uiofmu_design_error(char *msg, size_t len, const char *fmt, 
 /* check_state's refusal (and the plumbing's of a state image): the fmi2Error line "ctx: <text>";
    returns 0. */
 UIOFMU_INTERNAL int uiofmu_state_refused(FmuInstance *fmu, const char *ctx, const char *fmt, ...) UIOFMU_PRINTF(3, 4);
+
+/* The path of the FMU's resources/<file> from the fmuResourceLocation the importer passed to
+   fmi2Instantiate: "file:///dir", "file://localhost/dir" or "file:/dir" (percent escapes decoded), or a
+   plain absolute path "/dir", into out (len bytes). 0 after an fmi2Error log line when there is no
+   location, or it is none of those, or the path does not fit. For a kernel's instantiate. */
+UIOFMU_INTERNAL int uiofmu_resource_path(FmuInstance *fmu, const char *file, char *out, size_t len);
 
 /* The shortest text that reads back as v, as Python's repr writes it (600.0, 0.1, 1e-05);
    buf holds 32 bytes. */

@@ -6,11 +6,11 @@
  * design_data.c, generated from the design card. The step semantics are those of the
  * reference runtime (uiofmu/runtime/observer.py), bit for bit:
  *
- *   outputs at t_k:  xhat_k = Xz z_k + Xy y_k   (xhat_0 = the parameter xhat0)
+ *   outputs at t_k:  xhat_k = Xz z_k + Xy y_k [+ Xu u_k]   (xhat_0 = the parameter xhat0; Xu when present)
  *                    r_k    = y_k - C xhat_k
  *                    dhat_k = Dy (y_k - pred)   (0 at k = 0)
  *   fmi2DoStep(t_k, h_k):
- *                    z_0    = xhat0 - Xy y_0    (first step only)
+ *                    z_0    = xhat0 - Xy y_0 [- Xu u_0]    (first step only)
  *                    pred   = Yx xhat_k + Yu u_k + Yc
  *                    z_k+1  = N z_k + L y_k + G u_k + c
  *
@@ -75,7 +75,8 @@ typedef struct {
     size_t nblock;
 } Instance;
 
-static const char *const MATRIX_NAME[M_COUNT] = {"N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc"};
+static const char *const MATRIX_NAME[M_COUNT] = {"N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc",
+                                                           "Xu"};
 
 /* ---------------------------------------------------------------------------------------- */
 /* The maths                                                                                  */
@@ -233,6 +234,8 @@ static int estimate(Instance *s, const char *fn, int j) {
     if (!Xz || !Xy) return 0;
     matvec(Xz, d->n, d->nz, s->z, s->xhat);
     matvec_add(Xy, d->n, d->p, s->y, s->xhat, s->pt);
+    const double *Xu = pick(s, M_Xu, 0, j); /* absent: no direct term of u */
+    if (Xu) matvec_add(Xu, d->n, d->m, s->u, s->xhat, s->pt);
     return 1;
 }
 
@@ -278,9 +281,9 @@ static int mul_size(size_t a, size_t b, size_t *out) { return uiofmu_mul(a, b, S
 
 static void expected_shape(const UiofmuDesign *d, int w, int *rows, int *cols, const char **text) {
     static const char *const TEXT[M_COUNT] = {"nz x nz", "nz x p", "nz x m", "nz x 1", "n x nz", "n x p",
-                                              "p x n", "q x p", "p x n", "p x m", "p x 1"};
-    const int R[M_COUNT] = {d->nz, d->nz, d->nz, d->nz, d->n, d->n, d->p, d->q, d->p, d->p, d->p};
-    const int C[M_COUNT] = {d->nz, d->p, d->m, 1, d->nz, d->p, d->n, d->p, d->n, d->m, 1};
+                                              "p x n", "q x p", "p x n", "p x m", "p x 1", "n x m"};
+    const int R[M_COUNT] = {d->nz, d->nz, d->nz, d->nz, d->n, d->n, d->p, d->q, d->p, d->p, d->p, d->n};
+    const int C[M_COUNT] = {d->nz, d->p, d->m, 1, d->nz, d->p, d->n, d->p, d->n, d->m, 1, d->m};
     *rows = R[w];
     *cols = C[w];
     *text = TEXT[w];
@@ -332,11 +335,14 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
         return uiofmu_design_error(msg, len, "mode_prev0 = %d is not a mode (1 to %d)", d->mode_prev0, d->modes);
     for (int w = 0; w < M_COUNT; w++) {
         const UiofmuMatrix *M = &d->mat[w];
-        int rows, cols, required = w <= M_C || d->has_dhat;
+        int rows, cols, required = w <= M_C || (d->has_dhat && w <= M_Yc);
         const char *shape;
         size_t want, total = 0;
         expected_shape(d, w, &rows, &cols, &shape);
         if (M->count == 0 && !required) continue;
+        if (w == M_Xu && d->kind != UIOFMU_CONSTANT)
+            return uiofmu_design_error(msg, len, "matrix Xu (the direct term of u in xhat) needs a constant schedule, "
+                                       "found a %s one", KIND[d->kind]);
         if (w == M_C || d->kind == UIOFMU_CONSTANT) want = 1;
         else if (d->kind == UIOFMU_INTERVAL) want = (size_t)d->nintervals * (w == M_N || w == M_L ? (size_t)d->nintervals : 1);
         else if (d->kind == UIOFMU_MODE) want = (size_t)d->modes * (w == M_N || w == M_L ? (size_t)d->modes : 1);
@@ -565,6 +571,11 @@ static UiofmuResult affine_step(void *self, double t, double h) {
     if (s->k == 0) {
         matvec(Xy, d->n, d->p, s->y, s->tmp);
         for (int e = 0; e < d->nz; e++) s->z[e] = s->xhat0[e] - s->tmp[e];
+        const double *Xu = pick(s, M_Xu, i, j);
+        if (Xu) {
+            matvec(Xu, d->n, d->m, s->u, s->tmp);
+            for (int e = 0; e < d->nz; e++) s->z[e] -= s->tmp[e];
+        }
     }
     if (d->has_dhat) {
         matvec(Yx, d->p, d->n, s->xhat, s->pred);

@@ -8,7 +8,8 @@
  *   mode     : as interval, with i = alpha_k - 1 (the input mode, the mode of the step taken) and
  *              j = alpha_{k-1} - 1 (the mode of the step before; mode_prev0 before the first step)
  *   geometric: count = number of polynomial coefficients in a = alpha^k
- * C is never scheduled. count = 0 marks an absent matrix (no dhat).
+ * C is never scheduled. count = 0 marks an absent matrix (no dhat; no Xu, the direct term of u in xhat,
+ * which only a constant schedule may have).
  *
  * Every array travels with its length as the C compiler counts it (UIOFMU_LENGTH), so
  * fmi2Instantiate can check count x rows x cols against the data actually there before it
@@ -39,7 +40,7 @@ typedef struct {
 
 enum { UIOFMU_CONSTANT = 0, UIOFMU_INTERVAL = 1, UIOFMU_GEOMETRIC = 2, UIOFMU_MODE = 3 };
 enum { UIOFMU_POLICY_ERROR = 0, UIOFMU_POLICY_NEAREST = 1, UIOFMU_POLICY_COUNT = 2 };
-enum { M_N, M_L, M_G, M_c, M_Xz, M_Xy, M_C, M_Dy, M_Yx, M_Yu, M_Yc, M_COUNT };
+enum { M_N, M_L, M_G, M_c, M_Xz, M_Xy, M_C, M_Dy, M_Yx, M_Yu, M_Yc, M_Xu, M_COUNT };
 
 typedef struct {
     int n, m, p, q, nz, has_dhat;

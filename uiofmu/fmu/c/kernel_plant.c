@@ -4,7 +4,7 @@
  * plant's numbers come from design_data.c (UIOFMU_PLANT, generated from Plant.to_data()). The
  * step semantics are those of the reference runtime (uiofmu/runtime/plant_runtime.py):
  *
- *   outputs:          y = C x, x                (no input feeds through)
+ *   outputs:          y = C x + D u + F d, x    (D, F zero unless the plant feeds an input through)
  *   initialisation:   x = the parameter x0      (before it: the design's x0)
  *   fmi2DoStep(t, h): x <- Ad x + Bd u + Ed d + wd + Wd w_noise, inputs u, d, w_noise held over the step
  *
@@ -305,12 +305,13 @@ static int plant_check_design(char *msg, size_t len) {
                                    d->rule == UIOFMU_RULE_INPUT ? "an input" : "an output");
     if (!switching_ok(d, msg, len)) return 0;
     size_t blocks = d->modes ? (size_t)d->modes : 1;
-    struct { const char *name; const double *data; size_t length, want; } M[7] = {
+    struct { const char *name; const double *data; size_t length, want; } M[9] = {
         {"A", d->A, d->A_length, blocks * d->n * d->n}, {"B", d->B, d->B_length, blocks * d->n * d->m},
         {"E", d->E, d->E_length, blocks * d->n * d->q}, {"C", d->C, d->C_length, (size_t)d->p * d->n},
         {"w", d->w, d->w_length, blocks * d->n}, {"x0", d->x0, d->x0_length, (size_t)d->n},
-        {"W", d->W, d->W_length, (size_t)d->n * d->r}};
-    for (int i = 0; i < 7; i++) {
+        {"W", d->W, d->W_length, (size_t)d->n * d->r},
+        {"D", d->D, d->D_length, (size_t)d->p * d->m}, {"F", d->F, d->F_length, (size_t)d->p * d->q}};
+    for (int i = 0; i < 9; i++) {
         size_t want = M[i].want ? M[i].want : 1; /* an empty array is written as {0.0} */
         if (!M[i].data || M[i].length != want)
             return uiofmu_design_error(msg, len, "plant %s: %zu numbers compiled in, expected %zu", M[i].name,
@@ -520,6 +521,10 @@ static UiofmuResult plant_calculate(void *self, const char *fn) {
     for (int i = 0; i < d->p; i++) {
         double acc = 0.0;
         for (int j = 0; j < d->n; j++) acc += d->C[(size_t)i * d->n + j] * s->x[j];
+        for (int j = 0; j < d->m; j++) /* zero entries skipped: without feedthrough y is C x bit for bit */
+            if (d->D[(size_t)i * d->m + j] != 0.0) acc += d->D[(size_t)i * d->m + j] * s->u[j];
+        for (int j = 0; j < d->q; j++)
+            if (d->F[(size_t)i * d->q + j] != 0.0) acc += d->F[(size_t)i * d->q + j] * s->dv[j];
         s->y[i] = acc;
     }
     s->dirty = 0;
@@ -548,6 +553,7 @@ static void plant_set_real(void *self, int port, int index, double value) {
     double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element((Plant *)self, port, index) : NULL; /* parameters
                                                                                                         and inputs */
     if (v) *v = value;
+    if (port == UIOFMU_PLANT_U || port == UIOFMU_PLANT_D) ((Plant *)self)->dirty = 1; /* y feeds them through */
 }
 
 /* The Integer ports of a switched plant: seed (parameter) and mode (input or output). */

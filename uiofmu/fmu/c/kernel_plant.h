@@ -3,7 +3,8 @@
  * A linear plant (uiofmu.plant.Plant.to_data()) becomes one constant UiofmuPlant
  * (design_data.c, generated; numbers only). Matrices are row-major:
  *   A n x n, B n x m, E n x q, C p x n, w n, x0 n, W n x r (process noise; r = 0 but for a linear plant
- *   whose problem declares it)
+ *   whose problem declares it), D p x m, F p x q (y = C x + D u + F d; zeros: no feedthrough, the FMU then
+ *   declares none)
  * A switched plant (uiofmu.switched_plant.SwitchedPlant.to_data(), modes = N >= 1; discrete) has
  * N blocks of each of A, B, E and w, mode i (1..N) the block i - 1, and its switching rule:
  *   threshold: mode 1 + #{thresholds[t] <= x[state]} (N - 1 increasing thresholds)
@@ -23,7 +24,8 @@
 #include "fmi2_plumbing.h"
 
 /* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.plant_ports):
-   x0[n] parameter, u[m] and d[q] inputs (held over the step), y[p] = C x and x[n] outputs; all Real.
+   x0[n] parameter, u[m] and d[q] inputs (held over the step), y[p] = C x + D u + F d and x[n] outputs; all
+   Real.
    A switched plant adds the Integer mode[1]: an input (rule input) or an output (rules threshold
    and random), and rule random the Integer parameter seed[1]. Every plant ends with the Real
    parameter mismatch[1] and the Integer parameter mismatch_seed[1], the perturbation of its A, B, E
@@ -41,8 +43,8 @@ typedef struct {
     int time;          /* UIOFMU_DISCRETE or UIOFMU_CONTINUOUS */
     double dt;         /* discrete plants: the period (0 for continuous ones) */
     double step_rtol;  /* discrete plants: a step within step_rtol * dt of dt is dt */
-    const double *A, *B, *E, *C, *w, *x0, *W;
-    size_t A_length, B_length, E_length, C_length, w_length, x0_length, W_length;
+    const double *A, *B, *E, *C, *w, *x0, *W, *D, *F;
+    size_t A_length, B_length, E_length, C_length, w_length, x0_length, W_length, D_length, F_length;
     /* switched plants (modes = 0 for a linear one) */
     int modes, rule;
     int state;          /* rule threshold: the 0-based index of the state compared */

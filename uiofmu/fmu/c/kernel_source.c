@@ -91,64 +91,6 @@ static int source_port(int id, UiofmuPort *out) {
 /* ---------------------------------------------------------------------------------------- */
 /* the table                                                                                 */
 
-static int hex_digit(char c) {
-    if (c >= '0' && c <= '9') return c - '0';
-    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
-    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
-    return -1;
-}
-
-/* The path of the table file in the resource folder of a file URI ("file:///abs", "file://localhost/abs",
-   "file:/abs", percent-escapes decoded) into out; 0 after a log line when the location is none of them. */
-static int table_path(FmuInstance *fmu, const char *uri, char *out, size_t cap) {
-    const char *p;
-    size_t n = 0;
-    if (!uri) {
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: no resource location: the signal table %s is in the FMU's "
-                   "resources/ folder", UIOFMU_SOURCE_TABLE_FILE);
-        return 0;
-    }
-    if (strncmp(uri, "file:", 5) != 0) {
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: the resource location \"%.300s\" is not a file URI", uri);
-        return 0;
-    }
-    p = uri + 5;
-    if (p[0] == '/' && p[1] == '/') {
-        p += 2;
-        if (strncmp(p, "localhost/", 10) == 0) p += 9;
-        if (*p != '/') {
-            uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: the resource location \"%.300s\" names a host; only local "
-                       "files are read", uri);
-            return 0;
-        }
-    }
-    if (*p != '/') {
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: the resource location \"%.300s\" has no absolute path", uri);
-        return 0;
-    }
-    for (; *p; p++) {
-        char c = *p;
-        if (c == '%') {
-            int hi = hex_digit(p[1]), lo = hi < 0 ? -1 : hex_digit(p[2]);
-            if (lo < 0 || (hi == 0 && lo == 0)) {
-                uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: the resource location \"%.300s\" has a bad escape", uri);
-                return 0;
-            }
-            c = (char)(hi * 16 + lo);
-            p += 2;
-        }
-        if (n + 1 >= cap) break;
-        out[n++] = c;
-    }
-    if (n && out[n - 1] == '/') n--;
-    if (n + 1 + strlen(UIOFMU_SOURCE_TABLE_FILE) + 1 > cap) {
-        uiofmu_log(fmu, fmi2Error, "fmi2Instantiate: the resource location is longer than %d bytes", MAX_PATH);
-        return 0;
-    }
-    snprintf(out + n, cap - n, "/%s", UIOFMU_SOURCE_TABLE_FILE);
-    return 1;
-}
-
 static uint64_t le64(const unsigned char *b) {
     uint64_t v = 0;
     for (int i = 7; i >= 0; i--) v = (v << 8) | b[i];
@@ -265,7 +207,7 @@ static void *source_instantiate(FmuInstance *fmu) {
     if (!s) return NULL;
     s->fmu = fmu;
     s->columns = UIOFMU_SOURCE.m + UIOFMU_SOURCE.q + UIOFMU_SOURCE.s + UIOFMU_SOURCE.modes;
-    if (!table_path(fmu, uiofmu_resource_location(fmu), path, sizeof path) || !read_table(s, path)) {
+    if (!uiofmu_resource_path(fmu, UIOFMU_SOURCE_TABLE_FILE, path, sizeof path) || !read_table(s, path)) {
         source_free(s);
         return NULL;
     }

@@ -1,0 +1,79 @@
+"""CPU time of the command line's quick commands against a bare Python, side by side in one run.
+
+    .venv/bin/python benchmarks/cli_speed.py [--repeat 7]
+
+Each command runs in a fresh interpreter (``python -m uiofmu ...``), alternately, ``--repeat`` times;
+its CPU time (user + system of the child and of what it waited for, from ``wait4``) is compared with
+``python -c pass`` and with ``python -c "import numpy"`` (the floor of every command that touches a
+matrix) measured in the same rounds. The commands: ``--help``, and ``check``, ``design``, ``verify`` and
+``build --backend c`` (which also runs the C compiler) of seed 000 Example 1. Medians in seconds; prints
+one JSON document with the goals of the quick command line (``design`` under 0.12 s, ``--help`` under
+0.08 s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "seed000_example1.toml"
+
+
+def cpu_of(argv: list[str], cwd: Path, env: dict) -> float:
+    """CPU seconds (user + system) of one child process and the processes it waited for."""
+    proc = subprocess.Popen(argv, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(argv)} exited {proc.returncode}: {err[-500:]}")
+    return usage.ru_utime + usage.ru_stime
+
+
+def main(argv=None) -> int:
+    """Measure and print the numbers."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=7)
+    args = parser.parse_args(argv)
+    py = sys.executable
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        card = tmp / "card.json"
+        cpu_of([py, "-m", "uiofmu", "design", str(EXAMPLE), "-o", str(card)], tmp, env)
+        commands = {
+            "python_pass": [py, "-c", "pass"],
+            "python_import_numpy": [py, "-c", "import numpy"],
+            "help": [py, "-m", "uiofmu", "--help"],
+            "check": [py, "-m", "uiofmu", "check", str(EXAMPLE)],
+            "design": [py, "-m", "uiofmu", "design", str(EXAMPLE), "-o", str(tmp / "again.json")],
+            "verify": [py, "-m", "uiofmu", "verify", str(card)],
+            "build_c": [py, "-m", "uiofmu", "build", str(card), "-o", str(tmp / "observer.fmu"), "--backend", "c"],
+        }
+        times: dict = {name: [] for name in commands}
+        for _ in range(args.repeat):
+            for name, command in commands.items():
+                times[name].append(cpu_of(command, tmp, env))
+    med = {name: statistics.median(v) for name, v in times.items()}
+    bare, numpy_floor = med["python_pass"], med["python_import_numpy"]
+    report = {
+        "repeat": args.repeat, "cpu_s": med,
+        "over_bare_python": {name: value / bare for name, value in med.items() if bare > 0},
+        "over_numpy_import": {name: value / numpy_floor for name, value in med.items()},
+        "goal_design_under_0_12_s": med["design"] < 0.12,
+        "goal_help_under_0_08_s": med["help"] < 0.08,
+    }
+    print(json.dumps(report, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
