@@ -194,6 +194,40 @@ def test_a_restored_state_runs_the_perturbed_plant(tmp_path, backend):
         assert np.array_equal(b.get("x"), want)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_plant_with_feedthrough_and_process_noise_takes_the_mismatch(tmp_path, backend):
+    """y = C x + D u + F d with A, B, E perturbed and W w_noise added: the feedthrough and W stay the design's,
+    the FMU's y and x are the runtime's (to 1e-12, its sums in another order) and differ from the design
+    model's x after a step."""
+    rng = np.random.default_rng(8)
+    n, m, q, p, r = 3, 2, 1, 2, 1
+    plant = Plant.create(0.3 * rng.normal(size=(n, n)), rng.normal(size=(p, n)), rng.normal(size=(n, q)),
+                         rng.normal(size=(n, m)), time="discrete", dt=0.1, x0=np.zeros(n),
+                         W=rng.normal(size=(n, r)), D=rng.normal(size=(p, m)), F=rng.normal(size=(p, q)))
+    path = build_plant(plant, "ft", tmp_path / "p.fmu", backend=backend)
+    rt, design = PlantRuntime(plant.to_data()), PlantRuntime(plant.to_data())
+    rt.set_mismatch(0.05, 11)
+    x0, u, d, w = np.array([1.0, -0.5, 0.25]), np.array([0.3, -0.2]), np.array([0.7]), np.array([0.4])
+    for runtime in (rt, design):
+        runtime.x0 = x0
+        runtime.reset()
+        runtime.u[:], runtime.d[:], runtime.w_noise[:] = u, d, w
+    with Fmu(path, "plant") as fmu:
+        assert set(fmu.ports("input")) == {"u", "d", "w_noise"}
+        fmu.initialize(0.0, {"mismatch": [0.05], "mismatch_seed": [11], "x0": x0})
+        fmu.set("u", u)
+        fmu.set("d", d)
+        fmu.set("w_noise", w)
+        np.testing.assert_allclose(fmu.get("y"), rt.y(), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(rt.y(), design.y(), rtol=1e-12, atol=1e-12)     # C, D, F unperturbed
+        fmu.step(0.0, 0.1)
+        rt.step(0.1)
+        design.step(0.1)
+        np.testing.assert_allclose(fmu.get("x"), rt.x, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(fmu.get("y"), rt.y(), rtol=1e-12, atol=1e-12)
+        assert np.max(np.abs(fmu.get("x") - design.x)) > 1e-6                      # the perturbed A, B, E moved x
+
+
 # (d) ---------------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("backend", BACKENDS)

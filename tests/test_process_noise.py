@@ -163,6 +163,24 @@ def test_process_noise_is_measured_against_a_noise_free_twin_loop(noisy_loop, ba
     assert noisy.metrics["noise_gain_w_measured"] == m["noise_gain_w_measured"]
 
 
+@pytest.mark.skipif("c" not in BACKENDS, reason="no C compiler: no C FMUs for the native loop")
+def test_the_native_loop_steps_the_twin_plant_as_the_python_loop(noisy_loop):
+    """With C FMUs the four of a process-noise run (plant, observer, twin observer, twin plant) are stepped by
+    the C driver, to the same bits as the Python loop: histories, the noise's arrays and every metric."""
+    _, _, fmus, _ = noisy_loop
+    plant, obs = fmus["c"]
+    steps = np.full(300, 0.1)
+    python = cosimulate(plant, obs, steps, noise="w=0.05,3", show_progress=False, native=False)
+    c = cosimulate(plant, obs, steps, noise="w=0.05,3", show_progress=False)
+    assert c.timing["native"] is True and python.timing["native"] is False
+    for name in ("x", "xhat", "y", "r"):
+        assert getattr(c, name).tobytes() == getattr(python, name).tobytes(), name
+    for key in ("w", "error", "twin_error"):
+        assert c.noise_w[key].tobytes() == python.noise_w[key].tobytes(), key
+    assert np.linalg.norm(c.noise_w["error"] - c.noise_w["twin_error"]) > 0
+    assert json.dumps(c.metrics, sort_keys=True) == json.dumps(python.metrics, sort_keys=True)
+
+
 def test_a_card_claiming_too_small_a_process_noise_gain_is_caught(noisy_loop):
     """The measured gain against a certified one a tenth of the card's: the comparison can fail."""
     from uiofmu.cosim.noise import process_noise_metrics
