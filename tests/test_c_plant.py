@@ -195,8 +195,15 @@ def test_fmu_state_round_trips_are_bit_identical(tmp_path, which, discrete_fmu):
         path = build_plant(plant, "rt", tmp_path / "p.fmu", backend="c")
         steps = [0.3, 0.7, 0.3, 1.1, 0.05, 0.3, 2.0, 0.7]
     with Fmu(path, "a") as a, Fmu(path, "b") as b:
-        for f in (a, b):
-            f.initialize(0.0)
+        # a runs a perturbed plant, b the design model: b restored from a's state runs a's plant, since the
+        # state carries the mismatch and the restore perturbs the matrices again (the exponentials of b's
+        # design matrices, cached for the same steps, forgotten)
+        a.initialize(0.0, {"mismatch": [0.03], "mismatch_seed": [11]})
+        b.initialize(0.0)
+        b.set("u", np.ones(plant.m))
+        b.set("d", -np.ones(plant.q))
+        for k, h in enumerate(steps):
+            b.step(sum(steps[:k]), h)
         a.set("u", np.ones(plant.m))
         a.set("d", -np.ones(plant.q))
         t = 0.0
@@ -221,11 +228,16 @@ def test_fmu_state_round_trips_are_bit_identical(tmp_path, which, discrete_fmu):
             for f in (a, b):
                 np.testing.assert_array_equal(np.concatenate([f.get("x"), f.get("y")]), outs[k])
         forged = bytearray(blob)
-        at = len(blob) - 8 * (1 + 2 * plant.n + plant.m + plant.q)   # the phase, first of the kernel's doubles
+        at = len(blob) - 8 * (3 + 2 * plant.n + plant.m + plant.q)   # the phase, first of the kernel's doubles
         forged[at:at + 8] = np.float64(9.0).tobytes()
         with pytest.raises(FmuCallError) as info:
             b.deserialize(bytes(forged))
         assert "phase" in " ".join(info.value.messages)
+        forged = bytearray(blob)
+        forged[-16:-8] = np.float64(-0.03).tobytes()                 # mismatch, after d[q]
+        with pytest.raises(FmuCallError) as info:
+            b.deserialize(bytes(forged))
+        assert "mismatch = -0.03" in " ".join(info.value.messages)
 
 
 # -- under the sanitizers ------------------------------------------------------------------------

@@ -241,9 +241,10 @@ def check_plant(path, data: dict) -> None:
         _plant_run(a, None, data, us[:40], ds, modes)
         blob, _ = check_restores(a, b, lambda fmu: _plant_run(fmu, None, data, us[:80], ds, modes, 40, 40 * h)[0])
         n, m, q = len(data["C"][0]), us.shape[1], ds.shape[1]
-        at = 1 + 2 * n + m + q                              # mode_in, seed, rng_hi, rng_lo, drawn
+        at = 3 + 2 * n + m + q                              # mode_in, seed, rng_hi, rng_lo, drawn
         for index, value, word in ((at + 4, 0.0, "drawn"), (at + 4, N + 1.0, "drawn"), (at + 2, 2.0 ** 32, "rng_hi"),
-                                   (at + 3, -1.0, "rng_lo"), (at, 0.5, "mode_in"), (at + 1, 2.0 ** 31, "seed")):
+                                   (at + 3, -1.0, "rng_lo"), (at, 0.5, "mode_in"), (at + 1, 2.0 ** 31, "seed"),
+                                   (at - 2, -0.5, "mismatch = -0.5"), (at - 1, 0.5, "mismatch_seed")):
             refused(lambda: b.deserialize(_with_double(blob, index, value)), word)
     if rule == "random":                                # the generator's state is the reference's, bit for bit
         with Fmu(path, "plant") as fmu:
@@ -311,7 +312,8 @@ def test_the_c_switched_plant_equals_the_runtime(tmp_path, rule):
     md = read_model_description(str(path))
     assert "switched linear plant" in md.description
     names = [v.name for v in md.modelVariables]
-    assert names.index("mode[1]") == (names.index("d[1]") + 1 if rule == "input" else len(names) - 1)
+    assert names.index("mode[1]") == (names.index("d[1]") + 1 if rule == "input" else len(names) - 3)
+    assert names[-2:] == ["mismatch[1]", "mismatch_seed[1]"]
     assert ("seed[1]" in names) == (rule == "random")
     check_plant(path, plant.to_data())
 

@@ -214,8 +214,8 @@ def test_model_description_lists_the_integer_ports_in_declaration_order(built, k
     assert [int(v.get("valueReference")) for v in written] == list(range(len(expected)))
     md = read_model_description(str(path))
     integers = {s.name for s in specs if s.type == "Integer"}
-    assert integers == ({"mode_prev0", "mode"} if kind == "obs" else {"seed", "mode"} if key == "random"
-                        else {"mode"})
+    assert integers == ({"mode_prev0", "mode"} if kind == "obs" else {"seed", "mode", "mismatch_seed"}
+                        if key == "random" else {"mode", "mismatch_seed"})
     index = {v.name: i for i, v in enumerate(md.modelVariables)}
     depends = {f"{s.name}[{i + 1}]": [f"{d}[{j + 1}]" for d in s.depends for j in range(
         next(t.size for t in specs if t.name == d))] for s in specs if s.causality == "output" for i in range(s.size)}

@@ -559,8 +559,9 @@ def _add_cosim(sub) -> None:
                    help="white Gaussian noise, seeded (default seed 0): y=STD adds it to the plant's outputs on "
                         "their way to the observer (STD one number, or [S1,S2,...] per output) and runs a "
                         "noise-free twin of the observer alongside, to measure the noise gain against the card's "
-                        "noise.gain_y; w=STD feeds a plant's process-noise input w (only where it has one). "
-                        "Once per signal")
+                        "noise.gain_y; w=STD (alone) feeds the plant's process-noise input w_noise (a problem "
+                        "with [plant] W) and runs a noise-free twin of the whole loop, to measure the gain against "
+                        "noise.gain_w. Once per signal")
     p.add_argument("--no-report", action="store_true",
                    help="do not draw DIR/report.png (saves matplotlib's import and the drawing)")
     p.add_argument("--format", default="csv", metavar="FORMAT",

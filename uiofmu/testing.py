@@ -354,7 +354,7 @@ def _stale_run(plant_path, observer_path, card: Card, steps: np.ndarray, xhat0):
     FMI calls and metrics as :func:`uiofmu.cosim.master.cosimulate`, with the card's claimed bound.
     """
     from .cosim.fmi import Fmu, FmuCallError
-    from .cosim.master import CosimResult, default_inputs, routes
+    from .cosim.master import CosimResult, default_inputs, driven_inputs, routes
     from .cosim.metrics import error_metrics
     from .families import certified_bound
 
@@ -366,7 +366,7 @@ def _stale_run(plant_path, observer_path, card: Card, steps: np.ndarray, xhat0):
         obs.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
         size = {**plant.ports("output"), **obs.ports("output"), **inputs.sizes}
         hist = {name: np.zeros((K + 1, size.get(name, 0))) for name in ("x", "y", "u", "d", "xhat", "r", "dhat")}
-        plant_inputs = list(plant.ports("input"))
+        plant_inputs = driven_inputs(plant, inputs.sizes)
         T, t = np.zeros(K + 1), 0.0
         for k in range(K + 1):
             values = inputs.values(t)

@@ -43,12 +43,15 @@ static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status sta
 static fmi2CallbackFunctions callbacks = {logger, calloc, free, NULL, NULL};
 static const UiofmuPlant *P = &UIOFMU_PLANT;
 
-/* value references: x0 0.., u n.., d n+m.., y n+m+q.., x n+m+q+p.. */
+/* value references: x0 0.., u n.., d n+m.., y n+m+q.., x n+m+q+p.., mismatch, mismatch_seed */
 static fmi2ValueReference VR_X0(int i) { return (fmi2ValueReference)i; }
 static fmi2ValueReference VR_U(int i) { return (fmi2ValueReference)(P->n + i); }
 static fmi2ValueReference VR_D(int i) { return (fmi2ValueReference)(P->n + P->m + i); }
 static fmi2ValueReference VR_Y(int i) { return (fmi2ValueReference)(P->n + P->m + P->q + i); }
 static fmi2ValueReference VR_X(int i) { return (fmi2ValueReference)(P->n + P->m + P->q + P->p + i); }
+/* after x (a linear plant): the Real parameter mismatch, the Integer parameter mismatch_seed */
+static fmi2ValueReference VR_MISMATCH(void) { return VR_X(P->n); }
+static fmi2ValueReference VR_MISMATCH_SEED(void) { return VR_X(P->n) + 1; }
 
 static fmi2Component make(void) {
     fmi2Component c = fmi2Instantiate("plant", fmi2CoSimulation, UIOFMU_FMU.guid, "file:///tmp", &callbacks, fmi2False, fmi2True);
@@ -247,6 +250,17 @@ static int scenario(double h, double other) {
     CHECK(fmi2SetReal(c, &vx0, 1, &nan) == fmi2OK, "set x0 nan");
     EXPECT(fmi2ExitInitializationMode(c), fmi2Error, "x0[1]", "exit with x0[1] = nan");
     CHECK(fmi2SetReal(c, &vx0, 1, &x00) == fmi2OK, "set x0");
+    /* a mismatch that is not a finite number >= 0 is refused the same way; then the scenario runs on
+       a perturbed plant (its state carries the two parameters) */
+    fmi2ValueReference vmm = VR_MISMATCH(), vms = VR_MISMATCH_SEED();
+    double below = -0.01, mismatch = 0.02;
+    fmi2Integer mseed = -5;
+    CHECK(fmi2SetReal(c, &vmm, 1, &below) == fmi2OK, "set mismatch < 0");
+    EXPECT(fmi2ExitInitializationMode(c), fmi2Error, "mismatch", "exit with mismatch < 0");
+    CHECK(fmi2SetReal(c, &vmm, 1, &nan) == fmi2OK, "set mismatch nan");
+    EXPECT(fmi2ExitInitializationMode(c), fmi2Error, "mismatch", "exit with mismatch = nan");
+    CHECK(fmi2SetReal(c, &vmm, 1, &mismatch) == fmi2OK, "set mismatch");
+    CHECK(fmi2SetInteger(c, &vms, 1, &mseed) == fmi2OK, "set mismatch_seed");
     CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "exit");
     set_inputs(c);
     EXPECT(fmi2DoStep(c, t, h, fmi2True), fmi2OK, NULL, "a valid step");
@@ -306,10 +320,13 @@ static int scenario(double h, double other) {
     CHECK(len2 == len && memcmp(bytes, again, len) == 0, "the serialised state differs after a round trip");
     free(again);
     /* forged bytes: refused, nothing changes */
-    size_t data = len - (size_t)(1 + 2 * P->n + P->m + P->q) * sizeof(double);
+    size_t data = len - (size_t)(3 + 2 * P->n + P->m + P->q) * sizeof(double);
+    size_t at_mismatch = 1 + 2 * (size_t)P->n + (size_t)P->m + (size_t)P->q;
     struct { size_t index; double value; const char *word; } forged[] = {
         {0, 7.0, "phase"}, {0, 0.5, "phase"}, {0, NAN, "phase"}, {1, NAN, "x0[1]"}, {1 + (size_t)P->n, INFINITY, "x[1]"},
-        {1 + (size_t)P->n, 1e300, NULL}};
+        {1 + (size_t)P->n, 1e300, NULL}, {at_mismatch, -0.5, "mismatch"}, {at_mismatch, NAN, "mismatch"},
+        {at_mismatch, INFINITY, "mismatch"}, {at_mismatch + 1, 0.5, "mismatch_seed"},
+        {at_mismatch + 1, 3e9, "mismatch_seed"}, {at_mismatch, 0.3, NULL}};
     for (size_t i = 0; i < sizeof forged / sizeof forged[0]; i++) {
         unsigned char *copy = malloc(len);
         memcpy(copy, bytes, len);

@@ -33,7 +33,7 @@ from .fmi import (Fmu, FmuCallError, first_non_integer, not_an_integer, read_des
                   vector_sizes)
 from .inputs import CsvInputs, SignalInputs, values_at
 from .kernels import cosim_kernel
-from .noise import noise_metrics, noises
+from .noise import certified_noise_gain, noise_metrics, noises, process_noise_metrics
 from .native import available as native_available
 from .twin import native_applies, run_twin_loop
 from .result import CosimResult
@@ -153,10 +153,13 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         White Gaussian noise (:mod:`uiofmu.cosim.noise`; text ``y=STD[,SEED]``, ``STD`` one number or a list
         ``[S1,...]`` per output): ``y`` is added to the plant's outputs on their way to the observer (the
         plant's state stays the truth), and a noise-free twin of the observer (a second instance of its FMU,
-        fed the plant's own ``y``) runs in the same loop; ``w`` feeds a plant FMU's process-noise input
-        ``w`` (refused for a plant without one). The result is the twin's run (its bound check, the
-        certified bound being one of noise-free outputs) with the noisy observer in ``result.noise`` and
-        the metrics of :func:`uiofmu.cosim.noise.noise_metrics`. With ``instances``, a third one is the twin.
+        fed the plant's own ``y``) runs in the same loop; ``w`` (alone: without ``y`` noise and quantization)
+        feeds a plant FMU's process-noise input ``w_noise`` (refused for a plant without one), and the twin
+        is then a whole noise-free loop, a second plant instance feeding the twin observer. The result is the
+        twin's run (its bound check, the certified bound being one of noise-free outputs) with the noisy
+        run in ``result.noise`` (``result.noise_w``) and the metrics of
+        :func:`uiofmu.cosim.noise.noise_metrics` (:func:`uiofmu.cosim.noise.process_noise_metrics`). With
+        ``instances``, a third one is the twin observer and a fourth, for process noise, the twin plant.
     quantization : float, optional
         An output quantum Q > 0: the observer receives ``Q round((y + v) / Q)`` (after the noise), the twin
         still the plant's own ``y``; the noise gain is then measured on what the observer received minus ``y``.
@@ -193,9 +196,12 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
     K = len(steps)
     noise = noises(noise)
     quantum = check_quantum(quantization)
-    if "w" in noise and "w" not in vector_sizes(read_description(plant_path).modelVariables, "input"):
+    if "w" in noise and "w_noise" not in vector_sizes(read_description(plant_path).modelVariables, "input"):
         raise ProblemError(f"--noise {noise['w'].text()}: the plant FMU {plant_path} takes no process noise (it has "
-                           "no input w: its problem declares no [plant] W)")
+                           "no input w_noise: its problem declares no [plant] W)")
+    if "w" in noise and ("y" in noise or quantum):
+        raise ProblemError(f"--noise {noise['w'].text()}: process noise is measured alone (its twin loop is the "
+                           "noise-free plant and observer); leave out the sensor noise and the quantization")
     if noise or quantum:
         result = _noisy_run(plant_path, observer_path, card, steps, inputs, noise, quantum, plant_x0, xhat0,
                             plant_parameters, show_progress, instances, native)
@@ -210,8 +216,8 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
         fed, sourced, theta_true = _initialize(plant, obs, plant_path, inputs.sizes, plant_parameters, plant_x0, xhat0)
         cpu1 = time.process_time()
         T = communication_points(steps)
-        plant_inputs = list(plant.ports("input"))
         source = values_at(inputs, T)
+        plant_inputs = driven_inputs(plant, source)
         check_integers(inputs, source, T, [n for n in plant_inputs if plant.integer(n)]
                        + [n for n in sourced if obs.integer(n)])
         loop = _Loop(plant, obs, plant_inputs, fed, sourced, ["y", "x"], list(obs.ports("output")), source, K)
@@ -228,14 +234,18 @@ def cosimulate(plant_path, observer_path, steps: np.ndarray, inputs=None, *, pla
     timing = {"steps": cpu4 - cpu1, "loop": cpu3 - cpu2, "fmi_calls_per_step": loop.calls_per_step,
               "native": program is not None}
     return _timed(_with_plant(cosim_kernel(card).result(card, T, steps, X, Y, U, D, H, MODE, theta_true),
-                              plant_path, card), timing, cpu0)
+                              plant_path, card, plant_parameters), timing, cpu0)
 
 
-def _with_plant(result: CosimResult, plant_path, card: Card) -> CosimResult:
-    """The result with ``metrics["plant"]["is_design_model"]`` (:func:`plant_is_design_model`) where its bound
-    is violated (what the summary's explanation needs)."""
+def _with_plant(result: CosimResult, plant_path, card: Card, plant_parameters: dict | None) -> CosimResult:
+    """The result with ``metrics["plant"]["is_design_model"]`` (:func:`plant_is_design_model`, and no plant
+    perturbed by a ``mismatch`` above 0 is) where its bound is violated (what the summary's explanation
+    needs), with the ``mismatch`` when one was asked for."""
+    mismatch = float(np.ravel((plant_parameters or {}).get("mismatch", [0.0]))[0])
     if result.metrics.get("bound_respected") is False:
-        result.metrics["plant"] = {"is_design_model": plant_is_design_model(plant_path, card)}
+        result.metrics["plant"] = {"is_design_model": mismatch == 0 and plant_is_design_model(plant_path, card)}
+    if mismatch:
+        result.metrics.setdefault("plant", {})["mismatch"] = mismatch
     return result
 
 
@@ -280,30 +290,38 @@ def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs,
                                                        stack.enter_context(Fmu(observer_path, "observer")))
         twin = (instances[2] if instances and len(instances) > 2
                 else stack.enter_context(Fmu(observer_path, "observer-noise-free")))
+        twin_plant = None
         source = values_at(inputs, T)
         sizes = dict(inputs.sizes)
         if "w" in noise:
-            sizes["w"] = plant.ports("input")["w"]
-            source["w"] = noise["w"].samples(K + 1, sizes["w"])
+            twin_plant = (instances[3] if instances and len(instances) > 3
+                          else stack.enter_context(Fmu(plant_path, "plant-noise-free")))
+            sizes["w_noise"] = plant.ports("input")["w_noise"]
+            source["w_noise"] = noise["w"].samples(K + 1, sizes["w_noise"])
         fed, sourced, theta_true = _initialize(plant, obs, plant_path, sizes, plant_parameters, plant_x0, xhat0)
         twin.initialize(0.0, {"xhat0": xhat0} if xhat0 is not None else None)
-        plant_inputs = list(plant.ports("input"))
+        if twin_plant is not None:
+            twin_plant.initialize(0.0, {**(plant_parameters or {}), **({"x0": plant_x0} if plant_x0 is not None
+                                                                       else {})})
+        plant_inputs = driven_inputs(plant, source)
         check_integers(inputs, source, T, [n for n in plant_inputs if plant.integer(n)]
                        + [n for n in sourced if obs.integer(n)])
         p = len(plant.refs("y"))
         v = noise["y"].samples(K + 1, p) if "y" in noise else np.zeros((K + 1, p))
-        native = native and native_applies(plant, obs, twin, fed)
+        native = native and native_applies(plant, obs, twin, fed, twin_plant)
         with progress(total=K, desc="co-simulation with noise", unit="step", enabled=show_progress) as bar:
-            recorded, H, H_twin = run_twin_loop(plant, obs, twin, plant_inputs, fed, sourced, source, v, quantum, T,
-                                                steps, bar, native)
+            recorded, H, H_twin, twin_recorded = run_twin_loop(plant, obs, twin, plant_inputs, fed, sourced, source,
+                                                               v, quantum, T, steps, bar, native, twin_plant)
     X, Y = recorded["x"], recorded["y"]
+    X_twin, Y_twin = twin_recorded["x"], twin_recorded["y"]
     U = source["u"] if "u" in source else np.zeros((K + 1, 0))
     D = source["d"] if "d" in source else np.zeros((K + 1, 0))
     MODE = None
     if obs.has("mode"):
         MODE = recorded["mode"][:, 0].copy() if "mode" in fed else np.round(source["mode"])[:, 0]
     kernel = cosim_kernel(card)
-    result = _with_plant(kernel.result(card, T, steps, X, Y, U, D, H_twin, MODE, theta_true), plant_path, card)
+    result = _with_plant(kernel.result(card, T, steps, X_twin, Y_twin, U, D, H_twin, MODE, theta_true), plant_path,
+                         card, plant_parameters)
     noisy = kernel.result(card, T, steps, X, Y, U, D, H, MODE, theta_true)
     if "y" in noise or quantum:
         truth = X if kernel.estimate == "xhat" else noisy.functional["true"]
@@ -317,8 +335,15 @@ def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs,
                         "twin_error": kernel.estimate_of(result) - truth}
     result.timing = {"native": native}
     if "w" in noise:
-        result.metrics.setdefault("noise", {})["w"] = {"std": noise["w"].stds(sizes["w"]).tolist(),
-                                                      "seed": noise["w"].seed, "text": noise["w"].text()}
+        truth, truth_twin = ((X, X_twin) if kernel.estimate == "xhat"
+                             else (noisy.functional["true"], result.functional["true"]))
+        error, twin_error = kernel.estimate_of(noisy) - truth, kernel.estimate_of(result) - truth_twin
+        w = source["w_noise"][:K]                       # the noise held over each step taken
+        result.metrics.update(process_noise_metrics(certified_noise_gain(card, "gain_w"), error, twin_error, w))
+        result.metrics.setdefault("noise", {})["w"] = {"std": noise["w"].stds(sizes["w_noise"]).tolist(),
+                                                      "seed": noise["w"].seed, "text": noise["w"].text(),
+                                                      "noise_norm": float(np.sqrt(np.sum(w * w)))}
+        result.noise_w = {"w": w, "error": error, "twin_error": twin_error}
     return result
 
 
@@ -618,6 +643,16 @@ def _do_steps(steps_: list, k: int, t: float, h: float) -> None:
             raise refused_step(who, k, t, h, FmuCallError("fmi2DoStep", status, log[start:]))
 
 
+#: A plant input that a run without it leaves at its start value (0): process noise, given by ``--noise w=...``.
+OPTIONAL_PLANT_INPUTS = ("w_noise",)
+
+
+def driven_inputs(plant, source) -> list:
+    """The plant's inputs a run sets from the source (``source``: its vectors by name): every one, but an
+    :data:`OPTIONAL_PLANT_INPUTS` one the source does not give."""
+    return [name for name in plant.ports("input") if name not in OPTIONAL_PLANT_INPUTS or name in source]
+
+
 def routes(plant, obs, source: dict) -> tuple[list, list]:
     """Which observer inputs the plant feeds and which the input source does, by name.
 
@@ -642,7 +677,8 @@ def routes(plant, obs, source: dict) -> tuple[list, list]:
         For a vector whose sizes differ between the FMUs (or the source), and for an input
         that nothing feeds, naming it.
     """
-    outputs, plant_in, obs_in = plant.ports("output"), plant.ports("input"), obs.ports("input")
+    outputs, obs_in = plant.ports("output"), obs.ports("input")
+    plant_in = {name: size for name, size in plant.ports("input").items() if name in driven_inputs(plant, source)}
     fed = [name for name in obs_in if name in outputs]
     for name in fed:
         if outputs[name] != obs_in[name]:
@@ -788,5 +824,5 @@ def load_inputs(csv_path, plant_path, observer_path=None):
     return CsvInputs(csv_path, sizes, owners, integers)
 
 
-__all__ = ["CosimResult", "cosimulate", "default_inputs", "default_steps", "default_t_end", "load_inputs",
-           "observer_card", "routes", "step_sequence", "write_outputs"]
+__all__ = ["OPTIONAL_PLANT_INPUTS", "CosimResult", "cosimulate", "default_inputs", "default_steps", "default_t_end",
+           "driven_inputs", "load_inputs", "observer_card", "routes", "step_sequence", "write_outputs"]

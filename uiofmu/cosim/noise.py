@@ -132,13 +132,14 @@ def noises(spec) -> dict:
     return out
 
 
-def certified_noise_gain(card) -> float | None:
-    """The card's certified l2 gain from measurement noise to the estimation error (``noise.gain_y``),
-    or None where the card has none (an older card, or a family that certifies none)."""
+def certified_noise_gain(card, key: str = "gain_y") -> float | None:
+    """The card's certified l2 gain from measurement noise to the estimation error (``noise.gain_y``; with
+    ``key = "gain_w"`` from process noise), or None where the card has none (an older card, or a family
+    that certifies none)."""
     section = card.data.get("noise")
     if not isinstance(section, dict) or section.get("norm", "l2") != "l2":
         return None
-    gain = section.get("gain_y")
+    gain = section.get(key)
     return float(gain) if isinstance(gain, (int, float)) and not isinstance(gain, bool) else None
 
 
@@ -206,4 +207,47 @@ def noise_metrics(card, v: np.ndarray, estimate: np.ndarray, twin: np.ndarray, t
     return out
 
 
-__all__ = ["GAIN_RTOL", "Noise", "certified_noise_gain", "noise_metrics", "noises", "parse_noise"]
+def process_noise_metrics(certified: float | None, error: np.ndarray, twin_error: np.ndarray,
+                          w: np.ndarray) -> dict:
+    """The metrics of a run with process noise.
+
+    Process noise moves the plant itself, so an observer twin fed the same plant cannot split it off: the
+    twin is a whole noise-free loop (a second plant FMU given every input but the noise, a second observer
+    fed by it). The error dynamics of a decoupled observer are linear and free of ``x``, ``u`` and ``d``, so
+    ``error - twin_error`` is the response of the error to ``w`` alone from a zero initial error (the
+    initial-condition term is the twin's), what ``noise.gain_w`` bounds:
+    ``noise_gain_w_measured = ||e - e_twin||_2 / ||w||_2``.
+
+    Parameters
+    ----------
+    certified : float or None
+        The card's ``noise.gain_w``.
+    error, twin_error : (K+1, .) arrays
+        The estimation error of the noisy loop and of its twin (NaN rows, as a functional observer's
+        first ones, are left out).
+    w : (K, r) array
+        The noise held over each step.
+
+    Returns
+    -------
+    dict
+        ``noise_gain_w_certified``, ``noise_gain_w_measured`` (None for ``w = 0``), ``noise_gain_w_respected``
+        (measured <= certified (1 + :data:`GAIN_RTOL`); None without a certified gain), ``noise_gain_w_ratio``,
+        ``noise_w_std_norm`` (the rms of ``w`` per element, as a norm over the elements) and
+        ``noise_w_rms_error`` (the noisy loop's error over the second half of the run, per element).
+    """
+    diff = np.asarray(error, dtype=float) - np.asarray(twin_error, dtype=float)
+    rows = np.all(np.isfinite(diff), axis=1)
+    w_norm = float(np.sqrt(np.sum(w * w)))
+    measured = float(np.sqrt(np.sum(diff[rows] ** 2)) / w_norm) if w_norm > 0 else None
+    respected = None if certified is None or measured is None else bool(measured <= certified * (1 + GAIN_RTOL))
+    valid = np.all(np.isfinite(error), axis=1)
+    return {"noise_gain_w_certified": certified, "noise_gain_w_measured": measured,
+            "noise_gain_w_respected": respected,
+            "noise_gain_w_ratio": None if certified in (None, 0.0) or measured is None else measured / certified,
+            "noise_w_std_norm": float(np.linalg.norm(np.sqrt(np.mean(w * w, axis=0)))) if len(w) else 0.0,
+            "noise_w_rms_error": _second_half_rms(np.asarray(error, dtype=float)[valid])}
+
+
+__all__ = ["GAIN_RTOL", "Noise", "certified_noise_gain", "noise_metrics", "noises", "parse_noise",
+           "process_noise_metrics"]

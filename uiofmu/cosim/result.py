@@ -35,6 +35,7 @@ class CosimResult:
     delayed: dict | None = None
     timing: dict = field(default_factory=dict)
     noise: dict | None = None      # a run with measurement noise: v, its std, the noisy estimate and both errors
+    noise_w: dict | None = None    # a run with process noise: w, the noisy loop's error and its twin loop's
     names: dict | None = None      # the names and units when there is no card (a run read back from its files)
 
     @property

@@ -40,7 +40,7 @@ from ..runtime.files import atomic_output, check_output_file
 from ..runtime.ports import experiment as checked_experiment
 from .fmi import read_description, vector_sizes
 from .inputs import CsvInputs, values_at
-from .master import check_integers, communication_points, default_inputs, observer_card, routes
+from .master import check_integers, communication_points, default_inputs, driven_inputs, observer_card, routes
 
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
@@ -176,7 +176,8 @@ def write_ssp(plant_path, observer_path, output, inputs=None, *, name: str | Non
     plant, obs = _Ports(plant_path), _Ports(observer_path)
     inputs = default_inputs(card) if inputs is None else inputs
     fed, sourced = routes(plant, obs, inputs.sizes)
-    sizes = {**plant.ports("input"), **{k: obs.ports("input")[k] for k in sourced}}
+    driven = {k: plant.ports("input")[k] for k in driven_inputs(plant, inputs.sizes)}   # not w_noise: left at 0
+    sizes = {**driven, **{k: obs.ports("input")[k] for k in sourced}}
     integers = [k for k in sizes if (k in plant.ports("input") and plant.integer(k)) or
                 (k in sourced and obs.integer(k))]
     experiment = loop_experiment(obs, card)
@@ -184,8 +185,7 @@ def write_ssp(plant_path, observer_path, output, inputs=None, *, name: str | Non
     connections = ([Connection(PLANT, OBSERVER, f"{k}[{i}]") for k in fed for i in range(1, obs.ports("input")[k] + 1)]
                    + [Connection(SOURCE, OBSERVER, f"{k}[{i}]") for k in sourced
                       for i in range(1, obs.ports("input")[k] + 1)]
-                   + [Connection(SOURCE, PLANT, f"{k}[{i}]") for k, n in plant.ports("input").items()
-                      for i in range(1, n + 1)])
+                   + [Connection(SOURCE, PLANT, f"{k}[{i}]") for k, n in driven.items() for i in range(1, n + 1)])
     with tempfile.TemporaryDirectory(prefix="uiofmu_ssp_") as tmp:
         source_path = build_source(table, Path(tmp) / f"{SOURCE}.fmu", experiment=experiment)
         types = {SOURCE: {f"{k}[{i}]": ("Integer" if k == "mode" else "Real") for k, n in table.sizes.items()

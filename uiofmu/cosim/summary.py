@@ -72,6 +72,9 @@ def _why_not(metrics: dict) -> str:
     """Why a bound may fail, by what the run knows of its plant: a plant other than the design model has a
     mismatch floor; the design's own plant does not, and its leaks say whether round-off explains the run."""
     plant = metrics.get("plant")
+    if isinstance(plant, dict) and plant.get("mismatch"):
+        return (f"the plant FMU's A, B, E are perturbed by a relative mismatch of {plant['mismatch']:.3g}: a model "
+                "mismatch, which has a mismatch floor")
     if not (isinstance(plant, dict) and plant.get("is_design_model")):
         return "a plant other than the design model has a mismatch floor"
     leaks = metrics.get("roundoff_floor")
@@ -105,7 +108,19 @@ def _print_noise(metrics: dict, p) -> None:
         p("  rms error with noise " + ", ".join(f"{v:.4g}" for v in metrics["noise_rms_error"])
           + " (second half; noise-free twin " + ", ".join(f"{v:.3g}" for v in nz["rms_error_noise_free"]) + ")")
     if "w" in nz:
-        p(f"  process noise        {nz['w']['text']}")
+        p(f"  process noise        {nz['w']['text']} (white, std per column of W "
+          + ", ".join(f"{s:.3g}" for s in nz["w"]["std"]) + ", into the plant FMU's w_noise)")
+        measured, certified = metrics["noise_gain_w_measured"], metrics["noise_gain_w_certified"]
+        shown = "none" if measured is None else f"{measured:.4g}"
+        if certified is None:
+            p(f"  process noise gain   measured {shown} (||e - e_twin|| / ||w||, the twin a noise-free loop); the "
+              "card certifies none")
+        elif metrics["noise_gain_w_respected"]:
+            p(f"  process noise gain   measured {shown} <= certified {certified:.4g}: respected "
+              f"(ratio {metrics['noise_gain_w_ratio']:.3g})")
+        else:
+            p(f"  process noise gain   FALSE CERTIFICATE: measured {shown} > certified {certified:.4g} "
+              f"(ratio {metrics['noise_gain_w_ratio']:.3g}): the card's noise.gain_w does not hold")
 
 
 def _print_delayed(metrics: dict, p) -> None:

@@ -1,10 +1,12 @@
-"""The co-simulation loop with measurement noise: the plant, the observer fed the noisy ``y`` and its
-noise-free twin (a second instance of the same observer FMU fed the plant's own ``y``), stepped together.
+"""The co-simulation loop with noise: the plant, the observer fed the noisy ``y`` and its noise-free twin
+(a second instance of the same observer FMU fed the plant's own ``y``), stepped together. With process
+noise the plant itself moves, so the twin is a whole loop: a second instance of the plant FMU, given every
+input but the noise, feeds the twin observer.
 
 Order at each communication point t_k, as in :mod:`uiofmu.cosim.master`: set the plant's inputs; read its
 outputs; set both observers' inputs (the observer's ``y`` plus the noise ``v_k``, the twin's ``y`` as the
 plant gives it, the same ``u``, ``d``, ... to both); read both observers' outputs; then ``doStep(t_k, h_k)``
-on the observer, the twin and the plant.
+on the observer, the twin and the plant (and the twin's plant, read and stepped after the plant).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ def measured(v: np.ndarray, quantum: float | None):
 
 def run_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: list, sourced: list, source: dict,
                   v: np.ndarray, quantum: float | None, times: np.ndarray, steps: np.ndarray, bar,
-                  native: bool = True) -> tuple:
+                  native: bool = True, twin_plant: Fmu | None = None) -> tuple:
     """Step the plant, the observer fed the measured ``y`` and its noise-free twin over every point.
 
     Parameters
@@ -58,20 +60,27 @@ def run_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: list
     native : bool
         Step in the C driver (:mod:`uiofmu.cosim.native`), where :func:`native_applies` (the caller asks it);
         the results are the same bit for bit.
+    twin_plant : Fmu, optional
+        Initialised as the plant: the twin observer's plant, given every plant input but ``w_noise``
+        (which stays at its start value 0).
 
     Returns
     -------
-    (dict, dict, dict)
+    (dict, dict, dict, dict)
         The plant's recorded outputs (``x``, ``y`` and those it feeds, and ``y_measured``: what the observer
-        received), the observer's outputs and the twin's, by name, one row per point.
+        received), the observer's outputs and the twin's, by name, one row per point, and the twin plant's
+        recorded outputs (the plant's when there is no twin plant).
     """
     if native:
-        return _native_twin_loop(plant, obs, twin, plant_inputs, fed, sourced, source, v, quantum, times, steps, bar)
+        return _native_twin_loop(plant, obs, twin, plant_inputs, fed, sourced, source, v, quantum, times, steps, bar,
+                                 twin_plant)
     K = len(steps)
     measure = measured(v, quantum)
     outputs = plant.ports("output")
     recorded = {name: np.zeros((K + 1, outputs[name])) for name in dict.fromkeys(["x", "y", *fed]) if name in outputs}
     recorded["y_measured"] = np.zeros_like(recorded["y"])
+    other = {name: np.zeros_like(values) for name, values in recorded.items() if name != "y_measured"} \
+        if twin_plant is not None else recorded
     H = {name: np.zeros((K + 1, size)) for name, size in obs.ports("output").items()}
     H_twin = {name: np.zeros((K + 1, size)) for name, size in twin.ports("output").items()}
     for k in range(K + 1):
@@ -80,10 +89,16 @@ def run_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: list
         for name in outputs:
             if name in recorded:
                 recorded[name][k] = plant.get(name)
+        if twin_plant is not None:
+            for name in plant_inputs:
+                if name != "w_noise":
+                    twin_plant.set(name, source[name][k])
+            for name in other:
+                other[name][k] = twin_plant.get(name)
         recorded["y_measured"][k] = measure(k, recorded["y"][k])
         for name in fed:
             obs.set(name, recorded["y_measured"][k] if name == "y" else recorded[name][k])
-            twin.set(name, recorded[name][k])
+            twin.set(name, other[name][k])
         for name in sourced:
             obs.set(name, source[name][k])
             twin.set(name, source[name][k])
@@ -96,18 +111,21 @@ def run_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: list
         _step(obs, "observer", k, t, h)
         _step(twin, "observer's noise-free twin", k, t, h)
         _step(plant, "plant", k, t, h)
+        if twin_plant is not None:
+            _step(twin_plant, "plant's noise-free twin", k, t, h)
         bar.update(1)
-    return recorded, H, H_twin
+    return recorded, H, H_twin, other
 
 
-def native_applies(plant: Fmu, obs: Fmu, twin: Fmu, fed: list) -> bool:
-    """Whether the C driver can run this loop: three native binaries (:func:`uiofmu.cosim.native.available`),
-    the plant's ``y`` Real on both sides and every other vector the plant feeds of one type on both."""
+def native_applies(plant: Fmu, obs: Fmu, twin: Fmu, fed: list, twin_plant: Fmu | None = None) -> bool:
+    """Whether the C driver can run this loop: native binaries (:func:`uiofmu.cosim.native.available`) for the
+    plant, both observers and the twin's plant if there is one, the plant's ``y`` Real on both sides and every
+    other vector the plant feeds of one type on both."""
     from . import native
 
     if any(plant.integer(name) != obs.integer(name) for name in fed) or plant.integer("y") or obs.integer("y"):
         return False
-    return native.available(plant, obs, twin)
+    return native.available(plant, obs, twin, *([twin_plant] if twin_plant is not None else []))
 
 
 def _dtype(fmu: Fmu, name: str):
@@ -119,10 +137,12 @@ def _function(fmu: Fmu, what: str, name: str) -> str:
 
 
 def _native_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: list, sourced: list, source: dict,
-                      v: np.ndarray, quantum: float | None, times: np.ndarray, steps: np.ndarray, bar) -> tuple:
+                      v: np.ndarray, quantum: float | None, times: np.ndarray, steps: np.ndarray, bar,
+                      twin_plant: Fmu | None) -> tuple:
     """:func:`run_twin_loop` in the C driver: the same calls in the same order, one per FMU and vector, on
     buffers with a row per point (the source's values typed as each FMU takes them; the plant's outputs and
-    the observers' as they give them, as floats once the run is over)."""
+    the observers' as they give them, as floats once the run is over). The twin's plant, if any, is a fourth
+    FMU of the program, set and read after the plant and stepped after it."""
     from .native import Program
 
     K = len(steps)
@@ -140,11 +160,19 @@ def _native_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: 
     for name in outputs:
         if name in recorded:
             program.values(plant, _function(plant, "Get", name), [name], recorded[name])
+    other = recorded
+    if twin_plant is not None:
+        for name in plant_inputs:
+            if name != "w_noise":
+                program.values(twin_plant, _function(twin_plant, "Set", name), [name], typed(twin_plant, name))
+        other = {name: np.zeros_like(history) for name, history in recorded.items()}
+        for name in other:
+            program.values(twin_plant, _function(twin_plant, "Get", name), [name], other[name])
     y_measured = np.zeros_like(recorded["y"])
     program.measure(recorded["y"], np.ascontiguousarray(v, dtype=float), quantum, y_measured)
     for name in fed:
         program.values(obs, _function(obs, "Set", name), [name], y_measured if name == "y" else recorded[name])
-        program.values(twin, _function(twin, "Set", name), [name], recorded[name])
+        program.values(twin, _function(twin, "Set", name), [name], other[name])
     for name in sourced:
         values = typed(obs, name)
         program.values(obs, _function(obs, "Set", name), [name], values)
@@ -154,13 +182,16 @@ def _native_twin_loop(plant: Fmu, obs: Fmu, twin: Fmu, plant_inputs: list, fed: 
     for name in H:
         program.values(obs, _function(obs, "Get", name), [name], H[name])
         program.values(twin, _function(twin, "Get", name), [name], H_twin[name])
-    for fmu, who in ((obs, "observer"), (twin, "observer's noise-free twin"), (plant, "plant")):
+    for fmu, who in ((obs, "observer"), (twin, "observer's noise-free twin"), (plant, "plant"),
+                     *([(twin_plant, "plant's noise-free twin")] if twin_plant is not None else [])):
         program.step(fmu, who)
     program.run(bar)
-    recorded = {name: history.astype(float) for name, history in recorded.items()}
-    recorded["y_measured"] = y_measured
-    return (recorded, {name: h.astype(float) for name, h in H.items()},
-            {name: h.astype(float) for name, h in H_twin.items()})
+    as_float = {name: history.astype(float) for name, history in recorded.items()}
+    twin_recorded = ({name: history.astype(float) for name, history in other.items()} if twin_plant is not None
+                     else as_float)
+    as_float["y_measured"] = y_measured
+    return (as_float, {name: h.astype(float) for name, h in H.items()},
+            {name: h.astype(float) for name, h in H_twin.items()}, twin_recorded)
 
 
 __all__ = ["measured", "native_applies", "run_twin_loop"]

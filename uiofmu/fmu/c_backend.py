@@ -622,8 +622,9 @@ def _switched_source(data: dict, guid: str, identifier: str) -> str:
         raise FmuError(f"plant switching.seed: expected an fmi2Integer, found {str(seed)[:40]!r}")
     table = table_rows(kernel, "switched plant", plant_ports(n, m, p, q, (), rule))
     arrays = (("A", A, N * n * n), ("B", B, N * n * m), ("E", E, N * n * q), ("C", C, p * n), ("w", w, N * n),
-              ("x0", x0, n), ("thresholds", thresholds, len(thresholds)), ("cumulative", cumulative, len(cumulative)),
-              ("D", np.zeros((p, m)), p * m), ("F", np.zeros((p, q)), p * q))
+              ("x0", x0, n), ("W", [], 0), ("thresholds", thresholds, len(thresholds)),
+              ("cumulative", cumulative, len(cumulative)), ("D", np.zeros((p, m)), p * m),
+              ("F", np.zeros((p, q)), p * q))
     switching = (f".modes = {N}, .rule = {RULES[rule]}, .state = {state}, .nthresholds = {len(thresholds)}, "
                  f".mode0 = {mode0}, .seed = {int(seed)},")
     return _plant_data_source("a switched plant", kernel, "UiofmuPlant UIOFMU_PLANT", arrays,
@@ -702,16 +703,17 @@ def _linear_source(data: dict, guid: str, identifier: str) -> str:
     E = np.asarray(data["E"], dtype=float).reshape(n, -1)
     w = np.asarray(data.get("w") or np.zeros(n), dtype=float)
     x0 = np.asarray(data.get("x0") or np.zeros(n), dtype=float)
-    m, q, p = B.shape[1], E.shape[1], C.shape[0]
+    W = np.asarray(data.get("W") or np.zeros((n, 0)), dtype=float).reshape(n, -1)
+    m, q, p, r = B.shape[1], E.shape[1], C.shape[0], W.shape[1]
     D, F = (np.asarray(data[k], dtype=float).reshape(p, cols) if data.get(k) else np.zeros((p, cols))
             for k, cols in (("D", m), ("F", q)))
     dt = float(data.get("dt") or 0.0) if time == "discrete" else 0.0
     feeds = tuple(name for name, M in (("u", D), ("d", F)) if np.any(M))
-    table = table_rows(kernel, "linear plant", plant_ports(n, m, p, q, feeds=feeds))
+    table = table_rows(kernel, "linear plant", plant_ports(n, m, p, q, r=r, feeds=feeds))
     arrays = (("A", A, n * n), ("B", B, n * m), ("E", E, n * q), ("C", C, p * n), ("w", w, n), ("x0", x0, n),
-              ("thresholds", [], 0), ("cumulative", [], 0), ("D", D, p * m), ("F", F, p * q))
+              ("W", W, n * r), ("thresholds", [], 0), ("cumulative", [], 0), ("D", D, p * m), ("F", F, p * q))
     return _plant_data_source("a linear plant", kernel, "UiofmuPlant UIOFMU_PLANT", arrays,
-                              f".n = {n}, .m = {m}, .p = {p}, .q = {q}, .time = {TIMES[time]},", dt,
+                              f".n = {n}, .m = {m}, .p = {p}, .q = {q}, .r = {r}, .time = {TIMES[time]},", dt,
                               [".modes = 0, .rule = UIOFMU_RULE_NONE, .mode0 = 1,"], guid, identifier, table)
 
 

@@ -51,7 +51,13 @@ class PlantModel(StatefulModel):
         self.dirty = True
 
     def initialize(self) -> None:
-        """Take the parameters (initial state, seed, physical parameters) and reset."""
+        """Take the parameters (initial state, seed, physical parameters, mismatch) and reset.
+
+        Raises
+        ------
+        StepRejected
+            For a ``mismatch`` that is not a finite number >= 0 (or that makes a matrix entry overflow).
+        """
         named = self.named
         self.rt.x0 = named["x0"].values.copy()
         if self.plant_kind.theta_parameters:
@@ -62,6 +68,8 @@ class PlantModel(StatefulModel):
         self.rt.apply_parameters()
         if "seed" in named:
             self.rt.seed = int(named["seed"].values[0])
+        if "mismatch" in named:
+            self.rt.set_mismatch(float(named["mismatch"].values[0]), int(named["mismatch_seed"].values[0]))
         self.rt.reset()
         self.dirty = True
 

@@ -40,8 +40,17 @@ def _mujoco_runtime(spec: dict, resources: str):
 
 
 def _linear_ports(rt, physical: list) -> list:
-    feeds = tuple(k for k in ("u", "d") if getattr(rt, {"u": "D", "d": "F"}[k], None) is not None)
-    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, feeds=feeds)
+    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, r=rt.r, feeds=_feeds(rt))
+
+
+def _feeds(rt) -> tuple:
+    """The inputs a plant's ``y`` depends on directly: ``"u"`` with a feedthrough ``D``, ``"d"`` with ``F``."""
+    return tuple(k for k in ("u", "d") if getattr(rt, {"u": "D", "d": "F"}[k], None) is not None)
+
+
+def _mujoco_ports(rt, physical: list) -> list:
+    """A MuJoCo plant's: a linear plant's without the mismatch (MuJoCo's model has no matrices to perturb)."""
+    return plant_ports(rt.n, rt.u.shape[0], rt.p, rt.d.shape[0], physical, mismatch=False, feeds=_feeds(rt))
 
 
 def _switched_ports(rt, physical: list) -> list:
@@ -72,8 +81,16 @@ def _no_arrays(rt) -> dict:
     return {}
 
 
+def _mismatch_arrays(rt) -> dict:
+    return {"mismatch": np.array([rt.mismatch]), "mismatch_seed": np.array([float(rt.mismatch_seed)])}
+
+
+def _linear_arrays(rt) -> dict:
+    return {**_mismatch_arrays(rt), "w_noise": rt.w_noise}
+
+
 def _switched_arrays(rt) -> dict:
-    return {"seed": np.array([float(rt.seed)]), "mode": np.array([float(rt.mode_in)])}
+    return {"seed": np.array([float(rt.seed)]), "mode": np.array([float(rt.mode_in)]), **_mismatch_arrays(rt)}
 
 
 def _lpv_arrays(rt) -> dict:
@@ -144,8 +161,8 @@ PLANT_KINDS = {k.name: k for k in (
               variant=("theta", "kind"), what="LPV plant"),
     PlantKind("switched", "modes", _plant_runtime(SwitchedPlantRuntime), _switched_ports, _switched_arrays,
               c_kernel="switched", variant=("switching", "rule"), what="switched plant"),
-    PlantKind("linear", None, _plant_runtime(PlantRuntime), _linear_ports, c_kernel="linear"),
-    PlantKind("mujoco", "mujoco", _mujoco_runtime, _linear_ports, c_kernel="mujoco", what="MuJoCo plant",
+    PlantKind("linear", None, _plant_runtime(PlantRuntime), _linear_ports, _linear_arrays, c_kernel="linear"),
+    PlantKind("mujoco", "mujoco", _mujoco_runtime, _mujoco_ports, c_kernel="mujoco", what="MuJoCo plant",
               fmu_kind="mujoco", steps=_any_step),
 )}
 #: The kind of plant data that has none of the kinds' keys.

@@ -187,6 +187,9 @@ KERNEL_PORTS = {
         PortSpec("x", 0, "output", "true state (for validation)"),
         PortSpec("seed", 0, "parameter", "seed of the random switching", type="Integer"),
         PortSpec("mode", 0, "output", "mode of the step from the current point (1..N)", type="Integer"),
+        PortSpec("mismatch", 0, "parameter", "relative std of the perturbation of A, B, E (0: the design model)"),
+        PortSpec("mismatch_seed", 0, "parameter", "seed of the perturbation of A, B, E", type="Integer"),
+        PortSpec("w_noise", 0, "input", "process noise (held over the step), entering through W"),
     ),
     "lpv": (
         PortSpec("x0", 0, "parameter", "initial state"),
@@ -311,7 +314,7 @@ def window_ports(p: int, d: int, s: int) -> list:
 
 
 def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | None = None,
-                feeds: tuple = ()) -> list:
+                mismatch: bool = True, r: int = 0, feeds: tuple = ()) -> list:
     """The declaration of a plant: parameters ``x0`` and the physical ``(name, what)`` pairs,
     inputs ``u``, ``d`` (held over the step), outputs ``y = C x + D u + F d`` and ``x`` (``feeds``: the inputs
     ``y`` depends on directly, ``"u"`` where ``D != 0`` and ``"d"`` where ``F != 0``; none by default).
@@ -319,7 +322,10 @@ def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | 
     A switched plant (``switching``: its rule, :mod:`uiofmu.runtime.switching`) adds the Integer
     ``mode`` of the step from the current point: an output that depends on no input (rules
     ``threshold``, ``random``; ``random`` also has the Integer parameter ``seed``), or an input
-    (rule ``input``)."""
+    (rule ``input``). A plant of matrices (``mismatch``, :mod:`uiofmu.runtime.mismatch`) ends with the
+    parameters ``mismatch`` (Real) and ``mismatch_seed`` (Integer), after every other port so that
+    the value references of the others are those of a plant without them. A plant whose problem
+    declares process noise (``[plant] W`` of ``r`` columns) has the input ``w_noise[1..r]`` after ``d``."""
     def port(key, size, **changes):
         return kernel_port("plant", key, size, **changes)
 
@@ -328,6 +334,8 @@ def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | 
         ports.append(port("seed", 1))
     ports += [PortSpec(name, 1, "parameter", f"physical parameter {what}") for name, what in parameters]
     ports += [port("u", m), port("d", q)]
+    if r:
+        ports.append(port("w_noise", r))
     if switching == "input":
         ports.append(port("mode", 1, causality="input"))
     ports += [port("y", p), port("x", n)]
@@ -335,6 +343,8 @@ def plant_ports(n: int, m: int, p: int, q: int, parameters=(), switching: str | 
         ports = [replace(spec, depends=tuple(feeds)) if spec.key == "y" else spec for spec in ports]
     if switching in ("threshold", "random"):
         ports.append(port("mode", 1, causality="output"))
+    if mismatch:
+        ports += [port("mismatch", 1), port("mismatch_seed", 1)]
     return ports
 
 

@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .plant_runtime import PlantRuntime
+from .plant_runtime import INT_MAX, INT_MIN, PlantRuntime
 from .refusals import refusal
 from .schedules import StepRejected, matches, mode_problem
+from .splitmix import MASK, splitmix64
 from .state import StateReader
 from .stepping import RuntimeInputError, check_step
 from .tolerances import STEP_RTOL
@@ -31,18 +32,7 @@ from .tolerances import STEP_RTOL
 #: The rules a switched plant picks its mode by.
 RULES = ("threshold", "input", "random")
 
-_MASK = (1 << 64) - 1
-#: The range of an FMI Integer (fmi2Integer is a C int).
-INT_MIN, INT_MAX = -2 ** 31, 2 ** 31 - 1
-
-
-def splitmix64(state: int) -> tuple[int, int]:
-    """One step of SplitMix64 (Steele, Lea, Flood 2014): ``(new state, 64-bit output)``."""
-    state = (state + 0x9E3779B97F4A7C15) & _MASK
-    z = state
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK
-    return state, z ^ (z >> 31)
+_MASK = MASK
 
 
 def draw_mode(output: int, cumulative) -> int:
@@ -84,6 +74,14 @@ class SwitchedPlantRuntime(PlantRuntime):
                        np.array(md["E"], dtype=float).reshape(n, -1), np.array(md["w"], dtype=float))
                       for md in modes]
         self.N = len(self.modes)
+        self._design = self.blocks()
+
+    def blocks(self) -> list:
+        """The matrices the mismatch perturbs: ``(A_i, B_i, E_i)`` of every mode, in order."""
+        return [mode[:3] for mode in self.modes]
+
+    def _set_blocks(self, blocks: list) -> None:
+        self.modes = [(*block, mode[3]) for block, mode in zip(blocks, self.modes)]
 
     def reset(self) -> None:
         """Back to ``x0``, the generator at its seed."""
@@ -139,8 +137,9 @@ class SwitchedPlantRuntime(PlantRuntime):
             For a missing, unknown or malformed field (named), a generator state outside
             0..2**64-1 or a drawn mode outside 1..N.
         """
-        r = StateReader(state, ("x", "x0", "u", "d", "params", "mode_in", "seed", "rng", "drawn"), "plant")
+        linear = ("x", "x0", "u", "d", "params", "mismatch", "mismatch_seed")
+        r = StateReader(state, (*linear, "mode_in", "seed", "rng", "drawn"), "plant")
         ints = {key: r.integer(key, low, high) for key, low, high in (
             ("mode_in", INT_MIN, INT_MAX), ("seed", INT_MIN, INT_MAX), ("rng", 0, _MASK), ("drawn", 1, self.N))}
-        super().set_state({k: state[k] for k in ("x", "x0", "u", "d", "params")})
+        super().set_state({k: state[k] for k in linear})
         self.mode_in, self.seed, self.rng, self.drawn = ints["mode_in"], ints["seed"], ints["rng"], ints["drawn"]

@@ -19,6 +19,8 @@ File format (every key is checked; an unknown key is an error naming it)::
     plant_parameters = {x0 = {kind = "normal", mean = 22.0, std = 1.0}}   # by the plant FMU's names
     noise_y = [0.0, 0.01, 0.05]                              # sensor noise std per output (cosim --noise)
     quantization = [0.0, 0.1]                                # output quantum (0: none)
+    plant_mismatch = [0.0, 0.01, 0.05]                       # relative perturbation of A, B, E (0: none)
+    noise_w = [0.0, 0.1]                                     # process noise std per column of [plant] W
 
 An axis value is a number (constant), a list (one entry drawn per run; with ``grid = true`` each
 entry is a grid point; for a vector an entry may be a list of its size), or a table with ``kind``:
@@ -31,6 +33,13 @@ so at least 0: a constant, a choice or a uniform draw with ``low >= 0``; each ro
 (the column ``noise_seed``), and the run measures its noise gain (:mod:`uiofmu.cosim.noise`).
 ``quantization`` is an output quantum Q >= 0 (0: none): the observer receives ``y`` rounded to multiples
 of Q, after the noise, and the run measures the noise gain on what it received.
+``plant_mismatch`` is a relative standard deviation >= 0 (0: the design model) the plant FMU perturbs its
+``A``, ``B``, ``E`` by (its parameters ``mismatch`` and ``mismatch_seed``, :mod:`uiofmu.runtime.mismatch`;
+plants of matrices only): each row draws its own plant (the column ``mismatch_seed``), and its bound may be
+broken by the mismatch it asked for.
+``noise_w`` is the std of white process noise per column of the problem's ``[plant] W`` (the plant FMU's
+input ``w_noise``; a plant without it exits 2), as ``uiofmu cosim --noise w=STD`` adds it, each row with its
+own seed (the column ``noise_w_seed``); it is measured alone (not with ``noise_y`` or ``quantization``).
 """
 
 from __future__ import annotations
@@ -56,7 +65,8 @@ AXIS_LIMIT = 1e100
 KINDS = ("constant", "choice", "normal", "uniform")
 #: Keys of the [campaign] and [axes] tables.
 CAMPAIGN_KEYS = ("problem", "observer", "plant", "runs", "seed", "t_end", "grid", "backend", "batch")
-AXES_KEYS = ("steps", "xhat0_error", "d_scale", "plant_parameters", "noise_y", "quantization")
+AXES_KEYS = ("steps", "xhat0_error", "d_scale", "plant_parameters", "noise_y", "quantization", "plant_mismatch",
+             "noise_w")
 
 
 @dataclass(frozen=True)
@@ -168,6 +178,10 @@ class Campaign:
         The std of the sensor noise per output.
     quantization : Axis or None
         The output quantum.
+    plant_mismatch : Axis or None
+        The relative standard deviation of the plant's perturbation.
+    noise_w : Axis or None
+        The std of the process noise per column of ``W``.
     """
 
     path: Path
@@ -187,6 +201,8 @@ class Campaign:
     text: str = ""
     noise_y: Axis | None = None
     quantization: Axis | None = None
+    plant_mismatch: Axis | None = None
+    noise_w: Axis | None = None
 
     def grid_axes(self) -> list:
         """The axes a grid enumerates, as ``(name, number of values)`` in the order of the file."""
@@ -206,7 +222,9 @@ class Campaign:
         """``(column name, Axis)`` of the numeric axes, in draw order."""
         out = [(name, a) for name, a in (("xhat0_error", self.xhat0_error), ("d_scale", self.d_scale)) if a]
         out += [(f"plant.{name}", a) for name, a in self.plant_parameters]
-        return out + [(name, a) for name, a in (("noise_y", self.noise_y), ("quantization", self.quantization)) if a]
+        return out + [(name, a) for name, a in (("noise_y", self.noise_y), ("quantization", self.quantization),
+                                                ("plant_mismatch", self.plant_mismatch), ("noise_w", self.noise_w))
+                      if a]
 
 
 
@@ -321,15 +339,16 @@ def campaign_from_data(data: dict, path, text: str = "") -> Campaign:
     xhat0_error = parse_axis(axes.get("xhat0_error"), "axes.xhat0_error") if axes.has("xhat0_error") else None
     d_scale = parse_axis(axes.get("d_scale"), "axes.d_scale") if axes.has("d_scale") else None
     plant_parameters = _plant_axes(axes)
-    noise_y, quantization = (_std_axis(parse_axis(axes.get(key), f"axes.{key}")) if axes.has(key) else None
-                             for key in ("noise_y", "quantization"))
+    noise_y, quantization, plant_mismatch, noise_w = (
+        _std_axis(parse_axis(axes.get(key), f"axes.{key}")) if axes.has(key) else None
+        for key in ("noise_y", "quantization", "plant_mismatch", "noise_w"))
     axes.done()
 
     runs = settings.pop("runs")
     campaign = Campaign(path=path, problem=problem, observer=observer, plant=plant, runs=runs or 0,
                         steps=tuple(steps), xhat0_error=xhat0_error, d_scale=d_scale,
                         plant_parameters=tuple(plant_parameters), text=text, noise_y=noise_y,
-                        quantization=quantization, **settings)
+                        quantization=quantization, plant_mismatch=plant_mismatch, noise_w=noise_w, **settings)
     return replace(campaign, runs=_runs(campaign, runs))
 
 

@@ -38,6 +38,9 @@ class Setup:
         Where the FMUs are on the machine that prepared them.
     p : int
         The plant's number of outputs (of ``y``: the sensor noise axis has one std per output).
+    r : int
+        The plant's number of process-noise inputs (of ``w_noise``: the process noise axis has one std
+        per column of ``W``).
     """
 
     plant_bytes: bytes
@@ -53,6 +56,7 @@ class Setup:
     plant_path: Path = field(default=None, repr=False)
     observer_path: Path = field(default=None, repr=False)
     p: int = 0
+    r: int = 0
 
     def __getstate__(self):
         state = dict(self.__dict__)
@@ -144,13 +148,30 @@ def prepare(campaign: Campaign, out=None, say=None) -> Setup:
         campaign.noise_y.check_size(p)
     if campaign.quantization is not None:
         campaign.quantization.check_size(1)
+    r = vector_sizes(variables, "input").get("w_noise", 0)
+    if campaign.noise_w is not None:
+        if not r:
+            raise ProblemError(f"axes.noise_w: the plant FMU {plant} takes no process noise (no input w_noise: its "
+                               "problem declares no [plant] W)")
+        if campaign.noise_y is not None or campaign.quantization is not None:
+            raise ProblemError("axes.noise_w: process noise is measured alone (its twin loop is the noise-free plant "
+                               "and observer); leave out axes.noise_y and axes.quantization")
+        campaign.noise_w.check_size(r)
+    if campaign.plant_mismatch is not None:
+        campaign.plant_mismatch.check_size(1)
+        if "mismatch" not in parameters:
+            raise ProblemError(f"axes.plant_mismatch: the plant FMU {plant} takes no mismatch (no parameter "
+                               "mismatch: only plants of matrices, linear or switched, perturb their A, B, E; "
+                               "LPV, parametric and MuJoCo plants do not)")
+        if any(name in ("mismatch", "mismatch_seed") for name, _ in campaign.plant_parameters):
+            raise ProblemError("axes.plant_parameters: mismatch and mismatch_seed are set by axes.plant_mismatch")
     plant_bytes = read_bytes(plant, "plant FMU", error=FmuError)
     observer_bytes = read_bytes(observer, "observer FMU", error=FmuError)
     t_end = campaign.t_end if campaign.t_end is not None else default_t_end(card)
     check_steps_axis(campaign.steps, card, t_end)
     return Setup(plant_bytes, observer_bytes, _digest(plant_bytes, observer_bytes), t_end, n, parameters,
                  default_steps(card), card.name, has_xhat0, integers=integers, plant_path=Path(plant),
-                 observer_path=Path(observer), p=p)
+                 observer_path=Path(observer), p=p, r=r)
 
 
 def _seconds(low: float, high: float) -> str:

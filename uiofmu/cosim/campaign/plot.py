@@ -48,10 +48,21 @@ def _plot_noise(ax, tally: Tally) -> None:
     ax.grid(alpha=0.3, which="both")
 
 
+def _plot_mismatch(ax, tally: Tally) -> None:
+    """The error each run settles at (its error floor) against its plant's relative mismatch."""
+    level, floor = (np.frombuffer(a, dtype=float) for a in tally.mismatch_pairs)
+    ax.semilogy(level, np.maximum(floor, 1e-300), ".", alpha=0.6)
+    ax.set_xlabel("plant mismatch (relative std of A, B, E)")
+    ax.set_ylabel("error floor (median ||e_k|| over the last fifth)")
+    ax.set_title(f"error against the mismatch ({len(level)} run(s))", fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+
+
 def plot_campaign(tally: Tally, worst_result, worst: dict | None, path, title: str = "") -> Path:
     """``campaign.png``: distributions of the convergence time and of the bound ratio (their finite
-    values), the worst run's error against its certified bound, and with sensor noise each noisy run's
-    error against its noise level.
+    values), the worst run's error against its certified bound, with sensor noise each noisy run's
+    error against its noise level, and with a ``plant_mismatch`` axis each run's error floor against its
+    mismatch.
 
     Parameters
     ----------
@@ -72,10 +83,13 @@ def plot_campaign(tally: Tally, worst_result, worst: dict | None, path, title: s
     from ..report import pyplot
 
     plt = pyplot()[0]
-    noisy = len(tally.noise_pairs[0]) > 0
-    fig, axes = plt.subplots(1, 4 if noisy else 3, figsize=(20 if noisy else 15, 4.2))
+    noisy, mismatched = len(tally.noise_pairs[0]) > 0, len(tally.mismatch_pairs[0]) > 0
+    panels = 3 + noisy + mismatched
+    fig, axes = plt.subplots(1, panels, figsize=(5 * panels, 4.2))
     if noisy:
         _plot_noise(axes[3], tally)
+    if mismatched:
+        _plot_mismatch(axes[-1], tally)
     conv = tally.values["time_to_1pct"]
     never = tally.present["time_to_1pct"] - len(conv)
     ax = axes[0]

@@ -35,10 +35,13 @@ def cell(value) -> str:
 def axis_columns(campaign: Campaign, setup: Setup) -> list:
     """The axis columns of the table: ``steps``, ``steps_seed``, then one per component."""
     cols = ["steps", "steps_seed"]
-    sizes = {"xhat0_error": setup.n, "noise_y": setup.p, **{f"plant.{k}": v for k, v in setup.parameters.items()}}
+    sizes = {"xhat0_error": setup.n, "noise_y": setup.p, "noise_w": setup.r,
+             **{f"plant.{k}": v for k, v in setup.parameters.items()}}
     for name, _ in campaign.named_axes():
         cols += [name] if name in SCALAR_AXES else [f"{name}[{i + 1}]" for i in range(sizes[name])]
-    return cols + (["noise_seed"] if campaign.noise_y is not None else [])
+    return (cols + (["noise_seed"] if campaign.noise_y is not None else [])
+            + (["mismatch_seed"] if campaign.plant_mismatch is not None else [])
+            + (["noise_w_seed"] if campaign.noise_w is not None else []))
 
 
 def flat(sc: dict) -> dict:

@@ -39,7 +39,7 @@ class _Run:
                  checkpoint_s: float):
         self.campaign, self.setup, self.client, self.stage, self.workers = campaign, setup, client, stage, workers
         self.rows = RowFile(stage.path("rows.part"), campaign, setup)
-        self.tally = Tally()
+        self.tally = Tally(mismatch=campaign.plant_mismatch is not None)
         self.inflight: dict = {}      # future key -> (batch index, future, scenarios)
         self.waiting: dict = {}       # batch index -> (scenarios, results), finished before an earlier batch
         self.next = 0                 # the next batch to write
@@ -95,7 +95,7 @@ class _Run:
         scs, results = batch
         for sc, (row, result) in zip(scs, results):
             self.rows.add(sc, result)
-            self.tally.add(row, result)
+            self.tally.add(row, result, sc.get("plant_mismatch"))
 
     def _checkpoint(self) -> None:
         """Rewrite the table and summary in the staging folder, at most every ``checkpoint_s`` and at

@@ -13,7 +13,9 @@ from .fmus import Setup
 
 
 #: The axes whose value is one number (a column each).
-SCALAR_AXES = ("d_scale", "quantization")
+SCALAR_AXES = ("d_scale", "quantization", "plant_mismatch")
+#: Seeds of a plant's mismatch are fmi2Integers >= 0.
+MISMATCH_SEEDS = 2**31
 
 
 def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
@@ -32,7 +34,9 @@ def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
     dict
         ``row``, ``steps`` (a SPEC), ``steps_seed``, and per axis its drawn value: ``xhat0_error``
         (a list), ``d_scale`` (a float), ``plant.NAME`` (lists), ``noise_y`` (a list) with ``noise_seed``
-        (drawn last: the other axes draw what they draw without it), ``quantization`` (a float).
+        (drawn after the axes: they draw what they draw without it), ``quantization`` (a float),
+        ``plant_mismatch`` (a float) with ``mismatch_seed`` (drawn after ``noise_seed``), ``noise_w`` (a list)
+        with ``noise_w_seed`` (drawn last).
     """
     if not 0 <= row < campaign.runs:
         raise ProblemError(f"--replay: row {row} is not a row of the campaign (0 to {campaign.runs - 1})")
@@ -45,8 +49,8 @@ def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
             index, picks[name] = divmod(index, count)
     spec = specs[picks["steps"]] if "steps" in picks else specs[int(rng.integers(len(specs)))]
     out = {"row": row, "steps": spec, "steps_seed": int(rng.integers(2**32))}
-    sizes = {"xhat0_error": setup.n, "d_scale": 1, "noise_y": setup.p, "quantization": 1,
-             **{f"plant.{k}": v for k, v in setup.parameters.items()}}
+    sizes = {"xhat0_error": setup.n, "d_scale": 1, "noise_y": setup.p, "quantization": 1, "plant_mismatch": 1,
+             "noise_w": setup.r, **{f"plant.{k}": v for k, v in setup.parameters.items()}}
     integers = {f"plant.{k}" for k in setup.integers}
     for name, axis in campaign.named_axes():
         size = sizes[name]
@@ -55,6 +59,10 @@ def scenario(campaign: Campaign, setup: Setup, row: int) -> dict:
         out[name] = float(value[0]) if name in SCALAR_AXES else [kind(v) for v in value]
     if campaign.noise_y is not None:
         out["noise_seed"] = int(rng.integers(2**32))
+    if campaign.plant_mismatch is not None:
+        out["mismatch_seed"] = int(rng.integers(MISMATCH_SEEDS))
+    if campaign.noise_w is not None:
+        out["noise_w_seed"] = int(rng.integers(2**32))
     return out
 
 
@@ -116,4 +124,4 @@ def scaled_inputs(inputs, scale: float):
     return SignalInputs(signals["u"], d, signals.get("mode", ()), signals.get("theta", ()))
 
 
-__all__ = ["SCALAR_AXES", "batches", "scaled_inputs", "scenario", "scenarios"]
+__all__ = ["MISMATCH_SEEDS", "SCALAR_AXES", "batches", "scaled_inputs", "scenario", "scenarios"]

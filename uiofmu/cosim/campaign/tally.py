@@ -19,8 +19,10 @@ MAX_REASONS = 1000
 #: Metrics whose quantiles the summary gives.
 QUANTILE_KEYS = ("steps_to_1pct", "time_to_1pct", "final_error_norm", "max_bound_ratio", "dhat_rms_error",
                  "dhat_rms_error_second_half", "rms_error", "noise_rms_error", "noise_gain_measured",
-                 "noise_gain_ratio")
+                 "noise_gain_ratio", "noise_w_rms_error", "noise_gain_w_measured", "noise_gain_w_ratio")
 QUANTILES = (0.0, 0.05, 0.25, 0.5, 0.75, 0.95, 1.0)
+#: Added to :data:`QUANTILE_KEYS` with a ``plant_mismatch`` axis: the error a mismatched plant settles at.
+MISMATCH_KEYS = ("error_floor",)
 
 
 _NUMBER = re.compile(r"(?<![\w.])[-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?(?!\w)")
@@ -43,26 +45,30 @@ class Tally:
     reasons grouped by kind (:func:`reason_kind`; at most :data:`MAX_REASONS` kinds, each with its count,
     one example and its first rows), the worst bound ratio and its row (and how many runs have their
     largest ratio at k = 1), and per :data:`QUANTILE_KEYS` figure an array of doubles of its values.
-    Rows must come in row order (the worst ratio's row is then the first of equal ratios)."""
+    Rows must come in row order (the worst ratio's row is then the first of equal ratios). With ``mismatch``
+    (a ``plant_mismatch`` axis) also :data:`MISMATCH_KEYS` and each run's mismatch with its error floor."""
 
-    def __init__(self):
+    def __init__(self, mismatch: bool = False):
         self.finished = self.ok = self.violations = self.other_reasons = self.ratios = self.ratios_at_start = 0
         self.reasons: dict = {}
         self.worst: tuple | None = None
         self.worst_noise: tuple | None = None       # (noise gain ratio, row, respected)
         self.noise_violations = 0
         self.noise_pairs = (array("d"), array("d"))   # a noisy run's ||sigma|| and its error, for the figure
-        self.values = {key: array("d") for key in QUANTILE_KEYS}
-        self.present = dict.fromkeys(QUANTILE_KEYS, 0)
+        self.keys = QUANTILE_KEYS + (MISMATCH_KEYS if mismatch else ())
+        self.values = {key: array("d") for key in self.keys}
+        self.present = dict.fromkeys(self.keys, 0)
+        self.mismatch_pairs = (array("d"), array("d"))   # a run's plant_mismatch and its error floor
+        self.mismatch = mismatch
 
-    def add(self, row: int, result: dict) -> None:
-        """Count the ``result`` of ``row``."""
+    def add(self, row: int, result: dict, mismatch: float | None = None) -> None:
+        """Count the ``result`` of ``row`` (``mismatch``: its plant's, with a ``plant_mismatch`` axis)."""
         self.finished += 1
         if result["status"] != "ok":
             self._failure(row, result)
             return
         self.ok += 1
-        for key in QUANTILE_KEYS:
+        for key in self.keys:
             if key in result:
                 self.present[key] += 1
                 if result[key] is not None:
@@ -74,13 +80,18 @@ class Tally:
             if self.worst is None or ratio > self.worst[0]:
                 self.worst = (ratio, row, result.get("bound_respected"), result.get("max_bound_ratio_step"))
         self.violations += result.get("bound_respected") is False
-        ratio = result.get("noise_gain_ratio")
-        if ratio is not None and not math.isnan(ratio) and (self.worst_noise is None or ratio > self.worst_noise[0]):
-            self.worst_noise = (ratio, row, result.get("noise_gain_respected"))
-        self.noise_violations += result.get("noise_gain_respected") is False
+        for gain in ("noise_gain", "noise_gain_w"):                   # sensor noise, process noise
+            ratio = result.get(f"{gain}_ratio")
+            worse = self.worst_noise is None or (ratio is not None and ratio > self.worst_noise[0])
+            if ratio is not None and not math.isnan(ratio) and worse:
+                self.worst_noise = (ratio, row, result.get(f"{gain}_respected"))
+            self.noise_violations += result.get(f"{gain}_respected") is False
         if result.get("noise_std_norm") is not None and result.get("noise_rms_error") is not None:
             self.noise_pairs[0].append(result["noise_std_norm"])
             self.noise_pairs[1].append(result["noise_rms_error"])
+        if self.mismatch and mismatch is not None and result.get("error_floor") is not None:
+            self.mismatch_pairs[0].append(mismatch)
+            self.mismatch_pairs[1].append(result["error_floor"])
 
     def _failure(self, row: int, result: dict) -> None:
         kind = (result["status"], reason_kind(result["reason"]))
@@ -99,7 +110,7 @@ class Tally:
         """Per figure: its count, the runs without it (``never`` reached 1 %, or ``missing``), and the
         quantiles and mean of its finite values (``non_finite`` counts the others, when there are)."""
         out = {}
-        for key in QUANTILE_KEYS:
+        for key in self.keys:
             if not self.present[key]:
                 continue
             values = np.frombuffer(self.values[key], dtype=float)
@@ -138,7 +149,7 @@ def summary(campaign: Campaign, setup: Setup, tally: Tally, cancelled: bool = Fa
         out["bound_violations"] = tally.violations
     else:
         out["worst_max_bound_ratio"] = None
-    if campaign.noise_y is not None or campaign.quantization is not None:
+    if campaign.noise_y is not None or campaign.quantization is not None or campaign.noise_w is not None:
         worst = tally.worst_noise
         out["worst_noise_gain_ratio"] = None if worst is None else {
             "value": worst[0], "row": worst[1], "scenario": scenario(campaign, setup, worst[1]),
@@ -157,4 +168,4 @@ def summary(campaign: Campaign, setup: Setup, tally: Tally, cancelled: bool = Fa
     return out
 
 
-__all__ = ["MAX_REASONS", "QUANTILES", "QUANTILE_KEYS", "Tally", "reason_kind", "summary"]
+__all__ = ["MAX_REASONS", "MISMATCH_KEYS", "QUANTILES", "QUANTILE_KEYS", "Tally", "reason_kind", "summary"]

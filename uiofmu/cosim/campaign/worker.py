@@ -35,16 +35,19 @@ class Loaded:
     card: object = None
     instances: tuple | None = None
 
-    def fmus(self, twin: bool = False) -> tuple:
-        """The plant and observer instances of this process (loaded on first use), and with ``twin`` the
-        observer's noise-free twin (a second instance of its FMU, for a run with sensor noise)."""
+    def fmus(self, twin: bool = False, twin_plant: bool = False) -> tuple:
+        """The plant and observer instances of this process (loaded on first use), with ``twin`` the
+        observer's noise-free twin (a second instance of its FMU, for a run with sensor noise) and with
+        ``twin_plant`` also the plant's (for a run with process noise)."""
         from ..fmi import Fmu
 
         if self.instances is None:
             self.instances = (Fmu(self.plant, "plant"), Fmu(self.observer, "observer"))
-        if twin and len(self.instances) < 3:
+        if (twin or twin_plant) and len(self.instances) < 3:
             self.instances = (*self.instances, Fmu(self.observer, "observer-noise-free"))
-        return self.instances if twin else self.instances[:2]
+        if twin_plant and len(self.instances) < 4:
+            self.instances = (*self.instances, Fmu(self.plant, "plant-noise-free"))
+        return self.instances[:4 if twin_plant else 3 if twin else 2]
 
 
 _LOADED: dict = {}
@@ -104,11 +107,16 @@ def run_scenario(setup: Setup, sc: dict, native: bool = True):
     inputs = scaled_inputs(loaded.inputs, sc["d_scale"]) if "d_scale" in sc else loaded.inputs
     xhat0 = loaded.xhat0 + np.asarray(sc["xhat0_error"]) if "xhat0_error" in sc else None
     params = {k[6:]: v for k, v in sc.items() if k.startswith("plant.")}
+    if "plant_mismatch" in sc:
+        params.update(mismatch=[sc["plant_mismatch"]], mismatch_seed=[sc["mismatch_seed"]])
     noise = Noise("y", tuple(sc["noise_y"]), sc["noise_seed"]) if any(s > 0 for s in sc.get("noise_y", ())) else None
+    if any(s > 0 for s in sc.get("noise_w", ())):
+        noise = Noise("w", tuple(sc["noise_w"]), sc["noise_w_seed"])
     quantum = sc.get("quantization") or None
+    instances = loaded.fmus(twin=bool(noise or quantum), twin_plant=noise is not None and noise.signal == "w")
     return cosimulate(loaded.plant, loaded.observer, steps, inputs, xhat0=xhat0, plant_parameters=params or None,
-                      show_progress=False, instances=loaded.fmus(twin=bool(noise or quantum)), card=loaded.card,
-                      noise=noise, quantization=quantum, native=native)
+                      show_progress=False, instances=instances, card=loaded.card, noise=noise, quantization=quantum,
+                      native=native)
 
 
 def scalar_metrics(metrics: dict) -> dict:

@@ -6,10 +6,11 @@
  *
  *   outputs:          y = C x + D u + F d, x    (D, F zero unless the plant feeds an input through)
  *   initialisation:   x = the parameter x0      (before it: the design's x0)
- *   fmi2DoStep(t, h): x <- Ad x + Bd u + Ed d + wd, inputs u, d held over the step
+ *   fmi2DoStep(t, h): x <- Ad x + Bd u + Ed d + wd + Wd w_noise, inputs u, d, w_noise held over the step
  *
- * Continuous plants, any step h > 0: [Ad Bd Ed wd] is the first n rows of
- * exp(h [[A, B, E, w], [0, 0]]), the exact zero-order-hold solution (w is 0 for the continuous
+ * The input w_noise[r] (process noise) exists where the problem declares W (n x r; r = 0 otherwise).
+ * Continuous plants, any step h > 0: [Ad Bd Ed Wd wd] is the first n rows of
+ * exp(h [[A, B, E, W, w], [0, 0]]), the exact zero-order-hold solution (w is 0 for the continuous
  * plants uiofmu makes; the column costs nothing). The exponential is computed by scaling and
  * squaring with a Padé approximant, Higham's algorithm of 2005 (degrees 3, 5, 7, 9 and 13 by
  * the 1-norm, its theta bounds), and kept in a cache of the last CACHE_SIZE = 16 step lengths
@@ -30,23 +31,34 @@
  * none; mode 0 is drawn when the generator restarts (instantiation, fmi2Reset, and
  * fmi2ExitInitializationMode with the parameter seed), the next after each step taken.
  *
+ * Mismatch (uiofmu/runtime/mismatch.py, bit for bit): the Real parameter mismatch (default 0) and
+ * the Integer parameter mismatch_seed (default 0) are taken at fmi2ExitInitializationMode, which
+ * replaces every entry M of A, B and E (every block of a switched plant) by M (1 + mismatch g),
+ * g = sqrt(3) (2 U - 1), U = (output >> 11) 2^-53 of a SplitMix64 generator started at the seed's
+ * 64 bits: block by block, in each A then B then E, row by row (mismatch 0: the design's matrices,
+ * no draws). A mismatch that is not a finite number >= 0, or that makes an entry overflow, is
+ * refused with fmi2Error and a log line naming it. The cached exponentials are forgotten.
+ *
  * Non-finite inputs are refused with fmi2Error and a log line naming the input (h <= 0 or not
  * finite is refused by the plumbing); a step whose exponential or new state is not finite is
  * refused the same way. Either way nothing changes.
  *
  * FMU state: after the plumbing's header (magic, layout, size, GUID, the shape words n, m, p, q
- * and the count of doubles), 1 + 2n + m + q doubles, written and read with memcpy:
+ * and the count of doubles), 3 + 2n + m + q + r doubles, written and read with memcpy:
  *
- *   phase, x0[n], x[n], u[m], d[q]
+ *   phase, x0[n], x[n], u[m], d[q], w_noise[r], mismatch, mismatch_seed
  *
  * checked before any of it is used (check_values): phase one of 0 (instantiated), 1
  * (initialisation mode), 2 (initialised; a discarded step is saved as 2: it changed nothing),
  * 3 (terminated); x0 and x finite (fmi2ExitInitializationMode refuses a non-finite x0, so a
  * state holding one is refused whatever its phase); before initialisation ended (phase 0 and
- * 1) x is the design's x0, bit for bit (only initialisation moves it there); u and d any value,
- * NaN and Inf included (inputs that fmi2SetReal takes and fmi2DoStep refuses). The cache is not
- * part of the state: it is a function of h alone. A switched plant adds 5 doubles, integers held
- * exactly:
+ * 1) x is the design's x0, bit for bit (only initialisation moves it there); u, d and w_noise any value,
+ * NaN and Inf included (inputs that fmi2SetReal takes and fmi2DoStep refuses); mismatch_seed an
+ * fmi2Integer; mismatch any value before initialisation ended (a parameter fmi2ExitInitializationMode
+ * checks), after it a finite number >= 0 whose perturbation is finite. The perturbed matrices are
+ * computed again from the two (the design's before initialisation ended) and the cache forgotten: the
+ * cache is not part of the state (a function of h and the matrices). A switched plant adds 5 doubles,
+ * integers held exactly:
  *
  *   mode_in, seed, rng_hi, rng_lo, drawn
  *
@@ -64,7 +76,7 @@
 #include "kernel_plant.h"
 #include "kernel_util.h"
 
-/* Bounds of what a plant may ask for: the augmented matrix is K x K, K = n + m + q + 1. */
+/* Bounds of what a plant may ask for: the augmented matrix is K x K, K = n + m + q + r + 1. */
 #define MAX_DIM 2048
 #define CACHE_SIZE 16
 #define MAX_MODES 4096
@@ -77,14 +89,14 @@ static const int PORT_TYPE[UIOFMU_PLANT_PORTS] = UIOFMU_PLANT_PORT_TYPES;
 typedef struct {
     double h;
     int valid;
-    double *phi; /* n x K: [Ad Bd Ed wd] */
+    double *phi; /* n x K: [Ad Bd Ed Wd wd] */
 } CacheEntry;
 
 typedef struct {
     FmuInstance *fmu;
     const UiofmuPlant *d;
     int K;
-    double *x0, *u, *dv, *x, *y, *tmp;
+    double *x0, *u, *dv, *wn, *x, *y, *tmp;
     int dirty;
     double *aug, *ex, *work; /* K x K, K x K, 7 K x K */
     int *piv;
@@ -93,6 +105,11 @@ typedef struct {
     /* switched plants: the input mode, the seed, the generator and the mode it drew */
     int mode_in, seed, drawn;
     uint64_t rng;
+    /* the parameters mismatch and mismatch_seed, and the matrices the steps use: the design's
+       A, B, E perturbed by them at fmi2ExitInitializationMode (every block; the design's before) */
+    double mismatch;
+    int mismatch_seed;
+    double *A, *B, *E;
     double *block; /* every double above, one allocation */
 } Plant;
 
@@ -265,9 +282,11 @@ static int switching_ok(const UiofmuPlant *d, char *msg, size_t len) {
 
 static int plant_check_design(char *msg, size_t len) {
     const UiofmuPlant *d = &UIOFMU_PLANT;
-    const int dims[4] = {d->n, d->m, d->p, d->q}, low[4] = {1, 0, 1, 0};
-    const char *const dim_name[4] = {"n", "m", "p", "q"};
-    if (!uiofmu_check_dims(msg, len, "plant dims.", 4, dims, dim_name, low, MAX_DIM)) return 0;
+    const int dims[5] = {d->n, d->m, d->p, d->q, d->r}, low[5] = {1, 0, 1, 0, 0};
+    const char *const dim_name[5] = {"n", "m", "p", "q", "r"};
+    if (!uiofmu_check_dims(msg, len, "plant dims.", 5, dims, dim_name, low, MAX_DIM)) return 0;
+    if (d->r && d->modes)
+        return uiofmu_design_error(msg, len, "plant r = %d: a switched plant takes no process noise", d->r);
     if (d->time != UIOFMU_DISCRETE && d->time != UIOFMU_CONTINUOUS)
         return uiofmu_design_error(msg, len, "plant time = %d is neither discrete (0) nor continuous (1)", d->time);
     if (d->time == UIOFMU_DISCRETE && !(isfinite(d->dt) && d->dt > 0))
@@ -286,12 +305,13 @@ static int plant_check_design(char *msg, size_t len) {
                                    d->rule == UIOFMU_RULE_INPUT ? "an input" : "an output");
     if (!switching_ok(d, msg, len)) return 0;
     size_t blocks = d->modes ? (size_t)d->modes : 1;
-    struct { const char *name; const double *data; size_t length, want; } M[8] = {
+    struct { const char *name; const double *data; size_t length, want; } M[9] = {
         {"A", d->A, d->A_length, blocks * d->n * d->n}, {"B", d->B, d->B_length, blocks * d->n * d->m},
         {"E", d->E, d->E_length, blocks * d->n * d->q}, {"C", d->C, d->C_length, (size_t)d->p * d->n},
         {"w", d->w, d->w_length, blocks * d->n}, {"x0", d->x0, d->x0_length, (size_t)d->n},
+        {"W", d->W, d->W_length, (size_t)d->n * d->r},
         {"D", d->D, d->D_length, (size_t)d->p * d->m}, {"F", d->F, d->F_length, (size_t)d->p * d->q}};
-    for (int i = 0; i < 8; i++) {
+    for (int i = 0; i < 9; i++) {
         size_t want = M[i].want ? M[i].want : 1; /* an empty array is written as {0.0} */
         if (!M[i].data || M[i].length != want)
             return uiofmu_design_error(msg, len, "plant %s: %zu numbers compiled in, expected %zu", M[i].name,
@@ -310,9 +330,11 @@ static int plant_port(int id, UiofmuPort *out) {
     case UIOFMU_PLANT_X0: case UIOFMU_PLANT_X: size = d->n; break;
     case UIOFMU_PLANT_U: size = d->m; break;
     case UIOFMU_PLANT_D: size = d->q; break;
+    case UIOFMU_PLANT_W_NOISE: size = d->r; break;
     case UIOFMU_PLANT_Y: size = d->p; break;
     case UIOFMU_PLANT_SEED: size = d->rule == UIOFMU_RULE_RANDOM ? 1 : 0; break;
     case UIOFMU_PLANT_MODE: size = d->modes ? 1 : 0; break;
+    case UIOFMU_PLANT_MISMATCH: case UIOFMU_PLANT_MISMATCH_SEED: size = 1; break;
     default: return 0;
     }
     out->name = PORT_NAME[id];
@@ -369,6 +391,39 @@ static int current_mode(const Plant *s) {
     return 1;
 }
 
+/* ---------------------------------------------------------------------------------------- */
+/* Mismatch (uiofmu/runtime/mismatch.py, bit for bit)                                        */
+
+/* The design's A, B, E with every entry M replaced by M (1 + mismatch g), g = sqrt(3) (2 U - 1) from
+   the next output of a SplitMix64 generator started at the seed's 64 bits: block by block, in each
+   A then B then E, row by row. store = 1 writes them into s->A, s->B, s->E and forgets the cached
+   exponentials (the caller checked them first); store = 0 only checks: 0 when an entry is not finite. */
+static int perturb(Plant *s, double mismatch, int seed, int store) {
+    const UiofmuPlant *d = s->d;
+    size_t blocks = d->modes ? (size_t)d->modes : 1, n = (size_t)d->n;
+    const size_t size[3] = {n * n, n * (size_t)d->m, n * (size_t)d->q};
+    const double *design[3] = {d->A, d->B, d->E};
+    double *out[3] = {s->A, s->B, s->E};
+    const double root3 = sqrt(3.0);
+    uint64_t rng = (uint64_t)(int64_t)seed;
+    for (size_t b = 0; b < blocks; b++)
+        for (int k = 0; k < 3; k++)
+            for (size_t e = 0; e < size[k]; e++) {
+                double v = design[k][b * size[k] + e];
+                if (mismatch != 0.0) {
+                    double u = (double)(splitmix64(&rng) >> 11) * (1.0 / 9007199254740992.0);
+                    double g = root3 * (2.0 * u - 1.0);
+                    double f = 1.0 + mismatch * g;
+                    v = v * f;
+                }
+                if (!store && !isfinite(v)) return 0;
+                if (store) out[k][b * size[k] + e] = v;
+            }
+    if (store)
+        for (int i = 0; i < CACHE_SIZE; i++) s->cache[i].valid = 0;
+    return 1;
+}
+
 static void plant_reset(void *self) {
     Plant *s = (Plant *)self;
     const UiofmuPlant *d = s->d;
@@ -376,9 +431,13 @@ static void plant_reset(void *self) {
     memcpy(s->x, d->x0, (size_t)d->n * sizeof(double));
     memset(s->u, 0, (size_t)d->m * sizeof(double));
     memset(s->dv, 0, (size_t)d->q * sizeof(double));
+    memset(s->wn, 0, (size_t)d->r * sizeof(double));
     s->mode_in = d->mode0;
     s->seed = d->seed;
     restart(s);
+    s->mismatch = 0.0;
+    s->mismatch_seed = 0;
+    perturb(s, 0.0, 0, 1);
     s->dirty = 1;
 }
 
@@ -388,10 +447,12 @@ static void *plant_instantiate(FmuInstance *fmu) {
     if (!s) return NULL;
     s->fmu = fmu;
     s->d = d;
-    s->K = d->n + d->m + d->q + 1;
+    s->K = d->n + d->m + d->q + d->r + 1;
     size_t n = (size_t)d->n, K = (size_t)s->K, kk = K * K;
     int continuous = d->time == UIOFMU_CONTINUOUS;
-    size_t total = 4 * n + (size_t)d->m + (size_t)d->q + (size_t)d->p +
+    size_t blocks = d->modes ? (size_t)d->modes : 1;
+    size_t total = 4 * n + (size_t)d->m + (size_t)d->q + (size_t)d->r + (size_t)d->p +
+                   blocks * n * (n + (size_t)d->m + (size_t)d->q) +
                    (continuous ? 9 * kk + CACHE_SIZE * n * K : 0);
     s->block = (double *)uiofmu_alloc(fmu, total, sizeof(double));
     s->piv = continuous && s->block ? (int *)uiofmu_alloc(fmu, K, sizeof(int)) : NULL;
@@ -407,7 +468,11 @@ static void *plant_instantiate(FmuInstance *fmu) {
     s->tmp = b; b += 2 * n;
     s->u = b; b += d->m;
     s->dv = b; b += d->q;
+    s->wn = b; b += d->r;
     s->y = b; b += d->p;
+    s->A = b; b += blocks * n * n;
+    s->B = b; b += blocks * n * (size_t)d->m;
+    s->E = b; b += blocks * n * (size_t)d->q;
     if (continuous) {
         s->aug = b; b += kk;
         s->ex = b; b += kk;
@@ -429,7 +494,19 @@ static void plant_free(void *self) {
 
 static UiofmuResult plant_exit_initialization(void *self) {
     Plant *s = (Plant *)self;
+    char b1[32];
     if (!uiofmu_parameter_finite(s->fmu, PORT_NAME[UIOFMU_PLANT_X0], s->x0, s->d->n)) return UIOFMU_REFUSED;
+    if (!(isfinite(s->mismatch) && s->mismatch >= 0)) {
+        uiofmu_log(s->fmu, fmi2Error, "parameter %s = %s is not a finite number >= 0", PORT_NAME[UIOFMU_PLANT_MISMATCH],
+                   uiofmu_num(s->mismatch, b1));
+        return UIOFMU_REFUSED;
+    }
+    if (!perturb(s, s->mismatch, s->mismatch_seed, 0)) {
+        uiofmu_log(s->fmu, fmi2Error, "parameter %s = %s: a perturbed entry of A, B or E is not finite",
+                   PORT_NAME[UIOFMU_PLANT_MISMATCH], uiofmu_num(s->mismatch, b1));
+        return UIOFMU_REFUSED;
+    }
+    perturb(s, s->mismatch, s->mismatch_seed, 1);
     memcpy(s->x, s->x0, (size_t)s->d->n * sizeof(double));
     restart(s);
     s->dirty = 1;
@@ -459,8 +536,10 @@ static double *element(Plant *s, int port, int index) {
     case UIOFMU_PLANT_X0: return &s->x0[index];
     case UIOFMU_PLANT_U: return &s->u[index];
     case UIOFMU_PLANT_D: return &s->dv[index];
+    case UIOFMU_PLANT_W_NOISE: return &s->wn[index];
     case UIOFMU_PLANT_Y: return &s->y[index];
     case UIOFMU_PLANT_X: return &s->x[index];
+    case UIOFMU_PLANT_MISMATCH: return &s->mismatch;
     default: return NULL;
     }
 }
@@ -481,13 +560,15 @@ static void plant_set_real(void *self, int port, int index, double value) {
 static int plant_get_integer(void *self, int port, int index) {
     const Plant *s = (const Plant *)self;
     (void)index;
-    return port == UIOFMU_PLANT_SEED ? s->seed : port == UIOFMU_PLANT_MODE ? current_mode(s) : 0;
+    return port == UIOFMU_PLANT_SEED ? s->seed : port == UIOFMU_PLANT_MODE ? current_mode(s)
+           : port == UIOFMU_PLANT_MISMATCH_SEED ? s->mismatch_seed : 0;
 }
 
 static void plant_set_integer(void *self, int port, int index, int value) {
     Plant *s = (Plant *)self;
     (void)index;
     if (port == UIOFMU_PLANT_SEED) s->seed = value; /* taken at fmi2ExitInitializationMode */
+    else if (port == UIOFMU_PLANT_MISMATCH_SEED) s->mismatch_seed = value; /* the same */
     else if (port == UIOFMU_PLANT_MODE && s->d->rule == UIOFMU_RULE_INPUT) s->mode_in = value;
 }
 
@@ -501,14 +582,15 @@ static const double *discretisation(Plant *s, double t, double h) {
             s->last = i;
             return s->cache[i].phi;
         }
-    int n = d->n, m = d->m, q = d->q, K = s->K;
+    int n = d->n, m = d->m, q = d->q, r = d->r, K = s->K;
     double *M = s->aug;
     memset(M, 0, (size_t)K * K * sizeof(double));
     for (int i = 0; i < n; i++) {
         double *row = M + (size_t)i * K;
-        for (int j = 0; j < n; j++) row[j] = d->A[(size_t)i * n + j] * h;
-        for (int j = 0; j < m; j++) row[n + j] = d->B[(size_t)i * m + j] * h;
-        for (int j = 0; j < q; j++) row[n + m + j] = d->E[(size_t)i * q + j] * h;
+        for (int j = 0; j < n; j++) row[j] = s->A[(size_t)i * n + j] * h;
+        for (int j = 0; j < m; j++) row[n + j] = s->B[(size_t)i * m + j] * h;
+        for (int j = 0; j < q; j++) row[n + m + j] = s->E[(size_t)i * q + j] * h;
+        for (int j = 0; j < r; j++) row[n + m + q + j] = d->W[(size_t)i * r + j] * h;
         row[K - 1] = d->w[i] * h;
     }
     if (!uiofmu_expm(M, K, s->ex, s->work, s->piv)) {
@@ -529,10 +611,11 @@ static const double *discretisation(Plant *s, double t, double h) {
 static UiofmuResult plant_step(void *self, double t, double h) {
     Plant *s = (Plant *)self;
     const UiofmuPlant *d = s->d;
-    int n = d->n, m = d->m, q = d->q;
+    int n = d->n, m = d->m, q = d->q, r = d->r;
     char bt[32];
     if (!uiofmu_inputs_finite(s->fmu, t, -1, s->u, m, PORT_NAME[UIOFMU_PLANT_U]) ||
-        !uiofmu_inputs_finite(s->fmu, t, -1, s->dv, q, PORT_NAME[UIOFMU_PLANT_D]))
+        !uiofmu_inputs_finite(s->fmu, t, -1, s->dv, q, PORT_NAME[UIOFMU_PLANT_D]) ||
+        !uiofmu_inputs_finite(s->fmu, t, -1, s->wn, r, PORT_NAME[UIOFMU_PLANT_W_NOISE]))
         return UIOFMU_REFUSED;
     int mode = current_mode(s);
     if (!(mode >= 1 && mode <= (d->modes ? d->modes : 1))) { /* only an input can be out of range */
@@ -544,13 +627,18 @@ static UiofmuResult plant_step(void *self, double t, double h) {
     if (d->time == UIOFMU_DISCRETE) {
         if (uiofmu_off_period(s->fmu, t, h, d->dt, d->step_rtol, 0)) return UIOFMU_DISCARDED;
         size_t b = (size_t)(mode - 1); /* the mode's block of A, B, E, w */
-        const double *A = d->A + b * n * n, *B = d->B + b * n * m, *E = d->E + b * n * q, *w = d->w + b * n;
+        const double *A = s->A + b * n * n, *B = s->B + b * n * m, *E = s->E + b * n * q, *w = d->w + b * n;
         for (int i = 0; i < n; i++) {
             double ax = 0.0, bu = 0.0, ed = 0.0;
             for (int j = 0; j < n; j++) ax += A[(size_t)i * n + j] * s->x[j];
             for (int j = 0; j < m; j++) bu += B[(size_t)i * m + j] * s->u[j];
             for (int j = 0; j < q; j++) ed += E[(size_t)i * q + j] * s->dv[j];
             xn[i] = ax + bu + ed + w[i];
+            if (r) {
+                double wv = 0.0;
+                for (int j = 0; j < r; j++) wv += d->W[(size_t)i * r + j] * s->wn[j];
+                xn[i] += wv;
+            }
         }
     } else {
         const double *phi = discretisation(s, t, h);
@@ -563,6 +651,11 @@ static UiofmuResult plant_step(void *self, double t, double h) {
             for (int j = 0; j < m; j++) bu += row[n + j] * s->u[j];
             for (int j = 0; j < q; j++) ed += row[n + m + j] * s->dv[j];
             xn[i] = ax + bu + ed + row[K - 1];
+            if (r) {
+                double wv = 0.0;
+                for (int j = 0; j < r; j++) wv += row[n + m + q + j] * s->wn[j];
+                xn[i] += wv;
+            }
         }
     }
     if (!uiofmu_next_state_finite(s->fmu, t, h, xn, n)) return UIOFMU_REFUSED;
@@ -577,9 +670,14 @@ static UiofmuResult plant_step(void *self, double t, double h) {
 
 typedef unsigned char Byte;
 
-enum { SV_MODE_IN, SV_SEED, SV_RNG_HI, SV_RNG_LO, SV_DRAWN, SV_SWITCHED }; /* after d[q], switched plants only */
+enum { SV_MISMATCH, SV_MISMATCH_SEED, SV_PLANT }; /* after d[q] */
+enum { SV_MODE_IN, SV_SEED, SV_RNG_HI, SV_RNG_LO, SV_DRAWN, SV_SWITCHED }; /* after those, switched plants only */
 
-static size_t switched_at(const UiofmuPlant *d) { return 1 + 2 * (size_t)d->n + (size_t)d->m + (size_t)d->q; }
+static size_t mismatch_at(const UiofmuPlant *d) {
+    return 1 + 2 * (size_t)d->n + (size_t)d->m + (size_t)d->q + (size_t)d->r;
+}
+
+static size_t switched_at(const UiofmuPlant *d) { return mismatch_at(d) + SV_PLANT; }
 
 static size_t plant_state_count(void) {
     const UiofmuPlant *d = &UIOFMU_PLANT;
@@ -602,6 +700,9 @@ static void plant_save_state(void *self, int phase, Byte *o) {
     o = uiofmu_put(o, s->x, (size_t)d->n);
     o = uiofmu_put(o, s->u, (size_t)d->m);
     o = uiofmu_put(o, s->dv, (size_t)d->q);
+    o = uiofmu_put(o, s->wn, (size_t)d->r);
+    double mm[SV_PLANT] = {s->mismatch, (double)s->mismatch_seed};
+    o = uiofmu_put(o, mm, SV_PLANT);
     if (d->modes) {
         double sw[SV_SWITCHED] = {(double)s->mode_in, (double)s->seed, (double)(uint32_t)(s->rng >> 32),
                                   (double)(uint32_t)(s->rng & UINT64_C(0xFFFFFFFF)), (double)s->drawn};
@@ -615,7 +716,18 @@ static int plant_check_state(void *self, const char *ctx, const Byte *v, int *ph
     char b1[32], b2[32], b3[32];
     double ph = uiofmu_getd(v, 0);
     if (!uiofmu_phase_ok(s->fmu, ctx, ph) || !uiofmu_plant_x_ok(s->fmu, ctx, v, 1, d->n, ph, d->x0)) return 0;
-    /* u[m], d[q]: taken as they are (see the header comment) */
+    /* u[m], d[q], w_noise[r]: taken as they are (see the header comment) */
+    double mismatch = uiofmu_getd(v, mismatch_at(d) + SV_MISMATCH);
+    double mseed = uiofmu_getd(v, mismatch_at(d) + SV_MISMATCH_SEED);
+    if (!(mseed == floor(mseed) && mseed >= INT_MIN && mseed <= INT_MAX))
+        return uiofmu_state_refused(s->fmu, ctx, "mismatch_seed = %s is not an integer from %d to %d",
+                                    uiofmu_num(mseed, b1), INT_MIN, INT_MAX);
+    if (ph >= UIOFMU_PHASE_RUNNING && !(isfinite(mismatch) && mismatch >= 0))
+        return uiofmu_state_refused(s->fmu, ctx, "mismatch = %s is not a finite number >= 0",
+                                    uiofmu_num(mismatch, b1));
+    if (ph >= UIOFMU_PHASE_RUNNING && !perturb(s, mismatch, (int)mseed, 0))
+        return uiofmu_state_refused(s->fmu, ctx, "mismatch = %s makes an entry of A, B or E overflow",
+                                    uiofmu_num(mismatch, b1));
     if (d->modes) {
         static const char *const NAME[SV_SWITCHED] = {"mode_in", "seed", "rng_hi", "rng_lo", "drawn"};
         const double low[SV_SWITCHED] = {INT_MIN, INT_MIN, 0, 0, 1};
@@ -642,7 +754,13 @@ static void plant_load_state(void *self, const Byte *v) {
     o = uiofmu_take(o, s->x0, (size_t)d->n);
     o = uiofmu_take(o, s->x, (size_t)d->n);
     o = uiofmu_take(o, s->u, (size_t)d->m);
-    uiofmu_take(o, s->dv, (size_t)d->q);
+    o = uiofmu_take(o, s->dv, (size_t)d->q);
+    uiofmu_take(o, s->wn, (size_t)d->r);
+    s->mismatch = uiofmu_getd(v, mismatch_at(d) + SV_MISMATCH);
+    s->mismatch_seed = (int)uiofmu_getd(v, mismatch_at(d) + SV_MISMATCH_SEED);
+    /* the matrices the steps use: perturbed once initialisation ended, the design's before */
+    int running = uiofmu_getd(v, 0) >= UIOFMU_PHASE_RUNNING;
+    perturb(s, running ? s->mismatch : 0.0, s->mismatch_seed, 1);
     if (d->modes) {
         size_t at = switched_at(d);
         s->mode_in = (int)uiofmu_getd(v, at + SV_MODE_IN);

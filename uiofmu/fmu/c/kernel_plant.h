@@ -2,8 +2,9 @@
  *
  * A linear plant (uiofmu.plant.Plant.to_data()) becomes one constant UiofmuPlant
  * (design_data.c, generated; numbers only). Matrices are row-major:
- *   A n x n, B n x m, E n x q, C p x n, w n, x0 n, D p x m, F p x q (y = C x + D u + F d; zeros: no
- *   feedthrough, the FMU then declares none)
+ *   A n x n, B n x m, E n x q, C p x n, w n, x0 n, W n x r (process noise; r = 0 but for a linear plant
+ *   whose problem declares it), D p x m, F p x q (y = C x + D u + F d; zeros: no feedthrough, the FMU then
+ *   declares none)
  * A switched plant (uiofmu.switched_plant.SwitchedPlant.to_data(), modes = N >= 1; discrete) has
  * N blocks of each of A, B, E and w, mode i (1..N) the block i - 1, and its switching rule:
  *   threshold: mode 1 + #{thresholds[t] <= x[state]} (N - 1 increasing thresholds)
@@ -26,7 +27,9 @@
    x0[n] parameter, u[m] and d[q] inputs (held over the step), y[p] = C x + D u + F d and x[n] outputs; all
    Real.
    A switched plant adds the Integer mode[1]: an input (rule input) or an output (rules threshold
-   and random), and rule random the Integer parameter seed[1]. Their ids, names, causalities
+   and random), and rule random the Integer parameter seed[1]. Every plant ends with the Real
+   parameter mismatch[1] and the Integer parameter mismatch_seed[1], the perturbation of its A, B, E
+   (kernel_plant.c, uiofmu/runtime/mismatch.py). Their ids, names, causalities
    (the one of mode as the FMU declares it) and types are generated at build time from
    uiofmu/runtime/ports.py (KERNEL_PORTS["plant"]). */
 #include "kernel_plant_ports.h"
@@ -36,11 +39,12 @@ enum { UIOFMU_RULE_NONE = 0, UIOFMU_RULE_THRESHOLD = 1, UIOFMU_RULE_INPUT = 2, U
 
 typedef struct {
     int n, m, p, q;
+    int r;             /* process-noise inputs w_noise: the columns of W (0: none declared) */
     int time;          /* UIOFMU_DISCRETE or UIOFMU_CONTINUOUS */
     double dt;         /* discrete plants: the period (0 for continuous ones) */
     double step_rtol;  /* discrete plants: a step within step_rtol * dt of dt is dt */
-    const double *A, *B, *E, *C, *w, *x0, *D, *F;
-    size_t A_length, B_length, E_length, C_length, w_length, x0_length, D_length, F_length;
+    const double *A, *B, *E, *C, *w, *x0, *W, *D, *F;
+    size_t A_length, B_length, E_length, C_length, w_length, x0_length, W_length, D_length, F_length;
     /* switched plants (modes = 0 for a linear one) */
     int modes, rule;
     int state;          /* rule threshold: the 0-based index of the state compared */
