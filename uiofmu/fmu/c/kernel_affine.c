@@ -561,16 +561,11 @@ static UiofmuResult affine_calculate(void *self, const char *fn) {
 /* The storage of element `index` of port `port` (the plumbing checked both against the table). */
 static double *affine_real_storage(void *self, int port, int index) {
     Instance *s = (Instance *)self;
-    switch (port) {
-    case UIOFMU_AFFINE_XHAT0: return &s->xhat0[index];
-    case UIOFMU_AFFINE_H_PREV0: return &s->h_prev0;
-    case UIOFMU_AFFINE_Y: return &s->y[index];
-    case UIOFMU_AFFINE_U: return &s->u[index];
-    case UIOFMU_AFFINE_XHAT: return &s->xhat[index];
-    case UIOFMU_AFFINE_R: return &s->r[index];
-    case UIOFMU_AFFINE_DHAT: return &s->dhat[index];
-    default: return NULL;
-    }
+    double *const first[UIOFMU_AFFINE_PORTS] = {[UIOFMU_AFFINE_XHAT0] = s->xhat0, [UIOFMU_AFFINE_H_PREV0] = &s->h_prev0,
+                                                [UIOFMU_AFFINE_Y] = s->y, [UIOFMU_AFFINE_U] = s->u,
+                                                [UIOFMU_AFFINE_XHAT] = s->xhat, [UIOFMU_AFFINE_R] = s->r,
+                                                [UIOFMU_AFFINE_DHAT] = s->dhat};
+    return uiofmu_element(first, port, index);
 }
 
 /* The plumbing stored new values: the outputs are computed again before they are read. */

@@ -1012,17 +1012,13 @@ static UiofmuResult delayed_calculate(void *self, const char *fn) {
 /* The storage of element `index` of port `port` (the plumbing checked both against the table). */
 static double *delayed_real_storage(void *self, int port, int index) {
     Delayed *s = (Delayed *)self;
-    switch (port) {
-    case UIOFMU_DELAYED_XHAT0: return &s->xhat0[index];
-    case UIOFMU_DELAYED_Y: return &s->y[index];
-    case UIOFMU_DELAYED_YDOT: return &s->ydot[index];
-    case UIOFMU_DELAYED_U: return &s->u[index];
-    case UIOFMU_DELAYED_XHAT: return &s->xhat_out[index];
-    case UIOFMU_DELAYED_THETAHAT: return &s->theta_out[index];
-    case UIOFMU_DELAYED_R: return &s->r_out[index];
-    case UIOFMU_DELAYED_SIGMA_MIN: return &s->sigma_out;
-    default: return NULL;
-    }
+    double *const first[UIOFMU_DELAYED_PORTS] = {[UIOFMU_DELAYED_XHAT0] = s->xhat0, [UIOFMU_DELAYED_Y] = s->y,
+                                                 [UIOFMU_DELAYED_YDOT] = s->ydot, [UIOFMU_DELAYED_U] = s->u,
+                                                 [UIOFMU_DELAYED_XHAT] = s->xhat_out,
+                                                 [UIOFMU_DELAYED_THETAHAT] = s->theta_out,
+                                                 [UIOFMU_DELAYED_R] = s->r_out,
+                                                 [UIOFMU_DELAYED_SIGMA_MIN] = &s->sigma_out};
+    return uiofmu_element(first, port, index);
 }
 
 /* The plumbing stored new values: the outputs are computed again before they are read. */

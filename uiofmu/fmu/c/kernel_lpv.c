@@ -241,14 +241,10 @@ static UiofmuResult lpv_calculate(void *self, const char *fn) {
 /* The storage of element `index` of port `port` (the plumbing checked both against the table). */
 static double *lpv_real_storage(void *self, int port, int index) {
     Lpv *s = (Lpv *)self;
-    switch (port) {
-    case UIOFMU_LPV_X0: return &s->x0[index];
-    case UIOFMU_LPV_D: return &s->dv[index];
-    case UIOFMU_LPV_THETA: return s->d->kind == UIOFMU_THETA_INPUT ? &s->theta_in[index] : &s->th[index];
-    case UIOFMU_LPV_Y: return &s->y[index];
-    case UIOFMU_LPV_X: return &s->x[index];
-    default: return NULL; /* u has no elements */
-    }
+    double *theta = s->d->kind == UIOFMU_THETA_INPUT ? s->theta_in : s->th; /* an input, or theta_k */
+    double *const first[UIOFMU_LPV_PORTS] = {[UIOFMU_LPV_X0] = s->x0, [UIOFMU_LPV_D] = s->dv, [UIOFMU_LPV_THETA] = theta,
+                                             [UIOFMU_LPV_Y] = s->y, [UIOFMU_LPV_X] = s->x}; /* u has no elements */
+    return uiofmu_element(first, port, index);
 }
 
 /* The plumbing stored new values: the outputs are computed again before they are read. */

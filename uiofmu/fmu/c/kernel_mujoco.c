@@ -314,15 +314,10 @@ static UiofmuResult mujoco_calculate(void *self, const char *fn) {
 /* The storage of element `index` of port `port` (the plumbing checked both against the table). */
 static double *mujoco_real_storage(void *self, int port, int index) {
     Mujoco *s = (Mujoco *)self;
-    switch (port) {
-    case UIOFMU_MUJOCO_X0: return &s->x0[index];
-    case UIOFMU_MUJOCO_PARAMS: return &s->params[index];
-    case UIOFMU_MUJOCO_U: return &s->u[index];
-    case UIOFMU_MUJOCO_D: return &s->dv[index];
-    case UIOFMU_MUJOCO_Y: return &s->y[index];
-    case UIOFMU_MUJOCO_X: return &s->x[index];
-    default: return NULL;
-    }
+    double *const first[UIOFMU_MUJOCO_PORTS] = {[UIOFMU_MUJOCO_X0] = s->x0, [UIOFMU_MUJOCO_PARAMS] = s->params,
+                                                [UIOFMU_MUJOCO_U] = s->u, [UIOFMU_MUJOCO_D] = s->dv,
+                                                [UIOFMU_MUJOCO_Y] = s->y, [UIOFMU_MUJOCO_X] = s->x};
+    return uiofmu_element(first, port, index);
 }
 
 /* The plumbing stored new values: nothing to note (the outputs follow the state alone, which

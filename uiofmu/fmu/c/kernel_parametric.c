@@ -237,15 +237,11 @@ static UiofmuResult parametric_calculate(void *self, const char *fn) {
 /* The storage of element `index` of port `port` (the plumbing checked both against the table). */
 static double *parametric_real_storage(void *self, int port, int index) {
     Parametric *s = (Parametric *)self;
-    switch (port) {
-    case UIOFMU_PARAMETRIC_X0: return &s->x0[index];
-    case UIOFMU_PARAMETRIC_THETA: return &s->theta[index];
-    case UIOFMU_PARAMETRIC_U: return &s->u[index];
-    case UIOFMU_PARAMETRIC_Y: return &s->y[index];
-    case UIOFMU_PARAMETRIC_YDOT: return &s->ydot[index];
-    case UIOFMU_PARAMETRIC_X: return &s->x[index];
-    default: return NULL;
-    }
+    double *const first[UIOFMU_PARAMETRIC_PORTS] = {[UIOFMU_PARAMETRIC_X0] = s->x0,
+                                                    [UIOFMU_PARAMETRIC_THETA] = s->theta, [UIOFMU_PARAMETRIC_U] = s->u,
+                                                    [UIOFMU_PARAMETRIC_Y] = s->y, [UIOFMU_PARAMETRIC_YDOT] = s->ydot,
+                                                    [UIOFMU_PARAMETRIC_X] = s->x};
+    return uiofmu_element(first, port, index);
 }
 
 /* The plumbing stored new values: the outputs are computed again before they are read. */

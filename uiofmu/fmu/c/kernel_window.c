@@ -247,12 +247,9 @@ static UiofmuResult window_calculate(void *self, const char *fn) {
 /* The storage of element `index` of port `port` (the plumbing checked both against the table). */
 static double *window_real_storage(void *self, int port, int index) {
     Window *s = (Window *)self;
-    switch (port) {
-    case UIOFMU_WINDOW_Y: return &s->y[index];
-    case UIOFMU_WINDOW_THETA: return &s->theta[index];
-    case UIOFMU_WINDOW_GX: return &s->gx[index];
-    default: return NULL;
-    }
+    double *const first[UIOFMU_WINDOW_PORTS] = {[UIOFMU_WINDOW_Y] = s->y, [UIOFMU_WINDOW_THETA] = s->theta,
+                                                [UIOFMU_WINDOW_GX] = s->gx};
+    return uiofmu_element(first, port, index);
 }
 
 /* The plumbing stored new values: the outputs are computed again before they are read. */
