@@ -445,8 +445,8 @@ static int find_storage(FmuInstance *s) {
         if (v->type != UIOFMU_REAL) continue;
         s->storage[vr] = s->kernel->real_storage(s->model, v->port, v->index);
         if (!s->storage[vr]) {
-            uiofmu_log(s, fmi2Error, "fmi2Instantiate: the %s kernel has no storage for value reference %d",
-                       s->kernel->name, vr);
+            uiofmu_log(s, fmi2Error, "fmi2Instantiate: the design data compiled into this FMU is inconsistent: the %s "
+                       "kernel has no storage for value reference %d", s->kernel->name, vr);
             free(s->storage);
             s->storage = NULL;
             return 0;
