@@ -219,6 +219,12 @@ def test_a_second_kernel_plugs_into_the_plumbing(tmp_path):
     assert "plumbing_test run: 0 failed checks" in proc.stdout
 
 
+def test_a_kernel_can_give_the_storage_of_its_real_variables_instead_of_get_and_set(tmp_path):
+    proc = _run(_toy(tmp_path, 9), "run")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "plumbing_test run: 0 failed checks" in proc.stdout
+
+
 def test_the_plumbing_applies_the_step_rule(tmp_path):
     proc = _run(_toy(tmp_path), "steps")
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -232,6 +238,8 @@ def test_the_plumbing_applies_the_step_rule(tmp_path):
     (4, "port u has 2 elements in this design, the variable table lists 1"),
     (5, "value reference 4: element 2 of port u, which has 2 in this design"),
     (6, "admissible step 1 = 1e-12: expected a finite step above 2.5e-10"),
+    (7, "value reference 0 (x0[1]) is a Real the kernel cannot get or set"),
+    (8, "the toy kernel has no storage for value reference 4"),
 ])
 def test_instantiate_refuses_a_broken_variable_table(tmp_path, table, fragment):
     proc = _run(_toy(tmp_path, table), "refused", fragment)

@@ -9,7 +9,10 @@
  *
  * Its own design data and variable table are here too (design_data.c in an FMU); -DTOY_TABLE=n
  * compiles a broken table n instead (1: out of order, 2: a type the port does not have, 3: a
- * port the kernel has not, 4: an element missing, 5: a port's element past its size).
+ * port the kernel has not, 4: an element missing, 5: a port's element past its size, 6: a broken
+ * step rule, 7: a kernel that cannot set its Real parameter), or the toy's Real variables read and
+ * written through real_storage instead of get_real and set_real (8: with no storage for x, 9: for
+ * every one).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -72,6 +75,16 @@ static UiofmuResult toy_exit_initialization(void *self) {
 
 static UiofmuResult toy_calculate(void *self, const char *fn) { (void)self; (void)fn; return UIOFMU_DONE; }
 
+#if TOY_TABLE >= 8
+static double *toy_real_storage(void *self, int port, int index) {
+    Toy *s = (Toy *)self;
+    if (port == TOY_X0) return &s->x0;
+    if (port == TOY_U) return &s->u[index];
+    return port == TOY_X && TOY_TABLE == 9 ? &s->x : NULL;
+}
+
+static void toy_changed(void *self) { (void)self; }
+#else
 static double toy_get_real(void *self, int port, int index) {
     Toy *s = (Toy *)self;
     return port == TOY_X0 ? s->x0 : port == TOY_U ? s->u[index] : s->x;
@@ -82,6 +95,7 @@ static void toy_set_real(void *self, int port, int index, double value) {
     if (port == TOY_X0) s->x0 = value;
     else if (port == TOY_U) s->u[index] = value;
 }
+#endif
 
 static int toy_get_integer(void *self, int port, int index) {
     Toy *s = (Toy *)self;
@@ -174,8 +188,13 @@ static const UiofmuKernel TOY_KERNEL = {
     .reset = toy_reset,
     .exit_initialization = toy_exit_initialization,
     .calculate = toy_calculate,
+#if TOY_TABLE >= 8
+    .real_storage = toy_real_storage,
+    .changed = toy_changed,
+#else
     .get_real = toy_get_real,
-    .set_real = toy_set_real,
+    .set_real = TOY_TABLE == 7 ? NULL : toy_set_real,
+#endif
     .get_integer = toy_get_integer,
     .set_integer = toy_set_integer,
     .step = toy_step,

@@ -373,7 +373,7 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
     if (g == 0 || g > MAX_GUID)
         return uiofmu_design_error(msg, len, "the design's GUID is empty or longer than %d bytes", MAX_GUID);
     if (!k || !k->check_design || !k->port || !k->instantiate || !k->free_instance || !k->reset ||
-        !k->exit_initialization || !k->calculate || !k->get_real || !k->set_real || !k->step || !k->state_count ||
+        !k->exit_initialization || !k->calculate || !k->step || !k->state_count ||
         !k->state_shape || !k->save_state || !k->check_state || !k->load_state || !k->real_storage != !k->changed ||
         k->ports < 1 || k->ports > MAX_PORTS)
         return uiofmu_design_error(msg, len, "the FMU's kernel is incomplete");
@@ -413,7 +413,11 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
             return uiofmu_design_error(msg, len, "value reference %d (%s[%d]) is listed as %s %s, the kernel's port is "
                                        "%s %s", vr, p.name, v->index + 1, CAUSALITY_NAME[v->causality],
                                        TYPE_OF[v->type], CAUSALITY_NAME[p.causality], TYPE_OF[p.type]);
-        if (v->type == UIOFMU_INTEGER && (!k->get_integer || !k->set_integer))
+        if (v->type == UIOFMU_REAL && !k->real_storage &&
+            (!k->get_real || (v->causality != UIOFMU_OUTPUT && !k->set_real)))
+            return uiofmu_design_error(msg, len, "value reference %d (%s[%d]) is a Real the kernel cannot get or set",
+                                       vr, p.name, v->index + 1);
+        if (v->type == UIOFMU_INTEGER && (!k->get_integer || (v->causality != UIOFMU_OUTPUT && !k->set_integer)))
             return uiofmu_design_error(msg, len, "value reference %d (%s[%d]) is an Integer the kernel cannot get or "
                                        "set", vr, p.name, v->index + 1);
         seen[v->port]++;
@@ -425,8 +429,9 @@ static int check_fmu(const UiofmuFmu *f, char *msg, size_t len) {
     return 1;
 }
 
-/* s->storage: where each Real variable lives, when the kernel says so for every one (else NULL:
-   get_real and set_real). 0 after a log line when out of memory. */
+/* s->storage: where each Real variable lives, when the kernel gives real_storage (else NULL:
+   get_real and set_real). 0 after a log line when out of memory or when the kernel has no storage
+   for one. */
 static int find_storage(FmuInstance *s) {
     const UiofmuFmu *f = s->fmu;
     if (!s->kernel->real_storage || f->nvariables < 1) return 1;
@@ -440,9 +445,11 @@ static int find_storage(FmuInstance *s) {
         if (v->type != UIOFMU_REAL) continue;
         s->storage[vr] = s->kernel->real_storage(s->model, v->port, v->index);
         if (!s->storage[vr]) {
+            uiofmu_log(s, fmi2Error, "fmi2Instantiate: the design data compiled into this FMU is inconsistent: the %s "
+                       "kernel has no storage for value reference %d", s->kernel->name, vr);
             free(s->storage);
             s->storage = NULL;
-            return 1;
+            return 0;
         }
     }
     return 1;

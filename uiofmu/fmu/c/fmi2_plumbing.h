@@ -102,18 +102,20 @@ typedef struct {
     UiofmuResult (*exit_initialization)(void *self);
     /* Bring the outputs up to date before they are read (fn names the FMI call for log lines). */
     UiofmuResult (*calculate)(void *self, const char *fn);
-    /* Element access: the plumbing has checked port, index, type and causality against the
-       table and the instance state; a set stores the value as it is (a step checks it). The
-       Integer pair may be NULL when the kernel has no Integer port. */
+    /* Element access, for the Integer ports and for a kernel without real_storage (below): the
+       plumbing has checked port, index, type and causality against the table and the instance
+       state; a set stores the value as it is (a step checks it). A get may be NULL when the kernel
+       has no port of its type, a set when it has no parameter or input of its type, the Real pair
+       when the kernel gives real_storage. */
     double (*get_real)(void *self, int port, int index);
     void (*set_real)(void *self, int port, int index, double value);
     int (*get_integer)(void *self, int port, int index);
     void (*set_integer)(void *self, int port, int index, int value);
     /* Optional, both or neither: where element `index` of Real port `port` lives for the instance's
-       whole life (NULL: nowhere), and what the kernel does once the plumbing stored values there.
-       When every Real variable has its storage, fmi2GetReal reads those doubles after calculate and
-       fmi2SetReal writes them (the value as it is, as set_real would) and then calls changed once,
-       instead of get_real and set_real for each element. */
+       whole life (never NULL for a Real variable of the table), and what the kernel does once the
+       plumbing stored values there. With them fmi2GetReal reads those doubles after calculate and
+       fmi2SetReal writes them (the value as it is: a step checks it) and then calls changed once;
+       get_real and set_real are not called. */
     double *(*real_storage)(void *self, int port, int index);
     void (*changed)(void *self);
     /* fmi2DoStep(t, h) with h > 0 finite and t finite (the plumbing checked both). */

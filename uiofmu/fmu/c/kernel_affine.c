@@ -559,36 +559,17 @@ static UiofmuResult affine_calculate(void *self, const char *fn) {
 }
 
 /* The storage of element `index` of port `port` (the plumbing checked both against the table). */
-static double *element(Instance *s, int port, int index) {
-    switch (port) {
-    case UIOFMU_AFFINE_XHAT0: return &s->xhat0[index];
-    case UIOFMU_AFFINE_H_PREV0: return &s->h_prev0;
-    case UIOFMU_AFFINE_Y: return &s->y[index];
-    case UIOFMU_AFFINE_U: return &s->u[index];
-    case UIOFMU_AFFINE_XHAT: return &s->xhat[index];
-    case UIOFMU_AFFINE_R: return &s->r[index];
-    case UIOFMU_AFFINE_DHAT: return &s->dhat[index];
-    default: return NULL;
-    }
-}
-
-/* The plumbing's direct access: where a Real element lives, and the note that it stored values there. */
-static double *affine_real_storage(void *self, int port, int index) { return element((Instance *)self, port, index); }
-
-static void affine_changed(void *self) { touched((Instance *)self); }
-
-static double affine_get_real(void *self, int port, int index) {
-    const double *v = element((Instance *)self, port, index);
-    return v ? *v : 0.0;
-}
-
-static void affine_set_real(void *self, int port, int index, double value) {
+static double *affine_real_storage(void *self, int port, int index) {
     Instance *s = (Instance *)self;
-    double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element(s, port, index) : NULL; /* parameters and inputs */
-    if (!v) return;
-    *v = value;
-    touched(s);
+    double *const first[UIOFMU_AFFINE_PORTS] = {[UIOFMU_AFFINE_XHAT0] = s->xhat0, [UIOFMU_AFFINE_H_PREV0] = &s->h_prev0,
+                                                [UIOFMU_AFFINE_Y] = s->y, [UIOFMU_AFFINE_U] = s->u,
+                                                [UIOFMU_AFFINE_XHAT] = s->xhat, [UIOFMU_AFFINE_R] = s->r,
+                                                [UIOFMU_AFFINE_DHAT] = s->dhat};
+    return uiofmu_element(first, port, index);
 }
+
+/* The plumbing stored new values: the outputs are computed again before they are read. */
+static void affine_changed(void *self) { touched((Instance *)self); }
 
 /* The Integer ports (mode schedules): mode_prev0 (parameter) and mode (input). */
 static int affine_get_integer(void *self, int port, int index) {
@@ -894,8 +875,6 @@ const UiofmuKernel UIOFMU_KERNEL_AFFINE = {
     .reset = affine_reset,
     .exit_initialization = affine_exit_initialization,
     .calculate = affine_calculate,
-    .get_real = affine_get_real,
-    .set_real = affine_set_real,
     .real_storage = affine_real_storage,
     .changed = affine_changed,
     .get_integer = affine_get_integer, /* mode schedules: mode_prev0 and mode */

@@ -1010,44 +1010,24 @@ static UiofmuResult delayed_calculate(void *self, const char *fn) {
 }
 
 /* The storage of element `index` of port `port` (the plumbing checked both against the table). */
-static double *element(Delayed *s, int port, int index) {
-    switch (port) {
-    case UIOFMU_DELAYED_XHAT0: return &s->xhat0[index];
-    case UIOFMU_DELAYED_Y: return &s->y[index];
-    case UIOFMU_DELAYED_YDOT: return &s->ydot[index];
-    case UIOFMU_DELAYED_U: return &s->u[index];
-    case UIOFMU_DELAYED_XHAT: return &s->xhat_out[index];
-    case UIOFMU_DELAYED_THETAHAT: return &s->theta_out[index];
-    case UIOFMU_DELAYED_R: return &s->r_out[index];
-    case UIOFMU_DELAYED_SIGMA_MIN: return &s->sigma_out;
-    default: return NULL;
-    }
-}
-
-static double delayed_get_real(void *self, int port, int index) {
-    const double *v = element((Delayed *)self, port, index);
-    return v ? *v : 0.0;
-}
-
-static void delayed_set_real(void *self, int port, int index, double value) {
+static double *delayed_real_storage(void *self, int port, int index) {
     Delayed *s = (Delayed *)self;
-    double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element(s, port, index) : NULL; /* parameters, inputs */
-    if (!v) return;
-    *v = value;
-    s->dirty = 1;
+    double *const first[UIOFMU_DELAYED_PORTS] = {[UIOFMU_DELAYED_XHAT0] = s->xhat0, [UIOFMU_DELAYED_Y] = s->y,
+                                                 [UIOFMU_DELAYED_YDOT] = s->ydot, [UIOFMU_DELAYED_U] = s->u,
+                                                 [UIOFMU_DELAYED_XHAT] = s->xhat_out,
+                                                 [UIOFMU_DELAYED_THETAHAT] = s->theta_out,
+                                                 [UIOFMU_DELAYED_R] = s->r_out,
+                                                 [UIOFMU_DELAYED_SIGMA_MIN] = &s->sigma_out};
+    return uiofmu_element(first, port, index);
 }
+
+/* The plumbing stored new values: the outputs are computed again before they are read. */
+static void delayed_changed(void *self) { ((Delayed *)self)->dirty = 1; }
 
 /* The Integer port: valid (an output). */
 static int delayed_get_integer(void *self, int port, int index) {
     (void)index;
     return port == UIOFMU_DELAYED_VALID ? ((Delayed *)self)->valid_out : 0;
-}
-
-static void delayed_set_integer(void *self, int port, int index, int value) {
-    (void)self;
-    (void)port;
-    (void)index;
-    (void)value; /* no Integer input */
 }
 
 /* ---------------------------------------------------------------------------------------- */
@@ -1206,10 +1186,10 @@ const UiofmuKernel UIOFMU_KERNEL_DELAYED = {
     .reset = delayed_reset,
     .exit_initialization = delayed_exit_initialization,
     .calculate = delayed_calculate,
-    .get_real = delayed_get_real,
-    .set_real = delayed_set_real,
+    .real_storage = delayed_real_storage,
+    .changed = delayed_changed,
     .get_integer = delayed_get_integer, /* valid */
-    .set_integer = delayed_set_integer,
+    .set_integer = NULL, /* no Integer input */
     .step = delayed_step,
     .state_count = delayed_state_count,
     .state_shape = delayed_state_shape,

@@ -238,29 +238,17 @@ static UiofmuResult lpv_calculate(void *self, const char *fn) {
     return UIOFMU_DONE;
 }
 
-static double *element(Lpv *s, int port, int index) {
-    switch (port) {
-    case UIOFMU_LPV_X0: return &s->x0[index];
-    case UIOFMU_LPV_D: return &s->dv[index];
-    case UIOFMU_LPV_THETA: return s->d->kind == UIOFMU_THETA_INPUT ? &s->theta_in[index] : &s->th[index];
-    case UIOFMU_LPV_Y: return &s->y[index];
-    case UIOFMU_LPV_X: return &s->x[index];
-    default: return NULL; /* u has no elements */
-    }
-}
-
-static double lpv_get_real(void *self, int port, int index) {
-    const double *v = element((Lpv *)self, port, index);
-    return v ? *v : 0.0;
-}
-
-static void lpv_set_real(void *self, int port, int index, double value) {
+/* The storage of element `index` of port `port` (the plumbing checked both against the table). */
+static double *lpv_real_storage(void *self, int port, int index) {
     Lpv *s = (Lpv *)self;
-    double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element(s, port, index) : NULL; /* parameters and inputs */
-    if (!v) return;
-    *v = value;
-    s->dirty = 1;
+    double *theta = s->d->kind == UIOFMU_THETA_INPUT ? s->theta_in : s->th; /* an input, or theta_k */
+    double *const first[UIOFMU_LPV_PORTS] = {[UIOFMU_LPV_X0] = s->x0, [UIOFMU_LPV_D] = s->dv, [UIOFMU_LPV_THETA] = theta,
+                                             [UIOFMU_LPV_Y] = s->y, [UIOFMU_LPV_X] = s->x}; /* u has no elements */
+    return uiofmu_element(first, port, index);
 }
+
+/* The plumbing stored new values: the outputs are computed again before they are read. */
+static void lpv_changed(void *self) { ((Lpv *)self)->dirty = 1; }
 
 static UiofmuResult lpv_step(void *self, double t, double h) {
     Lpv *s = (Lpv *)self;
@@ -348,8 +336,8 @@ const UiofmuKernel UIOFMU_KERNEL_LPV = {
     .reset = lpv_reset,
     .exit_initialization = lpv_exit_initialization,
     .calculate = lpv_calculate,
-    .get_real = lpv_get_real,
-    .set_real = lpv_set_real,
+    .real_storage = lpv_real_storage,
+    .changed = lpv_changed,
     .get_integer = NULL, /* no Integer port */
     .set_integer = NULL,
     .step = lpv_step,

@@ -311,27 +311,18 @@ static UiofmuResult mujoco_calculate(void *self, const char *fn) {
     return UIOFMU_DONE;
 }
 
-static double *element(Mujoco *s, int port, int index) {
-    switch (port) {
-    case UIOFMU_MUJOCO_X0: return &s->x0[index];
-    case UIOFMU_MUJOCO_PARAMS: return &s->params[index];
-    case UIOFMU_MUJOCO_U: return &s->u[index];
-    case UIOFMU_MUJOCO_D: return &s->dv[index];
-    case UIOFMU_MUJOCO_Y: return &s->y[index];
-    case UIOFMU_MUJOCO_X: return &s->x[index];
-    default: return NULL;
-    }
+/* The storage of element `index` of port `port` (the plumbing checked both against the table). */
+static double *mujoco_real_storage(void *self, int port, int index) {
+    Mujoco *s = (Mujoco *)self;
+    double *const first[UIOFMU_MUJOCO_PORTS] = {[UIOFMU_MUJOCO_X0] = s->x0, [UIOFMU_MUJOCO_PARAMS] = s->params,
+                                                [UIOFMU_MUJOCO_U] = s->u, [UIOFMU_MUJOCO_D] = s->dv,
+                                                [UIOFMU_MUJOCO_Y] = s->y, [UIOFMU_MUJOCO_X] = s->x};
+    return uiofmu_element(first, port, index);
 }
 
-static double mujoco_get_real(void *self, int port, int index) {
-    const double *v = element((Mujoco *)self, port, index);
-    return v ? *v : 0.0;
-}
-
-static void mujoco_set_real(void *self, int port, int index, double value) {
-    double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element((Mujoco *)self, port, index) : NULL;
-    if (v) *v = value;
-}
+/* The plumbing stored new values: nothing to note (the outputs follow the state alone, which
+   only a step and the start of the run change). */
+static void mujoco_changed(void *self) { (void)self; }
 
 static UiofmuResult mujoco_step(void *self, double t, double h) {
     Mujoco *s = (Mujoco *)self;
@@ -460,8 +451,8 @@ const UiofmuKernel UIOFMU_KERNEL_MUJOCO = {
     .reset = mujoco_reset,
     .exit_initialization = mujoco_exit_initialization,
     .calculate = mujoco_calculate,
-    .get_real = mujoco_get_real,
-    .set_real = mujoco_set_real,
+    .real_storage = mujoco_real_storage,
+    .changed = mujoco_changed,
     .get_integer = NULL,
     .set_integer = NULL,
     .step = mujoco_step,

@@ -234,30 +234,18 @@ static UiofmuResult parametric_calculate(void *self, const char *fn) {
     return UIOFMU_DONE;
 }
 
-static double *element(Parametric *s, int port, int index) {
-    switch (port) {
-    case UIOFMU_PARAMETRIC_X0: return &s->x0[index];
-    case UIOFMU_PARAMETRIC_THETA: return &s->theta[index];
-    case UIOFMU_PARAMETRIC_U: return &s->u[index];
-    case UIOFMU_PARAMETRIC_Y: return &s->y[index];
-    case UIOFMU_PARAMETRIC_YDOT: return &s->ydot[index];
-    case UIOFMU_PARAMETRIC_X: return &s->x[index];
-    default: return NULL;
-    }
-}
-
-static double parametric_get_real(void *self, int port, int index) {
-    const double *v = element((Parametric *)self, port, index);
-    return v ? *v : 0.0;
-}
-
-static void parametric_set_real(void *self, int port, int index, double value) {
+/* The storage of element `index` of port `port` (the plumbing checked both against the table). */
+static double *parametric_real_storage(void *self, int port, int index) {
     Parametric *s = (Parametric *)self;
-    double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element(s, port, index) : NULL; /* parameters, inputs */
-    if (!v) return;
-    *v = value;
-    s->dirty = 1;
+    double *const first[UIOFMU_PARAMETRIC_PORTS] = {[UIOFMU_PARAMETRIC_X0] = s->x0,
+                                                    [UIOFMU_PARAMETRIC_THETA] = s->theta, [UIOFMU_PARAMETRIC_U] = s->u,
+                                                    [UIOFMU_PARAMETRIC_Y] = s->y, [UIOFMU_PARAMETRIC_YDOT] = s->ydot,
+                                                    [UIOFMU_PARAMETRIC_X] = s->x};
+    return uiofmu_element(first, port, index);
 }
+
+/* The plumbing stored new values: the outputs are computed again before they are read. */
+static void parametric_changed(void *self) { ((Parametric *)self)->dirty = 1; }
 
 static UiofmuResult parametric_step(void *self, double t, double h) {
     Parametric *s = (Parametric *)self;
@@ -369,8 +357,8 @@ const UiofmuKernel UIOFMU_KERNEL_PARAMETRIC = {
     .reset = parametric_reset,
     .exit_initialization = parametric_exit_initialization,
     .calculate = parametric_calculate,
-    .get_real = parametric_get_real,
-    .set_real = parametric_set_real,
+    .real_storage = parametric_real_storage,
+    .changed = parametric_changed,
     .get_integer = NULL,
     .set_integer = NULL,
     .step = parametric_step,

@@ -238,15 +238,6 @@ static int source_get_integer(void *self, int port, int index) {
     return (int)value((const Source *)self, port, index);
 }
 
-/* No inputs, no parameters: the plumbing never sets an output. */
-static void source_set_real(void *self, int port, int index, double v) {
-    (void)self, (void)port, (void)index, (void)v;
-}
-
-static void source_set_integer(void *self, int port, int index, int v) {
-    (void)self, (void)port, (void)index, (void)v;
-}
-
 static UiofmuResult source_step(void *self, double t, double h) {
     Source *s = (Source *)self;
     double next = t + h;
@@ -309,9 +300,9 @@ const UiofmuKernel UIOFMU_KERNEL_SOURCE = {
     .exit_initialization = source_exit_initialization,
     .calculate = source_calculate,
     .get_real = source_get_real,
-    .set_real = source_set_real,
+    .set_real = NULL, /* no input, no parameter */
     .get_integer = source_get_integer,
-    .set_integer = source_set_integer,
+    .set_integer = NULL,
     .step = source_step,
     .state_count = source_state_count,
     .state_shape = source_state_shape,

@@ -57,6 +57,12 @@ UIOFMU_INTERNAL int uiofmu_off_period(FmuInstance *fmu, double t, double h, doub
    the first that is not, t and h. */
 UIOFMU_INTERNAL int uiofmu_next_state_finite(FmuInstance *fmu, double t, double h, const double *xn, int n);
 
+/* real_storage from the first element of each port (first[port], NULL when the port has no
+   elements here): where element `index` of port `port` lives. */
+static inline double *uiofmu_element(double *const first[], int port, int index) {
+    return first[port] ? first[port] + index : NULL;
+}
+
 /* ---------------------------------------------------------------------------------------- */
 /* The kernel's part of the FMU state                                                        */
 

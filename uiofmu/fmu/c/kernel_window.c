@@ -245,39 +245,20 @@ static UiofmuResult window_calculate(void *self, const char *fn) {
 }
 
 /* The storage of element `index` of port `port` (the plumbing checked both against the table). */
-static double *element(Window *s, int port, int index) {
-    switch (port) {
-    case UIOFMU_WINDOW_Y: return &s->y[index];
-    case UIOFMU_WINDOW_THETA: return &s->theta[index];
-    case UIOFMU_WINDOW_GX: return &s->gx[index];
-    default: return NULL;
-    }
-}
-
-static double window_get_real(void *self, int port, int index) {
-    const double *v = element((Window *)self, port, index);
-    return v ? *v : 0.0;
-}
-
-static void window_set_real(void *self, int port, int index, double value) {
+static double *window_real_storage(void *self, int port, int index) {
     Window *s = (Window *)self;
-    double *v = PORT_CAUSALITY[port] != UIOFMU_OUTPUT ? element(s, port, index) : NULL; /* inputs */
-    if (!v) return;
-    *v = value;
-    s->dirty = 1;
+    double *const first[UIOFMU_WINDOW_PORTS] = {[UIOFMU_WINDOW_Y] = s->y, [UIOFMU_WINDOW_THETA] = s->theta,
+                                                [UIOFMU_WINDOW_GX] = s->gx};
+    return uiofmu_element(first, port, index);
 }
+
+/* The plumbing stored new values: the outputs are computed again before they are read. */
+static void window_changed(void *self) { ((Window *)self)->dirty = 1; }
 
 /* The Integer port: gx_valid (an output). */
 static int window_get_integer(void *self, int port, int index) {
     (void)index;
     return port == UIOFMU_WINDOW_GX_VALID ? valid((const Window *)self) : 0;
-}
-
-static void window_set_integer(void *self, int port, int index, int value) {
-    (void)self;
-    (void)port;
-    (void)index;
-    (void)value; /* no Integer input */
 }
 
 static UiofmuResult window_step(void *self, double t, double h) {
@@ -430,10 +411,10 @@ const UiofmuKernel UIOFMU_KERNEL_WINDOW = {
     .reset = window_reset,
     .exit_initialization = window_exit_initialization,
     .calculate = window_calculate,
-    .get_real = window_get_real,
-    .set_real = window_set_real,
+    .real_storage = window_real_storage,
+    .changed = window_changed,
     .get_integer = window_get_integer, /* gx_valid */
-    .set_integer = window_set_integer,
+    .set_integer = NULL, /* no Integer input */
     .step = window_step,
     .state_count = window_state_count,
     .state_shape = window_state_shape,
