@@ -837,15 +837,6 @@ static UiofmuResult delayed_step(void *self, double tm, double h) {
 /* ---------------------------------------------------------------------------------------- */
 /* The design, checked once at fmi2Instantiate: everything the runtime later indexes with.   */
 
-static int check_array(char *msg, size_t len, const char *name, const double *v, size_t length, size_t want) {
-    if (!v || length != (want ? want : 1))
-        return uiofmu_design_error(msg, len, "%s: expected %zu numbers, its array holds %zu", name, want,
-                                   v ? length : 0);
-    for (size_t e = 0; e < want; e++)
-        if (!isfinite(v[e])) return uiofmu_design_error(msg, len, "%s[%zu] = %g is not finite", name, e, v[e]);
-    return 1;
-}
-
 static int check_design_data(const UiofmuDelayed *d, char *msg, size_t len) {
     const int dims[4] = {d->n, d->m, d->p, d->nt}, low[4] = {1, 0, 1, 1};
     const char *const dim_name[4] = {"n", "m", "p", "n_theta"};
@@ -866,13 +857,14 @@ static int check_design_data(const UiofmuDelayed *d, char *msg, size_t len) {
                                    "(%d): expected max_substep > 0, sigma_bound >= 0, valid_from >= 0 and, when given, "
                                    "gamma_bound > 0, all finite", d->max_substep, d->sigma_bound, d->valid_from,
                                    d->gamma_bound, d->has_gamma_bound);
-    if (!check_array(msg, len, "A", d->A, d->A_length, n * n) || !check_array(msg, len, "B", d->B, d->B_length, n * m) ||
-        !check_array(msg, len, "C", d->C, d->C_length, p * n) ||
-        !check_array(msg, len, "D0", d->D0, d->D0_length, n * nt) ||
-        !check_array(msg, len, "Dy", d->Dy, d->Dy_length, p * n * nt) ||
-        !check_array(msg, len, "K", d->K, d->K_length, n * c * p * c) ||
-        !check_array(msg, len, "delays", d->delays, d->delays_length, c - 1) ||
-        !check_array(msg, len, "xhat0", d->xhat0, d->xhat0_length, n))
+    if (!uiofmu_check_array(msg, len, "", "A", d->A, d->A_length, n * n) ||
+        !uiofmu_check_array(msg, len, "", "B", d->B, d->B_length, n * m) ||
+        !uiofmu_check_array(msg, len, "", "C", d->C, d->C_length, p * n) ||
+        !uiofmu_check_array(msg, len, "", "D0", d->D0, d->D0_length, n * nt) ||
+        !uiofmu_check_array(msg, len, "", "Dy", d->Dy, d->Dy_length, p * n * nt) ||
+        !uiofmu_check_array(msg, len, "", "K", d->K, d->K_length, n * c * p * c) ||
+        !uiofmu_check_array(msg, len, "", "delays", d->delays, d->delays_length, c - 1) ||
+        !uiofmu_check_array(msg, len, "", "xhat0", d->xhat0, d->xhat0_length, n))
         return 0;
     for (int i = 0; i < d->ndelays; i++)
         if (!(d->delays[i] > 0) || (i && !(d->delays[i] > d->delays[i - 1])))

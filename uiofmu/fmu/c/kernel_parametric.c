@@ -120,26 +120,18 @@ static void reset_state(Parametric *s) {
 /* ---------------------------------------------------------------------------------------- */
 /* The design, checked once at fmi2Instantiate                                                */
 
-static int check_array(char *msg, size_t len, const char *name, const double *v, size_t length, size_t want) {
-    if (!v || length != (want ? want : 1))
-        return uiofmu_design_error(msg, len, "plant %s: expected %zu numbers, its array holds %zu", name, want,
-                                   v ? length : 0);
-    for (size_t e = 0; e < want; e++)
-        if (!isfinite(v[e])) return uiofmu_design_error(msg, len, "plant %s[%zu] = %g is not finite", name, e, v[e]);
-    return 1;
-}
-
 static int check_design_data(const UiofmuParametric *d, char *msg, size_t len) {
     const int dims[4] = {d->n, d->m, d->p, d->nt}, low[4] = {1, 0, 1, 1};
     const char *const names[4] = {"n", "m", "p", "n_theta"};
     if (!uiofmu_check_dims(msg, len, "plant ", 4, dims, names, low, MAX_DIM)) return 0;
     size_t n = (size_t)d->n, m = (size_t)d->m, p = (size_t)d->p, nt = (size_t)d->nt;
-    if (!check_array(msg, len, "A", d->A, d->A_length, n * n) || !check_array(msg, len, "B", d->B, d->B_length, n * m) ||
-        !check_array(msg, len, "C", d->C, d->C_length, p * n) ||
-        !check_array(msg, len, "D0", d->D0, d->D0_length, n * nt) ||
-        !check_array(msg, len, "Dy", d->Dy, d->Dy_length, p * n * nt) ||
-        !check_array(msg, len, "x0", d->x0, d->x0_length, n) ||
-        !check_array(msg, len, "theta", d->theta, d->theta_length, nt))
+    if (!uiofmu_check_array(msg, len, "plant ", "A", d->A, d->A_length, n * n) ||
+        !uiofmu_check_array(msg, len, "plant ", "B", d->B, d->B_length, n * m) ||
+        !uiofmu_check_array(msg, len, "plant ", "C", d->C, d->C_length, p * n) ||
+        !uiofmu_check_array(msg, len, "plant ", "D0", d->D0, d->D0_length, n * nt) ||
+        !uiofmu_check_array(msg, len, "plant ", "Dy", d->Dy, d->Dy_length, p * n * nt) ||
+        !uiofmu_check_array(msg, len, "plant ", "x0", d->x0, d->x0_length, n) ||
+        !uiofmu_check_array(msg, len, "plant ", "theta", d->theta, d->theta_length, nt))
         return 0;
     if (!(isfinite(d->norm_A) && d->norm_A >= 0 && isfinite(d->norm_C) && d->norm_C >= 0 && isfinite(d->sum_Dy) &&
           d->sum_Dy >= 0 && isfinite(d->sum_D0) && d->sum_D0 >= 0))

@@ -22,6 +22,17 @@ int uiofmu_check_dims(char *msg, size_t len, const char *prefix, int count, cons
     return 1;
 }
 
+int uiofmu_check_array(char *msg, size_t len, const char *prefix, const char *name, const double *v, size_t length,
+                       size_t want) {
+    if (!v || length != (want ? want : 1))
+        return uiofmu_design_error(msg, len, "%s%s: expected %zu numbers, its array holds %zu", prefix, name, want,
+                                   v ? length : 0);
+    for (size_t e = 0; e < want; e++)
+        if (!isfinite(v[e]))
+            return uiofmu_design_error(msg, len, "%s%s[%zu] = %g is not finite", prefix, name, e, v[e]);
+    return 1;
+}
+
 int uiofmu_check_period(char *msg, size_t len, double dt, double step_rtol) {
     if (!(isfinite(dt) && dt > 0) || !(isfinite(step_rtol) && step_rtol >= 0))
         return uiofmu_design_error(msg, len, "dt = %g, step_rtol = %g: expected a finite period > 0 and step_rtol >= 0",

@@ -26,6 +26,12 @@
 UIOFMU_INTERNAL int uiofmu_check_dims(char *msg, size_t len, const char *prefix, int count, const int dims[],
                                       const char *const names[], const int low[], int max);
 
+/* The design array v of `length` numbers holds `want` finite ones (an empty array is generated with one
+   placeholder: length 1 for want 0), else 0 with "<prefix><name>: expected ..." or "<prefix><name>[e] = ... is
+   not finite" in msg. */
+UIOFMU_INTERNAL int uiofmu_check_array(char *msg, size_t len, const char *prefix, const char *name, const double *v,
+                                       size_t length, size_t want);
+
 /* dt a finite period > 0 and step_rtol >= 0 finite, else 0 with the numbers in msg. */
 UIOFMU_INTERNAL int uiofmu_check_period(char *msg, size_t len, double dt, double step_rtol);
 
