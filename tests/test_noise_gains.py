@@ -432,6 +432,8 @@ def test_the_tradeoff_plots_certified_gains_over_the_decays(tmp_path, cli):
     res = cli("tradeoff", ROOT / "examples" / "seed002_setup2.toml", "-o", tmp_path / "s.png")
     assert res.code == 2 and "has no noise-aware design; the trade-off is drawn for lti-uio" in res.err
     assert not (tmp_path / "s.png").exists()
+    res = cli("tradeoff", ROOT / "examples" / "accelerometer_feedthrough.toml", "-o", tmp_path / "f.png")
+    assert res.code == 2 and "the least-noise LMI is written for F = 0" in res.err and not (tmp_path / "f.png").exists()
 
 
 @pytest.mark.parametrize("example", ["seed002_setup2", "seed002_three_modes"])

@@ -164,8 +164,7 @@ def parse_options(table, plant) -> Options:
         raise ProblemError('observer.noise = "min" designs with the LMI: use method = "auto" or "lmi" (the Riccati '
                            "gain minimises nothing)")
     if plant.feeds_d and noise == "min":
-        raise ProblemError('observer.noise = "min": the least-noise LMI is written for F = 0; a plant whose '
-                           "unknown input feeds through (plant.F) has the default design")
+        raise ProblemError(NO_NOISE_DESIGN_WITH_F)
     noise_gain = table.scalar("noise_gain", None, low=0.0, open_low=True)
     if noise_gain is not None and (decay != "max" or method == "riccati" or plant.feeds_d):
         raise ProblemError(f"observer.noise_gain = {noise_gain:g} asks for the fastest decay whose certified gain_y "
@@ -211,6 +210,10 @@ def _parse_poles(table) -> tuple:
             out += [complex(value.real, abs(value.imag)), complex(value.real, -abs(value.imag))]
     return tuple(out)
 
+
+#: Why a plant whose unknown input feeds through has no least-noise design.
+NO_NOISE_DESIGN_WITH_F = ('observer.noise = "min": the least-noise LMI is written for F = 0; a plant whose unknown '
+                          "input feeds through (plant.F) has the default design")
 
 #: The card's ``design_method`` of a least-noise design (its overshoot is not what the LMIs minimise: the problem
 #: does not determine its digits).
@@ -884,6 +887,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
     """Design the classical UIO: its gain, certificate and runtime matrices."""
     existence, s, fixed = analysis.existence, analysis.data["sampled"], analysis.data["fixed"]
     plant, opts = problem.plant, problem.options
+    if plant.feeds_d and (opts.noise == "min" or opts.noise_gain is not None):    # options made in code, unparsed
+        raise ProblemError(NO_NOISE_DESIGN_WITH_F)
     C = plant.C
     M = decoupling_gain(C, s.E)
     pair = decoupled_pair(plant, s)
