@@ -1,7 +1,6 @@
 """The least value of a function of one variable on an interval: Brent's method, numpy-free.
 
-Used to refine the peaks of a frequency response (:func:`uiofmu.noise.hinf_norm`), so that a design
-loads no optimiser for it.
+Kept for a bounded scalar search that loads no optimiser (it agrees with ``scipy.optimize.minimize_scalar``).
 """
 
 from __future__ import annotations
