@@ -53,7 +53,7 @@ from ..runtime.step_rules import StepRule, step_rule
 from ..runtime.tolerances import STEP_RTOL, STEP_ULPS, STEP_ULPS_LIMIT
 
 HERE = Path(__file__).parent / "c"
-MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc", "Xu")
+MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc", "Xu", "Zx")
 KINDS = {"constant": "UIOFMU_CONSTANT", "interval": "UIOFMU_INTERVAL", "geometric": "UIOFMU_GEOMETRIC",
          "mode": "UIOFMU_MODE"}
 POLICIES = {"error": "UIOFMU_POLICY_ERROR", "nearest": "UIOFMU_POLICY_NEAREST", "count": "UIOFMU_POLICY_COUNT"}
