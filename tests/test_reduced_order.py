@@ -5,20 +5,28 @@ backends that co-simulate within the certified bound with a state of n - p entri
 from __future__ import annotations
 
 import json
+import sys
 import tomllib
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-import uiofmu
-from uiofmu.problem import problem_from_data, to_toml
-from uiofmu.runtime.card import read_card
-from uiofmu.runtime.errors import ProblemError
-from uiofmu.runtime.observer import Runtime
-from tests.conftest import EXAMPLES, run_cli
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import uiofmu  # noqa: E402
+from cfmu import NEEDS_CC, check_sanitized, random_calls, script_main  # noqa: E402
+from uiofmu.cosim.fmi import Fmu  # noqa: E402
+from uiofmu.problem import problem_from_data, to_toml  # noqa: E402
+from uiofmu.runtime.card import read_card  # noqa: E402
+from uiofmu.runtime.errors import ProblemError  # noqa: E402
+from uiofmu.runtime.observer import Runtime  # noqa: E402
+from tests.conftest import EXAMPLES, run_cli  # noqa: E402
 
 EXAMPLE = EXAMPLES / "reduced_order.toml"
+#: The example's period.
+H = 0.05
 
 
 def random_plant(seed: int, n: int, p: int, q: int) -> dict:
@@ -94,6 +102,16 @@ def test_an_edited_card_fails_verify(random_card, tmp_path):
     raw["overshoot_bound"] = 1.0
     path.write_text(json.dumps(raw))
     assert run_cli("verify", path).code != 0
+    for edit in ("order", "problem"):                    # a reduced card that says it is a full-order one
+        raw = json.loads((card.write(path), path.read_text())[1])
+        if edit == "order":
+            del raw["order"]
+        else:
+            raw["problem"]["observer"]["order"] = "full"
+        path.write_text(json.dumps(raw))
+        assert run_cli("verify", path).code != 0, edit
+    card.write(path)
+    assert run_cli("verify", path).code == 0
 
 
 @pytest.mark.parametrize("extra, key", [({"noise": "min"}, "observer.noise"), ({"poles": [0.1, 0.2]}, "observer.poles"),
@@ -148,40 +166,68 @@ def test_fmu_cosimulates_within_the_bound(example_fmus, backend):
     assert metrics["final_error_norm"] < 1e-3 * metrics["initial_error_norm"]
 
 
-@pytest.mark.parametrize("backend", ["c", "python"])
-def test_fmu_state_holds_n_minus_p(example_fmus, backend):
-    """The FMU's serialised state holds z of n - p entries: the two backends' states start at Zx xhat0 and step
-    as the reference runtime does."""
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
+def check_equal_to_the_runtime(path, card) -> None:
+    """The observer FMU at ``path`` gives the reference runtime's outputs (to rounding) on random inputs, from a
+    random ``xhat0``; a state saved after a few steps restores the same run."""
+    rng = np.random.default_rng(3)
+    dims = card.data["dims"]
+    xhat0 = rng.standard_normal(dims["n"])
+    ref = Runtime(card, xhat0=xhat0)
+    inputs = [(rng.standard_normal(dims["p"]), rng.standard_normal(dims["m"])) for _ in range(20)]
+    with Fmu(path, "observer") as fmu:
+        fmu.initialize(0.0, {"xhat0": xhat0})
+        outs = []
+        for k, (y, u) in enumerate(inputs):
+            fmu.set("y", y)
+            fmu.set("u", u)
+            ref.set_y(y)
+            ref.set_u(u)
+            got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")])
+            np.testing.assert_allclose(got, np.concatenate([ref.xhat(), ref.residual(), ref.dhat()]),
+                                       rtol=1e-11, atol=1e-11)
+            outs.append(got)
+            if k == 5:
+                saved = fmu.serialize(fmu.get_state())
+            fmu.step(k * H, H)
+            ref.step(H)
+        assert ref.z.shape == (dims["nz"],)
+        fmu.set_state(fmu.deserialize(saved))        # at t_5, the inputs of t_5 set
+        fmu.step(5 * H, H)
+        for k, (y, u) in enumerate(inputs[6:], start=6):
+            fmu.set("y", y)
+            fmu.set("u", u)
+            got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")])
+            np.testing.assert_array_equal(got, outs[k])
+            fmu.step(k * H, H)
 
+
+def check_observer(path, card) -> None:
+    """The checks of a C observer FMU that also run under the sanitizers."""
+    check_equal_to_the_runtime(path, card)
+    random_calls(path, H, 1)
+
+
+@pytest.mark.parametrize("backend", ["c", "python"])
+def test_fmu_runs_a_state_of_n_minus_p(example_fmus, backend):
+    """The FMU's z has n - p entries (the card's dims.nz, the design the native kernel runs) and the two backends
+    step as the reference runtime does."""
     d = example_fmus
     card = read_card(d / "card.json")
     fmu_path = d / f"obs_{backend}.fmu"
-    md = read_model_description(str(fmu_path))
-    refs = {v.name: v.valueReference for v in md.modelVariables}
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu_path)),
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="o")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
-    ref = Runtime(card)
-    rng = np.random.default_rng(3)
-    ys = [f"y[{i + 1}]" for i in range(card.data["dims"]["p"])]
-    xs = [f"xhat[{i + 1}]" for i in range(card.data["dims"]["n"])]
-    for k in range(20):
-        y, u = rng.standard_normal(2), rng.standard_normal(1)
-        fmu.setReal([refs[v] for v in ys] + [refs["u[1]"]], [*y, *u])
-        ref.set_y(y)
-        ref.set_u(u)
-        np.testing.assert_allclose(fmu.getReal([refs[v] for v in xs]), ref.xhat(), rtol=1e-12, atol=1e-12)
-        fmu.doStep(k * 0.05, 0.05)
-        ref.step(0.05)
-    assert ref.z.shape == (2,)
+    check_equal_to_the_runtime(fmu_path, card)
     with zipfile.ZipFile(fmu_path) as z:
         assert json.loads(z.read("resources/model.json"))["card"]["dims"]["nz"] == 2
         if backend == "c":                           # the design the native kernel runs
             assert ".nz = 2," in z.read("sources/design_data.c").decode()
-    fmu.terminate()
-    fmu.freeInstance()
+
+
+@NEEDS_CC
+def test_c_observer_under_the_sanitizers(example_fmus, tmp_path):
+    """The C observer of a reduced-order card (z_0 = Zx (xhat0 - Xy y_0)), compiled under ASan and UBSan: the same
+    checks, and random FMI calls, with no sanitizer report."""
+    card = read_card(example_fmus / "card.json")
+    check_sanitized(__file__, {"reduced": card}, {}, tmp_path)
+
+
+if __name__ == "__main__":
+    sys.exit(script_main(sys.argv[1:], check_observer, lambda fmu, data: None))

@@ -179,7 +179,7 @@ def _tuned(red: dict, largest: float, opts, name: str, certify):
 def design(problem, analysis):
     """The reduced-order design of an lti-uio problem (module docstring): a :class:`~uiofmu.families.DesignResult`
     whose ``nz`` is ``n - p``."""
-    from .certificate import certificate, figure_digits
+    from .certificate import UNDETERMINED, certificate
     from .decoupling import decoupling_gain
     from .existence import complex_list
     from .families import DesignResult
@@ -211,7 +211,7 @@ def design(problem, analysis):
         "decay": rho,
         "decay_bound": rho,
         "overshoot_bound": bound(matrices),
-        "overshoot_digits": figure_digits(sol),
+        "overshoot_digits": UNDETERMINED,       # ||Zx|| reads the gain, which the LMI's optimum does not fix
         "bound": BOUND,
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),

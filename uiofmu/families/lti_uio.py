@@ -200,6 +200,11 @@ ORDERS = ("full", "reduced")
 def _reduced_supported(table, plant) -> None:
     """``observer.order = "reduced"`` designs with the decay LMI or the Riccati gain on ``y = C x``: refuse what it
     does not support, naming the key."""
+    p, n = plant.C.shape
+    if plant.n <= p or rank(plant.C) < p:
+        raise ProblemError(f'observer.order = "reduced" needs independent outputs fewer than the states: plant.C is '
+                           f"{p} x {n} of rank {rank(plant.C)} (an observer of order n - p = {n - p}); use "
+                           'order = "full"')
     given = [f"observer.{k}" for k in ("noise", "noise_gain", "poles") if table.has(k)]
     given += [f"plant.{k}" for k, feeds in (("D", plant.feeds_u), ("F", plant.feeds_d)) if feeds]
     if given:
@@ -549,7 +554,9 @@ def verify(card) -> list:
     """Re-check a card's certificate from its matrices alone (no solver), the overshoot and the noise gain it claims."""
     d = card.data
     if d.get("order") == "reduced" or "Zx" in d["matrices"]:
-        return (reduced_order.checks(d["matrices"], d["decay_bound"])
+        asked = (d.get("problem") or {}).get("observer", {}).get("order", "full")
+        return ([Check('the problem asks for observer.order = "reduced" (1: yes)', float(asked == "reduced"), 1.0,
+                       at_most=False), *reduced_order.checks(d["matrices"], d["decay_bound"])]
                 + [reduced_order.overshoot_check(d["overshoot_bound"], d["matrices"])] + noise_checks(d))
     return (checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
             + noise_checks(d) + pole_checks(d))
