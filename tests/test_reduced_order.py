@@ -231,3 +231,19 @@ def test_c_observer_under_the_sanitizers(example_fmus, tmp_path):
 
 if __name__ == "__main__":
     sys.exit(script_main(sys.argv[1:], check_observer, lambda fmu, data: None))
+
+
+@pytest.mark.parametrize("seed", [31, 34, 36])
+def test_the_fixed_modes_are_the_invariant_zeros(seed):
+    """With as many outputs as unknown inputs (p = q) no output is left to correct the reduced state: its error
+    dynamics is the plant's invariant zeros, the full-order observer's fixed modes, and the fastest decay sits
+    just above them."""
+    data = random_plant(seed, 4, 2, 2)
+    data["observer"]["decay"] = "max"
+    card = uiofmu.design(problem_from_data(data))
+    fixed = np.sort_complex(np.array([complex(*z) for z in card.data["fixed_modes"]]))
+    eig = np.sort_complex(np.linalg.eigvals(card.matrices["N"]))
+    assert len(fixed) == card.data["dims"]["nz"] == 2
+    np.testing.assert_allclose(eig, fixed, atol=1e-9)
+    assert np.abs(fixed).max() < card.data["decay_bound"] < np.abs(fixed).max() + 1e-3
+    assert all(c.holds for c in uiofmu.verify(card))

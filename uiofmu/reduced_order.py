@@ -38,10 +38,18 @@ conditions are the family's. Measurement noise ``v`` (``y = C x + v``) enters as
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from .certificate import Check, identity_check, lyapunov_check, magnitude, overshoot, positive_check, decay_check
-from .runtime.errors import ProblemError
+from .certificate import (UNDETERMINED, Check, certificate, decay_check, identity_check, lyapunov_check, magnitude,
+                          overshoot, positive_check)
+from .decoupling import decoupling_gain
+from .existence import complex_list
+from .lmi import tune
+from .runtime.errors import InfeasibleError, ProblemError
+from .runtime.tolerances import SEARCH_TOL
+from .scaling import to_data as scaling_data
 
 #: The relative room the stored ``overshoot_bound`` takes above ``sqrt(cond X) ||Zx||`` (rounding of the norms on
 #: another machine).
@@ -141,24 +149,18 @@ def dhat_error_system(matrices: dict) -> tuple:
     return A, B, np.hstack([DyYx @ Xz, -DyYx @ Xy]), Dy
 
 
-def _tuned(red: dict, largest: float, opts, name: str, certify):
+def _tuned(red: dict, largest: float, opts, name: str, certify, family):
     """The decay and its certificate on the reduced pair: the family's decay LMI (no state scaling: the pair's
     coordinates are orthonormal ones of the plant's), or its Riccati gain (``method = "riccati"``, and the
     fallback of ``"auto"``)."""
-    from dataclasses import replace
-
-    from .families.lti_uio import _lmis, _riccati
-    from .lmi import tune
-    from .runtime.errors import InfeasibleError
-    from .runtime.tolerances import SEARCH_TOL
 
     Ar, Cr = red["A"], red["C"]
-    system = _lmis(Ar, Cr, opts.gain_cap)
+    system = family._lmis(Ar, Cr, opts.gain_cap)
     system.certify = lambda v, prm: certify(v["X"], np.linalg.solve(0.5 * (v["X"] + v["X"].T), v["W"]),
                                             float(np.sqrt(prm["rho2"])))
     system.figure = lambda v: overshoot(v["X"])
     if opts.method == "riccati":
-        return _riccati(Ar, Cr, float(opts.decay)), "riccati", system
+        return family._riccati(Ar, Cr, float(opts.decay)), "riccati", system
     try:
         tuned = tune(system, "rho2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
                      safe_end=1.0, tol=SEARCH_TOL, label=f"{name}: fastest decay", transform=lambda r: r * r,
@@ -171,23 +173,22 @@ def _tuned(red: dict, largest: float, opts, name: str, certify):
             raise
         rho = 0.5 * (1.0 + largest) if opts.decay == "max" else float(opts.decay)
         try:
-            return _riccati(Ar, Cr, rho), "riccati (the LMI found no certificate)", system
+            return family._riccati(Ar, Cr, rho), "riccati (the LMI found no certificate)", system
         except (InfeasibleError, ValueError, np.linalg.LinAlgError) as fallback:
             raise type(exc)(f"{exc}; the solver-free fallback fails too: {fallback}") from None
 
 
-def design(problem, analysis):
+def design(problem, analysis, family):
     """The reduced-order design of an lti-uio problem (module docstring): a :class:`~uiofmu.families.DesignResult`
-    whose ``nz`` is ``n - p``."""
-    from .certificate import UNDETERMINED, certificate
-    from .decoupling import decoupling_gain
-    from .existence import complex_list
+    whose ``nz`` is ``n - p``. ``family`` is the lti-uio module, whose decay LMI, Riccati gain, dhat matrices,
+    schedule and noise section the design reuses."""
     from .families import DesignResult
-    from .families.lti_uio import BOUND, NAME, _dhat, _schedule, noise_section
-    from .scaling import to_data as scaling_data
 
     existence, s, fixed = analysis.existence, analysis.data["sampled"], analysis.data["fixed"]
     plant, opts = problem.plant, problem.options
+    if plant.feedthrough or opts.poles is not None or opts.noise != "default" or opts.noise_gain is not None:
+        raise ProblemError('observer.order = "reduced" designs the decay LMI or the Riccati gain of a plant without '
+                           "feedthrough: no plant.D, plant.F, observer.poles, noise or noise_gain")  # options in code
     C = plant.C
     M = decoupling_gain(C, s.E)
     red = reduced_pair(s.A, s.E, C, M)
@@ -196,13 +197,13 @@ def design(problem, analysis):
     def certify(X, K, rho):
         return all(c.holds for c in checks(runtime(s, C, M, red, X, K), rho))
 
-    tuned, method, system = _tuned(red, largest, opts, problem.name, certify)
+    tuned, method, system = _tuned(red, largest, opts, problem.name, certify, family)
     rho, sol = tuned.value, tuned.solution
     matrices = runtime(s, C, M, red, sol.values["X"], sol.values["K"])
-    cert = certificate(sol, checks(matrices, rho), f"{NAME} reduced-order design of {problem.name}",
+    cert = certificate(sol, checks(matrices, rho), f"{family.NAME} reduced-order design of {problem.name}",
                        solver="CLARABEL" if method.startswith("lmi") else "none")
     if existence.holds("rank(CE) = q"):
-        matrices.update({k: v.value for k, v in _dhat(s, C).items()})
+        matrices.update({k: v.value for k, v in family._dhat(s, C).items()})
     if plant.r:
         matrices["W_sampled"] = plant.sampled_noise(opts.dt)
     eigN = np.linalg.eigvals(matrices["N"])
@@ -212,7 +213,7 @@ def design(problem, analysis):
         "decay_bound": rho,
         "overshoot_bound": bound(matrices),
         "overshoot_digits": UNDETERMINED,       # ||Zx|| reads the gain, which the LMI's optimum does not fix
-        "bound": BOUND,
+        "bound": family.BOUND,
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),
         "eigenvalues_N": complex_list(eigN),
@@ -220,6 +221,6 @@ def design(problem, analysis):
         "search": tuned.search.to_data() if tuned.search else None,
         "design_method": method,
         "scaling": scaling_data(np.ones(plant.n), "none"),
-        "noise": noise_section(matrices),
+        "noise": family.noise_section(matrices),
     }
-    return DesignResult(plant.n - plant.p, opts.dt, _schedule(opts), matrices, cert, results, system, opts.xhat0)
+    return DesignResult(plant.n - plant.p, opts.dt, family._schedule(opts), matrices, cert, results, system, opts.xhat0)

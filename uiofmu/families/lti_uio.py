@@ -57,6 +57,7 @@ state from ``y``; the construction, its checks and its bound are in :mod:`uiofmu
 
 from __future__ import annotations
 
+import sys
 import warnings
 from dataclasses import dataclass, replace
 
@@ -940,7 +941,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     if plant.feeds_d and (opts.noise == "min" or opts.noise_gain is not None):    # options made in code, unparsed
         raise ProblemError(NO_NOISE_DESIGN_WITH_F)
     if opts.order == "reduced":
-        return reduced_order.design(problem, analysis)
+        return reduced_order.design(problem, analysis, sys.modules[__name__])   # its LMI, Riccati gain, dhat
     C = plant.C
     M = decoupling_gain(C, s.E)
     pair = decoupled_pair(plant, s)
