@@ -247,3 +247,17 @@ def test_the_fixed_modes_are_the_invariant_zeros(seed):
     np.testing.assert_allclose(eig, fixed, atol=1e-9)
     assert np.abs(fixed).max() < card.data["decay_bound"] < np.abs(fixed).max() + 1e-3
     assert all(c.holds for c in uiofmu.verify(card))
+
+
+def test_a_card_without_zx_is_refused(example_fmus, tmp_path):
+    """A card whose z is shorter than the state needs Zx for its first step: without it, or with a Zx of another
+    shape, build refuses it (exit 2) naming the key."""
+    raw = json.loads((example_fmus / "card.json").read_text())
+    for edit, words in ((lambda m: m.pop("Zx"), "matrices.Zx is missing"),
+                        (lambda m: m.update(Zx=m["Zx"][:1]), "matrices.Zx")):
+        changed = json.loads(json.dumps(raw))
+        edit(changed["matrices"])
+        path = tmp_path / "card.json"
+        path.write_text(json.dumps(changed))
+        res = run_cli("build", path, "-o", tmp_path / "o.fmu", "--backend", "c")
+        assert res.code == 2 and words in res.err, res.err
