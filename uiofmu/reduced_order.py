@@ -50,6 +50,7 @@ from .lmi import tune
 from .runtime.errors import InfeasibleError, ProblemError
 from .runtime.tolerances import SEARCH_TOL
 from .scaling import to_data as scaling_data
+from .structure import rank
 
 #: The relative room the stored ``overshoot_bound`` takes above ``sqrt(cond X) ||Zx||`` (rounding of the norms on
 #: another machine).
@@ -67,9 +68,9 @@ def complement(C: np.ndarray) -> np.ndarray:
 def reduced_pair(A, E, C, M) -> dict:
     """``R``, ``Xz0``, ``Xy0``, ``Pi`` and the pair ``(Ar, Cr)`` of the module docstring."""
     n, p = C.shape[1], C.shape[0]
-    if np.linalg.matrix_rank(C) != p:
-        raise ProblemError(f'observer.order = "reduced": plant.C ({p} x {n}) has rank {np.linalg.matrix_rank(C)} '
-                           f"< {p} outputs; the reduced observer needs independent outputs")
+    if rank(C) != p:
+        raise ProblemError(f'observer.order = "reduced": plant.C ({p} x {n}) has rank {rank(C)} < {p} outputs; the '
+                           "reduced observer needs independent outputs")
     P = np.eye(n) + M @ C
     R = complement(C).T @ P
     T = np.linalg.inv(np.vstack([R, C]))
@@ -79,7 +80,7 @@ def reduced_pair(A, E, C, M) -> dict:
     return {"R": R, "Xz0": Xz0, "Xy0": Xy0, "Pi": Pi, "A": R @ A @ Xz0, "C": Pi @ C @ A @ Xz0}
 
 
-def runtime(s, C, M, red: dict, X, K, D=None) -> dict:
+def runtime(s, C, M, red: dict, X, K) -> dict:
     """The card's matrices of a gain ``K`` of the reduced pair and its Lyapunov matrix ``X`` (module docstring)."""
     Qz, Rz = np.linalg.qr(red["Xz0"])
     Zx = Rz @ (red["R"] - K @ red["Pi"] @ C)
@@ -89,8 +90,6 @@ def runtime(s, C, M, red: dict, X, K, D=None) -> dict:
     N, L = Zx @ s.A @ Qz, Zx @ s.A @ Xy
     out = {"N": N, "L": L, "G": Zx @ s.B, "c": Zx @ s.w, "Xz": Qz, "Xy": Xy, "Zx": Zx, "C": C, "M": M, "K": K,
            "X": 0.5 * (X + X.T), "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w}
-    if D is not None:
-        raise ProblemError('observer.order = "reduced" is written for D = 0 (plant.D)')
     return out
 
 
