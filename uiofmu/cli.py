@@ -46,7 +46,9 @@ def _cmd_check(args) -> int:
     if args.json:
         print(json.dumps(report.to_data(), indent=2))
     else:
-        print(f"{problem.name}: existence of a {problem.family} observer")
+        order = getattr(problem.options, "order", "full")
+        print(f"{problem.name}: existence of a {problem.family} observer"
+              + ("" if order == "full" else f" of {order} order ({problem.plant.n - problem.plant.p} states)"))
         for line in check_summary(report):
             print(line)
     report.require()
@@ -128,6 +130,9 @@ def design_summary(card, timing: bool = True) -> list[str]:
         if card.data.get(key) is not None:
             text = overshoot_text(card.data) if key == "overshoot_bound" else f"{card.data[key]:.{digits}g}"
             lines.append(f"  {key:16s} {text}")
+    if card.data.get("order"):                    # a reduced-order observer: its state's size
+        lines.append(f"  order            {card.data['order']} ({card.data['dims']['nz']} states, n = "
+                     f"{card.data['dims']['n']})")
     if card.data.get("formula"):                  # a functional observer (window kernel)
         lines.append(f"  formula          {card.data['formula']}")
         lines.append(f"  window           {card.data['window']} outputs (r = {card.data['r']}, K = {card.data['K']}), "

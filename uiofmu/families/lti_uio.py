@@ -48,10 +48,16 @@ significant digits (the margin the Lyapunov re-check at the stored matrices need
 ``overshoot_bound = sqrt(cond X) = cond(V)``. ``poles`` lists ``N``'s eigenvalues. With one output direction the
 gain is unique and the overshoot is the problem's; with more, ``place_poles`` picks one of many gains (its
 robust algorithm), so the card's ``overshoot_digits`` says the problem does not determine it.
+
+**Reduced order** (``observer.order = "reduced"``): an observer of order ``n - p`` whose gain is designed as ``K``
+is (the same LMI or Riccati design, on the reduced decoupled pair) and whose output reconstructs the rest of the
+state from ``y``; the construction, its checks and its bound are in :mod:`uiofmu.reduced_order`. The card records
+``order`` and stores ``Zx`` (the first step's ``z_0 = Zx (xhat0 - Xy y_0)``).
 """
 
 from __future__ import annotations
 
+import sys
 import warnings
 from dataclasses import dataclass, replace
 
@@ -93,6 +99,7 @@ from ..scaling import to_data as scaling_data
 from ..feedthrough import feedthrough_pair
 from ..structure import controllable_split, decay_gain, rank
 from ..runtime.tolerances import SEARCH_TOL, ZERO_MARGIN
+from .. import reduced_order
 from . import Analysis, DesignResult
 
 NAME = "lti-uio"
@@ -125,6 +132,8 @@ class Options:
     poles : tuple of complex or None
         ``observer.poles``: where to place the assignable modes of the error dynamics (conjugates included), or
         None for a decay design.
+    order : {"full", "reduced"}
+        ``observer.order``: the full-order observer, or the one of order ``n - p`` (:mod:`uiofmu.reduced_order`).
     """
 
     decay: object
@@ -136,6 +145,7 @@ class Options:
     noise: str = "default"
     noise_gain: float | None = None
     poles: tuple | None = None
+    order: str = "full"
 
     @property
     def step(self) -> float:
@@ -154,6 +164,9 @@ def parse_options(table, plant) -> Options:
     decay = table.tunable("decay", "max", low=0.0, high=1.0, open_low=True, open_high=True)
     dt = parse_period(table, plant, NAME)
     xhat0 = table.vector("xhat0", plant.n, None)
+    order = table.choice("order", ORDERS, "full")
+    if order == "reduced":
+        _reduced_supported(table, plant)
     method = table.choice("method", METHODS, "auto")
     if method == "riccati" and decay == "max":
         raise ProblemError('observer.method = "riccati" needs a number for observer.decay: it has no fastest decay '
@@ -178,7 +191,27 @@ def parse_options(table, plant) -> Options:
             raise ProblemError(f"observer.poles places the error dynamics' poles exactly: remove observer."
                                f"{given[0]} (the decay is the poles' largest modulus)")
     return Options(decay, dt, xhat0, method, table.choice("scaling", SCALINGS, "balance"),
-                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise, noise_gain, poles)
+                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise, noise_gain, poles, order=order)
+
+
+#: ``observer.order``: the full-order observer, or the reduced one (:mod:`uiofmu.reduced_order`).
+ORDERS = ("full", "reduced")
+
+
+def _reduced_supported(table, plant) -> None:
+    """``observer.order = "reduced"`` designs with the decay LMI or the Riccati gain on ``y = C x``: refuse what it
+    does not support, naming the key."""
+    p, n = plant.C.shape
+    if plant.n <= p or rank(plant.C) < p:
+        raise ProblemError(f'observer.order = "reduced" needs independent outputs fewer than the states: plant.C is '
+                           f"{p} x {n} of rank {rank(plant.C)} (an observer of order n - p = {n - p}); use "
+                           'order = "full"')
+    given = [f"observer.{k}" for k in ("noise", "noise_gain", "poles") if table.has(k)]
+    given += [f"plant.{k}" for k, feeds in (("D", plant.feeds_u), ("F", plant.feeds_d)) if feeds]
+    if given:
+        raise ProblemError(f'observer.order = "reduced" does not support {given[0]} (it designs the decay LMI or '
+                           f"the Riccati gain of a plant without feedthrough): remove {given[0]} or use "
+                           f'order = "full"')
 
 
 #: Most poles a problem file lists.
@@ -521,6 +554,11 @@ def checks(matrices: dict, rho: float) -> list:
 def verify(card) -> list:
     """Re-check a card's certificate from its matrices alone (no solver), the overshoot and the noise gain it claims."""
     d = card.data
+    if d.get("order") == "reduced" or "Zx" in d["matrices"]:
+        asked = (d.get("problem") or {}).get("observer", {}).get("order", "full")
+        return ([Check('the problem asks for observer.order = "reduced" (1: yes)', float(asked == "reduced"), 1.0,
+                       at_most=False), *reduced_order.checks(d["matrices"], d["decay_bound"])]
+                + [reduced_order.overshoot_check(d["overshoot_bound"], d["matrices"])] + noise_checks(d))
     return (checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
             + noise_checks(d) + pole_checks(d))
 
@@ -560,32 +598,42 @@ def dhat_error_system(matrices: dict) -> tuple:
 NO_W = "gain_w: the problem declares no process noise"
 
 
+def _systems(matrices: dict) -> tuple:
+    """The error systems (measurement noise, process noise, dhat) of a card's matrices: the reduced observer's
+    where the matrices hold ``Zx``."""
+    if "Zx" in matrices:
+        return (reduced_order.error_system, reduced_order.process_error_system, reduced_order.dhat_error_system)
+    return error_system, process_error_system, dhat_error_system
+
+
 def noise_checks(card_data: dict) -> list:
     """The re-check of the noise gains a card states, at its stored matrices."""
     noise, m = card_data.get("noise"), card_data["matrices"]
-    out = recheck(noise, *error_system(m))
+    y_system, w_system, dhat_system = _systems(m)
+    out = recheck(noise, *y_system(m))
     if isinstance(noise, dict) and noise.get("gain_w") is not None:
-        out += recheck(noise, *process_error_system(m), key="gain_w")
+        out += recheck(noise, *w_system(m), key="gain_w")
     if isinstance(noise, dict) and noise.get("gain_dhat_y") is not None:
-        out += recheck(noise, *dhat_error_system(m), key="gain_dhat_y")
+        out += recheck(noise, *dhat_system(m), key="gain_dhat_y")
     return out
 
 
 def noise_section(matrices: dict) -> dict:
     """The card's ``noise`` section (:mod:`uiofmu.noise`): ``gain_y``, and ``gain_w`` where the problem declares
     ``[plant] W``, each by the bounded real lemma at the stored matrices."""
-    gain, extra, why = certified(*error_system(matrices))
+    y_system, w_system, dhat_system = _systems(matrices)
+    gain, extra, why = certified(*y_system(matrices))
     reasons = [why] if why else []
     gain_w = None
     if matrices.get("W_sampled") is not None and np.shape(matrices["W_sampled"])[1]:
-        gain_w, extra_w, why_w = certified(*process_error_system(matrices), key="gain_w")
+        gain_w, extra_w, why_w = certified(*w_system(matrices), key="gain_w")
         extra.update(extra_w)
         reasons += [why_w] if why_w else []
     else:
         reasons.append(NO_W)
     gain_dhat = None
     if matrices.get("Dy") is not None:
-        gain_dhat, extra_dhat, why_dhat = certified(*dhat_error_system(matrices), key="gain_dhat_y")
+        gain_dhat, extra_dhat, why_dhat = certified(*dhat_system(matrices), key="gain_dhat_y")
         extra.update(extra_dhat)
         reasons += [why_dhat] if why_dhat else []
     return section(gain, "; ".join(reasons) or None, gain_w=gain_w, gain_dhat_y=gain_dhat, **extra)
@@ -641,6 +689,8 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
         mats["W_sampled"] = plant.sampled_noise(opts.dt)
     else:
         noise["noise.gain_w"] = None
+    if opts.order == "reduced":
+        requested["order"] = "reduced"
     return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "decay": card_data["decay_bound"], **requested,
             **noise,
             **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
@@ -654,12 +704,13 @@ def figures_of(analysis: Analysis, card_data: dict, problem) -> dict:
     A = analysis.data["sampled"].A
     size, n = float(np.linalg.norm(A, 2)), plant.n
     N = np.asarray(card_data["matrices"]["N"], dtype=float)
-    lmi = str(card_data.get("design_method")).startswith("lmi")
+    lmi = str(card_data.get("design_method")).startswith("lmi") and opts.order == "full"
+    kind = opts.scaling if opts.order == "full" else "none"     # the reduced pair is solved unscaled
     return {"fixed_modes": computed_values(analysis.data["fixed"], size, n),
             "invariant_zeros": computed_values(from_pairs(analysis.existence.value("stable invariant zeros", "zeros")),
                                                size, n),
             "eigenvalues_N": spectrum(N), "spectral_radius_N": spectrum(N, "radius"),
-            "scaling": scaling_data(state_scaling(plant.A, opts.scaling) if lmi else np.ones(n), opts.scaling)}
+            "scaling": scaling_data(state_scaling(plant.A, opts.scaling) if lmi else np.ones(n), kind)}
 
 
 def _riccati(PA, C, rho: float) -> Tuned:
@@ -889,6 +940,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
     plant, opts = problem.plant, problem.options
     if plant.feeds_d and (opts.noise == "min" or opts.noise_gain is not None):    # options made in code, unparsed
         raise ProblemError(NO_NOISE_DESIGN_WITH_F)
+    if opts.order == "reduced":
+        return reduced_order.design(problem, analysis, sys.modules[__name__])   # its LMI, Riccati gain, dhat
     C = plant.C
     M = decoupling_gain(C, s.E)
     pair = decoupled_pair(plant, s)

@@ -53,7 +53,7 @@ from ..runtime.step_rules import StepRule, step_rule
 from ..runtime.tolerances import STEP_RTOL, STEP_ULPS, STEP_ULPS_LIMIT
 
 HERE = Path(__file__).parent / "c"
-MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc", "Xu")
+MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc", "Xu", "Zx")
 KINDS = {"constant": "UIOFMU_CONSTANT", "interval": "UIOFMU_INTERVAL", "geometric": "UIOFMU_GEOMETRIC",
          "mode": "UIOFMU_MODE"}
 POLICIES = {"error": "UIOFMU_POLICY_ERROR", "nearest": "UIOFMU_POLICY_NEAREST", "count": "UIOFMU_POLICY_COUNT"}
@@ -423,9 +423,8 @@ def _affine_source(card: Card, guid: str, identifier: str) -> str:
     fields = []
     axes = schedule_axes(sched)
     for name in MATRIX_ORDER:
-        if name not in card.matrices:
-            fields.append(f"        [M_{name}] = {{0, 0, 0, 0, 0}},")
-            continue
+        if name not in card.matrices:       # an absent matrix is all zero (designated initialisers), so the data
+            continue                        # of a card without the newer matrices (Zx) builds with older kernels
         arr = card.matrices[name]
         lead = axes.get(name, 0)
         count = int(np.prod(arr.shape[:lead])) if lead else 1

@@ -35,7 +35,7 @@ from .window import WindowRuntime
 RUNTIME_SHAPES = {
     "N": ("nz", "nz"), "L": ("nz", "p"), "G": ("nz", "m"), "c": ("nz",),
     "Xz": ("n", "nz"), "Xy": ("n", "p"), "C": ("p", "n"),
-    "Dy": ("q", "p"), "Yx": ("p", "n"), "Yu": ("p", "m"), "Yc": ("p",), "Xu": ("n", "m"),
+    "Dy": ("q", "p"), "Yx": ("p", "n"), "Yu": ("p", "m"), "Yc": ("p",), "Xu": ("n", "m"), "Zx": ("nz", "n"),
 }
 #: Matrices every affine card has; the ``Dy, Yx, Yu, Yc`` group is present when ``dhat`` is estimated.
 CORE = ("N", "L", "G", "c", "Xz", "Xy", "C")
@@ -184,6 +184,12 @@ def _check_affine(mats: dict, dims: dict, schedule: dict) -> dict:
     if "Xu" in out and kind != "constant":
         raise CardError(f"design card matrices.Xu: the direct term of u in xhat is for a constant schedule only, "
                         f"found a {kind} schedule")
+    if "Zx" in out and kind != "constant":
+        raise CardError(f"design card matrices.Zx: the first step's z_0 = Zx (xhat0 - Xy y_0) is for a constant "
+                        f"schedule only, found a {kind} schedule")
+    if "Zx" not in out and dims["nz"] != dims["n"]:
+        raise CardError(f"design card dims.nz = {dims['nz']} differs from dims.n = {dims['n']}: the first step "
+                        "sets z_0 = Zx (xhat0 - Xy y_0), and matrices.Zx is missing")
     partial = [k for k in DHAT if k in out]
     if partial and len(partial) != len(DHAT):
         raise CardError(f"design card matrices: dhat needs all of {', '.join(DHAT)}, found only {', '.join(partial)}")

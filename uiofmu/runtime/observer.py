@@ -11,6 +11,9 @@ then ``step(h_k)`` advances::
 
     z_{k+1} = N z_k + L y_k + G u_k + c
 
+with ``z_0 = xhat0 - Xy y_0 [- Xu u_0]``, or ``z_0 = Zx (xhat0 - Xy y_0)`` where the card has ``Zx`` (a
+reduced-order observer, ``nz < n``).
+
 with the matrices the schedule picks for (k, h_k, h_{k-1}), and for a switched plant for the
 modes (alpha_k, alpha_{k-1}): the input ``mode`` is the mode of the step about to be taken, and
 the runtime keeps the previous one (``mode_prev``, ``mode_prev0`` before the first step). At the first step
@@ -216,6 +219,8 @@ class Runtime:
             self.z = self.xhat0 - out["Xy"] @ self.y
             if "Xu" in out:
                 self.z -= out["Xu"] @ self.u
+            if "Zx" in self.card.matrices:     # a reduced-order observer: z_0 = Zx (xhat0 - Xy y_0)
+                self.z = self.card.matrices["Zx"] @ self.z
         if self.has_dhat:
             np.dot(mats["Yx"], xhat, out=self.pred)
             self.pred += np.dot(mats["Yu"], self.u, out=self._tp)

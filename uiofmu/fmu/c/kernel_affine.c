@@ -11,6 +11,7 @@
  *                    dhat_k = Dy (y_k - pred)   (0 at k = 0)
  *   fmi2DoStep(t_k, h_k):
  *                    z_0    = xhat0 - Xy y_0 [- Xu u_0]    (first step only)
+ *                    z_0    = Zx (xhat0 - Xy y_0)          (instead, where the design has Zx: nz < n)
  *                    pred   = Yx xhat_k + Yu u_k + Yc
  *                    z_k+1  = N z_k + L y_k + G u_k + c
  *
@@ -90,7 +91,7 @@ typedef struct {
 } Instance;
 
 static const char *const MATRIX_NAME[M_COUNT] = {"N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc",
-                                                           "Xu"};
+                                                           "Xu", "Zx"};
 
 /* ---------------------------------------------------------------------------------------- */
 /* The maths                                                                                  */
@@ -364,9 +365,9 @@ static int mul_size(size_t a, size_t b, size_t *out) { return uiofmu_mul(a, b, S
 
 static void expected_shape(const UiofmuDesign *d, int w, int *rows, int *cols, const char **text) {
     static const char *const TEXT[M_COUNT] = {"nz x nz", "nz x p", "nz x m", "nz x 1", "n x nz", "n x p",
-                                              "p x n", "q x p", "p x n", "p x m", "p x 1", "n x m"};
-    const int R[M_COUNT] = {d->nz, d->nz, d->nz, d->nz, d->n, d->n, d->p, d->q, d->p, d->p, d->p, d->n};
-    const int C[M_COUNT] = {d->nz, d->p, d->m, 1, d->nz, d->p, d->n, d->p, d->n, d->m, 1, d->m};
+                                              "p x n", "q x p", "p x n", "p x m", "p x 1", "n x m", "nz x n"};
+    const int R[M_COUNT] = {d->nz, d->nz, d->nz, d->nz, d->n, d->n, d->p, d->q, d->p, d->p, d->p, d->n, d->nz};
+    const int C[M_COUNT] = {d->nz, d->p, d->m, 1, d->nz, d->p, d->n, d->p, d->n, d->m, 1, d->m, d->n};
     *rows = R[w];
     *cols = C[w];
     *text = TEXT[w];
@@ -377,9 +378,9 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
     const int dims[5] = {d->n, d->m, d->p, d->q, d->nz}, low[5] = {1, 0, 1, 0, 0};
     const char *const dim_name[5] = {"n", "m", "p", "q", "nz"};
     if (!uiofmu_check_dims(msg, len, "dims.", 5, dims, dim_name, low, MAX_DIM)) return 0;
-    if (d->nz != d->n) /* z_0 = xhat0 - Xy y_0 is an n-vector */
-        return uiofmu_design_error(msg, len, "dims.nz = %d differs from dims.n = %d (the first step sets z from xhat0)",
-                                   d->nz, d->n);
+    if (d->nz != d->n && d->mat[M_Zx].count == 0) /* z_0 = xhat0 - Xy y_0 is an n-vector; Zx maps it to nz */
+        return uiofmu_design_error(msg, len, "dims.nz = %d differs from dims.n = %d and the design has no matrix Zx "
+                                   "(the first step sets z from xhat0)", d->nz, d->n);
     if (d->has_dhat != 0 && d->has_dhat != 1)
         return uiofmu_design_error(msg, len, "has_dhat = %d is neither 0 nor 1", d->has_dhat);
     if (d->kind < UIOFMU_CONSTANT || d->kind > UIOFMU_MODE)
@@ -426,6 +427,9 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
         if (w == M_Xu && d->kind != UIOFMU_CONSTANT)
             return uiofmu_design_error(msg, len, "matrix Xu (the direct term of u in xhat) needs a constant schedule, "
                                        "found a %s one", KIND[d->kind]);
+        if (w == M_Zx && d->kind != UIOFMU_CONSTANT)
+            return uiofmu_design_error(msg, len, "matrix Zx (the first step's z_0 = Zx (xhat0 - Xy y_0)) needs a "
+                                       "constant schedule, found a %s one", KIND[d->kind]);
         if (w == M_C || d->kind == UIOFMU_CONSTANT) want = 1;
         else if (d->kind == UIOFMU_INTERVAL) want = (size_t)d->nintervals * (w == M_N || w == M_L ? (size_t)d->nintervals : 1);
         else if (d->kind == UIOFMU_MODE) want = (size_t)d->modes * (w == M_N || w == M_L ? (size_t)d->modes : 1);
@@ -638,10 +642,14 @@ static UiofmuResult affine_step(void *self, double t, double h) {
     }
     if (!estimate(s, fn, j)) return UIOFMU_BROKEN; /* xhat_k (and the geometric matrices of step k) */
     if (s->k == 0) {
-        for (int e = 0; e < d->nz; e++) s->z[e] = s->xhat0[e] - dot(Xy + (size_t)e * d->p, s->y, d->p);
+        const double *Zx = s->place[M_Zx].base;
+        double *v = Zx ? s->tmp : s->z; /* with Zx (nz < n), xhat0 - Xy y_0 goes through tmp (n doubles) */
+        for (int e = 0; e < d->n; e++) v[e] = s->xhat0[e] - dot(Xy + (size_t)e * d->p, s->y, d->p);
         const double *Xu = s->place[M_Xu].base; /* as in estimate() */
         if (Xu)
-            for (int e = 0; e < d->nz; e++) s->z[e] -= dot(Xu + (size_t)e * d->m, s->u, d->m);
+            for (int e = 0; e < d->n; e++) v[e] -= dot(Xu + (size_t)e * d->m, s->u, d->m);
+        if (Zx)
+            for (int e = 0; e < d->nz; e++) s->z[e] = dot(Zx + (size_t)e * d->n, v, d->n);
     }
     if (d->has_dhat) {
         for (int e = 0; e < d->p; e++)

@@ -40,7 +40,7 @@ typedef struct {
 
 enum { UIOFMU_CONSTANT = 0, UIOFMU_INTERVAL = 1, UIOFMU_GEOMETRIC = 2, UIOFMU_MODE = 3 };
 enum { UIOFMU_POLICY_ERROR = 0, UIOFMU_POLICY_NEAREST = 1, UIOFMU_POLICY_COUNT = 2 };
-enum { M_N, M_L, M_G, M_c, M_Xz, M_Xy, M_C, M_Dy, M_Yx, M_Yu, M_Yc, M_Xu, M_COUNT };
+enum { M_N, M_L, M_G, M_c, M_Xz, M_Xy, M_C, M_Dy, M_Yx, M_Yu, M_Yc, M_Xu, M_Zx, M_COUNT };
 
 typedef struct {
     int n, m, p, q, nz, has_dhat;
