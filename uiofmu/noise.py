@@ -64,6 +64,87 @@ MAX_PAIRS = 256
 TRIES, GROWTH = 12, 1.1
 
 
+#: The card's ``design_method`` of a least-noise design (its overshoot is not what the LMIs minimise: the problem
+#: does not determine its digits).
+NOISE_METHOD = "lmi (least noise gain)"
+
+#: ``observer.noise``: the default design (least overshoot bound), or the least noise gain at the decay.
+NOISE_OBJECTIVES = ("default", "min")
+
+#: ``observer.noise_gain`` searches the decay between the fastest certified one and this fraction of the way to 1
+#: (the slowest decay it tries), and stops when the bracket is narrower than :data:`NOISE_GAIN_RESOLUTION` of that
+#: way.
+NOISE_GAIN_SLOWEST = 0.999
+NOISE_GAIN_RESOLUTION = 1.0 / 1024
+
+#: With ``decay = "max"``, ``noise = "min"`` designs at the fastest certified decay moved this fraction of the way
+#: toward 1 (the card's ``decay_bound``): at the edge itself every gain is pinned by the decay, and the least
+#: noise gain there is no less than the default design's.
+NOISE_DECAY_ROOM = 0.1
+
+
+def fastest_within(least_at, fastest: float, goal: float, name: str) -> tuple:
+    """``observer.noise_gain = goal``: the fastest decay whose least-noise design has a certified ``gain_y`` of at
+    most ``goal``, for any family.
+
+    The least noise gain does not grow as the decay slows (every point certified at a decay is certified at any
+    slower one), so the decay is bisected on the way from ``fastest`` (the default design's ``"max"``) to
+    :data:`NOISE_GAIN_SLOWEST` of the way to 1, to :data:`NOISE_GAIN_RESOLUTION` of that way; the slower end of
+    the bracket is the decay kept.
+
+    Parameters
+    ----------
+    least_at : callable
+        ``least_at(rho) -> (gain, design)``: the family's least-noise design at the decay ``rho`` and its
+        certified ``gain_y`` (None where not certified); raises ``InfeasibleError`` where it has no point.
+    fastest, goal : float
+        The fastest certified decay, and the gain asked for.
+    name : str
+        The problem's name, for the message.
+
+    Returns
+    -------
+    tuple
+        ``(rho, gain, design, search)``, ``search`` the record of the decays tried.
+
+    Raises
+    ------
+    InfeasibleError
+        When even the slowest decay tried has a larger certified gain (the message gives it).
+    """
+    from .runtime.errors import InfeasibleError
+
+    tried = {}
+
+    def gain_at(f: float):
+        rho = fastest + f * (1.0 - fastest)
+        try:
+            gain, design = least_at(rho)
+        except InfeasibleError:
+            tried[f] = (rho, None, None)
+            return tried[f]
+        tried[f] = (rho, gain, design)
+        return tried[f]
+
+    lo, hi = 0.0, NOISE_GAIN_SLOWEST
+    rho, gain, _ = gain_at(hi)
+    if gain is None or gain > goal:
+        said = "no certified point" if gain is None else f"certified gain_y {gain:g}"
+        ask = "" if gain is None else f": ask for noise_gain >= {gain:g}"
+        raise InfeasibleError(f"{name}: observer.noise_gain = {goal:g}: the slowest decay tried, {rho:.6g}, has "
+                              f"{said} for its least-noise gain, more than {goal:g}{ask}")
+    while hi - lo > NOISE_GAIN_RESOLUTION:
+        mid = 0.5 * (lo + hi)
+        _, gain_mid, _ = gain_at(mid)
+        if gain_mid is not None and gain_mid <= goal:
+            hi = mid
+        else:
+            lo = mid
+    rho, gain, design = tried[hi]
+    search = {"parameter": "decay", "solves": len(tried), "tried": sorted((v[0], v[1]) for v in tried.values())}
+    return rho, gain, design, search
+
+
 def section(gain_y=None, reason=None, gain_w=None, gain_dhat_y=None, **extra) -> dict:
     """A ``noise`` section: the gains (None where not certified), why some are None, and what re-checks them."""
     out = {"norm": NORM, "gain_y": gain_y, "gain_w": gain_w, "gain_dhat_y": gain_dhat_y, "reason": reason}

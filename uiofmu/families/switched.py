@@ -32,15 +32,31 @@ eigenvalue of the pairs ``(At_i, Ct_i)`` (which no gain moves) and 1.
 Dead-beat: when every ``Ct_i`` has rank n, ``Kt_i = At_i Ct_i^+`` gives ``Phi_i = 0``; it is unique
 when ``Ct_i`` is square (seed 002's setup 2). The certificate is then ``||e_{k+1}|| <= ||Phi_i|| ||e_k||``
 at the stored matrices: decay bound ``max_i ||Phi_i||`` (round-off), overshoot 1.
+
+Least noise gain (``observer.noise = "min"``, ``observer.noise_gain``): the error from output noise ``v`` is
+``eps+ = Phi_i eps - L_ij v``, ``e = eps - Q_j v`` with ``L_ij = K_i + Phi_i Q_j``, bilinear in ``Y_j`` (in
+``Q_j``) and ``Kt_i``: the least-noise design keeps the default design's ``Y_i`` (so its ``Q_i``, ``P_i``) and
+frees ``K_i``. With a slack ``G_i`` per mode and ``F_i = G_i K_i`` (the extended form), for every pair (i, j)::
+
+    [[lambda^2 S_j, (G_i Phi_i)'], [G_i Phi_i, G_i + G_i' - S_i]] > 0                      (decay)
+    [[Z_j, 0, (G_i Phi_i)', I], [0, g I, (G_i B_ij)', -Q_j'],
+     [G_i Phi_i, G_i B_ij, G_i + G_i' - Z_i, 0], [I, -Q_j, 0, I]] > 0                   (gain_y^2 <= g)
+
+with ``G_i Phi_i = G_i P_i A_i - F_i C`` and ``G_i B_ij = -(F_i + G_i Phi_i Q_j)``, linear in ``(S, Z, G, F, g)``;
+``S_i >= I``; ``g`` minimised. The first gives ``Phi_i' S_i Phi_i < lambda^2 S_j`` (the certificate's), the
+second the poly-quadratic bounded real lemma the card's ``gain_y`` re-checks. The default point (``G_i = S_i``,
+``F_i = S_i K_i``) satisfies the decay LMI, so the design exists at the default's decay.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
-from ..certificate import (EPS, FIGURE_DIGITS, Check, certificate, decay_check, figure_digits, identity_check,
+from ..certificate import (EPS, FIGURE_DIGITS, UNDETERMINED, Check, certificate, decay_check, figure_digits,
+                           identity_check,
                            lyapunov_check, overshoot, overshoot_check, positive_check, round_up)
 from ..gains import cap_lmis, two_norms
 from ..consistency import Determined, computed_values, dhat_record, eigen_rtol, spectrum
@@ -48,11 +64,13 @@ from ..decoupling import weak_modes_condition
 from ..runtime.card import DHAT
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSolution, LmiSystem, tune
-from ..runtime.errors import ProblemError
+from ..runtime.errors import InfeasibleError, ProblemError
 from ..runtime.tolerances import RANK_RTOL, SEARCH_TOL, ZERO_MARGIN
 from ..structure import kernel_maps, product_radius, rank, unobservable_modes
 from ..switched_plant import as_switched
-from ..noise import certified, pair_error_system, recheck, section as noise_section
+from ..noise import (NOISE_DECAY_ROOM, NOISE_METHOD, NOISE_OBJECTIVES, certified, fastest_within,
+                     pair_error_system, recheck, section as noise_section)
+from ..reductions import LYAPUNOV, matrix, scalar, symmetric
 from . import Analysis, DesignResult
 
 NAME = "switched"
@@ -84,6 +102,10 @@ class Options:
     gain_cap : float or None
         Bound on ``||Kt_i||_2 = ||[K_i, Y_i]||_2`` (:mod:`uiofmu.gains`), None for none; with a cap,
         ``method = "auto"`` designs dead-beat only where its gains are within the cap.
+    noise : {"default", "min"}
+        ``"min"``: the gains ``K_i`` that minimise ``gain_y`` at the decay (see :func:`_noise_lmis`).
+    noise_gain : float or None
+        The fastest decay whose least-noise design has a certified ``gain_y`` of at most this.
     """
 
     decay: object
@@ -92,6 +114,8 @@ class Options:
     mode_prev0: int = 1
     method: str = "auto"
     gain_cap: float | None = None
+    noise: str = "default"
+    noise_gain: float | None = None
 
     @property
     def step(self) -> float:
@@ -110,8 +134,17 @@ def parse_options(table, plant) -> Options:
     if table.has("dt"):
         raise ProblemError(f"observer.dt: a switched plant fixes the period (plant.dt = {plant.dt:g}); "
                            "remove observer.dt")
-    return Options(decay, plant.dt, xhat0, mode_prev0, table.choice("method", METHODS, "auto"),
-                   table.scalar("gain_cap", None, low=0.0, open_low=True))
+    method = table.choice("method", METHODS, "auto")
+    noise = table.choice("noise", NOISE_OBJECTIVES, "default")
+    noise_gain = table.scalar("noise_gain", None, low=0.0, open_low=True)
+    if (noise == "min" or noise_gain is not None) and method == "deadbeat":
+        raise ProblemError('observer.noise: the least noise gain is designed with the LMI (the dead-beat gains are '
+                           'fixed): use method = "auto" or "lmi"')
+    if noise_gain is not None and decay != "max":
+        raise ProblemError(f"observer.noise_gain = {noise_gain:g} asks for the fastest decay whose certified gain_y "
+                           f"is at most {noise_gain:g}: leave observer.decay unset (or \"max\"), found {decay!r}")
+    return Options(decay, plant.dt, xhat0, mode_prev0, method, table.scalar("gain_cap", None, low=0.0, open_low=True),
+                   noise, noise_gain)
 
 
 @dataclass(frozen=True)
@@ -420,6 +453,153 @@ def _closed_form(lam: float, status: str) -> LmiSolution:
     return LmiSolution({}, {"lam2": lam * lam}, status, {}, True, 0.0, 0.0)
 
 
+def _noise_lmis(modes, Q, C, sigma: float, gain_cap: float | None = None) -> LmiSystem:
+    """The decay LMIs and the poly-quadratic bounded real lemma of every pair (see the module), ``K_i`` free and
+    ``Q_i`` given (``P_i = I - Q_i C``), with ``g`` bounding ``(gain_y / sigma)^2`` (the noise in units of
+    ``1 / sigma``, the default design's gain)."""
+    N, n, p = len(modes), C.shape[1], C.shape[0]
+    PA = [(np.eye(n) - Q[i] @ C) @ md.A for i, md in enumerate(modes)]
+    Qs = [q / sigma for q in Q]
+
+    def build(v, prm, ops):
+        out = []
+        for i in range(N):
+            G, F = v[f"G{i}"], v[f"F{i}"]
+            out.append(Lmi(f"S_{i + 1} >= I", v[f"S{i}"] - ops.eye(n), strict=False))
+            GN, GG = G @ PA[i] - F @ C, G + G.T
+            for j in range(N):
+                GB = -(F * (1.0 / sigma)) - GN @ Qs[j]
+                out.append(Lmi(f"decay i={i + 1} j={j + 1}",
+                               ops.bmat([[prm["lam2"] * v[f"S{j}"], GN.T], [GN, GG - v[f"S{i}"]]])))
+                out.append(Lmi(f"bounded real lemma i={i + 1} j={j + 1} (gain_y^2 <= g)", ops.bmat([
+                    [v[f"Z{j}"], ops.zeros((n, p)), GN.T, ops.eye(n)],
+                    [ops.zeros((p, n)), v["g"] * ops.eye(p), GB.T, -Qs[j].T],
+                    [GN, GB, GG - v[f"Z{i}"], ops.zeros((n, n))],
+                    [ops.eye(n), -Qs[j], ops.zeros((n, n)), ops.eye(n)]])))
+        if gain_cap is not None:
+            out += cap_lmis(gain_cap, [(f"G_{i + 1}", v[f"G{i}"], [(f"F_{i + 1}", v[f"F{i}"])]) for i in range(N)],
+                            v["s"], ops)
+        return out
+
+    variables = {"g": scalar()}
+    for i in range(N):
+        variables.update({f"S{i}": symmetric(n), f"Z{i}": symmetric(n), f"G{i}": matrix((n, n), LYAPUNOV),
+                          f"F{i}": matrix((n, p))})
+    if gain_cap is not None:
+        variables["s"] = scalar()
+    return LmiSystem(f"{NAME} least noise gain", variables, {"lam2": 0.98}, build, objective=lambda v: v["g"],
+                     structure=(PA, C, Q, sigma, gain_cap))
+
+
+def _noise_runtime(modes, Q, values: dict, C, has_dhat: bool) -> dict:
+    """The card's matrices of a point of :func:`_noise_lmis`: ``Y_i = (Q_i - Q0_i) U_i`` and
+    ``K_i = G_i^-1 F_i``, and the Lyapunov matrices ``S``."""
+    Kt = [np.hstack([np.linalg.solve(values[f"G{i}"], values[f"F{i}"]), (Q[i] - md.Q0) @ md.U])
+          for i, md in enumerate(modes)]
+    mats = _runtime(modes, Kt, C, has_dhat)
+    mats["S"] = np.array([0.5 * (values[f"S{i}"] + values[f"S{i}"].T) for i in range(len(modes))])
+    return mats
+
+
+#: The ``Q_i`` a least-noise design keeps: the least-norm ``Q0_i = E_i (C E_i)^+`` (``Y_i = 0``), and the default
+#: design's (whose ``Y_i`` its decay may need).
+NOISE_Q = ("least-norm Q0_i (Y_i = 0)", "the default design's Q_i")
+
+
+def _noise_systems(modes, default: dict, sigma: float, C, has_dhat: bool, opts: Options) -> list:
+    """The least-noise LMIs (:func:`_noise_lmis`) for each ``Q`` of :data:`NOISE_Q`, compiled once for any decay,
+    each point certified by the certificate's checks at the runtime's matrices.
+
+    Returns
+    -------
+    list
+        ``(system, runtime, which)`` for each, ``runtime`` the card's matrices of a point.
+    """
+    out = []
+    for which, Q in zip(NOISE_Q, ([md.Q0 for md in modes], [np.asarray(q, dtype=float) for q in default["Q"]])):
+        system = _noise_lmis(modes, Q, np.asarray(C, dtype=float), sigma, opts.gain_cap)
+        runtime = partial(_noise_runtime, modes, Q, C=C, has_dhat=has_dhat)
+        system.certify = (lambda rt: lambda v, prm: all(c.holds for c in checks(rt(v), float(np.sqrt(prm["lam2"])))))(
+            runtime)
+        out.append((system, runtime, which))
+    return out
+
+
+def _least_noise(noise: list, lam: float, name: str) -> tuple:
+    """The least-noise design at the decay ``lam``: of the points of :func:`_noise_systems` that certify, the one
+    of least certified ``gain_y``.
+
+    Returns
+    -------
+    tuple
+        ``(gain, (solution, matrices, which))``.
+
+    Raises
+    ------
+    InfeasibleError
+        When none has a certified point.
+    """
+    best, status = None, []
+    for system, runtime, which in noise:
+        sol = system.solve(lam2=lam * lam)
+        status.append(sol.status)
+        if not sol.verified:
+            continue
+        mats = runtime(sol.values)
+        gain = _gain_y(mats)
+        if gain is not None and (best is None or gain < best[0]):
+            best = (gain, (sol, mats, which))
+    if best is None:
+        raise InfeasibleError(f"{name}: the least noise gain at decay {lam:.6g} (observer.noise = \"min\") has no "
+                              f"certified point (CLARABEL: {', '.join(status)}); a slower decay leaves the LMIs room")
+    return best
+
+
+def _gain_y(mats: dict) -> float | None:
+    """The card's certified ``gain_y`` at these matrices (every switching sequence)."""
+    return certified(*error_system(mats), switched=True)[0]
+
+
+def noise_options(opts: Options, decay, noise: str) -> Options:
+    """These options at another ``decay`` with the noise objective ``noise``, for :mod:`uiofmu.tradeoff`: no
+    ``noise_gain``, and the LMI (the dead-beat gains have no freedom)."""
+    method = "lmi" if opts.method == "deadbeat" or noise == "min" else opts.method
+    return Options(decay, opts.dt, opts.xhat0, opts.mode_prev0, method, opts.gain_cap, noise, None)
+
+
+def _noise_design(modes, lam: float, sol, mats: dict, system, C, has_dhat: bool, opts: Options, name: str):
+    """``observer.noise = "min"`` after the default design (``sol``, ``mats``) at ``lam``: the least-noise design
+    at ``lam`` (``decay = "max"``: moved ``NOISE_DECAY_ROOM`` of the way to 1), kept only where its certified
+    ``gain_y`` is below the default's; ``noise_gain``: the fastest decay within it (:func:`fastest_within`).
+
+    Returns
+    -------
+    tuple
+        ``(lam, solution, matrices, systems, design_method, record)``.
+    """
+    default = _gain_y(mats)
+    noise = _noise_systems(modes, mats, max(default or 1.0, 1.0), C, has_dhat, opts)
+    systems = (system, *(n[0] for n in noise))
+    if opts.noise_gain is not None:
+        goal = float(opts.noise_gain)
+        rho, gain, (least, m, which), search = fastest_within(lambda r: _least_noise(noise, r, name), lam, goal,
+                                                              name)
+        return rho, least, m, systems, NOISE_METHOD, {
+            "objective": "fastest decay with gain_y <= noise_gain", "noise_gain": goal, "fastest_decay": lam,
+            "default_gain_y": default, "Q": which, "gain_y": gain, "search": search}
+    if opts.decay == "max":
+        lam = lam + NOISE_DECAY_ROOM * (1.0 - lam)
+    record = {"objective": "least gain_y at the decay", "decay": lam, "default_gain_y": default}
+    try:
+        found, (least, m, which) = _least_noise(noise, lam, name)
+    except InfeasibleError as exc:
+        return lam, sol, mats, systems, "lmi", {**record, "kept": "default", "why": str(exc)[:300]}
+    if default is not None and not found < default:
+        return lam, sol, mats, systems, "lmi", {**record, "kept": "default", "least_gain_y": found, "Q": which,
+                                                "why": "the least-noise point's gain is not below it"}
+    return lam, least, m, systems, NOISE_METHOD, {**record, "kept": "least noise", "least_gain_y": found, "Q": which}
+
+
 def design(problem, analysis: Analysis) -> DesignResult:
     """Design the switched UIO: dead-beat where possible (``method = "auto"``), else LMI (16)."""
     plant, opts = as_switched(problem.plant), problem.options
@@ -435,7 +615,10 @@ def design(problem, analysis: Analysis) -> DesignResult:
     searched = None
     if deadbeat and opts.method == "auto" and opts.gain_cap is not None:   # the gains gain_figures caps: K_i
         deadbeat = float(two_norms([_runtime(modes, _deadbeat(modes), C, has_dhat)["K"]]).max()) <= opts.gain_cap
-    if deadbeat and opts.method != "lmi":
+    noisy = opts.noise == "min" or opts.noise_gain is not None
+    if noisy and opts.method == "deadbeat":                                # options made in code, unparsed
+        raise ProblemError('observer.noise: the least noise gain is designed with the LMI: use method = "auto"')
+    if deadbeat and opts.method != "lmi" and not noisy:
         mats = _runtime(modes, _deadbeat(modes), C, has_dhat)
         norm = float(np.linalg.norm(mats["Phi"], 2, axis=(-2, -1)).max())
         # Phi_i = 0 in exact arithmetic: its computed norm is rounding, so the bound is the rounding
@@ -461,6 +644,13 @@ def design(problem, analysis: Analysis) -> DesignResult:
         mats = _lmi_runtime(modes, sol.values, C, has_dhat)
         bound, digits = overshoot(mats["S"]), figure_digits(sol)
         method, solver = "lmi", "CLARABEL"
+    noise_design = None
+    if noisy:
+        lam, sol, mats, system, method, noise_design = _noise_design(modes, lam, sol, mats, system, C, has_dhat,
+                                                                     opts, problem.name)
+        bound = overshoot(mats["S"])
+        if method == NOISE_METHOD:
+            digits = UNDETERMINED
     cert = certificate(sol, checks(mats, lam), f"{NAME} design of {problem.name}", solver=solver)
     results = {
         "noise": noise_of(mats),
@@ -475,8 +665,9 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "spectral_radius_Phi": [float(np.abs(np.linalg.eigvals(F)).max()) for F in mats["Phi"]],
         "search": searched,
         "design_method": method,
+        **({} if noise_design is None else {"noise_design": noise_design}),
     }
     return DesignResult(plant.n, plant.dt, _schedule(plant, opts), mats, cert, results, system, opts.xhat0)
 
 
-__all__ = ["NAME", "Options", "analyse", "checks", "design", "determined", "parse_options", "verify"]
+__all__ = ["NAME", "Options", "analyse", "checks", "design", "determined", "noise_options", "parse_options", "verify"]
