@@ -145,6 +145,142 @@ def fastest_within(least_at, fastest: float, goal: float, name: str) -> tuple:
     return rho, gain, design, search
 
 
+def pair_noise_lmis(name: str, PA, C, Xy, sigma: float, pair_gains: bool = False,
+                    gain_cap: float | None = None):
+    """The least-noise LMIs of a runtime whose step ``(i, j)`` (this step's mode or interval, and the previous one)
+    is ``eps+ = (PA_i - H_ij C) eps - (H_ij + (PA_i - H_ij C) Xy_j) v``, ``e = eps - Xy_j v``
+    (:func:`pair_error_system` with ``N_ij = PA_i - H_ij C``, ``L_ij = H_ij + N_ij Xy_j``), the output gains ``H``
+    free (one per mode, ``H_i``, or with ``pair_gains`` one per pair) and ``PA_i``, ``Xy_j`` given.
+
+    With a slack ``G_i`` and ``F = G_i H`` (de Oliveira, Bernussou and Geromel's extended form), for every pair
+    and with ``g`` bounding ``(gain_y / sigma)^2`` (minimised; the noise in units of ``1 / sigma``)::
+
+        [[lam2 S_j, (G_i N_ij)'], [G_i N_ij, G_i + G_i' - S_i]] > 0                    (N_ij' S_i N_ij < lam2 S_j)
+        [[Z_j, 0, (G_i N_ij)', I], [0, g I, (G_i B_ij)', -Xy_j'],
+         [G_i N_ij, G_i B_ij, G_i + G_i' - Z_i, 0], [I, -Xy_j, 0, I]] > 0               (gain_y^2 <= g)
+
+    with ``G_i N_ij = G_i PA_i - F C``, ``G_i B_ij = -(F + G_i N_ij Xy_j)``, and ``S_i >= I``: linear in
+    ``(S, Z, G, F, g)``. The second is the poly-quadratic bounded real lemma (storage ``Z_j`` to ``Z_i``) that the
+    card's ``gain_y`` re-checks; with ``gain_cap``, ``||G_i^-1 F|| <= gain_cap`` (:func:`uiofmu.gains.cap_lmis`).
+    A point's gains are :func:`pair_noise_gain`; its decay Lyapunov matrices ``S_i``.
+    """
+    from .gains import cap_lmis
+    from .lmi import Lmi, LmiSystem
+    from .reductions import LYAPUNOV, matrix, scalar, symmetric
+
+    C = np.asarray(C, dtype=float)
+    PA, Xy = [np.asarray(a, dtype=float) for a in PA], [np.asarray(x, dtype=float) / sigma for x in Xy]
+    N, n, p = len(PA), C.shape[1], C.shape[0]
+    key = (lambda i, j: f"F{i}_{j}") if pair_gains else (lambda i, j: f"F{i}")      # noqa: E731
+
+    def build(v, prm, ops):
+        out = []
+        for i in range(N):
+            G = v[f"G{i}"]
+            out.append(Lmi(f"S_{i + 1} >= I", v[f"S{i}"] - ops.eye(n), strict=False))
+            GA, GG = G @ PA[i], G + G.T
+            for j in range(N):
+                F = v[key(i, j)]
+                GN = GA - F @ C
+                GB = -(F * (1.0 / sigma)) - GN @ Xy[j]
+                out.append(Lmi(f"decay i={i + 1} j={j + 1}",
+                               ops.bmat([[prm["lam2"] * v[f"S{j}"], GN.T], [GN, GG - v[f"S{i}"]]])))
+                out.append(Lmi(f"bounded real lemma i={i + 1} j={j + 1} (gain_y^2 <= g)", ops.bmat([
+                    [v[f"Z{j}"], ops.zeros((n, p)), GN.T, ops.eye(n)],
+                    [ops.zeros((p, n)), v["g"] * ops.eye(p), GB.T, -Xy[j].T],
+                    [GN, GB, GG - v[f"Z{i}"], ops.zeros((n, n))],
+                    [ops.eye(n), -Xy[j], ops.zeros((n, n)), ops.eye(n)]])))
+        if gain_cap is not None:
+            out += cap_lmis(gain_cap, [(f"G_{i + 1}", v[f"G{i}"], [(key(i, j), v[key(i, j)])
+                                                                  for j in (range(N) if pair_gains else (0,))])
+                                       for i in range(N)], v["s"], ops)
+        return out
+
+    variables = {"g": scalar()}
+    for i in range(N):
+        variables.update({f"S{i}": symmetric(n), f"Z{i}": symmetric(n), f"G{i}": matrix((n, n), LYAPUNOV)})
+        variables.update({key(i, j): matrix((n, p)) for j in (range(N) if pair_gains else (0,))})
+    if gain_cap is not None:
+        variables["s"] = scalar()
+    return LmiSystem(f"{name} least noise gain", variables, {"lam2": 0.98}, build, objective=lambda v: v["g"],
+                     structure=(PA, C, Xy, sigma, pair_gains, gain_cap))
+
+
+def pair_noise_gain(values: dict, i: int, j: int | None = None) -> np.ndarray:
+    """The output gain ``H_i`` (``H_ij`` with ``j``) of a point of :func:`pair_noise_lmis`: ``G_i^-1 F``."""
+    F = values[f"F{i}" if j is None else f"F{i}_{j}"]
+    return np.linalg.solve(np.asarray(values[f"G{i}"], dtype=float), np.asarray(F, dtype=float))
+
+
+def least_of(candidates, lam: float, name: str, gain) -> tuple:
+    """The least-noise design at the decay ``lam`` of a family with several least-noise LMIs (each a
+    ``(system, runtime, which)``, its points mapped to the card's matrices by ``runtime``): of the points that
+    certify (the system's ``certify``), the one of least certified ``gain_y`` (``gain(matrices)``).
+
+    Returns
+    -------
+    tuple
+        ``(gain, (solution, matrices, which))``.
+
+    Raises
+    ------
+    InfeasibleError
+        When none has a certified point.
+    """
+    from .runtime.errors import InfeasibleError
+
+    best, status = None, []
+    for system, runtime, which in candidates:
+        sol = system.solve(lam2=lam * lam)
+        status.append(sol.status)
+        if not sol.verified:
+            continue
+        mats = runtime(sol.values)
+        found = gain(mats)
+        if found is not None and (best is None or found < best[0]):
+            best = (found, (sol, mats, which))
+    if best is None:
+        raise InfeasibleError(f"{name}: the least noise gain at decay {lam:.6g} (observer.noise = \"min\") has no "
+                              f"certified point (CLARABEL: {', '.join(status)}); a slower decay leaves the LMIs room")
+    return best
+
+
+def least_noise_design(candidates, lam: float, decay_max: bool, noise_gain, default, name: str, gain) -> tuple:
+    """``observer.noise = "min"`` or ``observer.noise_gain`` of a family whose least-noise LMIs are
+    ``candidates`` (as :func:`least_of` takes them), after its default design of certified ``gain_y`` ``default``
+    at the decay ``lam``.
+
+    With ``noise_gain``: the fastest decay within it (:func:`fastest_within`). Else the least-noise design at
+    ``lam`` (with ``decay_max``, moved :data:`NOISE_DECAY_ROOM` of the way to 1), kept only where its certified
+    gain is below the default's.
+
+    Returns
+    -------
+    tuple
+        ``(lam, design, record)``: ``design`` the ``(solution, matrices, which)`` of the least-noise point, or None
+        where the card keeps the default design (the record says why).
+    """
+    from .runtime.errors import InfeasibleError
+
+    if noise_gain is not None:
+        goal = float(noise_gain)
+        rho, found, design, search = fastest_within(lambda r: least_of(candidates, r, name, gain), lam, goal, name)
+        return rho, design, {"objective": "fastest decay with gain_y <= noise_gain", "noise_gain": goal,
+                             "fastest_decay": lam, "default_gain_y": default, "fixed": design[2], "gain_y": found,
+                             "search": search}
+    if decay_max:
+        lam = lam + NOISE_DECAY_ROOM * (1.0 - lam)
+    record = {"objective": "least gain_y at the decay", "decay": lam, "default_gain_y": default}
+    try:
+        found, design = least_of(candidates, lam, name, gain)
+    except InfeasibleError as exc:
+        return lam, None, {**record, "kept": "default", "why": str(exc)[:300]}
+    if default is not None and not found < default:
+        return lam, None, {**record, "kept": "default", "least_gain_y": found, "fixed": design[2],
+                           "why": "the least-noise point's gain is not below it"}
+    return lam, design, {**record, "kept": "least noise", "least_gain_y": found, "fixed": design[2]}
+
+
 def section(gain_y=None, reason=None, gain_w=None, gain_dhat_y=None, **extra) -> dict:
     """A ``noise`` section: the gains (None where not certified), why some are None, and what re-checks them."""
     out = {"norm": NORM, "gain_y": gain_y, "gain_w": gain_w, "gain_dhat_y": gain_dhat_y, "reason": reason}

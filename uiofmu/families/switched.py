@@ -64,13 +64,12 @@ from ..decoupling import weak_modes_condition
 from ..runtime.card import DHAT
 from ..existence import Condition, Existence, complex_list, format_complex
 from ..lmi import Lmi, LmiSolution, LmiSystem, tune
-from ..runtime.errors import InfeasibleError, ProblemError
+from ..runtime.errors import ProblemError
 from ..runtime.tolerances import RANK_RTOL, SEARCH_TOL, ZERO_MARGIN
 from ..structure import kernel_maps, product_radius, rank, unobservable_modes
 from ..switched_plant import as_switched
-from ..noise import (NOISE_DECAY_ROOM, NOISE_METHOD, NOISE_OBJECTIVES, certified, fastest_within,
-                     pair_error_system, recheck, section as noise_section)
-from ..reductions import LYAPUNOV, matrix, scalar, symmetric
+from ..noise import (NOISE_METHOD, NOISE_OBJECTIVES, certified, least_noise_design,
+                     pair_error_system, pair_noise_gain, pair_noise_lmis, recheck, section as noise_section)
 from . import Analysis, DesignResult
 
 NAME = "switched"
@@ -453,49 +452,11 @@ def _closed_form(lam: float, status: str) -> LmiSolution:
     return LmiSolution({}, {"lam2": lam * lam}, status, {}, True, 0.0, 0.0)
 
 
-def _noise_lmis(modes, Q, C, sigma: float, gain_cap: float | None = None) -> LmiSystem:
-    """The decay LMIs and the poly-quadratic bounded real lemma of every pair (see the module), ``K_i`` free and
-    ``Q_i`` given (``P_i = I - Q_i C``), with ``g`` bounding ``(gain_y / sigma)^2`` (the noise in units of
-    ``1 / sigma``, the default design's gain)."""
-    N, n, p = len(modes), C.shape[1], C.shape[0]
-    PA = [(np.eye(n) - Q[i] @ C) @ md.A for i, md in enumerate(modes)]
-    Qs = [q / sigma for q in Q]
-
-    def build(v, prm, ops):
-        out = []
-        for i in range(N):
-            G, F = v[f"G{i}"], v[f"F{i}"]
-            out.append(Lmi(f"S_{i + 1} >= I", v[f"S{i}"] - ops.eye(n), strict=False))
-            GN, GG = G @ PA[i] - F @ C, G + G.T
-            for j in range(N):
-                GB = -(F * (1.0 / sigma)) - GN @ Qs[j]
-                out.append(Lmi(f"decay i={i + 1} j={j + 1}",
-                               ops.bmat([[prm["lam2"] * v[f"S{j}"], GN.T], [GN, GG - v[f"S{i}"]]])))
-                out.append(Lmi(f"bounded real lemma i={i + 1} j={j + 1} (gain_y^2 <= g)", ops.bmat([
-                    [v[f"Z{j}"], ops.zeros((n, p)), GN.T, ops.eye(n)],
-                    [ops.zeros((p, n)), v["g"] * ops.eye(p), GB.T, -Qs[j].T],
-                    [GN, GB, GG - v[f"Z{i}"], ops.zeros((n, n))],
-                    [ops.eye(n), -Qs[j], ops.zeros((n, n)), ops.eye(n)]])))
-        if gain_cap is not None:
-            out += cap_lmis(gain_cap, [(f"G_{i + 1}", v[f"G{i}"], [(f"F_{i + 1}", v[f"F{i}"])]) for i in range(N)],
-                            v["s"], ops)
-        return out
-
-    variables = {"g": scalar()}
-    for i in range(N):
-        variables.update({f"S{i}": symmetric(n), f"Z{i}": symmetric(n), f"G{i}": matrix((n, n), LYAPUNOV),
-                          f"F{i}": matrix((n, p))})
-    if gain_cap is not None:
-        variables["s"] = scalar()
-    return LmiSystem(f"{NAME} least noise gain", variables, {"lam2": 0.98}, build, objective=lambda v: v["g"],
-                     structure=(PA, C, Q, sigma, gain_cap))
-
-
 def _noise_runtime(modes, Q, values: dict, C, has_dhat: bool) -> dict:
-    """The card's matrices of a point of :func:`_noise_lmis`: ``Y_i = (Q_i - Q0_i) U_i`` and
-    ``K_i = G_i^-1 F_i``, and the Lyapunov matrices ``S``."""
-    Kt = [np.hstack([np.linalg.solve(values[f"G{i}"], values[f"F{i}"]), (Q[i] - md.Q0) @ md.U])
-          for i, md in enumerate(modes)]
+    """The card's matrices of a point of the least-noise LMIs (:func:`uiofmu.noise.pair_noise_lmis` with
+    ``PA_i = P_i A_i``, ``Xy_j = Q_j``, ``H_i = K_i``): ``Y_i = (Q_i - Q0_i) U_i``, ``K_i = G_i^-1 F_i``, and the
+    Lyapunov matrices ``S``."""
+    Kt = [np.hstack([pair_noise_gain(values, i), (Q[i] - md.Q0) @ md.U]) for i, md in enumerate(modes)]
     mats = _runtime(modes, Kt, C, has_dhat)
     mats["S"] = np.array([0.5 * (values[f"S{i}"] + values[f"S{i}"].T) for i in range(len(modes))])
     return mats
@@ -507,8 +468,9 @@ NOISE_Q = ("least-norm Q0_i (Y_i = 0)", "the default design's Q_i")
 
 
 def _noise_systems(modes, default: dict, sigma: float, C, has_dhat: bool, opts: Options) -> list:
-    """The least-noise LMIs (:func:`_noise_lmis`) for each ``Q`` of :data:`NOISE_Q`, compiled once for any decay,
-    each point certified by the certificate's checks at the runtime's matrices.
+    """The least-noise LMIs for each ``Q`` of :data:`NOISE_Q` (with ``gain_cap``, the default's only: ``Q0``'s
+    ``Y_i = 0`` is not capped), compiled once for any decay, each point certified by the certificate's checks at
+    the runtime's matrices.
 
     Returns
     -------
@@ -516,43 +478,16 @@ def _noise_systems(modes, default: dict, sigma: float, C, has_dhat: bool, opts: 
         ``(system, runtime, which)`` for each, ``runtime`` the card's matrices of a point.
     """
     out = []
-    for which, Q in zip(NOISE_Q, ([md.Q0 for md in modes], [np.asarray(q, dtype=float) for q in default["Q"]])):
-        system = _noise_lmis(modes, Q, np.asarray(C, dtype=float), sigma, opts.gain_cap)
+    choices = zip(NOISE_Q, ([md.Q0 for md in modes], [np.asarray(q, dtype=float) for q in default["Q"]]))
+    for which, Q in list(choices)[1 if opts.gain_cap is not None else 0:]:
+        C = np.asarray(C, dtype=float)
+        PA = [(np.eye(C.shape[1]) - Q[i] @ C) @ md.A for i, md in enumerate(modes)]
+        system = pair_noise_lmis(NAME, PA, C, Q, sigma, gain_cap=opts.gain_cap)
         runtime = partial(_noise_runtime, modes, Q, C=C, has_dhat=has_dhat)
         system.certify = (lambda rt: lambda v, prm: all(c.holds for c in checks(rt(v), float(np.sqrt(prm["lam2"])))))(
             runtime)
         out.append((system, runtime, which))
     return out
-
-
-def _least_noise(noise: list, lam: float, name: str) -> tuple:
-    """The least-noise design at the decay ``lam``: of the points of :func:`_noise_systems` that certify, the one
-    of least certified ``gain_y``.
-
-    Returns
-    -------
-    tuple
-        ``(gain, (solution, matrices, which))``.
-
-    Raises
-    ------
-    InfeasibleError
-        When none has a certified point.
-    """
-    best, status = None, []
-    for system, runtime, which in noise:
-        sol = system.solve(lam2=lam * lam)
-        status.append(sol.status)
-        if not sol.verified:
-            continue
-        mats = runtime(sol.values)
-        gain = _gain_y(mats)
-        if gain is not None and (best is None or gain < best[0]):
-            best = (gain, (sol, mats, which))
-    if best is None:
-        raise InfeasibleError(f"{name}: the least noise gain at decay {lam:.6g} (observer.noise = \"min\") has no "
-                              f"certified point (CLARABEL: {', '.join(status)}); a slower decay leaves the LMIs room")
-    return best
 
 
 def _gain_y(mats: dict) -> float | None:
@@ -565,39 +500,6 @@ def noise_options(opts: Options, decay, noise: str) -> Options:
     ``noise_gain``, and the LMI (the dead-beat gains have no freedom)."""
     method = "lmi" if opts.method == "deadbeat" or noise == "min" else opts.method
     return Options(decay, opts.dt, opts.xhat0, opts.mode_prev0, method, opts.gain_cap, noise, None)
-
-
-def _noise_design(modes, lam: float, sol, mats: dict, system, C, has_dhat: bool, opts: Options, name: str):
-    """``observer.noise = "min"`` after the default design (``sol``, ``mats``) at ``lam``: the least-noise design
-    at ``lam`` (``decay = "max"``: moved ``NOISE_DECAY_ROOM`` of the way to 1), kept only where its certified
-    ``gain_y`` is below the default's; ``noise_gain``: the fastest decay within it (:func:`fastest_within`).
-
-    Returns
-    -------
-    tuple
-        ``(lam, solution, matrices, systems, design_method, record)``.
-    """
-    default = _gain_y(mats)
-    noise = _noise_systems(modes, mats, max(default or 1.0, 1.0), C, has_dhat, opts)
-    systems = (system, *(n[0] for n in noise))
-    if opts.noise_gain is not None:
-        goal = float(opts.noise_gain)
-        rho, gain, (least, m, which), search = fastest_within(lambda r: _least_noise(noise, r, name), lam, goal,
-                                                              name)
-        return rho, least, m, systems, NOISE_METHOD, {
-            "objective": "fastest decay with gain_y <= noise_gain", "noise_gain": goal, "fastest_decay": lam,
-            "default_gain_y": default, "Q": which, "gain_y": gain, "search": search}
-    if opts.decay == "max":
-        lam = lam + NOISE_DECAY_ROOM * (1.0 - lam)
-    record = {"objective": "least gain_y at the decay", "decay": lam, "default_gain_y": default}
-    try:
-        found, (least, m, which) = _least_noise(noise, lam, name)
-    except InfeasibleError as exc:
-        return lam, sol, mats, systems, "lmi", {**record, "kept": "default", "why": str(exc)[:300]}
-    if default is not None and not found < default:
-        return lam, sol, mats, systems, "lmi", {**record, "kept": "default", "least_gain_y": found, "Q": which,
-                                                "why": "the least-noise point's gain is not below it"}
-    return lam, least, m, systems, NOISE_METHOD, {**record, "kept": "least noise", "least_gain_y": found, "Q": which}
 
 
 def design(problem, analysis: Analysis) -> DesignResult:
@@ -645,12 +547,15 @@ def design(problem, analysis: Analysis) -> DesignResult:
         bound, digits = overshoot(mats["S"]), figure_digits(sol)
         method, solver = "lmi", "CLARABEL"
     noise_design = None
-    if noisy:
-        lam, sol, mats, system, method, noise_design = _noise_design(modes, lam, sol, mats, system, C, has_dhat,
-                                                                     opts, problem.name)
-        bound = overshoot(mats["S"])
-        if method == NOISE_METHOD:
-            digits = UNDETERMINED
+    if noisy:                                          # the least noise gain: uiofmu.noise.least_noise_design
+        default = _gain_y(mats)
+        noise = _noise_systems(modes, mats, max(default or 1.0, 1.0), C, has_dhat, opts)
+        lam, least, noise_design = least_noise_design(noise, lam, opts.decay == "max", opts.noise_gain, default,
+                                                      problem.name, _gain_y)
+        system = (system, *(candidate[0] for candidate in noise))
+        if least is not None:
+            sol, mats, _ = least
+            bound, digits, method = overshoot(mats["S"]), UNDETERMINED, NOISE_METHOD
     cert = certificate(sol, checks(mats, lam), f"{NAME} design of {problem.name}", solver=solver)
     results = {
         "noise": noise_of(mats),
