@@ -245,14 +245,44 @@ def least_of(candidates, lam: float, name: str, gain) -> tuple:
     return best
 
 
-def least_noise_design(candidates, lam: float, decay_max: bool, noise_gain, default, name: str, gain) -> tuple:
-    """``observer.noise = "min"`` or ``observer.noise_gain`` of a family whose least-noise LMIs are
-    ``candidates`` (as :func:`least_of` takes them), after its default design of certified ``gain_y`` ``default``
-    at the decay ``lam``.
+#: A least-noise point whose gain is below this fraction of the unit the LMIs measured the noise in is solved
+#: again with its own gain as the unit (the solver's tolerance on ``g = (gain / unit)^2`` blurs a gain far below it).
+NOISE_UNIT_REFINE = 0.1
 
-    With ``noise_gain``: the fastest decay within it (:func:`fastest_within`). Else the least-noise design at
-    ``lam`` (with ``decay_max``, moved :data:`NOISE_DECAY_ROOM` of the way to 1), kept only where its certified
-    gain is below the default's.
+
+def _least_in_units(candidates_for, default, sigma: float, lam: float, name: str, gain) -> tuple:
+    """:func:`least_of` the candidates ``candidates_for(default, sigma)``, solved again in the units of the gain
+    found where it is far below ``sigma`` (:data:`NOISE_UNIT_REFINE`); the lower certified gain."""
+    from .runtime.errors import InfeasibleError
+
+    found, design = least_of(candidates_for(default, sigma), lam, name, gain)
+    if found < NOISE_UNIT_REFINE * sigma:
+        try:
+            again, other = least_of(candidates_for(default, max(found, 1e-300)), lam, name, gain)
+        except InfeasibleError:
+            return found, design
+        if again < found:
+            return again, other
+    return found, design
+
+
+def least_noise_design(family, lam: float, decay_max: bool, noise_gain, default: tuple, name: str) -> tuple:
+    """``observer.noise = "min"`` or ``observer.noise_gain`` of a family with the callbacks ``family``, after its
+    default design ``default`` at the decay ``lam``.
+
+    ``noise = "min"``: the least-noise design at ``lam`` (with ``decay_max``, moved :data:`NOISE_DECAY_ROOM` of
+    the way to 1), kept only where its certified gain is below the default's (the default's point certifies at
+    the moved decay too). ``noise_gain``: the fastest decay at which that design (the default design at the decay,
+    or its least-noise design where lower) has a certified gain of at most ``noise_gain`` (:func:`fastest_within`).
+
+    Parameters
+    ----------
+    family : dict
+        ``"default_at"``: ``rho -> (solution, matrices)`` of the default design at the decay ``rho`` or None;
+        ``"candidates"``: ``(default matrices, sigma) -> list`` of :func:`least_of`'s candidates (the noise in
+        units of ``1 / sigma``); ``"gain"``: ``matrices -> `` the card's certified ``gain_y`` or None.
+    default : tuple
+        ``(solution, matrices)`` of the default design at ``lam``.
 
     Returns
     -------
@@ -262,20 +292,37 @@ def least_noise_design(candidates, lam: float, decay_max: bool, noise_gain, defa
     """
     from .runtime.errors import InfeasibleError
 
+    gain = family["gain"]
+
+    def least_at(rho: float, base: tuple | None) -> tuple:
+        base_gain = None if base is None else gain(base[1])
+        sigma = max(base_gain or 1.0, 1.0)
+        try:
+            found, design = _least_in_units(family["candidates"], None if base is None else base[1], sigma, rho,
+                                            name, gain)
+        except InfeasibleError:
+            if base_gain is None:
+                raise
+            return base_gain, (*base, "default")
+        if base_gain is not None and not found < base_gain:
+            return base_gain, (*base, "default")
+        return found, design
+
     if noise_gain is not None:
         goal = float(noise_gain)
-        rho, found, design, search = fastest_within(lambda r: least_of(candidates, r, name, gain), lam, goal, name)
+        rho, found, design, search = fastest_within(lambda r: least_at(r, family["default_at"](r)), lam, goal, name)
         return rho, design, {"objective": "fastest decay with gain_y <= noise_gain", "noise_gain": goal,
-                             "fastest_decay": lam, "default_gain_y": default, "fixed": design[2], "gain_y": found,
-                             "search": search}
+                             "fastest_decay": lam, "fixed": design[2], "gain_y": found, "search": search}
+    default_gain = gain(default[1])
     if decay_max:
         lam = lam + NOISE_DECAY_ROOM * (1.0 - lam)
-    record = {"objective": "least gain_y at the decay", "decay": lam, "default_gain_y": default}
+    record = {"objective": "least gain_y at the decay", "decay": lam, "default_gain_y": default_gain}
     try:
-        found, design = least_of(candidates, lam, name, gain)
+        found, design = _least_in_units(family["candidates"], default[1], max(default_gain or 1.0, 1.0), lam, name,
+                                        gain)
     except InfeasibleError as exc:
         return lam, None, {**record, "kept": "default", "why": str(exc)[:300]}
-    if default is not None and not found < default:
+    if default_gain is not None and not found < default_gain:
         return lam, None, {**record, "kept": "default", "least_gain_y": found, "fixed": design[2],
                            "why": "the least-noise point's gain is not below it"}
     return lam, design, {**record, "kept": "least noise", "least_gain_y": found, "fixed": design[2]}

@@ -878,10 +878,11 @@ def _noise_runtime(samples, C, K, values: dict) -> dict:
     return observer_matrices(v, samples, C)
 
 
-def _noise_systems(samples, C, default: dict, sigma: float, opts: Options) -> list:
+def _noise_systems(samples, C, default: dict | None, sigma: float, opts: Options) -> list:
     """The least-noise LMIs (:func:`uiofmu.noise.pair_noise_lmis`, ``PA_i = (I - K_i C) A_i``, ``Xy_j = K_j``,
-    one gain per pair of intervals) for each ``K`` of :data:`NOISE_K` (with ``gain_cap``, the default's only),
-    each point certified by :func:`checks` at the runtime's matrices.
+    one gain per pair of intervals) for each ``K`` of :data:`NOISE_K` (with ``gain_cap``, the default's only;
+    without a default design, the least-norm only), each point certified by :func:`checks` at the runtime's
+    matrices.
 
     Returns
     -------
@@ -891,8 +892,8 @@ def _noise_systems(samples, C, default: dict, sigma: float, opts: Options) -> li
     C = np.asarray(C, dtype=float)
     least = [s.E @ np.linalg.pinv(C @ s.E) for s in samples]
     out = []
-    for which, K in list(zip(NOISE_K, (least, list(np.asarray(default["K"], dtype=float)))))[
-            1 if opts.gain_cap is not None else 0:]:
+    choices = list(zip(NOISE_K, (least, None if default is None else list(np.asarray(default["K"], dtype=float)))))
+    for which, K in [c for c in choices[1 if opts.gain_cap is not None else 0:] if c[1] is not None]:
         PA = [(np.eye(C.shape[1]) - K[i] @ C) @ s.A for i, s in enumerate(samples)]
         system = pair_noise_lmis(NAME, PA, C, K, sigma, pair_gains=True, gain_cap=opts.gain_cap)
         runtime = (lambda K: lambda v: _noise_runtime(samples, C, K, v))(K)
@@ -935,15 +936,28 @@ def design(problem, analysis: Analysis) -> DesignResult:
                    "refused is the identity (the point mapped back and re-checked)" if system.recentred
                    else "as scaled")
     if opts.noise == "min" or opts.noise_gain is not None:    # the least noise gain: uiofmu.noise.least_noise_design
-        default = _gain_y(matrices)
-        noise = _noise_systems(samples, C, matrices, max(default or 1.0, 1.0), opts)
-        lam, least, noise_design = least_noise_design(noise, decay, opts.alpha == "max", opts.noise_gain, default,
-                                                      problem.name, _gain_y)
-        system = (system, *(candidate[0] for candidate in noise))
+        built, lmi = [], system
+
+        def candidates(default, sigma):
+            out = _noise_systems(samples, C, default, sigma, opts)
+            built.extend(c[0] for c in out)
+            return out
+
+        def default_at(rho):
+            at = lmi.solve(c=rho * rho)
+            return (at, matrices_at(at.values)) if at.verified else None
+
+        lam, least, noise_design = least_noise_design(
+            {"default_at": default_at, "candidates": candidates, "gain": _gain_y}, decay, opts.alpha == "max",
+            opts.noise_gain, (sol, matrices), problem.name)
+        system = (lmi, *built)
         if least is not None:
-            sol, matrices, _ = least
-            method, digits, decay, coordinates = NOISE_METHOD, UNDETERMINED, lam, "the plant's"
-            alpha = 1.0 - lam * lam if opts.alpha == "max" else alpha
+            sol, matrices, which = least
+            decay, alpha = lam, (1.0 - lam * lam if opts.alpha == "max" else alpha)
+            if which == "default":
+                digits = figure_digits(sol)
+            else:
+                method, digits, coordinates = NOISE_METHOD, UNDETERMINED, "the plant's"
     Pl = list(matrices["Pl"])
     if not existence.holds("rank(C E(h)) = q"):
         for k in ("Dy", "Yx", "Yu", "Yc"):

@@ -467,10 +467,10 @@ def _noise_runtime(modes, Q, values: dict, C, has_dhat: bool) -> dict:
 NOISE_Q = ("least-norm Q0_i (Y_i = 0)", "the default design's Q_i")
 
 
-def _noise_systems(modes, default: dict, sigma: float, C, has_dhat: bool, opts: Options) -> list:
+def _noise_systems(modes, default: dict | None, sigma: float, C, has_dhat: bool, opts: Options) -> list:
     """The least-noise LMIs for each ``Q`` of :data:`NOISE_Q` (with ``gain_cap``, the default's only: ``Q0``'s
-    ``Y_i = 0`` is not capped), compiled once for any decay, each point certified by the certificate's checks at
-    the runtime's matrices.
+    ``Y_i = 0`` is not capped; without a default design, ``Q0`` only), compiled once for any decay, each point
+    certified by the certificate's checks at the runtime's matrices.
 
     Returns
     -------
@@ -478,8 +478,10 @@ def _noise_systems(modes, default: dict, sigma: float, C, has_dhat: bool, opts: 
         ``(system, runtime, which)`` for each, ``runtime`` the card's matrices of a point.
     """
     out = []
-    choices = zip(NOISE_Q, ([md.Q0 for md in modes], [np.asarray(q, dtype=float) for q in default["Q"]]))
-    for which, Q in list(choices)[1 if opts.gain_cap is not None else 0:]:
+    choices = list(zip(NOISE_Q, ([md.Q0 for md in modes], None if default is None else
+                                 [np.asarray(q, dtype=float) for q in default["Q"]])))
+    choices = [c for c in choices[1 if opts.gain_cap is not None else 0:] if c[1] is not None]
+    for which, Q in choices:
         C = np.asarray(C, dtype=float)
         PA = [(np.eye(C.shape[1]) - Q[i] @ C) @ md.A for i, md in enumerate(modes)]
         system = pair_noise_lmis(NAME, PA, C, Q, sigma, gain_cap=opts.gain_cap)
@@ -548,14 +550,25 @@ def design(problem, analysis: Analysis) -> DesignResult:
         method, solver = "lmi", "CLARABEL"
     noise_design = None
     if noisy:                                          # the least noise gain: uiofmu.noise.least_noise_design
-        default = _gain_y(mats)
-        noise = _noise_systems(modes, mats, max(default or 1.0, 1.0), C, has_dhat, opts)
-        lam, least, noise_design = least_noise_design(noise, lam, opts.decay == "max", opts.noise_gain, default,
-                                                      problem.name, _gain_y)
-        system = (system, *(candidate[0] for candidate in noise))
+        built, lmi = [], system
+
+        def candidates(default, sigma):
+            out = _noise_systems(modes, default, sigma, C, has_dhat, opts)
+            built.extend(c[0] for c in out)
+            return out
+
+        def default_at(rho):
+            at = lmi.solve(lam2=rho * rho)
+            return (at, _lmi_runtime(modes, at.values, C, has_dhat)) if at.verified else None
+
+        lam, least, noise_design = least_noise_design(
+            {"default_at": default_at, "candidates": candidates, "gain": _gain_y}, lam, opts.decay == "max",
+            opts.noise_gain, (sol, mats), problem.name)
+        system = (lmi, *built)
         if least is not None:
-            sol, mats, _ = least
-            bound, digits, method = overshoot(mats["S"]), UNDETERMINED, NOISE_METHOD
+            sol, mats, which = least
+            bound = overshoot(mats["S"])
+            digits, method = (figure_digits(sol), "lmi") if which == "default" else (UNDETERMINED, NOISE_METHOD)
     cert = certificate(sol, checks(mats, lam), f"{NAME} design of {problem.name}", solver=solver)
     results = {
         "noise": noise_of(mats),
