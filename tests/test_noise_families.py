@@ -154,3 +154,17 @@ def _toml(name: str, plant: dict) -> str:
     if "switching" in plant:
         text += "[plant.switching]\n" + "".join(f"{k} = {value(v)}\n" for k, v in plant["switching"].items())
     return text
+
+
+def test_the_sampled_data_example_designs_its_least_noise_gain(cli, tmp_path):
+    """``examples/noise_sampled_data.toml``: noise = "min" at alpha = 0.3 keeps the least-noise design, its gain
+    below a twentieth of the default's, and ``uiofmu verify`` re-checks the card against its problem."""
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "noise_sampled_data.toml"
+    card = uiofmu.design(uiofmu.load_problem(path))
+    record = card.data["noise_design"]
+    assert record["kept"] == "least noise" and card.data["noise"]["gain_y"] * 20 < record["default_gain_y"]
+    (tmp_path / "card.json").write_text(card.to_json())
+    res = cli("verify", tmp_path / "card.json")
+    assert res.code == 0, res.err
