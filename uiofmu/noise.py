@@ -281,8 +281,16 @@ def least_noise_design(family, lam: float, decay_max: bool, noise_gain, default:
         ``"default_at"``: ``rho -> (solution, matrices)`` of the default design at the decay ``rho`` or None;
         ``"candidates"``: ``(default matrices, sigma) -> list`` of :func:`least_of`'s candidates (the noise in
         units of ``1 / sigma``); ``"gain"``: ``matrices -> `` the card's certified ``gain_y`` or None.
+    lam : float
+        The default design's decay.
+    decay_max : bool
+        Whether the problem asked for the fastest decay.
+    noise_gain : float or None
+        ``observer.noise_gain``.
     default : tuple
         ``(solution, matrices)`` of the default design at ``lam``.
+    name : str
+        The problem's name, for the messages.
 
     Returns
     -------
