@@ -35,17 +35,13 @@ at the stored matrices: decay bound ``max_i ||Phi_i||`` (round-off), overshoot 1
 
 Least noise gain (``observer.noise = "min"``, ``observer.noise_gain``): the error from output noise ``v`` is
 ``eps+ = Phi_i eps - L_ij v``, ``e = eps - Q_j v`` with ``L_ij = K_i + Phi_i Q_j``, bilinear in ``Y_j`` (in
-``Q_j``) and ``Kt_i``: the least-noise design keeps the default design's ``Y_i`` (so its ``Q_i``, ``P_i``) and
-frees ``K_i``. With a slack ``G_i`` per mode and ``F_i = G_i K_i`` (the extended form), for every pair (i, j)::
-
-    [[lambda^2 S_j, (G_i Phi_i)'], [G_i Phi_i, G_i + G_i' - S_i]] > 0                      (decay)
-    [[Z_j, 0, (G_i Phi_i)', I], [0, g I, (G_i B_ij)', -Q_j'],
-     [G_i Phi_i, G_i B_ij, G_i + G_i' - Z_i, 0], [I, -Q_j, 0, I]] > 0                   (gain_y^2 <= g)
-
-with ``G_i Phi_i = G_i P_i A_i - F_i C`` and ``G_i B_ij = -(F_i + G_i Phi_i Q_j)``, linear in ``(S, Z, G, F, g)``;
-``S_i >= I``; ``g`` minimised. The first gives ``Phi_i' S_i Phi_i < lambda^2 S_j`` (the certificate's), the
-second the poly-quadratic bounded real lemma the card's ``gain_y`` re-checks. The default point (``G_i = S_i``,
-``F_i = S_i K_i``) satisfies the decay LMI, so the design exists at the default's decay.
+``Q_j``) and ``Kt_i``: the least-noise design fixes ``Q_i`` (the least-norm ``Q0_i``, ``Y_i = 0``, or the default
+design's) and frees ``K_i``: with ``PA_i = P_i A_i`` and ``Xy_j = Q_j`` the LMIs of
+:func:`uiofmu.noise.pair_noise_lmis` (for every pair the decay LMI, ``Phi_i' S_i Phi_i < lambda^2 S_j`` as the
+certificate re-checks it, and the poly-quadratic bounded real lemma the card's ``gain_y`` re-checks, with a slack
+``G_i`` per mode and ``K_i = G_i^-1 F_i``). Its points are accepted only where :func:`checks` hold at the runtime's
+matrices, and kept only where the certified gain is below the default design's
+(:func:`uiofmu.noise.least_noise_design`).
 """
 
 from __future__ import annotations
