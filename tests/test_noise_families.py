@@ -168,3 +168,14 @@ def test_the_sampled_data_example_designs_its_least_noise_gain(cli, tmp_path):
     (tmp_path / "card.json").write_text(card.to_json())
     res = cli("verify", tmp_path / "card.json")
     assert res.code == 0, res.err
+
+
+@pytest.mark.parametrize("family", [_sampled, _switched])
+def test_noise_min_at_the_fastest_decay_moves_it_and_certifies_there(family):
+    """With the fastest decay asked for, the card's decay is 10 % of the way from it to 1 (the default point
+    certifies there too, where no least-noise point is below it), its gain no more than the fastest design's."""
+    fastest, least = family(), family(noise="min")
+    rho = fastest.data["decay_bound"]
+    assert least.data["decay_bound"] == pytest.approx(rho + 0.1 * (1 - rho), rel=1e-9)
+    assert least.data["noise"]["gain_y"] <= fastest.data["noise"]["gain_y"]
+    _rechecked(least)

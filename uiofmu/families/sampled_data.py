@@ -951,9 +951,9 @@ def design(problem, analysis: Analysis) -> DesignResult:
             {"default_at": default_at, "candidates": candidates, "gain": _gain_y}, decay, opts.alpha == "max",
             opts.noise_gain, (sol, matrices), problem.name)
         system = (lmi, *built)
+        decay, alpha = lam, (1.0 - lam * lam if opts.alpha == "max" else alpha)   # the default certifies there too
         if least is not None:
             sol, matrices, which = least
-            decay, alpha = lam, (1.0 - lam * lam if opts.alpha == "max" else alpha)
             if which == "default":
                 digits = figure_digits(sol)
             else:
