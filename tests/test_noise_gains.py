@@ -429,8 +429,9 @@ def test_the_tradeoff_plots_certified_gains_over_the_decays(tmp_path, cli):
         assert default is not None and least is not None and least <= default, (decay, default, least)
     assert table[-1][2] < 0.5 * table[0][2]
     assert "this problem's design: decay 0.5, gain_y " in res.out and 'noise = "min" at its decay: decay 0.5' in res.out
-    res = cli("tradeoff", ROOT / "examples" / "seed002_setup2.toml", "-o", tmp_path / "s.png")
+    res = cli("tradeoff", ROOT / "examples" / "seed000_example1_ltv.toml", "-o", tmp_path / "s.png")
     assert res.code == 2 and "has no noise-aware design; the trade-off is drawn for lti-uio" in res.err
+    assert "(the ltv-auid design has no least-noise form: its contraction is set by eta and mu" in res.err
     assert not (tmp_path / "s.png").exists()
     res = cli("tradeoff", ROOT / "examples" / "accelerometer_feedthrough.toml", "-o", tmp_path / "f.png")
     assert res.code == 2 and "the least-noise LMI is written for F = 0" in res.err and not (tmp_path / "f.png").exists()

@@ -66,6 +66,278 @@ MAX_PAIRS = 256
 TRIES, GROWTH = 12, 1.1
 
 
+#: The card's ``design_method`` of a least-noise design (its overshoot is not what the LMIs minimise: the problem
+#: does not determine its digits).
+NOISE_METHOD = "lmi (least noise gain)"
+
+#: ``observer.noise``: the default design (least overshoot bound), or the least noise gain at the decay.
+NOISE_OBJECTIVES = ("default", "min")
+
+#: ``observer.noise_gain`` searches the decay between the fastest certified one and this fraction of the way to 1
+#: (the slowest decay it tries), and stops when the bracket is narrower than :data:`NOISE_GAIN_RESOLUTION` of that
+#: way.
+NOISE_GAIN_SLOWEST = 0.999
+NOISE_GAIN_RESOLUTION = 1.0 / 1024
+
+#: With ``decay = "max"``, ``noise = "min"`` designs at the fastest certified decay moved this fraction of the way
+#: toward 1 (the card's ``decay_bound``): at the edge itself every gain is pinned by the decay, and the least
+#: noise gain there is no less than the default design's.
+NOISE_DECAY_ROOM = 0.1
+
+
+def fastest_within(least_at, fastest: float, goal: float, name: str) -> tuple:
+    """``observer.noise_gain = goal``: the fastest decay whose least-noise design has a certified ``gain_y`` of at
+    most ``goal``, for any family.
+
+    The least noise gain does not grow as the decay slows (every point certified at a decay is certified at any
+    slower one), so the decay is bisected on the way from ``fastest`` (the default design's ``"max"``) to
+    :data:`NOISE_GAIN_SLOWEST` of the way to 1, to :data:`NOISE_GAIN_RESOLUTION` of that way; the slower end of
+    the bracket is the decay kept.
+
+    Parameters
+    ----------
+    least_at : callable
+        ``least_at(rho) -> (gain, design)``: the family's least-noise design at the decay ``rho`` and its
+        certified ``gain_y`` (None where not certified); raises ``InfeasibleError`` where it has no point.
+    fastest, goal : float
+        The fastest certified decay, and the gain asked for.
+    name : str
+        The problem's name, for the message.
+
+    Returns
+    -------
+    tuple
+        ``(rho, gain, design, search)``, ``search`` the record of the decays tried.
+
+    Raises
+    ------
+    InfeasibleError
+        When even the slowest decay tried has a larger certified gain (the message gives it).
+    """
+    from .runtime.errors import InfeasibleError
+
+    tried = {}
+
+    def gain_at(f: float):
+        rho = fastest + f * (1.0 - fastest)
+        try:
+            gain, design = least_at(rho)
+        except InfeasibleError:
+            tried[f] = (rho, None, None)
+            return tried[f]
+        tried[f] = (rho, gain, design)
+        return tried[f]
+
+    lo, hi = 0.0, NOISE_GAIN_SLOWEST
+    rho, gain, _ = gain_at(hi)
+    if gain is None or gain > goal:
+        said = "no certified point" if gain is None else f"certified gain_y {gain:g}"
+        ask = "" if gain is None else f": ask for noise_gain >= {gain:g}"
+        raise InfeasibleError(f"{name}: observer.noise_gain = {goal:g}: the slowest decay tried, {rho:.6g}, has "
+                              f"{said} for its least-noise gain, more than {goal:g}{ask}")
+    while hi - lo > NOISE_GAIN_RESOLUTION:
+        mid = 0.5 * (lo + hi)
+        _, gain_mid, _ = gain_at(mid)
+        if gain_mid is not None and gain_mid <= goal:
+            hi = mid
+        else:
+            lo = mid
+    rho, gain, design = tried[hi]
+    search = {"parameter": "decay", "solves": len(tried), "tried": sorted((v[0], v[1]) for v in tried.values())}
+    return rho, gain, design, search
+
+
+def pair_noise_lmis(name: str, PA, C, Xy, sigma: float, pair_gains: bool = False,
+                    gain_cap: float | None = None):
+    """The least-noise LMIs of a runtime whose step ``(i, j)`` (this step's mode or interval, and the previous one)
+    is ``eps+ = (PA_i - H_ij C) eps - (H_ij + (PA_i - H_ij C) Xy_j) v``, ``e = eps - Xy_j v``
+    (:func:`pair_error_system` with ``N_ij = PA_i - H_ij C``, ``L_ij = H_ij + N_ij Xy_j``), the output gains ``H``
+    free (one per mode, ``H_i``, or with ``pair_gains`` one per pair) and ``PA_i``, ``Xy_j`` given.
+
+    With a slack ``G_i`` and ``F = G_i H`` (de Oliveira, Bernussou and Geromel's extended form), for every pair
+    and with ``g`` bounding ``(gain_y / sigma)^2`` (minimised; the noise in units of ``1 / sigma``)::
+
+        [[lam2 S_j, (G_i N_ij)'], [G_i N_ij, G_i + G_i' - S_i]] > 0                    (N_ij' S_i N_ij < lam2 S_j)
+        [[Z_j, 0, (G_i N_ij)', I], [0, g I, (G_i B_ij)', -Xy_j'],
+         [G_i N_ij, G_i B_ij, G_i + G_i' - Z_i, 0], [I, -Xy_j, 0, I]] > 0               (gain_y^2 <= g)
+
+    with ``G_i N_ij = G_i PA_i - F C``, ``G_i B_ij = -(F + G_i N_ij Xy_j)``, and ``S_i >= I``: linear in
+    ``(S, Z, G, F, g)``. The second is the poly-quadratic bounded real lemma (storage ``Z_j`` to ``Z_i``) that the
+    card's ``gain_y`` re-checks; with ``gain_cap``, ``||G_i^-1 F|| <= gain_cap`` (:func:`uiofmu.gains.cap_lmis`).
+    A point's gains are :func:`pair_noise_gain`; its decay Lyapunov matrices ``S_i``.
+    """
+    from .gains import cap_lmis
+    from .lmi import Lmi, LmiSystem
+    from .reductions import LYAPUNOV, matrix, scalar, symmetric
+
+    C = np.asarray(C, dtype=float)
+    PA, Xy = [np.asarray(a, dtype=float) for a in PA], [np.asarray(x, dtype=float) / sigma for x in Xy]
+    N, n, p = len(PA), C.shape[1], C.shape[0]
+    key = (lambda i, j: f"F{i}_{j}") if pair_gains else (lambda i, j: f"F{i}")      # noqa: E731
+
+    def build(v, prm, ops):
+        out = []
+        for i in range(N):
+            G = v[f"G{i}"]
+            out.append(Lmi(f"S_{i + 1} >= I", v[f"S{i}"] - ops.eye(n), strict=False))
+            GA, GG = G @ PA[i], G + G.T
+            for j in range(N):
+                F = v[key(i, j)]
+                GN = GA - F @ C
+                GB = -(F * (1.0 / sigma)) - GN @ Xy[j]
+                out.append(Lmi(f"decay i={i + 1} j={j + 1}",
+                               ops.bmat([[prm["lam2"] * v[f"S{j}"], GN.T], [GN, GG - v[f"S{i}"]]])))
+                out.append(Lmi(f"bounded real lemma i={i + 1} j={j + 1} (gain_y^2 <= g)", ops.bmat([
+                    [v[f"Z{j}"], ops.zeros((n, p)), GN.T, ops.eye(n)],
+                    [ops.zeros((p, n)), v["g"] * ops.eye(p), GB.T, -Xy[j].T],
+                    [GN, GB, GG - v[f"Z{i}"], ops.zeros((n, n))],
+                    [ops.eye(n), -Xy[j], ops.zeros((n, n)), ops.eye(n)]])))
+        if gain_cap is not None:
+            out += cap_lmis(gain_cap, [(f"G_{i + 1}", v[f"G{i}"], [(key(i, j), v[key(i, j)])
+                                                                  for j in (range(N) if pair_gains else (0,))])
+                                       for i in range(N)], v["s"], ops)
+        return out
+
+    variables = {"g": scalar()}
+    for i in range(N):
+        variables.update({f"S{i}": symmetric(n), f"Z{i}": symmetric(n), f"G{i}": matrix((n, n), LYAPUNOV)})
+        variables.update({key(i, j): matrix((n, p)) for j in (range(N) if pair_gains else (0,))})
+    if gain_cap is not None:
+        variables["s"] = scalar()
+    return LmiSystem(f"{name} least noise gain", variables, {"lam2": 0.98}, build, objective=lambda v: v["g"],
+                     structure=(PA, C, Xy, sigma, pair_gains, gain_cap))
+
+
+def pair_noise_gain(values: dict, i: int, j: int | None = None) -> np.ndarray:
+    """The output gain ``H_i`` (``H_ij`` with ``j``) of a point of :func:`pair_noise_lmis`: ``G_i^-1 F``."""
+    F = values[f"F{i}" if j is None else f"F{i}_{j}"]
+    return np.linalg.solve(np.asarray(values[f"G{i}"], dtype=float), np.asarray(F, dtype=float))
+
+
+def least_of(candidates, lam: float, name: str, gain) -> tuple:
+    """The least-noise design at the decay ``lam`` of a family with several least-noise LMIs (each a
+    ``(system, runtime, which)``, its points mapped to the card's matrices by ``runtime``): of the points that
+    certify (the system's ``certify``), the one of least certified ``gain_y`` (``gain(matrices)``).
+
+    Returns
+    -------
+    tuple
+        ``(gain, (solution, matrices, which))``.
+
+    Raises
+    ------
+    InfeasibleError
+        When none has a certified point.
+    """
+    from .runtime.errors import InfeasibleError
+
+    best, status = None, []
+    for system, runtime, which in candidates:
+        sol = system.solve(lam2=lam * lam)
+        status.append(sol.status)
+        if not sol.verified:
+            continue
+        mats = runtime(sol.values)
+        found = gain(mats)
+        if found is not None and (best is None or found < best[0]):
+            best = (found, (sol, mats, which))
+    if best is None:
+        raise InfeasibleError(f"{name}: the least noise gain at decay {lam:.6g} (observer.noise = \"min\") has no "
+                              f"certified point (CLARABEL: {', '.join(status)}); a slower decay leaves the LMIs room")
+    return best
+
+
+#: A least-noise point whose gain is below this fraction of the unit the LMIs measured the noise in is solved
+#: again with its own gain as the unit (the solver's tolerance on ``g = (gain / unit)^2`` blurs a gain far below it).
+NOISE_UNIT_REFINE = 0.1
+
+
+def _least_in_units(candidates_for, default, sigma: float, lam: float, name: str, gain) -> tuple:
+    """:func:`least_of` the candidates ``candidates_for(default, sigma)``, solved again in the units of the gain
+    found where it is far below ``sigma`` (:data:`NOISE_UNIT_REFINE`); the lower certified gain."""
+    from .runtime.errors import InfeasibleError
+
+    found, design = least_of(candidates_for(default, sigma), lam, name, gain)
+    if found < NOISE_UNIT_REFINE * sigma:
+        try:
+            again, other = least_of(candidates_for(default, max(found, 1e-300)), lam, name, gain)
+        except InfeasibleError:
+            return found, design
+        if again < found:
+            return again, other
+    return found, design
+
+
+def least_noise_design(family, lam: float, decay_max: bool, noise_gain, default: tuple, name: str) -> tuple:
+    """``observer.noise = "min"`` or ``observer.noise_gain`` of a family with the callbacks ``family``, after its
+    default design ``default`` at the decay ``lam``.
+
+    ``noise = "min"``: the least-noise design at ``lam`` (with ``decay_max``, moved :data:`NOISE_DECAY_ROOM` of
+    the way to 1), kept only where its certified gain is below the default's (the default's point certifies at
+    the moved decay too). ``noise_gain``: the fastest decay at which that design (the default design at the decay,
+    or its least-noise design where lower) has a certified gain of at most ``noise_gain`` (:func:`fastest_within`).
+
+    Parameters
+    ----------
+    family : dict
+        ``"default_at"``: ``rho -> (solution, matrices)`` of the default design at the decay ``rho`` or None;
+        ``"candidates"``: ``(default matrices, sigma) -> list`` of :func:`least_of`'s candidates (the noise in
+        units of ``1 / sigma``); ``"gain"``: ``matrices -> `` the card's certified ``gain_y`` or None.
+    lam : float
+        The default design's decay.
+    decay_max : bool
+        Whether the problem asked for the fastest decay.
+    noise_gain : float or None
+        ``observer.noise_gain``.
+    default : tuple
+        ``(solution, matrices)`` of the default design at ``lam``.
+    name : str
+        The problem's name, for the messages.
+
+    Returns
+    -------
+    tuple
+        ``(lam, design, record)``: ``design`` the ``(solution, matrices, which)`` of the least-noise point, or None
+        where the card keeps the default design (the record says why).
+    """
+    from .runtime.errors import InfeasibleError
+
+    gain = family["gain"]
+
+    def least_at(rho: float, base: tuple | None) -> tuple:
+        base_gain = None if base is None else gain(base[1])
+        sigma = max(base_gain or 1.0, 1.0)
+        try:
+            found, design = _least_in_units(family["candidates"], None if base is None else base[1], sigma, rho,
+                                            name, gain)
+        except InfeasibleError:
+            if base_gain is None:
+                raise
+            return base_gain, (*base, "default")
+        if base_gain is not None and not found < base_gain:
+            return base_gain, (*base, "default")
+        return found, design
+
+    if noise_gain is not None:
+        goal = float(noise_gain)
+        rho, found, design, search = fastest_within(lambda r: least_at(r, family["default_at"](r)), lam, goal, name)
+        return rho, design, {"objective": "fastest decay with gain_y <= noise_gain", "noise_gain": goal,
+                             "fastest_decay": lam, "fixed": design[2], "gain_y": found, "search": search}
+    default_gain = gain(default[1])
+    if decay_max:
+        lam = lam + NOISE_DECAY_ROOM * (1.0 - lam)
+    record = {"objective": "least gain_y at the decay", "decay": lam, "default_gain_y": default_gain}
+    try:
+        found, design = _least_in_units(family["candidates"], default[1], max(default_gain or 1.0, 1.0), lam, name,
+                                        gain)
+    except InfeasibleError as exc:
+        return lam, None, {**record, "kept": "default", "why": str(exc)[:300]}
+    if default_gain is not None and not found < default_gain:
+        return lam, None, {**record, "kept": "default", "least_gain_y": found, "fixed": design[2],
+                           "why": "the least-noise point's gain is not below it"}
+    return lam, design, {**record, "kept": "least noise", "least_gain_y": found, "fixed": design[2]}
+
+
 def section(gain_y=None, reason=None, gain_w=None, gain_dhat_y=None, **extra) -> dict:
     """A ``noise`` section: the gains (None where not certified), why some are None, and what re-checks them."""
     out = {"norm": NORM, "gain_y": gain_y, "gain_w": gain_w, "gain_dhat_y": gain_dhat_y, "reason": reason}

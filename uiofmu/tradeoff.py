@@ -11,7 +11,8 @@ written next to it.
 The module imports what it uses when it runs (the command line's parser reads :data:`POINTS` only).
 
 A family offers the trade-off when its module has ``noise_options(options, decay, noise)``: its options at
-another decay with the noise objective ``"default"`` or ``"min"`` (:mod:`uiofmu.families`).
+another decay with the noise objective ``"default"`` or ``"min"`` (:mod:`uiofmu.families`), and reads the decay
+asked for as ``options.decay``; a family that has none may say why in ``NO_NOISE_DESIGN``.
 """
 
 from __future__ import annotations
@@ -106,8 +107,10 @@ def tradeoff(problem, points: int = POINTS, progress=None) -> Tradeoff:
 
     family = available_family(problem.family)
     if not hasattr(family, "noise_options"):
+        why = getattr(family, "NO_NOISE_DESIGN", None)                  # a family that says why it has none
         raise ProblemError(f"uiofmu tradeoff: observer.family = {problem.family!r} has no noise-aware design; the "
-                           f"trade-off is drawn for {', '.join(families_with_tradeoff())}")
+                           f"trade-off is drawn for {', '.join(families_with_tradeoff())}"
+                           + (f" ({why})" if why else ""))
     if points < 2:
         raise ProblemError(f"--points = {points}: a trade-off needs at least 2 decays")
     tick = progress or (lambda *_: None)

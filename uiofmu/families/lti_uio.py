@@ -92,7 +92,8 @@ from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex, from_pairs
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..gains import cap_lmis
-from ..noise import NORM, certified, hinf_norm, recheck, section
+from ..noise import (NOISE_DECAY_ROOM, NOISE_METHOD, NOISE_OBJECTIVES, NORM, certified, fastest_within,
+                     hinf_norm, recheck, section)
 from ..reductions import LYAPUNOV, UPPER_BOUND, matrix, scalar, symmetric
 from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
@@ -247,25 +248,6 @@ def _parse_poles(table) -> tuple:
 #: Why a plant whose unknown input feeds through has no least-noise design.
 NO_NOISE_DESIGN_WITH_F = ('observer.noise = "min": the least-noise LMI is written for F = 0; a plant whose unknown '
                           "input feeds through (plant.F) has the default design")
-
-#: The card's ``design_method`` of a least-noise design (its overshoot is not what the LMIs minimise: the problem
-#: does not determine its digits).
-NOISE_METHOD = "lmi (least noise gain)"
-
-#: ``observer.noise``: the default design (least overshoot bound), or the least noise gain at the decay.
-NOISE_OBJECTIVES = ("default", "min")
-
-#: ``observer.noise_gain`` searches the decay between the fastest certified one and this fraction of the way to 1
-#: (the slowest decay it tries), and stops when the bracket is narrower than :data:`NOISE_GAIN_RESOLUTION` of that
-#: way.
-NOISE_GAIN_SLOWEST = 0.999
-NOISE_GAIN_RESOLUTION = 1.0 / 1024
-
-#: With ``decay = "max"``, ``noise = "min"`` designs at the fastest certified decay moved this fraction of the way
-#: toward 1 (the card's ``decay_bound``): at the edge itself every gain is pinned by the decay, and the least
-#: noise gain there is no less than the default design's.
-NOISE_DECAY_ROOM = 0.1
-
 
 def _analysis(problem):
     plant, opts = problem.plant, problem.options
@@ -462,8 +444,8 @@ def _fastest_within(s, C, M, t, fastest: float, sol: LmiSolution, system, method
 
     The least noise gain does not grow as the decay slows (every point certified at a decay is certified at any
     slower one), so the decay is bisected on the way from ``fastest`` (the default design's ``"max"``) to
-    :data:`NOISE_GAIN_SLOWEST` of the way to 1, to :data:`NOISE_GAIN_RESOLUTION` of that way; the slower end of
-    the bracket is the decay kept.
+    ``uiofmu.noise.NOISE_GAIN_SLOWEST`` of the way to 1 (:func:`uiofmu.noise.fastest_within`, which every family
+    shares); the slower end of the bracket is the decay kept.
 
     Returns
     -------
@@ -479,35 +461,12 @@ def _fastest_within(s, C, M, t, fastest: float, sol: LmiSolution, system, method
     sigma = max(hinf_norm(*error_system(_runtime(s, C, M, sol.values["X"], sol.values["K"]))), 1.0)
     record = {"objective": "fastest decay with gain_y <= noise_gain", "noise_gain": goal, "fastest_decay": fastest}
     noise = _noise_system(s, C, M, t, sigma, opts)
-    tried = {}
 
-    def gain_at(f: float):
-        rho = fastest + f * (1.0 - fastest)
-        try:
-            least = _least_noise(noise, s, C, M, rho, name)
-        except InfeasibleError:
-            tried[f] = (rho, None, None)
-            return tried[f]
-        gain = certified(*error_system(_runtime(s, C, M, least.values["X"], least.values["K"])))[0]
-        tried[f] = (rho, gain, least)
-        return tried[f]
+    def least_at(rho: float) -> tuple:
+        least = _least_noise(noise, s, C, M, rho, name)
+        return certified(*error_system(_runtime(s, C, M, least.values["X"], least.values["K"])))[0], least
 
-    lo, hi = 0.0, NOISE_GAIN_SLOWEST
-    rho, gain, least = gain_at(hi)
-    if gain is None or gain > goal:
-        said = "no certified point" if gain is None else f"certified gain_y {gain:g}"
-        ask = "" if gain is None else f": ask for noise_gain >= {gain:g}"
-        raise InfeasibleError(f"{name}: observer.noise_gain = {goal:g}: the slowest decay tried, {rho:.6g}, has "
-                              f"{said} for its least-noise gain, more than {goal:g}{ask}")
-    while hi - lo > NOISE_GAIN_RESOLUTION:
-        mid = 0.5 * (lo + hi)
-        _, gain_mid, _ = gain_at(mid)
-        if gain_mid is not None and gain_mid <= goal:
-            hi = mid
-        else:
-            lo = mid
-    rho, gain, least = tried[hi]
-    search = {"parameter": "decay", "solves": len(tried), "tried": sorted((v[0], v[1]) for v in tried.values())}
+    rho, gain, least, search = fastest_within(least_at, fastest, goal, name)
     return rho, least, (system, noise[0]), NOISE_METHOD, {**record, "gain_y": gain, "search": search}
 
 

@@ -120,8 +120,21 @@ class Options:
         return self.dt
 
 
+#: Why an ltv-auid observer has no least-noise design (``observer.noise``, ``observer.noise_gain``).
+NO_NOISE_DESIGN = ("the ltv-auid design has no least-noise form: its contraction is set by eta and mu (Theorem 2), "
+                   "not by a decay to trade against the noise gain, and its card's gain_y holds along the schedule "
+                   "through the bounded real lemma at (a, a^2) = (0.5, 0), where K = (T_1 + T_2) / 2 mixes gains "
+                   "that Theorem 2 divides by two different slacks (T_i = G_i^-1 Tbar_i), which no LMI in the "
+                   "design's unknowns expresses; its card certifies gain_y all the same (family = \"lti-uio\", "
+                   "\"sampled-data\" and \"switched\" design for it)")
+
+
 def parse_options(table, plant) -> Options:
-    """Read ``alpha``, ``eta``, ``mu``, ``dt``, ``xhat0``, ``step_policy``, ``gain_cap``."""
+    """Read ``alpha``, ``eta``, ``mu``, ``dt``, ``xhat0``, ``step_policy``, ``gain_cap``; refuse ``noise`` and
+    ``noise_gain`` (:data:`NO_NOISE_DESIGN`)."""
+    for key in ("noise", "noise_gain"):
+        if table.has(key):
+            raise ProblemError(f"observer.{key} = {repr(table.get(key))[:40]}: {NO_NOISE_DESIGN}")
     alpha = table.scalar("alpha", low=0.0, high=1.0, open_low=True, open_high=True)
     eta = table.scalar("eta", low=0.0, high=1.0, open_low=True, open_high=True)
     mu = table.tunable("mu", "max", low=0.0, open_low=True)

@@ -41,7 +41,7 @@ certificate exists when the largest margin of those LMIs (:func:`best_margin`) i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -73,6 +73,7 @@ from ..decoupling import (
 )
 from ..consistency import Determined, computed_values, dhat_record, eigen_rtol, spectrum
 from ..runtime.errors import InfeasibleError, ProblemError
+from ..certificate import UNDETERMINED
 from ..structure import kernel_maps, product_radius
 from ..existence import Condition, Existence, complex_list, from_pairs
 from ..lmi import Lmi, LmiSystem, tune
@@ -90,7 +91,8 @@ from ..runtime.tolerances import (
     VERIFY_FRACTION,
     ZERO_MARGIN,
 )
-from ..noise import certified, pair_error_system, recheck, section as noise_section
+from ..noise import (NOISE_METHOD, NOISE_OBJECTIVES, certified, least_noise_design, pair_error_system,
+                     pair_noise_gain, pair_noise_lmis, recheck, section as noise_section)
 from . import Analysis, DesignResult
 
 NAME = "sampled-data"
@@ -120,6 +122,10 @@ class Options:
         The coordinates the LMIs are solved in (:mod:`uiofmu.scaling`).
     gain_cap : float or None
         Bound on ``||K_i||_2`` and ``||Pl_i^-1 Q_ij||_2`` (:mod:`uiofmu.gains`), None for none.
+    noise : {"default", "min"}
+        ``"min"``: the gains ``Pl_i^-1 Q_ij`` that minimise ``gain_y`` at the decay (see the module).
+    noise_gain : float or None
+        The fastest decay whose least-noise design has a certified ``gain_y`` of at most this.
     """
 
     intervals: tuple
@@ -129,6 +135,13 @@ class Options:
     step_policy: str
     scaling: str = "balance"
     gain_cap: float | None = None
+    noise: str = "default"
+    noise_gain: float | None = None
+
+    @property
+    def decay(self):
+        """The decay asked for: ``"max"``, or ``sqrt(1 - alpha)`` (:mod:`uiofmu.tradeoff` reads it)."""
+        return self.alpha if self.alpha == "max" else float(np.sqrt(1.0 - self.alpha))
 
     @property
     def step(self) -> float:
@@ -185,8 +198,13 @@ def parse_options(table, plant) -> Options:
         raise ProblemError(f"observer.h_prev0: {h_prev0:g} s is not one of the intervals "
                            f"{', '.join(f'{h:g}' for h in intervals)} s")
     policy = table.choice("step_policy", STEP_POLICIES, "error")
+    noise = table.choice("noise", NOISE_OBJECTIVES, "default")
+    noise_gain = table.scalar("noise_gain", None, low=0.0, open_low=True)
+    if noise_gain is not None and alpha != "max":
+        raise ProblemError(f"observer.noise_gain = {noise_gain:g} asks for the fastest decay whose certified gain_y "
+                           f"is at most {noise_gain:g}: leave observer.alpha unset (or \"max\"), found {alpha!r}")
     return Options(intervals, alpha, xhat0, h_prev0, policy, table.choice("scaling", SCALINGS, "balance"),
-                   table.scalar("gain_cap", None, low=0.0, open_low=True))
+                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise, noise_gain)
 
 
 def _per_interval(conds: list[Condition], name: str, intervals) -> Condition:
@@ -688,6 +706,9 @@ DECAY_FLOOR_NOTE = ("the largest sampled zero, or (p = q) the fixed error's deca
 def lmi_size(plant, intervals: int, method: str) -> dict:
     """The size of the LMIs of a design method (``"lmi"``: (15)-(16); on ker C: the reduced LMIs)."""
     n, p, N = plant.n, plant.p, intervals
+    if method == NOISE_METHOD:
+        return {"lmis": 2 * N * N, "lmi_dim": 2 * n, "normalisation_lmis": N, "equalities": 0,
+                "scalar_variables": 1 + N * n * (n + 1) + N * n * n + N * N * n * p}
     if method != "lmi":
         return {"lmis": N * N, "lmi_dim": 2 * (n - p), "normalisation_lmis": 2 * N, "equalities": 0,
                 "scalar_variables": 1 + N * (n - p) * (n - p + 1) // 2}
@@ -705,7 +726,8 @@ def figures_of(problem, card_data: dict, analysis: Analysis) -> dict:
     rtol = eigen_rtol(n)
     size = max(float(np.linalg.norm(s.A, 2)) for s in analysis.data["samples"])
     method = card_data.get("design_method")
-    methods = ("lmi", "lmi on ker C (p = q)") if plant.p == plant.q and n > plant.p else ("lmi",)
+    methods = (("lmi", "lmi on ker C (p = q)") if plant.p == plant.q and n > plant.p else ("lmi",)) + (
+        (NOISE_METHOD,) if opts.noise == "min" or opts.noise_gain is not None else ())
     N = np.asarray(card_data["matrices"]["N"], dtype=float)
     zeros = analysis.existence.value("stable sampled invariant zeros", "per_interval")
     return {"alpha_limit_from_zeros": Determined(1.0 - zmax * zmax, 1.0, rtol),
@@ -835,6 +857,57 @@ def _attempts(samples, C, t, plant, gain_cap: float | None = None):
         yield method, system, matrices_at
 
 
+def noise_options(opts: Options, decay, noise: str) -> Options:
+    """These options at another decay (a number, given as ``alpha = 1 - decay^2``, or ``"max"``) with the noise
+    objective ``noise``, for :mod:`uiofmu.tradeoff`: no ``noise_gain``."""
+    alpha = decay if decay == "max" else 1.0 - float(decay) ** 2
+    return replace(opts, alpha=alpha, noise=noise, noise_gain=None)
+
+
+#: The ``K_i`` a least-noise design keeps: the least-norm ``E_i (C E_i)^+``, and the default design's.
+NOISE_K = ("least-norm K_i = E_i (C E_i)^+", "the default design's K_i")
+
+
+def _noise_runtime(samples, C, K, values: dict) -> dict:
+    """The runtime's matrices of a point of the least-noise LMIs: :func:`observer_matrices` of
+    ``Pl_i = S_i`` (the decay's Lyapunov matrices), ``S_i = Pl_i K_i`` and ``Q_ij = Pl_i H_ij``."""
+    N = len(samples)
+    Pl = [np.asarray(values[f"S{i}"], dtype=float) for i in range(N)]
+    v = {**{f"Pl{i}": Pl[i] for i in range(N)}, **{f"S{i}": Pl[i] @ K[i] for i in range(N)},
+         **{f"Q{i}_{j}": Pl[i] @ pair_noise_gain(values, i, j) for i in range(N) for j in range(N)}}
+    return observer_matrices(v, samples, C)
+
+
+def _noise_systems(samples, C, default: dict | None, sigma: float, opts: Options) -> list:
+    """The least-noise LMIs (:func:`uiofmu.noise.pair_noise_lmis`, ``PA_i = (I - K_i C) A_i``, ``Xy_j = K_j``,
+    one gain per pair of intervals) for each ``K`` of :data:`NOISE_K` (with ``gain_cap``, the default's only;
+    without a default design, the least-norm only), each point certified by :func:`checks` at the runtime's
+    matrices.
+
+    Returns
+    -------
+    list
+        ``(system, runtime, which)`` for each.
+    """
+    C = np.asarray(C, dtype=float)
+    least = [s.E @ np.linalg.pinv(C @ s.E) for s in samples]
+    out = []
+    choices = list(zip(NOISE_K, (least, None if default is None else list(np.asarray(default["K"], dtype=float)))))
+    for which, K in [c for c in choices[1 if opts.gain_cap is not None else 0:] if c[1] is not None]:
+        PA = [(np.eye(C.shape[1]) - K[i] @ C) @ s.A for i, s in enumerate(samples)]
+        system = pair_noise_lmis(NAME, PA, C, K, sigma, pair_gains=True, gain_cap=opts.gain_cap)
+        runtime = (lambda K: lambda v: _noise_runtime(samples, C, K, v))(K)
+        system.certify = (lambda rt: lambda v, prm: all(c.holds for c in checks(rt(v), float(np.sqrt(prm["lam2"])))))(
+            runtime)
+        out.append((system, runtime, which))
+    return out
+
+
+def _gain_y(matrices: dict):
+    """The card's certified ``gain_y`` at these matrices (every sequence of design intervals)."""
+    return certified(*error_system(matrices), switched=True)[0]
+
+
 def design(problem, analysis: Analysis) -> DesignResult:
     """Design the sampled-data UIO (Corollary 2)."""
     existence, samples, zmax = analysis.existence, analysis.data["samples"], analysis.data["decay_floor"]
@@ -858,11 +931,37 @@ def design(problem, analysis: Analysis) -> DesignResult:
     alpha, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
     matrices = matrices_at(sol.values)
+    decay, digits, noise_design = float(np.sqrt(1.0 - alpha)), figure_digits(sol), None
+    coordinates = ("recentred: ker C in the coordinates where the mean Lyapunov matrix of a point the re-check "
+                   "refused is the identity (the point mapped back and re-checked)" if system.recentred
+                   else "as scaled")
+    if opts.noise == "min" or opts.noise_gain is not None:    # the least noise gain: uiofmu.noise.least_noise_design
+        built, lmi = [], system
+
+        def candidates(default, sigma):
+            out = _noise_systems(samples, C, default, sigma, opts)
+            built.extend(c[0] for c in out)
+            return out
+
+        def default_at(rho):
+            at = lmi.solve(c=rho * rho)
+            return (at, matrices_at(at.values)) if at.verified else None
+
+        lam, least, noise_design = least_noise_design(
+            {"default_at": default_at, "candidates": candidates, "gain": _gain_y}, decay, opts.alpha == "max",
+            opts.noise_gain, (sol, matrices), problem.name)
+        system = (lmi, *built)
+        decay, alpha = lam, (1.0 - lam * lam if opts.alpha == "max" else alpha)   # the default certifies there too
+        if least is not None:
+            sol, matrices, which = least
+            if which == "default":
+                digits = figure_digits(sol)
+            else:
+                method, digits, coordinates = NOISE_METHOD, UNDETERMINED, "the plant's"
     Pl = list(matrices["Pl"])
     if not existence.holds("rank(C E(h)) = q"):
         for k in ("Dy", "Yx", "Yu", "Yc"):
             matrices.pop(k)
-    decay = float(np.sqrt(1.0 - alpha))
     cert = certificate(sol, checks(matrices, decay), f"{NAME} design of {problem.name}")
     zeros = existence.value("stable sampled invariant zeros", "per_interval")
     diagonal = matrices["N"][np.arange(N), np.arange(N)]            # L_ii: a constant interval
@@ -871,7 +970,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "alpha": alpha,
         "decay_bound": decay,
         "overshoot_bound": overshoot(Pl),
-        "overshoot_digits": figure_digits(sol),
+        "overshoot_digits": digits,
         "bound": BOUND,
         "intervals": list(opts.intervals),
         "alpha_limit_from_zeros": limit,
@@ -882,9 +981,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "search": searched,
         "design_method": method,
         "scaling": scaling_data(t if method == "lmi" else np.ones(n), opts.scaling),
-        "lmi_coordinates": ("recentred: ker C in the coordinates where the mean Lyapunov matrix of a point the "
-                            "re-check refused is the identity (the point mapped back and re-checked)"
-                            if system.recentred else "as scaled"),
+        **({} if noise_design is None else {"noise_design": noise_design}),
+        "lmi_coordinates": coordinates,
         "spectral_radius_max": float(np.abs(np.linalg.eigvals(matrices["N"])).max()),
         "eigenvalues_L_constant": [complex_list(e) for e in np.linalg.eigvals(diagonal)],
     }

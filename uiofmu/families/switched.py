@@ -32,15 +32,27 @@ eigenvalue of the pairs ``(At_i, Ct_i)`` (which no gain moves) and 1.
 Dead-beat: when every ``Ct_i`` has rank n, ``Kt_i = At_i Ct_i^+`` gives ``Phi_i = 0``; it is unique
 when ``Ct_i`` is square (seed 002's setup 2). The certificate is then ``||e_{k+1}|| <= ||Phi_i|| ||e_k||``
 at the stored matrices: decay bound ``max_i ||Phi_i||`` (round-off), overshoot 1.
+
+Least noise gain (``observer.noise = "min"``, ``observer.noise_gain``): the error from output noise ``v`` is
+``eps+ = Phi_i eps - L_ij v``, ``e = eps - Q_j v`` with ``L_ij = K_i + Phi_i Q_j``, bilinear in ``Y_j`` (in
+``Q_j``) and ``Kt_i``: the least-noise design fixes ``Q_i`` (the least-norm ``Q0_i``, ``Y_i = 0``, or the default
+design's) and frees ``K_i``: with ``PA_i = P_i A_i`` and ``Xy_j = Q_j`` the LMIs of
+:func:`uiofmu.noise.pair_noise_lmis` (for every pair the decay LMI, ``Phi_i' S_i Phi_i < lambda^2 S_j`` as the
+certificate re-checks it, and the poly-quadratic bounded real lemma the card's ``gain_y`` re-checks, with a slack
+``G_i`` per mode and ``K_i = G_i^-1 F_i``). Its points are accepted only where :func:`checks` hold at the runtime's
+matrices, and kept only where the certified gain is below the default design's
+(:func:`uiofmu.noise.least_noise_design`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
-from ..certificate import (EPS, FIGURE_DIGITS, Check, certificate, decay_check, figure_digits, identity_check,
+from ..certificate import (EPS, FIGURE_DIGITS, UNDETERMINED, Check, certificate, decay_check, figure_digits,
+                           identity_check,
                            lyapunov_check, overshoot, overshoot_check, positive_check, round_up)
 from ..gains import cap_lmis, two_norms
 from ..consistency import Determined, computed_values, dhat_record, eigen_rtol, spectrum
@@ -52,7 +64,8 @@ from ..runtime.errors import ProblemError
 from ..runtime.tolerances import RANK_RTOL, SEARCH_TOL, ZERO_MARGIN
 from ..structure import kernel_maps, product_radius, rank, unobservable_modes
 from ..switched_plant import as_switched
-from ..noise import certified, pair_error_system, recheck, section as noise_section
+from ..noise import (NOISE_METHOD, NOISE_OBJECTIVES, certified, least_noise_design,
+                     pair_error_system, pair_noise_gain, pair_noise_lmis, recheck, section as noise_section)
 from . import Analysis, DesignResult
 
 NAME = "switched"
@@ -84,6 +97,10 @@ class Options:
     gain_cap : float or None
         Bound on ``||Kt_i||_2 = ||[K_i, Y_i]||_2`` (:mod:`uiofmu.gains`), None for none; with a cap,
         ``method = "auto"`` designs dead-beat only where its gains are within the cap.
+    noise : {"default", "min"}
+        ``"min"``: the gains ``K_i`` that minimise ``gain_y`` at the decay (see :func:`_noise_lmis`).
+    noise_gain : float or None
+        The fastest decay whose least-noise design has a certified ``gain_y`` of at most this.
     """
 
     decay: object
@@ -92,6 +109,8 @@ class Options:
     mode_prev0: int = 1
     method: str = "auto"
     gain_cap: float | None = None
+    noise: str = "default"
+    noise_gain: float | None = None
 
     @property
     def step(self) -> float:
@@ -110,8 +129,17 @@ def parse_options(table, plant) -> Options:
     if table.has("dt"):
         raise ProblemError(f"observer.dt: a switched plant fixes the period (plant.dt = {plant.dt:g}); "
                            "remove observer.dt")
-    return Options(decay, plant.dt, xhat0, mode_prev0, table.choice("method", METHODS, "auto"),
-                   table.scalar("gain_cap", None, low=0.0, open_low=True))
+    method = table.choice("method", METHODS, "auto")
+    noise = table.choice("noise", NOISE_OBJECTIVES, "default")
+    noise_gain = table.scalar("noise_gain", None, low=0.0, open_low=True)
+    if (noise == "min" or noise_gain is not None) and method == "deadbeat":
+        raise ProblemError('observer.noise: the least noise gain is designed with the LMI (the dead-beat gains are '
+                           'fixed): use method = "auto" or "lmi"')
+    if noise_gain is not None and decay != "max":
+        raise ProblemError(f"observer.noise_gain = {noise_gain:g} asks for the fastest decay whose certified gain_y "
+                           f"is at most {noise_gain:g}: leave observer.decay unset (or \"max\"), found {decay!r}")
+    return Options(decay, plant.dt, xhat0, mode_prev0, method, table.scalar("gain_cap", None, low=0.0, open_low=True),
+                   noise, noise_gain)
 
 
 @dataclass(frozen=True)
@@ -420,6 +448,58 @@ def _closed_form(lam: float, status: str) -> LmiSolution:
     return LmiSolution({}, {"lam2": lam * lam}, status, {}, True, 0.0, 0.0)
 
 
+def _noise_runtime(modes, Q, values: dict, C, has_dhat: bool) -> dict:
+    """The card's matrices of a point of the least-noise LMIs (:func:`uiofmu.noise.pair_noise_lmis` with
+    ``PA_i = P_i A_i``, ``Xy_j = Q_j``, ``H_i = K_i``): ``Y_i = (Q_i - Q0_i) U_i``, ``K_i = G_i^-1 F_i``, and the
+    Lyapunov matrices ``S``."""
+    Kt = [np.hstack([pair_noise_gain(values, i), (Q[i] - md.Q0) @ md.U]) for i, md in enumerate(modes)]
+    mats = _runtime(modes, Kt, C, has_dhat)
+    mats["S"] = np.array([0.5 * (values[f"S{i}"] + values[f"S{i}"].T) for i in range(len(modes))])
+    return mats
+
+
+#: The ``Q_i`` a least-noise design keeps: the least-norm ``Q0_i = E_i (C E_i)^+`` (``Y_i = 0``), and the default
+#: design's (whose ``Y_i`` its decay may need).
+NOISE_Q = ("least-norm Q0_i (Y_i = 0)", "the default design's Q_i")
+
+
+def _noise_systems(modes, default: dict | None, sigma: float, C, has_dhat: bool, opts: Options) -> list:
+    """The least-noise LMIs for each ``Q`` of :data:`NOISE_Q` (with ``gain_cap``, the default's only: ``Q0``'s
+    ``Y_i = 0`` is not capped; without a default design, ``Q0`` only), compiled once for any decay, each point
+    certified by the certificate's checks at the runtime's matrices.
+
+    Returns
+    -------
+    list
+        ``(system, runtime, which)`` for each, ``runtime`` the card's matrices of a point.
+    """
+    out = []
+    choices = list(zip(NOISE_Q, ([md.Q0 for md in modes], None if default is None else
+                                 [np.asarray(q, dtype=float) for q in default["Q"]])))
+    choices = [c for c in choices[1 if opts.gain_cap is not None else 0:] if c[1] is not None]
+    for which, Q in choices:
+        C = np.asarray(C, dtype=float)
+        PA = [(np.eye(C.shape[1]) - Q[i] @ C) @ md.A for i, md in enumerate(modes)]
+        system = pair_noise_lmis(NAME, PA, C, Q, sigma, gain_cap=opts.gain_cap)
+        runtime = partial(_noise_runtime, modes, Q, C=C, has_dhat=has_dhat)
+        system.certify = (lambda rt: lambda v, prm: all(c.holds for c in checks(rt(v), float(np.sqrt(prm["lam2"])))))(
+            runtime)
+        out.append((system, runtime, which))
+    return out
+
+
+def _gain_y(mats: dict) -> float | None:
+    """The card's certified ``gain_y`` at these matrices (every switching sequence)."""
+    return certified(*error_system(mats), switched=True)[0]
+
+
+def noise_options(opts: Options, decay, noise: str) -> Options:
+    """These options at another ``decay`` with the noise objective ``noise``, for :mod:`uiofmu.tradeoff`: no
+    ``noise_gain``, and the LMI (the dead-beat gains have no freedom)."""
+    method = "lmi" if opts.method == "deadbeat" or noise == "min" else opts.method
+    return Options(decay, opts.dt, opts.xhat0, opts.mode_prev0, method, opts.gain_cap, noise, None)
+
+
 def design(problem, analysis: Analysis) -> DesignResult:
     """Design the switched UIO: dead-beat where possible (``method = "auto"``), else LMI (16)."""
     plant, opts = as_switched(problem.plant), problem.options
@@ -435,7 +515,10 @@ def design(problem, analysis: Analysis) -> DesignResult:
     searched = None
     if deadbeat and opts.method == "auto" and opts.gain_cap is not None:   # the gains gain_figures caps: K_i
         deadbeat = float(two_norms([_runtime(modes, _deadbeat(modes), C, has_dhat)["K"]]).max()) <= opts.gain_cap
-    if deadbeat and opts.method != "lmi":
+    noisy = opts.noise == "min" or opts.noise_gain is not None
+    if noisy and opts.method == "deadbeat":                                # options made in code, unparsed
+        raise ProblemError('observer.noise: the least noise gain is designed with the LMI: use method = "auto"')
+    if deadbeat and opts.method != "lmi" and not noisy:
         mats = _runtime(modes, _deadbeat(modes), C, has_dhat)
         norm = float(np.linalg.norm(mats["Phi"], 2, axis=(-2, -1)).max())
         # Phi_i = 0 in exact arithmetic: its computed norm is rounding, so the bound is the rounding
@@ -461,6 +544,27 @@ def design(problem, analysis: Analysis) -> DesignResult:
         mats = _lmi_runtime(modes, sol.values, C, has_dhat)
         bound, digits = overshoot(mats["S"]), figure_digits(sol)
         method, solver = "lmi", "CLARABEL"
+    noise_design = None
+    if noisy:                                          # the least noise gain: uiofmu.noise.least_noise_design
+        built, lmi = [], system
+
+        def candidates(default, sigma):
+            out = _noise_systems(modes, default, sigma, C, has_dhat, opts)
+            built.extend(c[0] for c in out)
+            return out
+
+        def default_at(rho):
+            at = lmi.solve(lam2=rho * rho)
+            return (at, _lmi_runtime(modes, at.values, C, has_dhat)) if at.verified else None
+
+        lam, least, noise_design = least_noise_design(
+            {"default_at": default_at, "candidates": candidates, "gain": _gain_y}, lam, opts.decay == "max",
+            opts.noise_gain, (sol, mats), problem.name)
+        system = (lmi, *built)
+        if least is not None:
+            sol, mats, which = least
+            bound = overshoot(mats["S"])
+            digits, method = (figure_digits(sol), "lmi") if which == "default" else (UNDETERMINED, NOISE_METHOD)
     cert = certificate(sol, checks(mats, lam), f"{NAME} design of {problem.name}", solver=solver)
     results = {
         "noise": noise_of(mats),
@@ -475,8 +579,9 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "spectral_radius_Phi": [float(np.abs(np.linalg.eigvals(F)).max()) for F in mats["Phi"]],
         "search": searched,
         "design_method": method,
+        **({} if noise_design is None else {"noise_design": noise_design}),
     }
     return DesignResult(plant.n, plant.dt, _schedule(plant, opts), mats, cert, results, system, opts.xhat0)
 
 
-__all__ = ["NAME", "Options", "analyse", "checks", "design", "determined", "parse_options", "verify"]
+__all__ = ["NAME", "Options", "analyse", "checks", "design", "determined", "noise_options", "parse_options", "verify"]

@@ -1,0 +1,181 @@
+"""Least-noise designs of the sampled-data and switched families: ``observer.noise = "min"`` never raises the
+certified ``gain_y`` at the decay asked for and lowers it where the default design leans on a weak output;
+``observer.noise_gain`` gives the fastest decay within the gain; ``uiofmu tradeoff`` draws both families; ltv-auid
+refuses the keys with its reason. Every card is re-checked from its JSON (the gain by the bounded real lemma at
+the stored matrices)."""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+import math
+
+import pytest
+
+import uiofmu
+from uiofmu.noise import NOISE_GAIN_RESOLUTION, NOISE_GAIN_SLOWEST
+from uiofmu.problem import problem_from_data
+from uiofmu.runtime.card import card_from_data
+from uiofmu.synthesis import recheck
+
+#: A weak first output (entries near 1e-2) beside a strong one, one unknown input: the default designs read the
+#: weak output with large gains.
+WEAK_C = [[0.01, 0.0, 0.02, 0.01], [1.0, 0.5, -0.5, 1.0]]
+
+#: A continuous plant for the sampled-data family (intervals 0.1 s and 0.2 s).
+SAMPLED = {"time": "continuous", "C": WEAK_C, "E": [[1.0], [0.0], [0.2], [0.5]], "x0": [0.0] * 4,
+           "A": [[-1.0, 0.5, 0.2, 0.0], [0.0, -0.5, 1.0, 0.3], [0.2, 0.0, -2.0, 0.5], [0.1, 0.3, 0.0, -1.5]]}
+
+#: A two-mode switched plant with a weak output.
+SWITCHED = {"time": "discrete", "dt": 0.1, "E": [[1.457], [-0.053], [-0.054], [0.512]], "x0": [0.0] * 4,
+            "C": [[-0.021, -0.011, 0.021, 0.014], [-1.159, 0.833, -0.59, -1.056]],
+            "modes": [{"A": [[-0.401, -0.5, 0.236, -0.336], [-0.202, -0.139, 0.213, -0.162],
+                             [0.111, -0.071, -0.338, -0.128], [-0.38, 0.003, -0.45, -0.437]]},
+                      {"A": [[-0.301, -0.5, 0.236, -0.336], [-0.202, -0.239, 0.213, -0.162],
+                             [0.111, -0.071, -0.238, -0.128], [-0.38, 0.103, -0.45, -0.437]]}],
+            "switching": {"rule": "random", "seed": 1}}
+
+
+def _sampled(**observer):
+    return uiofmu.design(problem_from_data({"name": "sampled", "plant": copy.deepcopy(SAMPLED), "observer": {
+        "family": "sampled-data", "intervals": [0.1, 0.2], **observer}}))
+
+
+def _switched(**observer):
+    return uiofmu.design(problem_from_data({"name": "switched", "plant": copy.deepcopy(SWITCHED), "observer": {
+        "family": "switched", "method": "lmi", **observer}}))
+
+
+def _at(family, decay: float, **observer):
+    """A card of ``family`` at ``decay`` (the sampled-data family asks for it as ``alpha = 1 - decay^2``)."""
+    return _sampled(alpha=1.0 - decay * decay, **observer) if family is _sampled else family(decay=decay, **observer)
+
+
+def _rechecked(card):
+    """The card read back from its JSON and re-checked (raises where a check fails)."""
+    back = card_from_data(json.loads(card.to_json()))
+    recheck(back)
+    return back
+
+
+@pytest.mark.parametrize("family, decays", [(_sampled, (0.95, 0.9, 0.8366600265340756)),
+                                            (_switched, (0.9, 0.6, 0.4))])
+def test_noise_min_never_raises_the_gain_at_the_same_decay(family, decays):
+    for decay in decays:
+        default, least = _at(family, decay), _at(family, decay, noise="min")
+        assert least.data["decay_bound"] == default.data["decay_bound"]
+        assert least.data["noise"]["gain_y"] <= default.data["noise"]["gain_y"], decay
+        assert least.data["noise_design"]["default_gain_y"] == default.data["noise"]["gain_y"]
+        _rechecked(least)
+
+
+@pytest.mark.parametrize("family, decay, factor", [(_sampled, 0.8366600265340756, 20), (_switched, 0.6, 20)])
+def test_noise_min_lowers_a_gain_that_leans_on_a_weak_output(family, decay, factor):
+    """Measured: sampled-data 2310 -> 84.5 at alpha = 0.3 (decay 0.837); switched 32.7 -> 0.827 at decay 0.6."""
+    default, least = _at(family, decay), _at(family, decay, noise="min")
+    assert least.data["noise"]["gain_y"] * factor < default.data["noise"]["gain_y"]
+    assert least.data["noise_design"]["kept"] == "least noise"
+    assert least.data["design_method"] == "lmi (least noise gain)" and least.data["certificate"]["verified"]
+    assert _rechecked(least).data["noise"]["gain_y"] == least.data["noise"]["gain_y"]
+
+
+@pytest.mark.parametrize("family, goal", [(_sampled, 5.0), (_switched, 1.0)])
+def test_noise_gain_asks_for_the_fastest_decay_within_it(family, goal):
+    """The card's certified gain is at most G, and the decay one step of the search faster has, by an
+    independent least-noise design there, a larger certified gain (or none)."""
+    fastest = family().data["decay_bound"]
+    card = family(noise_gain=goal)
+    rho, record = card.data["decay_bound"], card.data["noise_design"]
+    assert card.data["noise"]["gain_y"] <= goal and record["noise_gain"] == goal
+    assert fastest < rho < 1.0 and card.data["design_method"] == "lmi (least noise gain)"
+    _rechecked(card)
+    faster = max(d for d, _ in record["search"]["tried"] if d < rho)
+    assert rho - faster <= (1.0 - fastest) * NOISE_GAIN_RESOLUTION * 1.0000001
+    try:
+        beyond = _at(family, faster, noise="min").data["noise"]["gain_y"]
+    except uiofmu.InfeasibleError:
+        beyond = math.inf
+    assert beyond > goal, (faster, beyond)
+
+
+def test_a_noise_gain_out_of_reach_or_with_a_decay_is_refused_with_its_numbers():
+    with pytest.raises(uiofmu.InfeasibleError, match=r"noise_gain = 0.5: the slowest decay tried, 0\.99.*has "
+                                                     r"certified gain_y ([0-9.]+) .*ask for noise_gain >= \1"):
+        _sampled(noise_gain=0.5)
+    assert 1.0 - NOISE_GAIN_SLOWEST > 0
+    with pytest.raises(uiofmu.ProblemError, match=r"noise_gain = 2 asks for the fastest decay.*alpha"):
+        _sampled(noise_gain=2.0, alpha=0.3)
+    with pytest.raises(uiofmu.ProblemError, match=r"noise_gain = 2 asks for the fastest decay.*decay"):
+        _switched(noise_gain=2.0, decay=0.5)
+    with pytest.raises(uiofmu.ProblemError, match='observer.noise: the least noise gain is designed with the LMI'):
+        _switched(noise="min", method="deadbeat")
+
+
+def test_ltv_auid_refuses_a_least_noise_design_with_its_reason(example1_path):
+    import tomllib
+
+    data = tomllib.loads((example1_path.parent / "seed000_example1_ltv.toml").read_text())
+    for key, value in (("noise", "min"), ("noise_gain", 2.0)):
+        bad = copy.deepcopy(data)
+        bad["observer"][key] = value
+        with pytest.raises(uiofmu.ProblemError, match=f"observer.{key} = .*no least-noise form: its contraction is "
+                                                      "set by eta and mu"):
+            problem_from_data(bad)
+
+
+@pytest.mark.parametrize("name, plant, observer", [
+    ("sampled", SAMPLED, '[observer]\nfamily = "sampled-data"\nintervals = [0.1, 0.2]\nalpha = 0.3\n'),
+    ("switched", SWITCHED, '[observer]\nfamily = "switched"\nmethod = "lmi"\ndecay = 0.6\n')])
+def test_the_tradeoff_draws_certified_gains_for_both_families(tmp_path, cli, name, plant, observer):
+    """``uiofmu tradeoff``: a png and a CSV whose every point is a certified design, the least-noise gain never
+    above the default's."""
+    problem = tmp_path / f"{name}.toml"
+    problem.write_text(_toml(name, plant) + observer)
+    res = cli("tradeoff", problem, "-o", tmp_path / "t.png", "--points", "3")
+    assert res.code == 0, res.err
+    assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with open(tmp_path / "t.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 3
+    for row in rows:
+        default, least = float(row["gain_y_default"]), float(row["gain_y_least_noise"])
+        assert 0 < least <= default, row
+
+
+def _toml(name: str, plant: dict) -> str:
+    """``plant`` as the TOML of a problem file (its ``[plant]`` and, for a switched plant, its modes)."""
+    value = lambda v: ("[" + ", ".join(value(x) for x in v) + "]" if isinstance(v, list)      # noqa: E731
+                       else f'"{v}"' if isinstance(v, str) else repr(v))
+    text = f'name = "{name}"\n[plant]\n' + "".join(f"{k} = {value(v)}\n" for k, v in plant.items()
+                                                   if k not in ("modes", "switching"))
+    for mode in plant.get("modes", []):
+        text += "[[plant.modes]]\n" + "".join(f"{k} = {value(v)}\n" for k, v in mode.items())
+    if "switching" in plant:
+        text += "[plant.switching]\n" + "".join(f"{k} = {value(v)}\n" for k, v in plant["switching"].items())
+    return text
+
+
+def test_the_sampled_data_example_designs_its_least_noise_gain(cli, tmp_path):
+    """``examples/noise_sampled_data.toml``: noise = "min" at alpha = 0.3 keeps the least-noise design, its gain
+    below a twentieth of the default's, and ``uiofmu verify`` re-checks the card against its problem."""
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "noise_sampled_data.toml"
+    card = uiofmu.design(uiofmu.load_problem(path))
+    record = card.data["noise_design"]
+    assert record["kept"] == "least noise" and card.data["noise"]["gain_y"] * 20 < record["default_gain_y"]
+    (tmp_path / "card.json").write_text(card.to_json())
+    res = cli("verify", tmp_path / "card.json")
+    assert res.code == 0, res.err
+
+
+@pytest.mark.parametrize("family", [_sampled, _switched])
+def test_noise_min_at_the_fastest_decay_moves_it_and_certifies_there(family):
+    """With the fastest decay asked for, the card's decay is 10 % of the way from it to 1 (the default point
+    certifies there too, where no least-noise point is below it), its gain no more than the fastest design's."""
+    fastest, least = family(), family(noise="min")
+    rho = fastest.data["decay_bound"]
+    assert least.data["decay_bound"] == pytest.approx(rho + 0.1 * (1 - rho), rel=1e-9)
+    assert least.data["noise"]["gain_y"] <= fastest.data["noise"]["gain_y"]
+    _rechecked(least)
