@@ -87,6 +87,8 @@ QUARTER_CAR_LTV = {"family": "ltv-auid", "dt": 0.01, "alpha": 0.95, "eta": 0.3, 
 
 EXAMPLES = (
     Example("seed000-example1", "examples/seed000_example1.toml"),
+    Example("accelerometer-feedthrough", "examples/accelerometer_feedthrough.toml"),
+    Example("pole-placement", "examples/pole_placement.toml"),
     Example("seed000-example1-ltv", "examples/seed000_example1_ltv.toml"),
     Example("two-room-building", "plants/two_room_building/problem.toml"),
     Example("quarter-car", "plants/quarter_car/problem.toml"),
@@ -710,6 +712,19 @@ def _master(observer: Row, plant: Row, paths: dict, card):
     return ours
 
 
+def feeds_through(card) -> bool:
+    """Whether the plant of ``card`` feeds its inputs straight to ``y`` (a nonzero ``D`` or ``F`` in its problem's
+    ``[plant]``).
+
+    ecospy reads the plant's outputs after each step and sets the next inputs before the next, so the observer
+    gets ``y_k`` with the previous ``u`` and ``d`` where they feed through (and ``ydot`` with the previous ``u``
+    for a delayed observer, :attr:`uiofmu.cosim.kernels.CosimKernel.ecospy_exact`): the run is not our master's
+    and is recorded as ``ran``, not compared.
+    """
+    plant = (card.data.get("problem") or {}).get("plant") or {}
+    return any(np.any(np.asarray(plant.get(key, 0.0), dtype=float)) for key in ("D", "F"))
+
+
 def _ecospy(observer: Row, plant: Row, paths: dict, card, ours) -> str:
     """ecospy on one pair, compared with our master's run ``ours``: ``equal``, ``ran`` or ``not run``."""
     from .cosim.importers import import_ecospy, run_ecospy
@@ -729,7 +744,7 @@ def _ecospy(observer: Row, plant: Row, paths: dict, card, ours) -> str:
         raise RuntimeError("the estimate is not finite or never moved")
     if T.shape != ours.times.shape or not np.allclose(T, ours.times, rtol=1e-12, atol=0.0):
         raise RuntimeError(f"its clock differs from our master's (last point {T[-1]!r}, ours {ours.times[-1]!r})")
-    if not kernel.ecospy_exact:          # ydot reaches the observer with the previous u in ecospy
+    if not (kernel.ecospy_exact and not feeds_through(card)):
         return "ran"
     mine = kernel.estimate_of(ours)
     for name, a, b in (("x", X, ours.x), (estimate, E, mine)):
