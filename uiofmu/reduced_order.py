@@ -33,7 +33,9 @@ re-check at the stored matrices. The error ``eps = Zx x - z`` obeys ``eps+ = N e
 so the card's ``overshoot_bound`` is ``sqrt(cond X) ||Zx||_2`` (rounded up), the bound of every lti-uio card.
 The fixed modes of ``(Ar, Cr)`` are those of the full-order observer (the stable invariant zeros): the
 conditions are the family's. Measurement noise ``v`` (``y = C x + v``) enters as ``eps+ = N eps - L v``,
-``e = Xz eps - Xy v``; process noise ``W w`` as ``eps+ = N eps + Zx W w``, ``e = Xz eps``.
+``e = Xz eps - Xy v``; process noise ``W w`` as ``eps+ = N eps + Zx W w``, ``e = Xz eps``: the error systems of
+the full-order observer (``Zx = P``, ``Xz = I``), which :func:`uiofmu.families.lti_uio.error_system` and its
+siblings write for both.
 """
 
 from __future__ import annotations
@@ -123,29 +125,6 @@ def overshoot_check(claimed, matrices: dict) -> Check:
     need = overshoot(np.asarray(matrices["X"], dtype=float)) * float(np.linalg.norm(np.asarray(matrices["Zx"]), 2))
     value = float(claimed) if isinstance(claimed, (int, float)) else float("nan")
     return Check("overshoot_bound (needs >= sqrt(cond X) ||Zx||)", value, need, at_most=False)
-
-
-def error_system(matrices: dict) -> tuple:
-    """Measurement noise ``v``: ``eps+ = N eps - L v``, ``e = Xz eps - Xy v``."""
-    N, L, Xz, Xy = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xz", "Xy"))
-    return N, -L, Xz, -Xy
-
-
-def process_error_system(matrices: dict) -> tuple:
-    """Process noise ``w``: ``eps+ = N eps + Zx W_sampled w``, ``e = Xz eps``."""
-    N, Zx, W, Xz = (np.asarray(matrices[k], dtype=float) for k in ("N", "Zx", "W_sampled", "Xz"))
-    return N, Zx @ W, Xz, np.zeros((Xz.shape[0], W.shape[1]))
-
-
-def dhat_error_system(matrices: dict) -> tuple:
-    """Measurement noise to the error of ``dhat`` (``dhat_k - d_k = Dy (Yx e_k + v_(k+1))``, shifted by one step as
-    :func:`uiofmu.families.lti_uio.dhat_error_system`): state ``(eps, v)``."""
-    N, L, Xz, Xy, Dy, Yx = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xz", "Xy", "Dy", "Yx"))
-    nz, p = L.shape
-    A = np.block([[N, -L], [np.zeros((p, nz)), np.zeros((p, p))]])
-    B = np.vstack([np.zeros((nz, p)), np.eye(p)])
-    DyYx = Dy @ Yx
-    return A, B, np.hstack([DyYx @ Xz, -DyYx @ Xy]), Dy
 
 
 def _tuned(red: dict, largest: float, opts, name: str, certify, family):

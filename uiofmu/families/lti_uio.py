@@ -524,17 +524,23 @@ def verify(card) -> list:
 
 def error_system(matrices: dict) -> tuple:
     """The error system from measurement noise ``v`` (``y = C x + v``) at the stored matrices:
-    ``eps+ = N eps - L v``, ``e = eps - Xy v``, with ``eps = P x - z`` (``PA - NP - LC = 0``, ``PE = 0`` and
-    ``Xz = I``, which :func:`checks` re-checks; the known input and the affine term cancel as in ``e+ = N e``)."""
-    g = {k: np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy")}
-    return g["N"], -g["L"], np.eye(len(g["N"])), -g["Xy"]
+    ``eps+ = N eps - L v``, ``e = Xz eps - Xy v``, with ``eps = Zx x - z`` (``Zx = P`` and ``Xz = I`` for the
+    full-order observer; ``Zx A - N Zx - L C = 0``, ``Zx E = 0`` and ``Xz Zx + Xy C = I``, which :func:`checks` and
+    :func:`uiofmu.reduced_order.checks` re-check; the known input and the affine term cancel as in ``e+ = N e``)."""
+    N, L, Xz, Xy = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xz", "Xy"))
+    return N, -L, Xz, -Xy
+
+
+def _state_map(matrices: dict) -> np.ndarray:
+    """``Zx`` of ``eps = Zx x - z``: the stored ``Zx`` of the reduced observer, ``P`` of the full-order one."""
+    return np.asarray(matrices["Zx"] if "Zx" in matrices else matrices["P"], dtype=float)
 
 
 def process_error_system(matrices: dict) -> tuple:
-    """The error system from process noise ``w`` (``x+ = ... + W_sampled w``): ``eps+ = N eps + P W_sampled w``,
-    ``e = eps``."""
-    N, P, W = (np.asarray(matrices[k], dtype=float) for k in ("N", "P", "W_sampled"))
-    return N, P @ W, np.eye(len(N)), np.zeros((len(N), W.shape[1]))
+    """The error system from process noise ``w`` (``x+ = ... + W_sampled w``): ``eps+ = N eps + Zx W_sampled w``,
+    ``e = Xz eps`` (``Zx`` as in :func:`error_system`)."""
+    N, Xz, W = (np.asarray(matrices[k], dtype=float) for k in ("N", "Xz", "W_sampled"))
+    return N, _state_map(matrices) @ W, Xz, np.zeros((Xz.shape[0], W.shape[1]))
 
 
 def dhat_error_system(matrices: dict) -> tuple:
@@ -542,57 +548,47 @@ def dhat_error_system(matrices: dict) -> tuple:
 
     ``dhat_k = Dy (y_(k+1) - Yx xhat_k - Yu u_k - Yc)`` with ``Dy C E = I`` and ``Yx = C A`` gives
     ``dhat_k - d_k = Dy (Yx e_k + v_(k+1))``: it reads the next sample, so in the time ``j = k + 1`` its state is
-    ``(eps_(j-1), v_(j-1))``, with ``A = [[N, -L], [0, 0]]``, ``B = [0; I]``, ``C = Dy Yx [I, -Xy]``, ``D = Dy``
+    ``(eps_(j-1), v_(j-1))``, with ``A = [[N, -L], [0, 0]]``, ``B = [0; I]``, ``C = Dy Yx [Xz, -Xy]``, ``D = Dy``
     (a shift by one step leaves l2 norms as they are).
     """
-    N, L, Xy, Dy, Yx = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy", "Dy", "Yx"))
-    n, p = L.shape
-    A = np.block([[N, -L], [np.zeros((p, n)), np.zeros((p, p))]])
-    B = np.vstack([np.zeros((n, p)), np.eye(p)])
+    N, L, Xz, Xy, Dy, Yx = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xz", "Xy", "Dy", "Yx"))
+    nz, p = L.shape
+    A = np.block([[N, -L], [np.zeros((p, nz)), np.zeros((p, p))]])
+    B = np.vstack([np.zeros((nz, p)), np.eye(p)])
     DyYx = Dy @ Yx
-    return A, B, np.hstack([DyYx, -DyYx @ Xy]), Dy
+    return A, B, np.hstack([DyYx @ Xz, -DyYx @ Xy]), Dy
 
 
 #: Why an lti-uio card has no process-noise gain.
 NO_W = "gain_w: the problem declares no process noise"
 
 
-def _systems(matrices: dict) -> tuple:
-    """The error systems (measurement noise, process noise, dhat) of a card's matrices: the reduced observer's
-    where the matrices hold ``Zx``."""
-    if "Zx" in matrices:
-        return (reduced_order.error_system, reduced_order.process_error_system, reduced_order.dhat_error_system)
-    return error_system, process_error_system, dhat_error_system
-
-
 def noise_checks(card_data: dict) -> list:
     """The re-check of the noise gains a card states, at its stored matrices."""
     noise, m = card_data.get("noise"), card_data["matrices"]
-    y_system, w_system, dhat_system = _systems(m)
-    out = recheck(noise, *y_system(m))
+    out = recheck(noise, *error_system(m))
     if isinstance(noise, dict) and noise.get("gain_w") is not None:
-        out += recheck(noise, *w_system(m), key="gain_w")
+        out += recheck(noise, *process_error_system(m), key="gain_w")
     if isinstance(noise, dict) and noise.get("gain_dhat_y") is not None:
-        out += recheck(noise, *dhat_system(m), key="gain_dhat_y")
+        out += recheck(noise, *dhat_error_system(m), key="gain_dhat_y")
     return out
 
 
 def noise_section(matrices: dict) -> dict:
     """The card's ``noise`` section (:mod:`uiofmu.noise`): ``gain_y``, and ``gain_w`` where the problem declares
     ``[plant] W``, each by the bounded real lemma at the stored matrices."""
-    y_system, w_system, dhat_system = _systems(matrices)
-    gain, extra, why = certified(*y_system(matrices))
+    gain, extra, why = certified(*error_system(matrices))
     reasons = [why] if why else []
     gain_w = None
     if matrices.get("W_sampled") is not None and np.shape(matrices["W_sampled"])[1]:
-        gain_w, extra_w, why_w = certified(*w_system(matrices), key="gain_w")
+        gain_w, extra_w, why_w = certified(*process_error_system(matrices), key="gain_w")
         extra.update(extra_w)
         reasons += [why_w] if why_w else []
     else:
         reasons.append(NO_W)
     gain_dhat = None
     if matrices.get("Dy") is not None:
-        gain_dhat, extra_dhat, why_dhat = certified(*dhat_system(matrices), key="gain_dhat_y")
+        gain_dhat, extra_dhat, why_dhat = certified(*dhat_error_system(matrices), key="gain_dhat_y")
         extra.update(extra_dhat)
         reasons += [why_dhat] if why_dhat else []
     return section(gain, "; ".join(reasons) or None, gain_w=gain_w, gain_dhat_y=gain_dhat, **extra)
