@@ -44,14 +44,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from .certificate import (UNDETERMINED, Check, certificate, decay_check, identity_check, lyapunov_check, magnitude,
-                          overshoot, positive_check)
+from .certificate import Check, decay_check, identity_check, lyapunov_check, magnitude, overshoot, positive_check
 from .decoupling import decoupling_gain
-from .existence import complex_list
 from .lmi import tune
 from .runtime.errors import InfeasibleError, ProblemError
 from .runtime.tolerances import SEARCH_TOL
-from .scaling import to_data as scaling_data
 from .structure import rank
 
 #: The relative room the stored ``overshoot_bound`` takes above ``sqrt(cond X) ||Zx||`` (rounding of the norms on
@@ -127,18 +124,18 @@ def overshoot_check(claimed, matrices: dict) -> Check:
     return Check("overshoot_bound (needs >= sqrt(cond X) ||Zx||)", value, need, at_most=False)
 
 
-def _tuned(red: dict, largest: float, opts, name: str, certify, family):
-    """The decay and its certificate on the reduced pair: the family's decay LMI (no state scaling: the pair's
-    coordinates are orthonormal ones of the plant's), or its Riccati gain (``method = "riccati"``, and the
-    fallback of ``"auto"``)."""
+def _tuned(red: dict, largest: float, opts, name: str, certify, lmis, riccati):
+    """The decay and its certificate on the reduced pair: the full-order design's decay LMI ``lmis`` (no state
+    scaling: the pair's coordinates are orthonormal ones of the plant's), or its Riccati gain ``riccati``
+    (``method = "riccati"``, and the fallback of ``"auto"``)."""
 
     Ar, Cr = red["A"], red["C"]
-    system = family._lmis(Ar, Cr, opts.gain_cap)
+    system = lmis(Ar, Cr, opts.gain_cap)
     system.certify = lambda v, prm: certify(v["X"], np.linalg.solve(0.5 * (v["X"] + v["X"].T), v["W"]),
                                             float(np.sqrt(prm["rho2"])))
     system.figure = lambda v: overshoot(v["X"])
     if opts.method == "riccati":
-        return family._riccati(Ar, Cr, float(opts.decay)), "riccati", system
+        return riccati(Ar, Cr, float(opts.decay)), "riccati", system
     try:
         tuned = tune(system, "rho2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
                      safe_end=1.0, tol=SEARCH_TOL, label=f"{name}: fastest decay", transform=lambda r: r * r,
@@ -151,18 +148,23 @@ def _tuned(red: dict, largest: float, opts, name: str, certify, family):
             raise
         rho = 0.5 * (1.0 + largest) if opts.decay == "max" else float(opts.decay)
         try:
-            return family._riccati(Ar, Cr, rho), "riccati (the LMI found no certificate)", system
+            return riccati(Ar, Cr, rho), "riccati (the LMI found no certificate)", system
         except (InfeasibleError, ValueError, np.linalg.LinAlgError) as fallback:
             raise type(exc)(f"{exc}; the solver-free fallback fails too: {fallback}") from None
 
 
-def design(problem, analysis, family):
-    """The reduced-order design of an lti-uio problem (module docstring): a :class:`~uiofmu.families.DesignResult`
-    whose ``nz`` is ``n - p``. ``family`` is the lti-uio module, whose decay LMI, Riccati gain, dhat matrices,
-    schedule and noise section the design reuses."""
-    from .families import DesignResult
+def design(problem, analysis, lmis, riccati) -> tuple:
+    """The reduced-order gain of an lti-uio problem (module docstring) and the card's matrices, by the full-order
+    design's decay LMI ``lmis(A, C, gain_cap)`` or Riccati gain ``riccati(A, C, rho)`` on the reduced pair (those
+    of :mod:`uiofmu.families.lti_uio`, which completes the card: its certificate by :func:`checks`, dhat, the noise
+    section).
 
-    existence, s, fixed = analysis.existence, analysis.data["sampled"], analysis.data["fixed"]
+    Returns
+    -------
+    tuple
+        ``(Tuned, design_method, LmiSystem, matrices)``, the point's values holding ``X`` and ``K`` of the pair.
+    """
+    s, fixed = analysis.data["sampled"], analysis.data["fixed"]
     plant, opts = problem.plant, problem.options
     if plant.feedthrough or opts.poles is not None or opts.noise != "default" or opts.noise_gain is not None:
         raise ProblemError('observer.order = "reduced" designs the decay LMI or the Riccati gain of a plant without '
@@ -175,30 +177,6 @@ def design(problem, analysis, family):
     def certify(X, K, rho):
         return all(c.holds for c in checks(runtime(s, C, M, red, X, K), rho))
 
-    tuned, method, system = _tuned(red, largest, opts, problem.name, certify, family)
-    rho, sol = tuned.value, tuned.solution
-    matrices = runtime(s, C, M, red, sol.values["X"], sol.values["K"])
-    cert = certificate(sol, checks(matrices, rho), f"{family.NAME} reduced-order design of {problem.name}",
-                       solver="CLARABEL" if method.startswith("lmi") else "none")
-    if existence.holds("rank(CE) = q"):
-        matrices.update({k: v.value for k, v in family._dhat(s, C).items()})
-    if plant.r:
-        matrices["W_sampled"] = plant.sampled_noise(opts.dt)
-    eigN = np.linalg.eigvals(matrices["N"])
-    results = {
-        "order": "reduced",
-        "decay": rho,
-        "decay_bound": rho,
-        "overshoot_bound": bound(matrices),
-        "overshoot_digits": UNDETERMINED,       # ||Zx|| reads the gain, which the LMI's optimum does not fix
-        "bound": family.BOUND,
-        "fixed_modes": complex_list(fixed),
-        "invariant_zeros": existence.value("stable invariant zeros", "zeros"),
-        "eigenvalues_N": complex_list(eigN),
-        "spectral_radius_N": float(np.abs(eigN).max()) if eigN.size else 0.0,
-        "search": tuned.search.to_data() if tuned.search else None,
-        "design_method": method,
-        "scaling": scaling_data(np.ones(plant.n), "none"),
-        "noise": family.noise_section(matrices),
-    }
-    return DesignResult(plant.n - plant.p, opts.dt, family._schedule(opts), matrices, cert, results, system, opts.xhat0)
+    tuned, method, system = _tuned(red, largest, opts, problem.name, certify, lmis, riccati)
+    values = tuned.solution.values
+    return tuned, method, system, runtime(s, C, M, red, values["X"], values["K"])

@@ -57,7 +57,6 @@ state from ``y``; the construction, its checks and its bound are in :mod:`uiofmu
 
 from __future__ import annotations
 
-import sys
 import warnings
 from dataclasses import dataclass, replace
 
@@ -891,12 +890,12 @@ def pole_checks(card_data: dict) -> list:
 
 def design(problem, analysis: Analysis) -> DesignResult:
     """Design the classical UIO: its gain, certificate and runtime matrices."""
-    existence, s, fixed = analysis.existence, analysis.data["sampled"], analysis.data["fixed"]
+    s, fixed = analysis.data["sampled"], analysis.data["fixed"]
     plant, opts = problem.plant, problem.options
     if plant.feeds_d and (opts.noise == "min" or opts.noise_gain is not None):    # options made in code, unparsed
         raise ProblemError(NO_NOISE_DESIGN_WITH_F)
     if opts.order == "reduced":
-        return reduced_order.design(problem, analysis, sys.modules[__name__])   # its LMI, Riccati gain, dhat
+        return _reduced(problem, analysis)
     C = plant.C
     M = decoupling_gain(C, s.E)
     pair = decoupled_pair(plant, s)
@@ -917,34 +916,73 @@ def design(problem, analysis: Analysis) -> DesignResult:
         rho, sol, system, method, noise_design = _noise_design(s, C, M, t, rho, sol, system, method, opts,
                                                                problem.name)
     matrices = pair.runtime(sol.values["X"], sol.values["K"])
-    X, N = matrices["X"], matrices["N"]
-    cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}",
-                       solver="CLARABEL" if method.startswith("lmi") else "none")
-    if not plant.feedthrough and existence.holds("rank(CE) = q"):
-        matrices.update({k: v.value for k, v in _dhat(s, C).items()})
-    if plant.r:
-        matrices["W_sampled"] = plant.sampled_noise(opts.dt)
-    eigN = np.linalg.eigvals(N)
+    cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}", solver=_solver(method))
     if placed is not None:
         digits = placed["overshoot_digits"]
     else:
         digits = UNDETERMINED if method == NOISE_METHOD else figure_digits(sol)
+    eigN = np.linalg.eigvals(matrices["N"])
+    extra = {**({} if noise_design is None else {"noise_design": noise_design}),
+             **({} if placed is None else {"poles": complex_list(_sorted(eigN)), "poles_placed": placed["placed"],
+                                           "placement": placed["record"]})}
+    figures = {"decay": rho, "overshoot_bound": overshoot(matrices["X"]), "overshoot_digits": digits,
+               "search": searched, "design_method": method,
+               "scaling": scaling_data(t if method.startswith("lmi") else np.ones(plant.n), opts.scaling)}
+    return _result(problem, analysis, plant.n, matrices, cert, system, figures, extra=extra)
+
+
+def _reduced(problem, analysis: Analysis) -> DesignResult:
+    """``observer.order = "reduced"``: the gain of the reduced pair by this family's decay LMI or Riccati gain
+    (:func:`uiofmu.reduced_order.design`), its certificate by :func:`uiofmu.reduced_order.checks` and bound by
+    :func:`uiofmu.reduced_order.bound`, and the rest of the card as the full-order observer's."""
+    tuned, method, system, matrices = reduced_order.design(problem, analysis, lmis=_lmis, riccati=_riccati)
+    rho, sol = tuned.value, tuned.solution
+    cert = certificate(sol, reduced_order.checks(matrices, rho), f"{NAME} reduced-order design of {problem.name}",
+                       solver=_solver(method))
+    figures = {"decay": rho, "overshoot_bound": reduced_order.bound(matrices),
+               "overshoot_digits": UNDETERMINED,       # ||Zx|| reads the gain, which the LMI's optimum does not fix
+               "search": tuned.search.to_data() if tuned.search else None, "design_method": method,
+               "scaling": scaling_data(np.ones(problem.plant.n), "none")}
+    return _result(problem, analysis, problem.plant.n - problem.plant.p, matrices, cert, system, figures,
+                   head={"order": "reduced"})
+
+
+def _solver(method: str) -> str:
+    """The card's ``certificate.solver`` of a design method: CLARABEL for the LMIs, none for a closed form."""
+    return "CLARABEL" if method.startswith("lmi") else "none"
+
+
+def _result(problem, analysis: Analysis, nz: int, matrices: dict, cert: dict, system, figures: dict,
+            head: dict | None = None, extra: dict | None = None) -> DesignResult:
+    """The design of a certified gain (of either order) as the card holds it.
+
+    ``matrices`` gain dhat's (``rank(CE) = q``, no feedthrough) and ``W_sampled`` (``[plant] W``); the results are
+    ``head``, the decay (also ``decay_bound``), the overshoot bound and its digits of ``figures``, the bound, the
+    fixed modes and invariant zeros, ``N``'s spectrum, the search, design method and scaling of ``figures``, the
+    noise section (:func:`noise_section`), then ``extra``.
+    """
+    existence, s, fixed = analysis.existence, analysis.data["sampled"], analysis.data["fixed"]
+    plant, opts = problem.plant, problem.options
+    if not plant.feedthrough and existence.holds("rank(CE) = q"):
+        matrices.update({k: v.value for k, v in _dhat(s, plant.C).items()})
+    if plant.r:
+        matrices["W_sampled"] = plant.sampled_noise(opts.dt)
+    eigN = np.linalg.eigvals(matrices["N"])
     results = {
-        "decay": rho,
-        "decay_bound": rho,
-        "overshoot_bound": overshoot(X),
-        "overshoot_digits": digits,
+        **(head or {}),
+        "decay": figures["decay"],
+        "decay_bound": figures["decay"],
+        "overshoot_bound": figures["overshoot_bound"],
+        "overshoot_digits": figures["overshoot_digits"],
         "bound": BOUND,
         "fixed_modes": complex_list(fixed),
         "invariant_zeros": existence.value("stable invariant zeros", "zeros"),
         "eigenvalues_N": complex_list(eigN),
         "spectral_radius_N": float(np.abs(eigN).max()),
-        "search": searched,
-        "design_method": method,
-        "scaling": scaling_data(t if method.startswith("lmi") else np.ones(plant.n), opts.scaling),
+        "search": figures["search"],
+        "design_method": figures["design_method"],
+        "scaling": figures["scaling"],
         "noise": noise_section(matrices),
-        **({} if noise_design is None else {"noise_design": noise_design}),
-        **({} if placed is None else {"poles": complex_list(_sorted(eigN)), "poles_placed": placed["placed"],
-                                      "placement": placed["record"]}),
+        **(extra or {}),
     }
-    return DesignResult(plant.n, opts.dt, _schedule(opts), matrices, cert, results, system, opts.xhat0)
+    return DesignResult(nz, opts.dt, _schedule(opts), matrices, cert, results, system, opts.xhat0)
