@@ -214,10 +214,11 @@ def pair_noise_gain(values: dict, i: int, j: int | None = None) -> np.ndarray:
     return np.linalg.solve(np.asarray(values[f"G{i}"], dtype=float), np.asarray(F, dtype=float))
 
 
-def least_of(candidates, lam: float, name: str, gain) -> tuple:
+def least_of(candidates, lam: float, name: str, gain, parameter: str = "lam2") -> tuple:
     """The least-noise design at the decay ``lam`` of a family with several least-noise LMIs (each a
     ``(system, runtime, which)``, its points mapped to the card's matrices by ``runtime``): of the points that
-    certify (the system's ``certify``), the one of least certified ``gain_y`` (``gain(matrices)``).
+    certify (the system's ``certify``), the one of least certified ``gain_y`` (``gain(matrices)``, None where not
+    certified). The systems take ``lam^2`` as their parameter ``parameter``.
 
     Returns
     -------
@@ -233,7 +234,7 @@ def least_of(candidates, lam: float, name: str, gain) -> tuple:
 
     best, status = None, []
     for system, runtime, which in candidates:
-        sol = system.solve(lam2=lam * lam)
+        sol = system.solve(**{parameter: lam * lam})
         status.append(sol.status)
         if not sol.verified:
             continue

@@ -92,7 +92,7 @@ from ..existence import Condition, Existence, complex_list, format_complex, from
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..gains import cap_lmis
 from ..noise import (NOISE_DECAY_ROOM, NOISE_METHOD, NOISE_OBJECTIVES, NORM, certified, fastest_within,
-                     hinf_norm, recheck, section)
+                     hinf_norm, least_of, recheck, section)
 from ..reductions import LYAPUNOV, UPPER_BOUND, matrix, scalar, symmetric
 from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
@@ -388,17 +388,20 @@ def _noise_system(s, C, M, t, sigma: float, opts: Options) -> tuple:
     return system, back
 
 
-def _least_noise(noise: tuple, s, C, M, rho: float, name: str) -> LmiSolution:
+def _least_noise(noise: tuple, s, C, M, rho: float, name: str, gain) -> tuple:
     """``observer.noise = "min"``: the gain of least ``gain_y`` at the decay ``rho`` (a point of the
-    ``(system, back)`` of :func:`_noise_system`, re-checked), in the plant's coordinates with its gain ``K``."""
+    ``(system, back)`` of :func:`_noise_system`, re-checked; :func:`uiofmu.noise.least_of`) and its figure
+    ``gain(matrices)`` at the runtime's matrices.
+
+    Returns
+    -------
+    tuple
+        ``(figure, solution)``, the solution in the plant's coordinates with its gain ``K``.
+    """
     system, back = noise
-    sol = system.solve(rho2=rho * rho)
-    if not sol.verified:
-        raise InfeasibleError(f"{name}: the least noise gain at decay {rho:.6g} (observer.noise = \"min\") has no "
-                              f"certified point (CLARABEL: {sol.status}); a slower decay leaves the LMIs room")
-    values = back(sol.values)
-    values["K"] = _lmi_runtime(s, C, M, values)["K"]
-    return replace(sol, values=values)
+    found, (sol, matrices, _) = least_of([(system, lambda v: _lmi_runtime(s, C, M, back(v)), "least noise")], rho,
+                                         name, gain, parameter="rho2")
+    return found, replace(sol, values={**back(sol.values), "K": matrices["K"]})
 
 
 def noise_options(opts: Options, decay, noise: str) -> Options:
@@ -425,10 +428,10 @@ def _noise_design(s, C, M, t, rho: float, sol: LmiSolution, system, method: str,
     record = {"objective": "least gain_y at the decay", "decay": rho, "default_gain_y": default}
     try:
         noise = _noise_system(s, C, M, t, max(default, 1.0), opts)
-        least, noise_system = _least_noise(noise, s, C, M, rho, name), noise[0]
+        found, least = _least_noise(noise, s, C, M, rho, name, lambda m: hinf_norm(*error_system(m)))
+        noise_system = noise[0]
     except InfeasibleError as exc:
         return rho, sol, system, method, {**record, "kept": "default", "why": str(exc)[:300]}
-    found = hinf_norm(*error_system(_runtime(s, C, M, least.values["X"], least.values["K"])))
     if not found < default:
         return rho, sol, (system, noise_system), method, {**record, "kept": "default", "least_gain_y": found,
                                                            "why": "the least-noise point's gain is not below it"}
@@ -462,8 +465,7 @@ def _fastest_within(s, C, M, t, fastest: float, sol: LmiSolution, system, method
     noise = _noise_system(s, C, M, t, sigma, opts)
 
     def least_at(rho: float) -> tuple:
-        least = _least_noise(noise, s, C, M, rho, name)
-        return certified(*error_system(_runtime(s, C, M, least.values["X"], least.values["K"])))[0], least
+        return _least_noise(noise, s, C, M, rho, name, lambda m: certified(*error_system(m))[0])
 
     rho, gain, least, search = fastest_within(least_at, fastest, goal, name)
     return rho, least, (system, noise[0]), NOISE_METHOD, {**record, "gain_y": gain, "search": search}
