@@ -40,15 +40,11 @@ siblings write for both.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from .certificate import Check, decay_check, identity_check, lyapunov_check, magnitude, overshoot, positive_check
 from .decoupling import decoupling_gain
-from .lmi import tune
-from .runtime.errors import InfeasibleError, ProblemError
-from .runtime.tolerances import SEARCH_TOL
+from .runtime.errors import ProblemError
 from .structure import rank
 
 #: The relative room the stored ``overshoot_bound`` takes above ``sqrt(cond X) ||Zx||`` (rounding of the norms on
@@ -124,47 +120,10 @@ def overshoot_check(claimed, matrices: dict) -> Check:
     return Check("overshoot_bound (needs >= sqrt(cond X) ||Zx||)", value, need, at_most=False)
 
 
-def _tuned(red: dict, largest: float, opts, name: str, certify, lmis, riccati):
-    """The decay and its certificate on the reduced pair: the full-order design's decay LMI ``lmis`` (no state
-    scaling: the pair's coordinates are orthonormal ones of the plant's), or its Riccati gain ``riccati``
-    (``method = "riccati"``, and the fallback of ``"auto"``)."""
-
-    Ar, Cr = red["A"], red["C"]
-    system = lmis(Ar, Cr, opts.gain_cap)
-    system.certify = lambda v, prm: certify(v["X"], np.linalg.solve(0.5 * (v["X"] + v["X"].T), v["W"]),
-                                            float(np.sqrt(prm["rho2"])))
-    system.figure = lambda v: overshoot(v["X"])
-    if opts.method == "riccati":
-        return riccati(Ar, Cr, float(opts.decay)), "riccati", system
-    try:
-        tuned = tune(system, "rho2", opts.decay, feasible_end=0.5 * (1.0 + largest), infeasible_end=largest,
-                     safe_end=1.0, tol=SEARCH_TOL, label=f"{name}: fastest decay", transform=lambda r: r * r,
-                     name="decay", diagnose=opts.method == "lmi")
-        values = dict(tuned.solution.values)
-        values["K"] = np.linalg.solve(0.5 * (values["X"] + values["X"].T), values["W"])
-        return replace(tuned, solution=replace(tuned.solution, values=values)), "lmi", system
-    except InfeasibleError as exc:
-        if opts.method == "lmi" or opts.gain_cap is not None:
-            raise
-        rho = 0.5 * (1.0 + largest) if opts.decay == "max" else float(opts.decay)
-        try:
-            return riccati(Ar, Cr, rho), "riccati (the LMI found no certificate)", system
-        except (InfeasibleError, ValueError, np.linalg.LinAlgError) as fallback:
-            raise type(exc)(f"{exc}; the solver-free fallback fails too: {fallback}") from None
-
-
-def design(problem, analysis, lmis, riccati) -> tuple:
-    """The reduced-order gain of an lti-uio problem (module docstring) and the card's matrices, by the full-order
-    design's decay LMI ``lmis(A, C, gain_cap)`` or Riccati gain ``riccati(A, C, rho)`` on the reduced pair (those
-    of :mod:`uiofmu.families.lti_uio`, which completes the card: its certificate by :func:`checks`, dhat, the noise
-    section).
-
-    Returns
-    -------
-    tuple
-        ``(Tuned, design_method, LmiSystem, matrices)``, the point's values holding ``X`` and ``K`` of the pair.
-    """
-    s, fixed = analysis.data["sampled"], analysis.data["fixed"]
+def decoupled(problem, s) -> tuple:
+    """The reduced pair of an lti-uio problem sampled as ``s`` and the card's matrices of its gains:
+    ``(Ar, Cr, runtime)``, ``runtime(X, K) -> dict`` (:func:`runtime`). The gain ``K`` is designed as the
+    full-order observer's is (:mod:`uiofmu.families.lti_uio`, which completes the card)."""
     plant, opts = problem.plant, problem.options
     if plant.feedthrough or opts.poles is not None or opts.noise != "default" or opts.noise_gain is not None:
         raise ProblemError('observer.order = "reduced" designs the decay LMI or the Riccati gain of a plant without '
@@ -172,11 +131,4 @@ def design(problem, analysis, lmis, riccati) -> tuple:
     C = plant.C
     M = decoupling_gain(C, s.E)
     red = reduced_pair(s.A, s.E, C, M)
-    largest = float(np.abs(fixed).max()) if fixed.size else 0.0
-
-    def certify(X, K, rho):
-        return all(c.holds for c in checks(runtime(s, C, M, red, X, K), rho))
-
-    tuned, method, system = _tuned(red, largest, opts, problem.name, certify, lmis, riccati)
-    values = tuned.solution.values
-    return tuned, method, system, runtime(s, C, M, red, values["X"], values["K"])
+    return red["A"], red["C"], lambda X, K: runtime(s, C, M, red, X, K)

@@ -730,9 +730,10 @@ class Pair:
     ----------
     A, C : numpy.ndarray
         ``((I+MC)A, C)`` without feedthrough of the unknown input; ``(A0, O)`` with it
-        (:func:`uiofmu.feedthrough.feedthrough_pair`).
+        (:func:`uiofmu.feedthrough.feedthrough_pair`); ``(Ar, Cr)`` of the reduced observer
+        (:func:`uiofmu.reduced_order.decoupled`).
     runtime : callable
-        ``runtime(X, gain) -> dict``: the card's matrices (:func:`_runtime`).
+        ``runtime(X, gain) -> dict``: the card's matrices (:func:`_runtime`, :func:`uiofmu.reduced_order.runtime`).
     """
 
     A: np.ndarray
@@ -773,17 +774,23 @@ def _lmi_runtime(s, C, M, values: dict) -> dict:
 
 
 def _tuned(s, pair: Pair, t, largest: float, opts: Options, name: str) -> tuple[Tuned, str, LmiSystem]:
-    """The decay and its certificate by the requested method (see the module docstring), and
-    the LMI system (solved in the coordinates scaled by ``t``, :class:`uiofmu.scaling.StateScaling`): a point
-    is accepted only where the certificate's checks at the runtime's matrices hold too. The point's ``K`` is the
-    gain of ``pair`` (``N = pair.A - K pair.C``)."""
-    PA, C = pair.A, pair.C
+    """The decay and its certificate of the full-order observer (:func:`_decay`), the LMI system solved in the
+    coordinates scaled by ``t`` (:class:`uiofmu.scaling.StateScaling`)."""
     scaling = StateScaling(t)
     system, inverse = scaling.apply(PlantLmis(lambda steps, Cs: _lmis(steps[0].A, Cs, opts.gain_cap),
-                                              [replace(s, A=PA)], C))
-    back = lambda v: scaling.invert(v, inverse)                    # noqa: E731
-    system.certify = lambda v, prm: all(c.holds for c in checks(pair.lmi_runtime(back(v)),
-                                                                    float(np.sqrt(prm["rho2"]))))
+                                              [replace(s, A=pair.A)], pair.C))
+    return _decay(system, lambda v: scaling.invert(v, inverse), pair, checks, largest, opts, name)
+
+
+def _decay(system: LmiSystem, back, pair: Pair, check, largest: float, opts: Options,
+           name: str) -> tuple[Tuned, str, LmiSystem]:
+    """The decay and its certificate by the requested method (see the module docstring), and the LMI system of
+    :func:`_lmis` (its points mapped to the pair's coordinates by ``back``): a point is accepted only where the
+    certificate's checks at the runtime's matrices (``check(matrices, rho)``) hold too. The point's ``K`` is the
+    gain of ``pair`` (``N = pair.A - K pair.C``); the full-order and the reduced observer share it."""
+    PA, C = pair.A, pair.C
+    system.certify = lambda v, prm: all(c.holds for c in check(pair.lmi_runtime(back(v)),
+                                                                   float(np.sqrt(prm["rho2"]))))
     system.figure = lambda v: overshoot(back(v)["X"])
     if opts.method == "riccati":
         return _riccati(PA, C, float(opts.decay)), "riccati", system
@@ -934,19 +941,25 @@ def design(problem, analysis: Analysis) -> DesignResult:
 
 
 def _reduced(problem, analysis: Analysis) -> DesignResult:
-    """``observer.order = "reduced"``: the gain of the reduced pair by this family's decay LMI or Riccati gain
-    (:func:`uiofmu.reduced_order.design`), its certificate by :func:`uiofmu.reduced_order.checks` and bound by
-    :func:`uiofmu.reduced_order.bound`, and the rest of the card as the full-order observer's."""
-    tuned, method, system, matrices = reduced_order.design(problem, analysis, lmis=_lmis, riccati=_riccati)
+    """``observer.order = "reduced"``: the gain of the reduced pair (:func:`uiofmu.reduced_order.decoupled`) by
+    :func:`_decay` (the decay LMI unscaled: the pair's coordinates are orthonormal ones of the plant's), its
+    certificate by :func:`uiofmu.reduced_order.checks` and bound by :func:`uiofmu.reduced_order.bound`, and the
+    rest of the card as the full-order observer's."""
+    s, fixed = analysis.data["sampled"], analysis.data["fixed"]
+    plant, opts = problem.plant, problem.options
+    pair = Pair(*reduced_order.decoupled(problem, s))
+    largest = float(np.abs(fixed).max()) if fixed.size else 0.0
+    tuned, method, system = _decay(_lmis(pair.A, pair.C, opts.gain_cap), dict, pair, reduced_order.checks, largest,
+                                   opts, problem.name)
     rho, sol = tuned.value, tuned.solution
+    matrices = pair.runtime(sol.values["X"], sol.values["K"])
     cert = certificate(sol, reduced_order.checks(matrices, rho), f"{NAME} reduced-order design of {problem.name}",
                        solver=_solver(method))
     figures = {"decay": rho, "overshoot_bound": reduced_order.bound(matrices),
                "overshoot_digits": UNDETERMINED,       # ||Zx|| reads the gain, which the LMI's optimum does not fix
                "search": tuned.search.to_data() if tuned.search else None, "design_method": method,
-               "scaling": scaling_data(np.ones(problem.plant.n), "none")}
-    return _result(problem, analysis, problem.plant.n - problem.plant.p, matrices, cert, system, figures,
-                   head={"order": "reduced"})
+               "scaling": scaling_data(np.ones(plant.n), "none")}
+    return _result(problem, analysis, plant.n - plant.p, matrices, cert, system, figures, head={"order": "reduced"})
 
 
 def _solver(method: str) -> str:
