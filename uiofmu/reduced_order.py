@@ -33,9 +33,10 @@ re-check at the stored matrices. The error ``eps = Zx x - z`` obeys ``eps+ = N e
 so the card's ``overshoot_bound`` is ``sqrt(cond X) ||Zx||_2`` (rounded up), the bound of every lti-uio card.
 The fixed modes of ``(Ar, Cr)`` are those of the full-order observer (the stable invariant zeros): the
 conditions are the family's. Measurement noise ``v`` (``y = C x + v``) enters as ``eps+ = N eps - L v``,
-``e = Xz eps - Xy v``; process noise ``W w`` as ``eps+ = N eps + Zx W w``, ``e = Xz eps``: the error systems of
-the full-order observer (``Zx = P``, ``Xz = I``), which :func:`uiofmu.families.lti_uio.error_system` and its
-siblings write for both.
+``e = Xz eps - Xy v``; process noise ``W w`` as ``eps+ = N eps + Zx W w``, ``e = Xz eps``: the full-order
+observer's error systems at ``Zx = P`` and ``Xz = I``, so that :func:`uiofmu.families.lti_uio.error_system`,
+:func:`~uiofmu.families.lti_uio.process_error_system` and :func:`~uiofmu.families.lti_uio.dhat_error_system` serve
+both.
 """
 
 from __future__ import annotations

@@ -532,16 +532,12 @@ def error_system(matrices: dict) -> tuple:
     return N, -L, Xz, -Xy
 
 
-def _state_map(matrices: dict) -> np.ndarray:
-    """``Zx`` of ``eps = Zx x - z``: the stored ``Zx`` of the reduced observer, ``P`` of the full-order one."""
-    return np.asarray(matrices["Zx"] if "Zx" in matrices else matrices["P"], dtype=float)
-
-
 def process_error_system(matrices: dict) -> tuple:
     """The error system from process noise ``w`` (``x+ = ... + W_sampled w``): ``eps+ = N eps + Zx W_sampled w``,
-    ``e = Xz eps`` (``Zx`` as in :func:`error_system`)."""
+    ``e = Xz eps`` (the stored ``Zx`` of the reduced observer, ``P`` of the full-order one)."""
     N, Xz, W = (np.asarray(matrices[k], dtype=float) for k in ("N", "Xz", "W_sampled"))
-    return N, _state_map(matrices) @ W, Xz, np.zeros((Xz.shape[0], W.shape[1]))
+    Zx = np.asarray(matrices["Zx"] if "Zx" in matrices else matrices["P"], dtype=float)
+    return N, Zx @ W, Xz, np.zeros((Xz.shape[0], W.shape[1]))
 
 
 def dhat_error_system(matrices: dict) -> tuple:
