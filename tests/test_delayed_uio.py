@@ -363,6 +363,8 @@ def test_the_noise_gain_is_certified_on_the_premise_points_and_rechecked(example
     (lambda d: d["noise"].update(initial_term=0.5 * d["noise"]["initial_term"]), "initial_term"),
     (lambda d: d["noise"].pop("certificate"), "without its certificate"),
     (lambda d: d["noise"].update(covers="everything"), "noise.covers"),
+    (lambda d: d["noise"].update(covers="x" * 501), "noise.covers"),
+    (lambda d: d["noise"].update(covers=["a"]), "noise.covers"),
 ])
 def test_a_lowered_or_unproven_noise_gain_fails_verify(example, change, match):
     _, card = example
