@@ -5,6 +5,8 @@ outside the premise family (the reference runtime against the plant runtime)."""
 from __future__ import annotations
 
 import copy
+import json
+import math
 
 import numpy as np
 import pytest
@@ -303,3 +305,145 @@ def test_a_forged_validation_record_is_refused(example):
     data["schedule"]["gamma_bound"] *= 10                         # valid where nothing was certified
     with pytest.raises(CardError, match="schedule.gamma_bound is not what the card's problem determines"):
         recheck(card_from_data(data))
+
+
+# -- the noise gain, in continuous time on the premise grid ---------------------------------------------------------
+
+def _noise_points(card):
+    """The card's certified noise points (premise grid and validation families) and its error system's stacks."""
+    import json
+
+    from uiofmu.families import delayed_uio as du
+
+    key = json.dumps(card.data["problem"], sort_keys=True)
+    points = du.noise_points(key, du._used_grid(key), len(card.data["premise"]["validation"]))
+    return points, du.noise_system(card.data["matrices"], points)
+
+
+def _frozen_peak(A, B, C, D, every: int = 7) -> float:
+    """The largest H-infinity norm of the error system with its premises frozen at a point (every ``every``-th): a
+    trajectory that stays at one point, so a lower bound of any gain that covers the points."""
+    w = np.concatenate([[0.0], np.logspace(-2, 4, 300)])
+    n, peak = A.shape[1], 0.0
+    for g in range(0, len(A), every):
+        G = D[g] + C[g] @ np.linalg.solve(1j * w[:, None, None] * np.eye(n) - A[g], np.broadcast_to(B[g], (len(w),)
+                                                                                                        + B[g].shape))
+        peak = max(peak, float(np.linalg.svd(G, compute_uv=False).max()))
+    return peak
+
+
+def test_the_noise_gain_is_certified_on_the_premise_points_and_rechecked(example):
+    """``noise.gain_y``: finite, re-checked by verify at the card's ``X`` (a scale of the decay certificate's Q) on
+    every premise and validation point, at least the largest gain of a frozen point, within a small factor of it;
+    the card states what it covers and what it leaves out."""
+    from uiofmu.families.delayed_uio import NOISE_COVERS
+
+    _, card = example
+    noise = card.data["noise"]
+    gain, cert = noise["gain_y"], noise["certificate"]
+    assert math.isfinite(gain) and cert["least_gamma"] < gain <= cert["least_gamma"] * 1.002 + 0.1
+    assert noise["gain_w"] is None and noise["gain_dhat_y"] is None and noise["covers"] == NOISE_COVERS
+    for words in ("premises", "ydot", "Hermite derivative", "|v| / h", "not covered"):
+        assert words in noise["reason"]
+    checks = [c for c in recheck(card) if c.name.startswith("noise gain_y")]
+    assert len(checks) == 3 and all(c.holds for c in checks)
+    assert any("continuous bounded real lemma at gamma" in c.name for c in checks)
+    X, Q = np.array(cert["X"]), np.array(card.data["matrices"]["Q"])
+    assert np.allclose(X / X[0, 0], Q / Q[0, 0], rtol=1e-12, atol=0)
+    points, system = _noise_points(card)
+    assert len(points.gammas) >= card.data["premise"]["points"]
+    peak = _frozen_peak(*system)
+    assert peak <= gain < 10 * peak, (peak, gain)
+
+
+@pytest.mark.parametrize("change, match", [
+    (lambda d: d["noise"].update(gain_y=0.5 * d["noise"]["gain_y"]), "continuous bounded real lemma"),
+    (lambda d: d["noise"].update(gain_y=0.999 * d["noise"]["certificate"]["least_gamma"]),
+     "continuous bounded real lemma"),
+    (lambda d: d["noise"].update(initial_term=0.5 * d["noise"]["initial_term"]), "initial_term"),
+    (lambda d: d["noise"].pop("certificate"), "without its certificate"),
+    (lambda d: d["noise"].update(covers="everything"), "noise.covers"),
+    (lambda d: d["noise"].update(covers="x" * 501), "noise.covers"),
+    (lambda d: d["noise"].update(covers=["a"]), "noise.covers"),
+])
+def test_a_lowered_or_unproven_noise_gain_fails_verify(example, change, match):
+    _, card = example
+    doc = copy.deepcopy(card.data)
+    change(doc)
+    with pytest.raises(CardError, match=match):
+        recheck(card_from_data(json.loads(json.dumps(doc))))
+
+
+def test_the_linear_error_ode_of_noise_on_a_premise_trajectory_respects_the_gain(example):
+    """The error from noise, ``eps' = N eps + (K - N H) va``, ``e - e_twin = E (H va - eps)``, along the premise
+    family's first trajectory (its grid points, each held until the next) with ``va`` the current and delayed
+    noise: random noise, and a sinusoid at the largest frozen gain's frequency and direction, each within
+    ``gain_y ||v||_2`` (``v`` over ``[t0 - tau, T]``)."""
+    _, card = example
+    points, _ = _noise_points(card)
+    m = card.data["matrices"]
+    K, Ca = np.array(m["K"]), np.array(m["Ca"])
+    n, p, tau = len(m["Abar"]), len(m["Cbar"]), card.data["delays"][-1]
+    first = slice(0, card.data["premise"]["samples"])
+    times, N, H = points.times[first], points.gammas[first] - K @ Ca, points.hs[first]
+    E = np.eye(n, Ca.shape[1])
+    dt = 2e-4
+    t = np.arange(times[0] - tau, times[-1], dt)
+    rng = np.random.default_rng(0)
+    g = int(np.argmax([np.linalg.norm(E @ h, 2) for h in H]))
+    for v in (rng.normal(size=(len(t), p)), np.outer(np.sin(40.0 * t), np.linalg.svd(E @ H[g][:, :p])[2][0])):
+        lag = int(round(tau / dt))
+        eps, diff = np.zeros(Ca.shape[1]), []
+        for k in range(lag, len(t)):
+            j = min(int(np.searchsorted(times, t[k], side="right")) - 1, len(times) - 1)
+            va = np.concatenate([v[k], v[k - lag]])
+            f = lambda x: N[j] @ x + (K - N[j] @ H[j]) @ va       # noqa: E731
+            k1 = f(eps)
+            k2 = f(eps + dt / 2 * k1)
+            k3 = f(eps + dt / 2 * k2)
+            diff.append(E @ (H[j] @ va - eps))
+            eps = eps + dt / 6 * (k1 + 2 * k2 + 2 * k3 + f(eps + dt * k3))
+        ratio = np.sqrt(np.sum(np.square(diff))) / np.sqrt(np.sum(np.square(v)))
+        assert 0 < ratio <= card.data["noise"]["gain_y"], ratio
+
+
+class _HeldPremises(DelayedRuntime):
+    """The runtime fed ``y + v`` whose premises (``H``, ``Gamma``, ``Da``) are those of its noise-free twin at the same
+    time: what the certified gain covers."""
+
+    def __init__(self, card, twin):
+        super().__init__(card)
+        self.twin = twin
+
+    def _augmented_at(self, s, hist):
+        self._at = s
+        return super()._augmented_at(s, hist)
+
+    def _matrices(self, ya, yad):
+        clean = self.twin._augmented_at(self._at, self.twin._now())
+        return DelayedRuntime._matrices(self.twin, clean[0], clean[1])
+
+
+def test_the_runtime_with_noise_free_premises_respects_the_gain(delayed_card):
+    """The reference runtime fed ``y + v`` (its premises the noise-free twin's) against its twin fed ``y``, on one
+    plant run at 1 ms with white noise from the step after the observer starts: ``||e - e_twin||_2 <= gain_y
+    ||v||_2`` (sums over the communication points)."""
+    card = delayed_card[0]
+    problem = problem_from_data(card.data["problem"])
+    plant = ParametricPlantRuntime(problem.plant.to_data())
+    twin = DelayedRuntime(card)
+    noisy = _HeldPremises(card, twin)
+    rng = np.random.default_rng(1)
+    h, diff, vs = 1e-3, [], []
+    for k in range(450):
+        plant.u[:] = [s(k * h) for s in problem.u]
+        y = plant.y()
+        v = 0.01 * rng.normal(size=len(y)) if twin.running else np.zeros(len(y))
+        for rt, measured in ((noisy, y + v), (twin, y)):
+            rt.set_y(measured), rt.set_ydot(plant.ydot()), rt.set_u(plant.u)
+        diff.append(twin.xhat() - noisy.xhat())
+        vs.append(v)
+        noisy.step(h), twin.step(h), plant.step(h)
+    assert noisy.running and twin.running and np.count_nonzero(np.any(vs, axis=1)) > 250
+    ratio = np.linalg.norm(diff) / np.linalg.norm(vs)
+    assert 0 < ratio <= card.data["noise"]["gain_y"], ratio

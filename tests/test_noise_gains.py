@@ -200,9 +200,12 @@ def test_a_card_without_a_noise_section_claims_nothing_and_verifies(lti_cards):
 
 def test_a_card_without_a_certificate_cannot_claim_a_gain(delayed_card):
     doc = copy.deepcopy(delayed_card[0].data)
-    assert doc["noise"]["gain_y"] is None
-    doc["noise"]["gain_y"] = 1.0
-    _refused(doc, "noise.gain_y")
+    assert doc["noise"]["gain_dhat_y"] is None
+    doc["noise"]["gain_dhat_y"] = 1.0
+    _refused(doc, "noise.gain_dhat_y")
+    doc = copy.deepcopy(delayed_card[0].data)
+    del doc["noise"]["certificate"]
+    _refused(doc, "noise.gain_y claimed without its certificate")
 
 
 def test_a_lowered_dead_beat_gain_fails():

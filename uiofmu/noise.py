@@ -26,6 +26,10 @@ system (a frequency sweep, zoomed into around its peaks), times ``1 + NOISE_MARG
 :data:`NOISE_DIGITS` significant digits; ``X`` is the stabilising solution of the bounded real
 Riccati equation at that ``gamma`` (no solver). The card records the ``gamma`` the re-check proves.
 
+A continuous error system that varies over a grid of points, ``eps' = A_g eps + B_g v``, ``e = C_g eps + D_g v``
+(the delayed UIO on its premise grid), is certified by the continuous lemma with one ``X`` at every point
+(:func:`continuous_brl_checks`), ``X`` a scale of a given Lyapunov matrix (:func:`continuous_brl_certificate`).
+
 A finite-impulse-response error (the dead-beat functional observer: ``sum_j K_j v_{k-j}``) is certified
 alike on its shift-register realisation (:func:`fir_system`), and its peak-to-peak gain is the sum of the
 coefficients' norms (:func:`peak_to_peak`).
@@ -38,7 +42,8 @@ import warnings
 
 import numpy as np
 
-from .certificate import Check, definite_check, figure_text, round_up
+from .certificate import Check, definite_check, figure_text, rounding_floor, round_up
+from .runtime.tolerances import ROUNDING_FACTOR
 
 #: The norm every gain of a card's ``noise`` section is in.
 NORM = "l2"
@@ -615,6 +620,121 @@ def brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
                    "re-check at the stored matrices"}
 
 
+# -- continuous time, on a grid of premise points ------------------------------------------------------------------
+def _continuous_brl_stack(A, B, C, D, X, gamma: float) -> tuple:
+    """The continuous bounded real lemma's matrices of a stack of points, to be positive definite, and their terms'
+    sizes (see :func:`continuous_brl_checks`)."""
+    aA, aB, aC, aD, aX = (np.abs(m) for m in (A, B, C, D, X))
+    g2 = float(gamma) ** 2
+    At, Bt, Ct, Dt = (np.swapaxes(m, -1, -2) for m in (A, B, C, D))
+    aAt, aBt, aCt, aDt = (np.swapaxes(m, -1, -2) for m in (aA, aB, aC, aD))
+    eye = np.broadcast_to(np.eye(B.shape[-1]), B.shape[:-2] + (B.shape[-1],) * 2)
+    top = -(At @ X + X @ A + Ct @ C)
+    side = -(X @ B + Ct @ D)
+    M = np.concatenate([np.concatenate([top, side], axis=-1),
+                        np.concatenate([np.swapaxes(side, -1, -2), g2 * eye - Dt @ D], axis=-1)], axis=-2)
+    t_top, t_side = aAt @ aX + aX @ aA + aCt @ aC, aX @ aB + aCt @ aD
+    T = np.concatenate([np.concatenate([t_top, t_side], axis=-1),
+                        np.concatenate([np.swapaxes(t_side, -1, -2), g2 * eye + aDt @ aD], axis=-1)], axis=-2)
+    return 0.5 * (M + np.swapaxes(M, -1, -2)), T
+
+
+def continuous_brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y", where: str = "premise points") -> list:
+    """The continuous bounded real lemma with one storage ``X`` at every point of a stack, at stored matrices.
+
+    The error system ``eps' = A_g eps + B_g w``, ``e = C_g eps + D_g w`` (``A`` ... ``D`` stacks, one row per point
+    ``g``) has the l2 gain ``gamma`` along any trajectory whose matrices stay among the points when ``X > 0`` and
+    at every point::
+
+        [[-(A_g' X + X A_g) - C_g' C_g,   -(X B_g + C_g' D_g)],
+         [-(B_g' X + D_g' C_g),           gamma^2 I - D_g' D_g]]  > 0
+
+    (the storage ``eps' X eps`` then gives ``d/dt (eps' X eps) + |e|^2 - gamma^2 |w|^2 <= 0``). Each is decided as
+    :func:`scaled_definite_check` decides one, all points at once; the worst point is reported.
+    """
+    A, B, C, D, X = (np.asarray(m, dtype=float) for m in (A, B, C, D, X))
+    n = X.shape[-1]
+    M, T = _continuous_brl_stack(A, B, C, D, X, gamma)
+    diag = np.diagonal(T, axis1=-2, axis2=-1)
+    d = 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0))
+    Ms, Ts = d[..., :, None] * M * d[..., None, :], d[..., :, None] * T * d[..., None, :]
+    floor = rounding_floor(Ms, Ts, 2 * n + C.shape[-2] + 4)
+    values = np.linalg.eigvalsh(Ms)[..., 0] if len(Ms) else np.zeros(0)
+    bound = ROUNDING_FACTOR * floor
+    name = (f"noise {label}: continuous bounded real lemma at gamma = {figure_text(gamma, NOISE_DIGITS)} over the "
+            f"{where}")
+    if len(values):
+        i = int(np.argmin(values - bound))
+        lemma = Check(name, float(values[i]), float(bound[i]), at_most=False, floor=float(floor[i]))
+    else:
+        lemma = Check(name, -math.inf, 0.0, at_most=False)
+    return [scaled_definite_check(f"noise {label}: eig_min(X)", 0.5 * (X + X.T), np.abs(X), 1), lemma]
+
+
+def _least_gamma2(M, C, XB, D) -> np.ndarray:
+    """``gamma^2`` of the lemma at every point for a storage ``X`` (``M = A'X + XA``, ``XB``): ``eig_max(D'D + Y'
+    U^-1 Y)``, ``U = -(M + C'C) > 0``, ``Y = XB + C'D`` (the Schur complement); inf where ``U`` is not definite."""
+    Ct, Dt = np.swapaxes(C, -1, -2), np.swapaxes(D, -1, -2)
+    U = -(M + Ct @ C)
+    U = 0.5 * (U + np.swapaxes(U, -1, -2))
+    if not np.all(np.linalg.eigvalsh(U)[..., 0] > 0):
+        return np.full(len(M), math.inf)
+    L = np.linalg.cholesky(U)
+    Z = np.linalg.solve(L, XB + Ct @ D)
+    S = Dt @ D + np.swapaxes(Z, -1, -2) @ Z
+    return np.linalg.eigvalsh(0.5 * (S + np.swapaxes(S, -1, -2)))[..., -1]
+
+
+def continuous_brl_certificate(A, B, C, D, Q, label: str = "gain_y", where: str = "premise points") -> dict:
+    """The least l2 gain of the stack of points ``(A_g, B_g, C_g, D_g)`` (:func:`continuous_brl_checks`) that a
+    storage ``X = c Q`` certifies, ``Q`` given (a Lyapunov matrix of the points: ``A_g' Q + Q A_g < 0``), to
+    :data:`NOISE_DIGITS`; no solver.
+
+    For a fixed ``c`` the least ``gamma^2`` of a point is a Schur complement (:func:`_least_gamma2`: it needs
+    ``c (A_g' Q + Q A_g) + C_g' C_g < 0``, so ``c`` above ``c_min = max_g eig_max(C_g' C_g, -(A_g' Q + Q A_g))``,
+    the generalized eigenvalue). The lemma is linear in ``(c, gamma^2)``: the largest least ``gamma^2`` over the
+    points is convex in ``c``, and Brent's method on ``c = c_min (1 + e^s)`` finds its least value. ``gamma`` is
+    its square root times ``1 + NOISE_MARGIN``, rounded up, re-checked at ``X = c Q`` and grown by
+    :data:`GROWTH` where the re-check fails.
+
+    Returns
+    -------
+    dict
+        As :func:`brl_certificate` (``least_gamma`` in place of ``hinf_norm``); ``gamma`` None with ``why``.
+    """
+    from .scalar_search import bounded_minimum
+
+    A, B, C, D, Q = (np.asarray(m, dtype=float) for m in (A, B, C, D, Q))
+    Q = 0.5 * (Q + Q.T)
+    M = np.swapaxes(A, -1, -2) @ Q + Q @ A
+    M = 0.5 * (M + np.swapaxes(M, -1, -2))
+    if not len(M) or not np.all(np.linalg.eigvalsh(-M)[..., 0] > 0):
+        return {"gamma": None, "why": "the storage matrix does not make every point strictly stable"}
+    L = np.linalg.cholesky(-M)
+    CL = np.swapaxes(np.linalg.solve(L, np.swapaxes(C, -1, -2) * np.ones((len(M), 1, 1))), -1, -2)
+    c_min = max(float(np.linalg.norm(CL, 2, axis=(-2, -1)).max()) ** 2, 1e-300)
+    QB = Q @ B
+
+    def worst(s: float) -> float:
+        c = c_min * (1.0 + math.exp(s))
+        top = float(_least_gamma2(c * M, C, c * QB, D).max())
+        return math.log(top) if 0 < top < math.inf else 1e300
+
+    s, _ = bounded_minimum(worst, -40.0, 40.0, xatol=1e-4)
+    c = c_min * (1.0 + math.exp(s))
+    least = math.sqrt(float(_least_gamma2(c * M, C, c * QB, D).max()))
+    X = c * Q
+    gamma = round_up(max(least, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
+    for _ in range(TRIES):
+        checks = continuous_brl_checks(A, B, C, D, X, gamma, label, where)
+        if all(ch.holds for ch in checks):
+            return {"gamma": gamma, "X": X, "initial_term": float(np.sqrt(np.linalg.eigvalsh(X)[-1])),
+                    "least_gamma": least, "checks": checks}
+        last, gamma = gamma, round_up(gamma * GROWTH, NOISE_DIGITS)
+    return {"gamma": None, "why": f"no continuous bounded real lemma certificate up to gamma = "
+                                  f"{figure_text(last, NOISE_DIGITS)} survives the re-check at the stored matrices"}
+
+
 def fir_system(coefficients) -> tuple:
     """The filter ``e_k = sum_j K_j v_(k-j)`` as a state-space system ``(A, B, C, D)``: a shift register of the
     last ``len(coefficients) - 1`` samples (``A`` nilpotent).
@@ -652,10 +772,12 @@ def certificate_key(key: str) -> str:
     return "certificate" if key == "gain_y" else f"certificate_{key[len('gain_'):]}"
 
 
-def recheck(noise: dict, A, B, C, D, key: str = "gain_y", switched: bool = False, steps: list | None = None) -> list:
+def recheck(noise: dict, A, B, C, D, key: str = "gain_y", switched: bool = False, steps: list | None = None,
+            continuous: bool = False) -> list:
     """The re-check of a card's ``noise.<key>`` (its certificate at :func:`certificate_key`) at the error system
-    ``(A, B, C, D)`` of its stored matrices (with ``switched``, stacks: :func:`switched_brl_checks`; with ``steps``,
-    those of :func:`lemma_checks`, ``A`` ... ``D`` unused): none when the gain is null (a card claims nothing then)."""
+    ``(A, B, C, D)`` of its stored matrices (with ``switched``, stacks: :func:`switched_brl_checks`; with
+    ``continuous``, stacks of points: :func:`continuous_brl_checks`; with ``steps``, those of
+    :func:`lemma_checks`, ``A`` ... ``D`` unused): none when the gain is null (a card claims nothing then)."""
     if not isinstance(noise, dict) or noise.get(key) is None:
         return []
     cert = noise.get(certificate_key(key))
@@ -665,6 +787,8 @@ def recheck(noise: dict, A, B, C, D, key: str = "gain_y", switched: bool = False
     X, gamma = np.asarray(cert["X"], dtype=float), float(noise[key])
     if steps is not None:
         lemma = lemma_checks(steps, X, gamma, key)
+    elif continuous:
+        lemma = continuous_brl_checks(A, B, C, D, X, gamma, key)
     else:
         lemma = (switched_brl_checks if switched else brl_checks)(A, B, C, D, X, gamma, key)
     return lemma + [initial_check(noise if key == "gain_y" else cert, X, key)]
@@ -689,7 +813,7 @@ def stated(cert: dict, method: str, key: str = "gain_y") -> tuple:
     """
     if cert["gamma"] is None:
         return None, {}, f"{key}: not certified ({cert['why']})"
-    record = {"method": method, **{k: cert[k] for k in ("hinf_norm", "lmi_gamma") if k in cert},
+    record = {"method": method, **{k: cert[k] for k in ("hinf_norm", "lmi_gamma", "least_gamma") if k in cert},
               "margin": NOISE_MARGIN, "X": cert["X"], "checks": {c.name: c.to_data() for c in cert["checks"]}}
     if key == "gain_y":
         return cert["gamma"], {"initial_term": cert["initial_term"], "certificate": record}, None
@@ -753,7 +877,8 @@ def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
 
 
 __all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks",
-           "certificate_key", "certified", "fir_system", "gain_text", "hinf_norm", "initial_check",
+           "certificate_key", "certified", "continuous_brl_certificate", "continuous_brl_checks",
+           "fir_system", "gain_text", "hinf_norm", "initial_check",
            "lemma_certificate", "lemma_checks", "noise_design_lines", "noise_lines", "pair_error_system",
            "peak_to_peak", "recheck", "scaled_definite_check", "section", "stated", "switched_brl_certificate",
            "switched_brl_checks"]

@@ -31,6 +31,13 @@ certificate, in the notation of :mod:`uiofmu.runtime.delayed` (the kernel this f
   ``t`` minimised). The certificate holds on the premise set: along
   any trajectory whose ``Gamma`` stays in it, ``||e(t)|| <= sqrt(t) exp(-beta t) ||e(0)||``; not globally,
   and the card says so. The run-time validity flag compares the rank margin with the premise's.
+* The noise gain (``noise.gain_y``, :func:`noise_system`): with ``v`` added to the measured ``y`` and the premises
+  (``H``, ``Gamma``) at their noise-free values, ``eps = z - z_twin`` follows ``eps' = N eps + (K - N H) va`` and
+  ``e - e_twin = E (H va - eps)`` (``va`` the current and delayed noise, ``||va||_2 <= sqrt(m + 1) ||v||_2``). The
+  continuous bounded real lemma with ``X = c Q`` at every premise and validation point bounds its l2 gain
+  (:func:`uiofmu.noise.continuous_brl_certificate`: ``c`` by a scalar search, no solver). Noise through the
+  measured ``ydot`` and through the premises (the Hermite derivative of a noisy delayed ``y`` errs by about
+  ``|v| / h``) is not covered, and the card's ``noise.reason`` says so.
 """
 
 from __future__ import annotations
@@ -59,14 +66,26 @@ from ..runtime.parametric_plant import ParametricPlantRuntime
 from ..runtime.tolerances import IDENTITY_RTOL, LMI_MARGIN, ROUNDING_FACTOR, SEARCH_TOL, VERIFY_FRACTION
 from ..structure import rank
 from ..table import Table
-from ..noise import section as noise_section
+from ..noise import continuous_brl_certificate, recheck, section as noise_section, stated
 from . import Analysis, DesignResult
 
 NAME = "delayed-uio"
 
-#: Why the card has no noise gain (:mod:`uiofmu.noise`).
-NOISE_REASON = ("gain_y: not certified for this family: in continuous time noise also enters through the measured "
-                "derivative of y and the premises the gain is scheduled on")
+#: What the card's ``noise.gain_y`` leaves out, and why it has no other gain (:mod:`uiofmu.noise`).
+NOISE_REASON = ("gain_y: continuous time, on the premise grid and validation points, the premises (H, Gamma) at their "
+                "noise-free values; not covered: noise through the measured ydot and through the premises "
+                "(functions of y, ydot and their delayed values), as the Hermite derivative of a noisy delayed y, of "
+                "order |v| / h at the step h, nor thetahat; gain_w, gain_dhat_y: no process noise and no dhat in this "
+                "family")
+
+#: What the card's ``noise.gain_y`` bounds (``noise.covers``).
+NOISE_COVERS = ("||e - e_twin||_L2[t0, T] <= gain_y ||v||_L2[t0 - max tau, T] + initial_term ||eps(t0)||: v added to "
+                "the measured y (and so to its delayed copies), e = x - xhat, e_twin the error of the observer fed the "
+                "noise-free y, eps = z - z_twin, t0 >= valid_from; while the premises stay at the points certified")
+
+#: The card's ``noise.certificate.method``.
+NOISE_METHOD = ("continuous bounded real lemma with X = c Q (the decay certificate's Q, c the best scale) at the "
+                "stored matrices, on the premise grid and the validation families' points")
 
 
 @dataclass(frozen=True)
@@ -277,12 +296,17 @@ def symbolic_rank_condition(plant: ParametricPlant, copies: int) -> str:
 # -- the premise family ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Grid:
-    """The premise grid: per point, ``Gamma``, the rank margin, ``|P Da|`` and the signals."""
+    """The premise grid: per point, ``Gamma``, the rank margin, ``|P Da|``, the time and ``H`` (19)."""
 
     gammas: np.ndarray
     sigmas: np.ndarray
     decoupling: np.ndarray
     times: np.ndarray
+    hs: np.ndarray
+
+    def subset(self, keep: np.ndarray) -> "Grid":
+        """The points ``keep`` selects (a mask or indices)."""
+        return Grid(self.gammas[keep], self.sigmas[keep], self.decoupling[keep], self.times[keep], self.hs[keep])
 
 
 def simulate_family(plant: ParametricPlant, signals, theta: np.ndarray, draws, duration: float, shortest: float):
@@ -331,7 +355,7 @@ def premise_grid(problem, delays, premise: Premise) -> Grid:
     rng = np.random.default_rng(premise.seed)
     draws = [(rng.uniform(*premise.scale), rng.uniform(0.0, premise.shift)) for _ in range(premise.count)]
     T, Ys, Yd, Yl = simulate_family(plant, problem.u, theta, draws, premise.duration, min(delays))
-    gammas, sigmas, dec, times = [], [], [], []
+    gammas, sigmas, dec, times, hs = [], [], [], [], []
     for r in range(premise.count):
         for t in np.linspace(max(premise.start, max(delays) + T[1]), premise.duration, premise.samples):
             pts = [hermite(T, Ys[:, r], Yd[:, r], t - tau, Yl[:, r]) for tau in (0.0,) + tuple(delays)]
@@ -342,12 +366,14 @@ def premise_grid(problem, delays, premise: Premise) -> Grid:
             times.append(t)
             if H is None:
                 gammas.append(np.full((Aa.shape[0],) * 2, np.nan))
+                hs.append(np.full(Ca.T.shape, np.nan))
                 dec.append(np.inf)
                 continue
             gammas.append(gamma(Aa, Ca, H, Hdot))
+            hs.append(H)
             P = np.eye(Aa.shape[0]) + H @ Ca
             dec.append(float(np.abs(P @ Da).max() / max(1.0, np.abs(Da).max())))
-    return Grid(np.array(gammas), np.array(sigmas), np.array(dec), np.array(times))
+    return Grid(np.array(gammas), np.array(sigmas), np.array(dec), np.array(times), np.array(hs))
 
 
 #: The default rank-margin floor, relative to the premise family's median margin: ``Gamma`` grows like
@@ -420,8 +446,7 @@ def _analysis(problem):
                             f"largest |P_y D_y| on the premise points used: {worst:.3g} (relative), above "
                             f"{IDENTITY_RTOL:.0e}"),
                            {"residual": worst}))
-    return Existence(NAME, tuple(conds)), Grid(grid.gammas[used], grid.sigmas[used], grid.decoupling[used],
-                                                grid.times[used])
+    return Existence(NAME, tuple(conds)), grid.subset(used)
 
 
 def analyse(problem, solver: bool = True) -> Analysis:
@@ -485,7 +510,8 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
     from the premise grid)."""
     plant, opts = problem.plant, problem.options
     schedule = card_data["schedule"]
-    return {"noise": noise_section(None, NOISE_REASON),
+    return {"noise.norm": "l2", "noise.gain_w": None, "noise.gain_dhat_y": None,     # gain_y: verify re-checks it
+            "noise.covers": NOISE_COVERS,
             "schedule": {"kind": "continuous", "delays": list(opts.delays), "step": opts.step, "step_policy": "error",
                          "max_substep": schedule.get("max_substep"), "sigma_bound": schedule.get("sigma_bound"),
                          "gamma_bound": schedule.get("gamma_bound"), "valid_from": opts.premise.start},
@@ -550,7 +576,7 @@ def _used_grid(problem_json: str) -> Grid:
     premise = problem_from_data(json.loads(problem_json)).options.premise
     grid = _premise_grid(problem_json)
     used = grid.sigmas >= sigma_floor(grid, premise)
-    return Grid(grid.gammas[used], grid.sigmas[used], grid.decoupling[used], grid.times[used])
+    return grid.subset(used)
 
 
 def verify(card) -> list:
@@ -576,8 +602,50 @@ def verify(card) -> list:
         points = validation_points(key, k, grid).gammas
         check = checks(m, points, beta)[1] if len(points) else Check(name, 0.0, 0.0, at_most=False)
         validated.append(replace(check, name=name))
-    return (consistency_checks(card.data, figures) + checks(m, grid.gammas, beta) + validated
+    noise = recheck(card.data.get("noise"), *noise_system(m, noise_points(key, grid, len(seeds))), continuous=True)
+    return (consistency_checks(card.data, figures) + checks(m, grid.gammas, beta) + validated + noise
             + consistency_checks(card.data, text))
+
+
+def noise_points(problem_json: str, grid: Grid, validations: int) -> Grid:
+    """The points the noise gain is certified on: the premise grid's (the points the design uses) and those of the
+    validation families ``1 .. validations`` that the run-time flag calls valid (:func:`validation_points`)."""
+    parts = [grid] + [validation_points(problem_json, k, grid) for k in range(1, validations + 1)]
+    return Grid(*(np.concatenate([getattr(g, f) for g in parts])
+                  for f in ("gammas", "sigmas", "decoupling", "times", "hs")))
+
+
+def noise_system(matrices: dict, points: Grid) -> tuple:
+    """The error system from measurement noise at the stored matrices, one point per premise point: stacks
+    ``(A, B, C, D)`` for :func:`uiofmu.noise.continuous_brl_checks`.
+
+    With ``v`` added to the measured ``y``, the observer reads ``ya + va`` (``va`` the current and delayed noise)
+    and ``z' = N (z - H (ya + va)) + K (ya + va) + P Ba ua``, ``xhat = z - H (ya + va)``, ``N = Gamma - K Ca``.
+    With the premises (``H``, ``Gamma``) at their noise-free values, the difference from the noise-free twin,
+    ``eps = z - z_twin``, follows::
+
+        eps' = N eps + (K - N H) va,    e - e_twin = -E eps + E H va      (E = [I 0 ... 0]: the plant's block)
+
+    and ``||va||_2 <= sqrt(m + 1) ||v||_2`` (each delayed copy is ``v`` shifted), so the input is taken as
+    ``va / sqrt(m + 1)``: ``B = sqrt(m + 1) (K - N H)``, ``D = sqrt(m + 1) E H``, and the l2 gain of these stacks
+    bounds ``||e - e_twin||_2 / ||v||_2``.
+    """
+    K, Ca, C = (np.asarray(matrices[k], dtype=float) for k in ("K", "Ca", "Cbar"))
+    copies = Ca.shape[0] // C.shape[0]
+    pa, na = Ca.shape
+    N = np.asarray(points.gammas, dtype=float).reshape(-1, na, na) - (K @ Ca)[None]
+    H = np.asarray(points.hs, dtype=float).reshape(-1, na, pa)
+    E = np.eye(C.shape[1], na)
+    root = math.sqrt(copies)
+    return (N, root * (K[None] - N @ H), np.broadcast_to(-E, (len(N),) + E.shape), root * (E[None] @ H))
+
+
+def noise_gain(matrices: dict, points: Grid) -> dict:
+    """The card's ``noise`` section: ``gain_y`` the least l2 gain that ``X = c Q`` certifies on the points
+    (:func:`uiofmu.noise.continuous_brl_certificate` on :func:`noise_system`), what it covers and leaves out."""
+    cert = continuous_brl_certificate(*noise_system(matrices, points), matrices["Q"])
+    gain, extra, why = stated(cert, NOISE_METHOD)
+    return noise_section(gain, "; ".join(([why] if why else []) + [NOISE_REASON]), covers=NOISE_COVERS, **extra)
 
 
 #: Premise points of the first solve of the cutting-plane design, and most points added per round.
@@ -686,7 +754,7 @@ def validation_points(problem_json: str, k: int, grid: Grid) -> Grid:
     gmax = float(max(np.linalg.norm(G, 2) for G in grid.gammas))
     size = np.array([np.linalg.norm(G, 2) if np.all(np.isfinite(G)) else np.inf for G in family.gammas])
     keep = (family.sigmas >= float(grid.sigmas.min())) & (size <= gmax)
-    return Grid(family.gammas[keep], family.sigmas[keep], family.decoupling[keep], family.times[keep])
+    return family.subset(keep)
 
 
 def _failing(matrices: dict, gammas: np.ndarray, beta: float) -> np.ndarray:
@@ -725,6 +793,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     copies = len(opts.delays) + 1
     Ca = augmented(plant.C, copies)
     beta, sol, system, searched, Q, K, offsets = _validated(problem, grid, Ca, f"{NAME} design of {problem.name}")
+    key = json.dumps(problem.data, sort_keys=True, default=lambda x: np.asarray(x).tolist())
     matrices = {"Q": Q, "K": K, "Ca": Ca, "Abar": plant.A, "Bbar": plant.B, "Cbar": plant.C, "D0": plant.D0,
                 "Dy": plant.Dy}
     cert = certificate(sol, checks(matrices, grid.gammas, beta), f"{NAME} design of {problem.name}")
@@ -737,7 +806,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
                 "sigma_bound": fig["schedule.sigma_bound"], "gamma_bound": fig["schedule.gamma_bound"],
                 "valid_from": opts.premise.start, "step": opts.step, "step_policy": "error"}
     results = {
-        "noise": noise_section(None, NOISE_REASON),
+        "noise": noise_gain(matrices, noise_points(key, grid, len(offsets))),
         "decay_rate": beta,
         "decay_bound": None, "overshoot_bound": None,
         "overshoot": fig["overshoot"],

@@ -173,7 +173,8 @@ MAX_REASON = 500
 
 def _check_noise(value) -> None:
     """A card's ``noise`` section (:mod:`uiofmu.noise`): ``norm`` "l2", each gain a finite number >= 0 or null,
-    ``reason`` a short text (required when every gain is null), a certificate's ``X`` a finite array."""
+    ``reason`` a short text (required when every gain is null), ``covers`` (optional) a short text, a
+    certificate's ``X`` a finite array."""
     noise = _table(value, "noise")
     if noise.get("norm") != "l2":
         raise CardError(f'design card noise.norm: expected "l2", found {_kind(noise.get("norm"))}')
@@ -182,10 +183,10 @@ def _check_noise(value) -> None:
             raise CardError(f"design card noise.{key}: required (a gain, or null)")
         if noise.get(key) is not None:
             _number(noise[key], f"noise.{key}", low=0.0)
-    reason = noise.get("reason")
-    if reason is not None:
-        _text(reason, "noise.reason", MAX_REASON)
-    if all(noise[key] is None for key in NOISE_GAINS) and not reason:
+    for key in ("reason", "covers"):                # covers: what a gain bounds, where a family states it
+        if noise.get(key) is not None:
+            _text(noise[key], f"noise.{key}", MAX_REASON)
+    if all(noise[key] is None for key in NOISE_GAINS) and not noise.get("reason"):
         raise CardError("design card noise: every gain is null and noise.reason does not say why")
     for key in ("certificate", "certificate_w", "certificate_dhat_y"):
         if key in noise:
