@@ -110,6 +110,46 @@ def test_step_sequences(tmp_path):
         step_sequence(f"file:{f}", 1.0)
 
 
+def _one_draw_a_step(spec: str, t_end: float, seed: int) -> list:
+    """The definition of the random kinds: one step drawn at a time until ``t_end`` is reached."""
+    rng = np.random.default_rng(seed)
+    kind, _, rest = spec.partition(":")
+    parts = rest.split(":")
+    if kind == "choice":
+        options = [float(v) for v in rest.split(",")]
+        draw = lambda: options[int(rng.integers(len(options)))]          # noqa: E731
+    elif kind == "uniform":
+        draw = lambda: float(rng.uniform(float(parts[0]), float(parts[1])))  # noqa: E731
+    else:
+        nominal, prob, most = float(parts[0]), float(parts[1]), int(parts[2])
+
+        def draw():
+            lost = 0
+            while lost < most and rng.random() < prob:
+                lost += 1
+            return nominal * (1 + lost)
+    out, t = [], 0.0
+    while t < t_end * (1 - 1e-12):
+        out.append(draw())
+        t += out[-1]
+    return out
+
+
+@pytest.mark.parametrize("spec", ["choice:0.1,0.3", "choice:0.2", "choice:0.1,0.2,0.3,0.4,0.5,0.6,0.7",
+                                  "uniform:0.01:0.5", "uniform:0.3:0.3", "dropout:0.1:0.3:2", "dropout:0.1:0.9:7",
+                                  "dropout:0.1:0.5:0", "dropout:0.1:0:3", "dropout:0.1:0.99:1000"])
+def test_drawn_at_once_the_steps_are_those_drawn_one_at_a_time(spec):
+    for seed in range(12):
+        for t_end in (0.05, 1.0, 7.3, 400.0):
+            assert step_sequence(spec, t_end, seed=seed).tolist() == _one_draw_a_step(spec, t_end, seed), \
+                (spec, seed, t_end)
+
+
+def test_too_many_steps_are_refused():
+    with pytest.raises(ProblemError, match="needs more than 10000000 steps"):
+        step_sequence("uniform:1e-6:2e-6", 1e3, seed=1)
+
+
 def test_continuous_plant_lti_observer_end_to_end(tmp_path, cli):
     problem = tmp_path / "osc.toml"
     problem.write_text("""name = "osc"

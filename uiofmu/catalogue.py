@@ -89,6 +89,7 @@ EXAMPLES = (
     Example("seed000-example1", "examples/seed000_example1.toml"),
     Example("accelerometer-feedthrough", "examples/accelerometer_feedthrough.toml"),
     Example("pole-placement", "examples/pole_placement.toml"),
+    Example("reduced-order-carts", "examples/reduced_order.toml"),
     Example("seed000-example1-ltv", "examples/seed000_example1_ltv.toml"),
     Example("two-room-building", "plants/two_room_building/problem.toml"),
     Example("quarter-car", "plants/quarter_car/problem.toml"),

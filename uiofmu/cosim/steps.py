@@ -83,15 +83,18 @@ def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
     kind, rest = spec.partition(":")[::2]
     if kind == "file":
         return _file_steps(rest, t_end)
-    draw, _ = _random_kind(spec, np.random.default_rng(seed))
-    out, t = [], 0.0
-    while t < t_end * (1 - 1e-12):
-        step = draw()
-        out.append(step)
-        t += step
-        if len(out) > MAX_STEPS:
+    block, _, mean = _random_kind(spec)
+    limit = t_end * (1 - 1e-12)
+    wanted = int(min(t_end / mean * 1.25, MAX_STEPS)) + 16
+    while True:
+        steps = block(np.random.default_rng(seed), wanted)
+        reached = np.cumsum(steps)          # sequential sums: the times the loop ``t += h`` reaches
+        count = int(np.searchsorted(reached, limit, side="left")) + 1
+        if count > MAX_STEPS or (count > len(steps) and len(steps) > MAX_STEPS):
             raise ProblemError(f"--steps {short_spec(spec)} with --t-end {t_end:g} needs more than {MAX_STEPS} steps")
-    return np.array(out)
+        if count <= len(steps):
+            return steps[:count]
+        wanted *= 2
 
 
 def short_spec(spec: str, limit: int = 80) -> str:
@@ -124,18 +127,24 @@ def _file_steps(rest: str, t_end: float) -> np.ndarray:
     return np.array(out)
 
 
-def _random_kind(spec: str, rng: np.random.Generator) -> tuple:
-    """``(draw, ranges)`` of a SPEC other than ``file:``: a function drawing one step from ``rng``, and
-    the ``(low, high)`` intervals every draw lies in (``low == high`` for a step that is listed)."""
+def _random_kind(spec: str) -> tuple:
+    """``(block, ranges, mean)`` of a SPEC other than ``file:``.
+
+    ``block(rng, wanted)`` draws about ``wanted`` steps at once from ``rng`` (at least one): the same
+    steps, in the same order, as one draw a step would give (a Generator's block of draws is its
+    single draws one after another); ``ranges`` are the ``(low, high)`` intervals every step lies in
+    (``low == high`` for a step that is listed); ``mean`` is about the mean step, to size the blocks.
+    """
     kind, _, rest = spec.partition(":")
     if kind == "fixed":
         fixed = _positive(rest, "fixed:H")
-        return (lambda: fixed), [(fixed, fixed)]
+        return (lambda rng, wanted: np.full(wanted, fixed)), [(fixed, fixed)], fixed
     if kind == "choice":
-        options = [_positive(v, "each choice") for v in rest.split(",") if v.strip()]
-        if not options:
+        options = np.array([_positive(v, "each choice") for v in rest.split(",") if v.strip()])
+        if not len(options):
             raise ProblemError("--steps choice:H1,H2,...: give at least one step")
-        return (lambda: options[int(rng.integers(len(options)))]), [(h, h) for h in dict.fromkeys(options)]
+        return ((lambda rng, wanted: options[rng.integers(len(options), size=wanted)]),
+                [(h, h) for h in dict.fromkeys(options.tolist())], float(options.mean()))
     if kind == "uniform":
         parts = rest.split(":")
         if len(parts) != 2:
@@ -143,7 +152,7 @@ def _random_kind(spec: str, rng: np.random.Generator) -> tuple:
         lo, hi = _positive(parts[0], "HMIN"), _positive(parts[1], "HMAX")
         if lo > hi:
             raise ProblemError(f"--steps uniform: HMIN = {lo:g} > HMAX = {hi:g}")
-        return (lambda: float(rng.uniform(lo, hi))), [(lo, hi)]
+        return (lambda rng, wanted: rng.uniform(lo, hi, size=wanted)), [(lo, hi)], 0.5 * (lo + hi)
     if kind == "dropout":
         parts = rest.split(":")
         if len(parts) != 3:
@@ -156,17 +165,29 @@ def _random_kind(spec: str, rng: np.random.Generator) -> tuple:
                 from None
         if not 0 <= prob < 1 or most < 0:
             raise ProblemError(f"--steps dropout: expected 0 <= P < 1 and MAX >= 0, found P = {prob:g}, MAX = {most}")
-
-        def draw():
-            lost = 0
-            while lost < most and rng.random() < prob:
-                lost += 1
-            return nominal * (1 + lost)
-
         losses = range(most + 1) if prob > 0 else range(1)
-        return draw, [(nominal * (1 + j), nominal * (1 + j)) for j in losses[:MAX_LISTED]]
+        return (lambda rng, wanted: nominal * (1 + _dropout_losses(rng, wanted, prob, most)),
+                [(nominal * (1 + j), nominal * (1 + j)) for j in losses[:MAX_LISTED]],
+                nominal * (1 + min(prob / (1 - prob), most)))
     raise ProblemError(f"--steps: unknown kind {kind!r} (expected fixed:H, choice:H1,H2,..., "
                        "uniform:HMIN:HMAX, dropout:H:P:MAX or file:PATH)")
+
+
+def _dropout_losses(rng: np.random.Generator, wanted: int, prob: float, most: int) -> np.ndarray:
+    """The losses of the steps that a block of draws decides, for ``dropout:H:P:MAX``.
+
+    A step draws until a sample arrives (a draw ``>= P``) or ``MAX`` samples in a row are lost (then
+    without a further draw): a run of ``r`` losses before an arrival makes ``r // MAX`` steps of ``MAX``
+    losses and one of ``r % MAX``. With ``MAX = 0`` no step draws at all.
+    """
+    if most == 0:
+        return np.zeros(wanted, dtype=np.int64)
+    arrived = np.flatnonzero(rng.random(int(wanted * (1 + min(prob / (1 - prob), most))) + 1) >= prob)
+    runs = np.diff(arrived, prepend=-1) - 1          # losses before each arrival
+    full, rest = np.divmod(runs, most)
+    lost = np.full(int((full + 1).sum()), most, dtype=np.int64)
+    lost[np.cumsum(full + 1) - 1] = rest
+    return lost
 
 
 #: Most distinct steps of a SPEC that :func:`step_ranges` lists (a dropout's MAX may be huge).
@@ -199,4 +220,4 @@ def step_ranges(spec: str, t_end: float) -> list:
     kind, rest = spec.partition(":")[::2]
     if kind == "file":
         return [(h, h) for h in dict.fromkeys(_file_steps(rest, t_end).tolist())][:MAX_LISTED]
-    return _random_kind(spec, np.random.default_rng(0))[1]
+    return _random_kind(spec)[1]

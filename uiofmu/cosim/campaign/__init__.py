@@ -3,8 +3,9 @@
 A campaign file (TOML, data only) names the FMUs (or a problem that gives them) and the axes a
 run's scenario is drawn along: the step SPEC and its seed, an initial estimation error, a scale of
 the unknown input, plant parameters. Every scenario is a function of the campaign's seed and the
-row index only (:func:`scenario`), made when its batch is submitted (:func:`batches`), so one row
-can be re-run alone and gives the same numbers bit for bit (:func:`replay`). The runs go to a
+row index only (:func:`scenario`), made by the worker that runs it (a batch is a range of rows:
+:func:`batches`), so one row can be re-run alone and gives the same numbers bit for bit
+(:func:`replay`). The runs go to a
 ``dask.distributed`` cluster (a ``LocalCluster`` of worker processes, or an existing scheduler,
 checked with a deadline first: :func:`probe_scheduler`): each worker receives the FMUs once (their
 bytes, so a worker on another machine needs no shared folder), keeps them with the observer's

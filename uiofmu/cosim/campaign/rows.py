@@ -55,6 +55,12 @@ def flat(sc: dict) -> dict:
     return out
 
 
+def axis_cells(campaign: Campaign, setup: Setup, sc: dict) -> list:
+    """The row and axis cells of scenario ``sc``, in the table's order (:data:`HEAD`, :func:`axis_columns`)."""
+    values = flat(sc)
+    return [cell(values.get(c)) for c in HEAD + axis_columns(campaign, setup)]
+
+
 def read_table(path) -> list:
     """A campaign table as a list of dicts of strings (the CSV cells)."""
     with open(path, newline="") as f:
@@ -85,16 +91,17 @@ class RowFile:
         self.file = open(path, "w", newline="", encoding="utf-8")
         self.writer = csv.writer(self.file, lineterminator="\n")
 
-    def add(self, sc: dict, result: dict) -> None:
-        """Append the row of scenario ``sc`` and its ``result`` (status, reason, metrics)."""
-        values = {**flat(sc), **result}
+    def add(self, axis: list, result: dict) -> None:
+        """Append a row: its row and axis cells ``axis`` (:func:`axis_cells`) and its ``result`` (status,
+        reason, metrics)."""
         metrics = [k for k in result if k not in _NOT_METRICS]
         for key in metrics:
             self.keys.setdefault(key, len(self.keys))
         cells = [""] * len(self.keys)
         for key in metrics:
             cells[self.keys[key]] = cell(result[key])
-        self.writer.writerow([cell(values.get(c)) for c in self.head] + [cell(result.get("wall_s"))] + cells)
+        self.writer.writerow(axis + [cell(result.get("status")), cell(result.get("reason")),
+                                     cell(result.get("wall_s"))] + cells)
 
     def columns(self) -> list:
         """The table's columns: the head, the metrics (:data:`PREFERRED` first) and ``wall_s``."""
@@ -121,4 +128,4 @@ class RowFile:
         self.file.close()
 
 
-__all__ = ["HEAD", "PREFERRED", "RowFile", "axis_columns", "cell", "flat", "read_table"]
+__all__ = ["HEAD", "PREFERRED", "RowFile", "axis_cells", "axis_columns", "cell", "flat", "read_table"]

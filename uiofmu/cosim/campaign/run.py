@@ -12,7 +12,7 @@ from ...threads import single_blas_thread
 from .file import Campaign
 from .fmus import Setup, prepare
 from .plot import plot_campaign
-from .rows import RowFile, cell, flat, read_table
+from .rows import RowFile, axis_cells, cell, flat, read_table
 from .sampling import batches, scenario
 from .scheduler import probe_scheduler, scheduler_address, start_client
 from .staging import Staging
@@ -51,16 +51,16 @@ class _Run:
         rows as they finish."""
         from distributed import as_completed
 
-        shared = self.client.scatter(self.setup, broadcast=True)
-        source = enumerate(batches(self.campaign, self.setup, _batch_size(self.campaign, self.workers)))
+        shared = self.client.scatter([self.setup, self.campaign], broadcast=True)
+        source = enumerate(batches(self.campaign, _batch_size(self.campaign, self.workers)))
         window = BATCHES_PER_WORKER * max(1, self.workers)
         finished = as_completed()
         self._fill(source, window, shared, finished)
         for fut in finished:
-            index, _, scs = self.inflight.pop(fut.key)
-            self.waiting[index] = (scs, self._results(fut, scs))
+            index, _, rows = self.inflight.pop(fut.key)
+            self.waiting[index] = self._results(fut, rows)
             fut.release()
-            bar.update(len(scs))
+            bar.update(len(rows))
             self._write_ready()
             self._checkpoint()
             self._fill(source, window, shared, finished)
@@ -70,18 +70,19 @@ class _Run:
             item = next(source, None)
             if item is None:
                 return
-            index, scs = item
-            fut = self.client.submit(run_batch, shared, scs, pure=False)
-            self.inflight[fut.key] = (index, fut, scs)
+            index, rows = item
+            fut = self.client.submit(run_batch, *shared, rows, pure=False)
+            self.inflight[fut.key] = (index, fut, rows)
             finished.add(fut)
 
-    @staticmethod
-    def _results(fut, scs: list) -> list:
+    def _results(self, fut, rows: range) -> list:
         try:
             return fut.result()
         except Exception as exc:  # noqa: BLE001 - a worker died (a crash inside an FMU) or was lost
             reason = f"worker lost: {type(exc).__name__}: {' '.join(str(exc).split())}"[:500]
-            return [(sc["row"], {"status": "crashed", "reason": reason}) for sc in scs]
+            return [(row, axis_cells(self.campaign, self.setup, sc), sc.get("plant_mismatch"),
+                     {"status": "crashed", "reason": reason})
+                    for row in rows for sc in [scenario(self.campaign, self.setup, row)]]
 
     def _write_ready(self, everything: bool = False) -> None:
         """Write the finished batches that follow the rows written (``everything``: all of them, in order)."""
@@ -92,10 +93,9 @@ class _Run:
             self.next += 1
 
     def _write(self, batch) -> None:
-        scs, results = batch
-        for sc, (row, result) in zip(scs, results):
-            self.rows.add(sc, result)
-            self.tally.add(row, result, sc.get("plant_mismatch"))
+        for row, cells, mismatch, result in batch:
+            self.rows.add(cells, result)
+            self.tally.add(row, result, mismatch)
 
     def _checkpoint(self) -> None:
         """Rewrite the table and summary in the staging folder, at most every ``checkpoint_s`` and at

@@ -3,8 +3,6 @@ only, drawn along the campaign's axes when it is asked for."""
 
 from __future__ import annotations
 
-from itertools import islice
-
 import numpy as np
 
 from ...runtime.errors import ProblemError
@@ -85,17 +83,17 @@ def scenarios(campaign: Campaign, setup: Setup, start: int = 0):
         yield scenario(campaign, setup, row)
 
 
-def batches(campaign: Campaign, setup: Setup, size: int):
-    """The scenarios of every row in row order, in lists of ``size`` (the last may be shorter), each
-    made when it is asked for: a campaign of any number of runs starts at once.
+def batches(campaign: Campaign, size: int):
+    """The rows in row order, in ranges of ``size`` (the last may be shorter): a batch is its rows' indices
+    only, and each row's scenario is made by the worker that runs it (:func:`scenario`), so a campaign of any
+    number of runs starts at once and the command's own process does not draw them.
 
     Yields
     ------
-    list of dict
+    range
     """
-    rows = scenarios(campaign, setup)
-    while batch := list(islice(rows, size)):
-        yield batch
+    for start in range(0, campaign.runs, size):
+        yield range(start, min(start + size, campaign.runs))
 
 
 def scaled_inputs(inputs, scale: float):

@@ -19,7 +19,9 @@ from ...runtime.errors import UserError
 from ...threads import single_blas_thread
 from .fmus import Setup
 from ..noise import Noise
-from .sampling import scaled_inputs
+from .file import Campaign
+from .rows import axis_cells
+from .sampling import scaled_inputs, scenario
 
 
 @dataclass
@@ -148,13 +150,25 @@ def run_row(setup: Setup, sc: dict) -> dict:
 
 
 @single_blas_thread
-def run_batch(setup: Setup, scenarios: list) -> list:
-    """A Dask task: the rows of a batch of scenarios, run one after the other in this worker."""
+def run_batch(setup: Setup, campaign: Campaign, rows: range) -> list:
+    """A Dask task: the rows ``rows`` made into scenarios (:func:`scenario`) and run one after the other in
+    this worker.
+
+    Returns
+    -------
+    list of tuple
+        Per row ``(row, cells, plant_mismatch, result)``: the row's axis cells for the table
+        (:func:`axis_cells`), its plant's mismatch (None without the axis) and :func:`run_row`'s result.
+    """
     import warnings
 
+    out = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return [(sc["row"], run_row(setup, sc)) for sc in scenarios]
+        for row in rows:
+            sc = scenario(campaign, setup, row)
+            out.append((row, axis_cells(campaign, setup, sc), sc.get("plant_mismatch"), run_row(setup, sc)))
+    return out
 
 
 __all__ = ["Loaded", "load", "run_batch", "run_row", "run_scenario", "scalar_metrics"]
