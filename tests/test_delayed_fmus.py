@@ -255,6 +255,20 @@ def test_command_line_end_to_end(built, tmp_path):
     assert "largest difference 0 " in result.out, result.out
 
 
+def test_noise_is_measured_against_a_gain_the_run_does_not_check(built, tmp_path):
+    """cosim --noise on the delayed observer: its card's gain_y holds with the premises noise-free (noise.covers),
+    which its FMU does not keep, so the run measures the loop's gain and states that it does not check the card:
+    noise_gain_respected is null whatever the ratio, and no line says FALSE CERTIFICATE."""
+    sh = built["short"]
+    out = tmp_path / "noisy"
+    result = _cli("cosim", "--plant", sh["plant"], "--observer", sh["obs"], "--t-end", "0.3", "--noise", "y=0.5,3",
+                  "--out", out)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["noise_gain_covers"] == json.loads(sh["card"].read_text())["noise"]["covers"]
+    assert m["noise_gain_measured"] > 0 and m["noise_gain_certified"] > 0 and m["noise_gain_respected"] is None
+    assert "not a check of it" in result.out and "FALSE CERTIFICATE" not in result.out
+
+
 def test_plant_theta_changes_the_plant_not_the_observer(built, tmp_path):
     """The plant's parameter theta, changed through cosimulate, changes what the plant does (and the truth
     the metrics compare with); the observer never reads it: an observer FMU built from a card whose

@@ -642,6 +642,9 @@ def assert_noise_gain_respected(observer_fmu, plant_fmu, noise_std: float = 0.01
     if section.get("gain_y") is None:
         raise AssertionError(f"{name}: expected a card with a certified noise gain; the {card.family} card certifies "
                              f"none ({section.get('reason') or 'it has no noise section'})")
+    if section.get("covers"):
+        raise AssertionError(f"{name}: the {card.family} card's gain_y holds on premises a co-simulation does not keep "
+                             f"({section['covers']}): a measured gain does not check it")
     run = _execute(observer_fmu, plant_fmu, card, seq, spec, seed, xhat0, noise=f"y={noise_std!r},{seed}")
     m = run.result.metrics
     if not m.get("noise_gain_respected"):

@@ -143,6 +143,15 @@ def certified_noise_gain(card, key: str = "gain_y") -> float | None:
     return float(gain) if isinstance(gain, (int, float)) and not isinstance(gain, bool) else None
 
 
+def gain_covers(card) -> str | None:
+    """What the card's ``noise.gain_y`` bounds where its family states it (``noise.covers``: the delayed UIO's holds
+    with its premises at their noise-free values, which its FMU does not keep), else None: a gain of the whole loop,
+    which a measurement can refute."""
+    section = card.data.get("noise")
+    covers = section.get("covers") if isinstance(section, dict) else None
+    return covers if isinstance(covers, str) and covers else None
+
+
 def _second_half_rms(err: np.ndarray) -> list:
     half = err[len(err) // 2:]
     return np.sqrt(np.mean(half * half, axis=0)).tolist() if len(half) else []
@@ -174,7 +183,8 @@ def noise_metrics(card, v: np.ndarray, estimate: np.ndarray, twin: np.ndarray, t
     dict
         ``noise_gain_certified`` (the card's ``noise.gain_y`` or None), ``noise_gain_measured``
         (``||e - e_twin||_2 / ||v||_2``, sums over the points), ``noise_gain_respected`` (measured <=
-        certified (1 + :data:`GAIN_RTOL`); None without a certified gain), ``noise_gain_ratio``,
+        certified (1 + :data:`GAIN_RTOL`); None without a certified gain, and None where the gain holds on
+        premises the run does not keep: ``noise_gain_covers``, :func:`gain_covers`), ``noise_gain_ratio``,
         ``noise_std_norm`` (``||sigma||`` of the effective std per output, ``sqrt(std^2 + Q^2 / 12)``: a
         quantum's rounding error as uniform noise), ``noise_rms_error`` and
         ``noise_dhat_rms_error`` (of the observer fed the noisy ``y``, over the second
@@ -188,12 +198,14 @@ def noise_metrics(card, v: np.ndarray, estimate: np.ndarray, twin: np.ndarray, t
     rows = np.all(np.isfinite(diff), axis=1)
     v_norm = float(np.sqrt(np.sum(v * v)))
     measured = float(np.sqrt(np.sum(diff[rows] ** 2)) / v_norm) if v_norm > 0 else None
-    certified = certified_noise_gain(card)
-    respected = None if certified is None or measured is None else bool(measured <= certified * (1 + GAIN_RTOL))
+    certified, covers = certified_noise_gain(card), gain_covers(card)
+    respected = (None if certified is None or measured is None or covers
+                 else bool(measured <= certified * (1 + GAIN_RTOL)))
     err = np.asarray(estimate, dtype=float) - np.asarray(true, dtype=float)
     err_twin = np.asarray(twin, dtype=float) - np.asarray(true, dtype=float)
     valid = np.all(np.isfinite(err), axis=1)
     out = {"noise_gain_certified": certified, "noise_gain_measured": measured, "noise_gain_respected": respected,
+           "noise_gain_covers": covers,
            "noise_gain_ratio": None if certified in (None, 0.0) or measured is None else measured / certified,
            "noise_std_norm": float(np.linalg.norm(effective)),
            "noise_rms_error": _second_half_rms(err[valid])}
