@@ -102,8 +102,7 @@ def _print_noise(metrics: dict, p) -> None:
         elif metrics.get("noise_gain_covers"):
             p(f"  noise gain           measured {shown} (||e - e_twin|| / ||v||, ratio "
               f"{metrics['noise_gain_ratio']:.3g} to the card's {certified:.4g}); not a check of it: the card's gain "
-              "holds with the premises "
-              "noise-free (noise.covers), and this observer reads the noisy y into them")
+              "holds with the premises noise-free (noise.covers), and this observer reads the noisy y into them")
         elif metrics["noise_gain_respected"]:
             p(f"  noise gain           measured {shown} <= certified {certified:.4g}: respected "
               f"(ratio {metrics['noise_gain_ratio']:.3g})")
