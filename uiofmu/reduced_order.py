@@ -47,6 +47,7 @@ from .certificate import (UNDETERMINED, Check, certificate, decay_check, identit
 from .decoupling import decoupling_gain
 from .existence import complex_list
 from .lmi import tune
+from .noise import dhat_error_step
 from .runtime.errors import InfeasibleError, ProblemError
 from .runtime.tolerances import SEARCH_TOL
 from .scaling import to_data as scaling_data
@@ -139,13 +140,8 @@ def process_error_system(matrices: dict) -> tuple:
 
 def dhat_error_system(matrices: dict) -> tuple:
     """Measurement noise to the error of ``dhat`` (``dhat_k - d_k = Dy (Yx e_k + v_(k+1))``, shifted by one step as
-    :func:`uiofmu.families.lti_uio.dhat_error_system`): state ``(eps, v)``."""
-    N, L, Xz, Xy, Dy, Yx = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xz", "Xy", "Dy", "Yx"))
-    nz, p = L.shape
-    A = np.block([[N, -L], [np.zeros((p, nz)), np.zeros((p, p))]])
-    B = np.vstack([np.zeros((nz, p)), np.eye(p)])
-    DyYx = Dy @ Yx
-    return A, B, np.hstack([DyYx @ Xz, -DyYx @ Xy]), Dy
+    :func:`uiofmu.families.lti_uio.dhat_error_system`): state ``(eps, v)``, :func:`uiofmu.noise.dhat_error_step`."""
+    return dhat_error_step(*(matrices[k] for k in ("N", "L", "Xz", "Xy", "Dy", "Yx")))
 
 
 def _tuned(red: dict, largest: float, opts, name: str, certify, family):

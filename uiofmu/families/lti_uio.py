@@ -92,8 +92,8 @@ from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex, from_pairs
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..gains import cap_lmis
-from ..noise import (NOISE_DECAY_ROOM, NOISE_METHOD, NOISE_OBJECTIVES, NORM, certified, fastest_within,
-                     hinf_norm, recheck, section)
+from ..noise import (NOISE_DECAY_ROOM, NOISE_METHOD, NOISE_OBJECTIVES, NORM, certified, dhat_error_step,
+                     fastest_within, hinf_norm, recheck, section)
 from ..reductions import LYAPUNOV, UPPER_BOUND, matrix, scalar, symmetric
 from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
@@ -543,14 +543,10 @@ def dhat_error_system(matrices: dict) -> tuple:
     ``dhat_k = Dy (y_(k+1) - Yx xhat_k - Yu u_k - Yc)`` with ``Dy C E = I`` and ``Yx = C A`` gives
     ``dhat_k - d_k = Dy (Yx e_k + v_(k+1))``: it reads the next sample, so in the time ``j = k + 1`` its state is
     ``(eps_(j-1), v_(j-1))``, with ``A = [[N, -L], [0, 0]]``, ``B = [0; I]``, ``C = Dy Yx [I, -Xy]``, ``D = Dy``
-    (a shift by one step leaves l2 norms as they are).
+    (a shift by one step leaves l2 norms as they are): :func:`uiofmu.noise.dhat_error_step` with ``Xz = I``.
     """
     N, L, Xy, Dy, Yx = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy", "Dy", "Yx"))
-    n, p = L.shape
-    A = np.block([[N, -L], [np.zeros((p, n)), np.zeros((p, p))]])
-    B = np.vstack([np.zeros((n, p)), np.eye(p)])
-    DyYx = Dy @ Yx
-    return A, B, np.hstack([DyYx, -DyYx @ Xy]), Dy
+    return dhat_error_step(N, L, np.eye(len(N)), Xy, Dy, Yx)
 
 
 #: Why an lti-uio card has no process-noise gain.
