@@ -26,6 +26,13 @@ system (a frequency sweep, zoomed into around its peaks), times ``1 + NOISE_MARG
 :data:`NOISE_DIGITS` significant digits; ``X`` is the stabilising solution of the bounded real
 Riccati equation at that ``gamma`` (no solver). The card records the ``gamma`` the re-check proves.
 
+A runtime whose matrices follow a mode or an interval (switched, sampled-data) is certified for every sequence
+by the poly-quadratic lemma, one ``X`` per mode or interval (:func:`lemma_certificate`, solved by CLARABEL,
+rounded up and re-checked alike): ``gain_y`` on :func:`pair_error_system`, ``gain_dhat_y`` on
+:func:`pair_dhat_error_system` (dhat reads the next sample: a system one step ahead with the state
+``(eps, v_prev)``, whose output reads the interval or mode of the step just taken, as lti-uio's
+:func:`dhat_error_step` with one step).
+
 A finite-impulse-response error (the dead-beat functional observer: ``sum_j K_j v_{k-j}``) is certified
 alike on its shift-register realisation (:func:`fir_system`), and its peak-to-peak gain is the sum of the
 coefficients' norms (:func:`peak_to_peak`).
@@ -633,10 +640,11 @@ def lemma_certificate(steps: list, storages: int, sigma: float, label: str = "ga
 
     The LMIs of the lemma for every step, with ``storages`` storage matrices and ``g`` bounding
     ``(gamma / (unit scale))^2`` minimised (CLARABEL; the outputs divided by their largest entry ``scale`` and the
-    input measured in ``unit``, so that the solver sees numbers near 1 whatever the gains: ``unit = sigma``,
-    ``sigma`` a lower bound of ``gamma``, e.g. the largest H-infinity norm of a mode held constant, and, where
-    ``scale`` is not 1, ``unit = sigma / scale`` too (``g`` near 1), the lesser certified gain kept; with
-    ``balanced``, in the state coordinates of :func:`state_balance`); then ``gamma`` from ``g``, times
+    input measured in ``unit = sigma / scale``, ``sigma`` a lower bound of ``gamma``, e.g. the largest H-infinity
+    norm of a mode held constant, so that the solver sees numbers near 1 whatever the gains, ``g`` too; where that
+    solve certifies nothing and ``scale`` is not 1, once more with ``unit = sigma``, which CLARABEL solves on some
+    error systems of dhat where the former fails; with ``balanced``, in the state coordinates of
+    :func:`state_balance`); then ``gamma`` from ``g``, times
     ``1 + NOISE_MARGIN``, rounded up, and re-checked at the stored matrices with the solver's ``X`` (mapped back),
     growing by :data:`GROWTH` where it fails.
 
@@ -650,14 +658,11 @@ def lemma_certificate(steps: list, storages: int, sigma: float, label: str = "ga
     t = state_balance(steps) if balanced else np.ones(steps[0][0].shape[0])       # eps = diag(t) eps_b
     solved = [(A * t[None, :] / t[:, None], B / t[:, None], C * t[None, :], *rest) for A, B, C, *rest in steps]
     scale = max(float(np.abs(step[2]).max()) if step[2].size else 0.0 for step in solved) or 1.0
-    best, why = None, None
-    for unit in dict.fromkeys((sigma, sigma / scale)):
-        found = _lemma_try(steps, solved, t, storages, unit, scale, label)
-        if found["gamma"] is None:
-            why = why or found["why"]
-        elif best is None or found["gamma"] < best["gamma"]:
-            best = found
-    return best or {"gamma": None, "why": why}
+    found = _lemma_try(steps, solved, t, storages, sigma / scale, scale, label)
+    if found["gamma"] is None and scale != 1.0:
+        again = _lemma_try(steps, solved, t, storages, sigma, scale, label)
+        return again if again["gamma"] is not None else found
+    return found
 
 
 def _lemma_try(steps: list, solved: list, t: np.ndarray, storages: int, unit: float, scale: float,
@@ -694,6 +699,8 @@ def _lemma_try(steps: list, solved: list, t: np.ndarray, storages: int, unit: fl
     Xb = np.array([0.5 * (sol.values[f"X{s}"] + sol.values[f"X{s}"].T) for s in range(storages)]) * scale ** 2
     X = Xb / t[None, :, None] / t[None, None, :]
     least = unit * scale * math.sqrt(max(float(sol.values["g"]), 0.0))
+    if not (np.all(np.isfinite(X)) and math.isfinite(least)):
+        return {"gamma": None, "why": "the bounded real lemma's point is not finite in the stored coordinates"}
     gamma = round_up(max(least, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
     for _ in range(TRIES):
         checks = lemma_checks(steps, X, gamma, label)

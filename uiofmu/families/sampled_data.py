@@ -37,6 +37,11 @@ Corollary 2 reduces exactly to ``ker C`` there (:class:`KerC`, :func:`_reduced_l
 form loses in the solver's cancellation) and recentred on a refused point when its Lyapunov
 matrices are too ill-conditioned for the solver's tolerance; :func:`check` proves that no
 certificate exists when the largest margin of those LMIs (:func:`best_margin`) is negative.
+
+Noise (``y_k = C x_k + v_k``): ``gain_y`` and, where the card has dhat, ``gain_dhat_y`` hold for every sequence of
+design intervals (:func:`noise_of`). dhat after the interval ``h_k`` reads the next sample, so its error
+``Dy_i (C A_i e_k + v_(k+1))`` is a system one step ahead with the state ``(eps, v_prev)``, certified by the
+poly-quadratic bounded real lemma as ``gain_y`` is (:func:`uiofmu.noise.pair_dhat_error_system`).
 """
 
 from __future__ import annotations

@@ -42,6 +42,11 @@ certificate re-checks it, and the poly-quadratic bounded real lemma the card's `
 ``G_i`` per mode and ``K_i = G_i^-1 F_i``). Its points are accepted only where :func:`checks` hold at the runtime's
 matrices, and kept only where the certified gain is below the default design's
 (:func:`uiofmu.noise.least_noise_design`).
+
+Noise on dhat (``rank(C E_i) = q`` in every mode): dhat after a step in the mode ``i`` reads the next sample, so its
+error ``Dy_i (C A_i e_k + v_(k+1))`` is a system one step ahead with the state ``(eps, v_prev)``; the card's
+``gain_dhat_y`` is its poly-quadratic bounded real lemma for every switching sequence (:func:`noise_of`,
+:func:`uiofmu.noise.pair_dhat_error_system`).
 """
 
 from __future__ import annotations
