@@ -257,15 +257,16 @@ def test_the_dhat_gain_is_certified_for_every_sequence_and_bounds_the_runtime(dh
             v[0] = 0.0                    # the error system starts at rest
         noisy, twin = _dhat_runs(card, v, sequence, seed=trial)
         measured = float(np.linalg.norm(noisy[1:] - twin[1:]))
-        start = float(np.linalg.norm(np.concatenate([Xy[0] @ v[0], v[0]])))      # h_(-1), mode_prev0: the first
+        start = float(np.linalg.norm(np.concatenate([Xy[0] @ v[0], v[0]])))      # h_(-1), mode_prev0: index 0
         assert measured <= gain * float(np.linalg.norm(v)) + cert["initial_term"] * start, (trial, measured)
         assert measured > 0.0
 
 
-def test_a_lowered_dhat_gain_or_initial_term_fails_verify(dhat_cards, cli, tmp_path):
+@pytest.mark.parametrize("name", ["sampled", "switched"])
+def test_a_lowered_dhat_gain_or_initial_term_fails_verify(dhat_cards, cli, tmp_path, name):
     """``uiofmu verify`` passes the card and refuses it with ``gain_dhat_y`` lowered below the peak of a constant
-    interval (no storage proves it), or its ``initial_term`` halved."""
-    card = dhat_cards["sampled"]
+    interval or mode (no storage proves it), or its ``initial_term`` halved."""
+    card = dhat_cards[name]
     (tmp_path / "card.json").write_text(card.to_json())
     assert cli("verify", tmp_path / "card.json").code == 0
     for key, where, factor in (("gain_dhat_y", None, 0.5 * _frozen_peak(card) / card.data["noise"]["gain_dhat_y"]),
@@ -281,14 +282,13 @@ def test_a_lowered_dhat_gain_or_initial_term_fails_verify(dhat_cards, cli, tmp_p
 def test_a_dhat_gain_without_dhat_is_refused(dhat_cards):
     """A switched card stripped of dhat's matrices that still claims ``gain_dhat_y`` fails its family's checks (and
     the card's problem, which determines those matrices)."""
+    from uiofmu.families.switched import verify
     from uiofmu.runtime.kernels import DHAT
 
     doc = json.loads(dhat_cards["switched"].to_json())
     for key in DHAT:
         doc["matrices"].pop(key)
     doc["ports"] = [port for port in doc["ports"] if port["name"] != "dhat"]
-    from uiofmu.families.switched import verify
-
     card = card_from_data(doc)
     assert any(not c.holds and "gain_dhat_y" in c.name for c in verify(card))
     with pytest.raises(uiofmu.CardError, match="matrices.Dy"):
