@@ -2,7 +2,8 @@
 certified ``gain_y`` at the decay asked for and lowers it where the default design leans on a weak output;
 ``observer.noise_gain`` gives the fastest decay within the gain; ``uiofmu tradeoff`` draws both families; ltv-auid
 refuses the keys with its reason. Every card is re-checked from its JSON (the gain by the bounded real lemma at
-the stored matrices)."""
+the stored matrices). Both families certify ``gain_dhat_y`` where the card has dhat: the runtime's dhat under noise
+on random interval and mode sequences stays within it, and a lowered gain fails ``uiofmu verify``."""
 
 from __future__ import annotations
 
@@ -11,12 +12,14 @@ import csv
 import json
 import math
 
+import numpy as np
 import pytest
 
 import uiofmu
 from uiofmu.noise import NOISE_GAIN_RESOLUTION, NOISE_GAIN_SLOWEST
 from uiofmu.problem import problem_from_data
 from uiofmu.runtime.card import card_from_data
+from uiofmu.runtime.observer import Runtime
 from uiofmu.synthesis import recheck
 
 #: A weak first output (entries near 1e-2) beside a strong one, one unknown input: the default designs read the
@@ -179,3 +182,114 @@ def test_noise_min_at_the_fastest_decay_moves_it_and_certifies_there(family):
     assert least.data["decay_bound"] == pytest.approx(rho + 0.1 * (1 - rho), rel=1e-9)
     assert least.data["noise"]["gain_y"] <= fastest.data["noise"]["gain_y"]
     _rechecked(least)
+
+
+# -- gain_dhat_y: the error of dhat from output noise, for every interval or switching sequence ---------------------
+def _dhat_cards():
+    """Cards with dhat: the module's sampled-data and switched plants (default designs) and seed 002's dead-beat
+    switched observer."""
+    from pathlib import Path
+
+    setup2 = Path(__file__).resolve().parents[1] / "examples" / "seed002_setup2.toml"
+    return {"sampled": _sampled(), "switched": _switched(), "deadbeat": uiofmu.design(uiofmu.load_problem(setup2))}
+
+
+@pytest.fixture(scope="module")
+def dhat_cards():
+    return _dhat_cards()
+
+
+def _frozen_peak(card) -> float:
+    """The largest H-infinity norm of the dhat error system with the interval or mode held constant (a lower
+    bound of the gain under every sequence)."""
+    from uiofmu.noise import hinf_norm, pair_dhat_error_system
+
+    A, B, C, D = pair_dhat_error_system(card.data["matrices"])
+    return max(hinf_norm(A[i, i], B[i, i], C[i, i], D[i, i]) for i in range(len(A)))
+
+
+def _dhat_runs(card, v: np.ndarray, sequence, seed: int) -> tuple:
+    """``dhat`` of the runtime fed ``y + v`` and of its noise-free twin on one run of the card's plant (the plant
+    sampled at the interval, or in the mode, of each step of ``sequence``; random known and unknown inputs)."""
+    m = {k: np.asarray(val, dtype=float) for k, val in card.data["matrices"].items() if val is not None}
+    interval = card.data["schedule"]["kind"] == "interval"
+    A, B, E = (m[f"{k}_sampled"] if interval else m[f"{k}_modes"] for k in "ABE")
+    w = np.zeros(A.shape[:2]) if interval else m["w_modes"]
+    C, rng = m["C"], np.random.default_rng(seed)
+    x = rng.normal(size=A.shape[-1])
+    noisy, twin = Runtime(card), Runtime(card)
+    out, ref = [], []
+    for k, i in enumerate(sequence):
+        u, d = rng.normal(size=B.shape[-1]), rng.normal(size=E.shape[-1])
+        for rt, y in ((noisy, C @ x + v[k]), (twin, C @ x)):
+            rt.set_y(y), rt.set_u(u)
+            if not interval:
+                rt.set_mode(int(i) + 1)
+        out.append(noisy.dhat().copy()), ref.append(twin.dhat().copy())
+        h = card.data["schedule"]["intervals"][int(i)] if interval else card.dt
+        noisy.step(h), twin.step(h)
+        x = A[i] @ x + B[i] @ u + E[i] @ d + w[i]
+    return np.array(out), np.array(ref)
+
+
+@pytest.mark.parametrize("name, steps", [("sampled", 1500), ("switched", 1500), ("deadbeat", 150)])
+def test_the_dhat_gain_is_certified_for_every_sequence_and_bounds_the_runtime(dhat_cards, name, steps):
+    """``gain_dhat_y`` (the poly-quadratic lemma of the dhat error system, state ``(eps, v_prev)``): finite, no less
+    than any constant interval's or mode's peak, re-checked from the card's JSON; the runtime's dhat fed noise
+    against its noise-free twin on the plant, on random interval or mode sequences, stays within it (with ``v_0``,
+    the initial state ``(Xy_j0 v_0, v_0)`` of the error system adds ``initial_term`` times its norm). Seed 002's
+    modes are unstable: its runs are short enough for the plant's state to leave the noise part its digits."""
+    card = dhat_cards[name]
+    noise = card.data["noise"]
+    gain, cert = noise["gain_dhat_y"], noise["certificate_dhat_y"]
+    assert gain is not None and math.isfinite(gain) and "gain_dhat_y" not in (noise["reason"] or "")
+    peak = _frozen_peak(card)
+    assert peak <= gain <= 10 * peak, (peak, gain)
+    assert _rechecked(card).data["noise"]["gain_dhat_y"] == gain
+    modes = len(card.data["matrices"]["N"])
+    Xy = np.asarray(card.data["matrices"]["Xy"], dtype=float)
+    rng = np.random.default_rng(3)
+    p = card.dims["p"]
+    for trial in range(4):
+        sequence = rng.integers(0, modes, size=steps) if trial else np.zeros(steps, dtype=int)
+        v = rng.normal(size=(steps, p)) * (1e-3 if trial % 2 else 1.0)
+        if trial < 2:
+            v[0] = 0.0                    # the error system starts at rest
+        noisy, twin = _dhat_runs(card, v, sequence, seed=trial)
+        measured = float(np.linalg.norm(noisy[1:] - twin[1:]))
+        start = float(np.linalg.norm(np.concatenate([Xy[0] @ v[0], v[0]])))      # h_(-1), mode_prev0: index 0
+        assert measured <= gain * float(np.linalg.norm(v)) + cert["initial_term"] * start, (trial, measured)
+        assert measured > 0.0
+
+
+@pytest.mark.parametrize("name", ["sampled", "switched"])
+def test_a_lowered_dhat_gain_or_initial_term_fails_verify(dhat_cards, cli, tmp_path, name):
+    """``uiofmu verify`` passes the card and refuses it with ``gain_dhat_y`` lowered below the peak of a constant
+    interval or mode (no storage proves it), or its ``initial_term`` halved."""
+    card = dhat_cards[name]
+    (tmp_path / "card.json").write_text(card.to_json())
+    assert cli("verify", tmp_path / "card.json").code == 0
+    for key, where, factor in (("gain_dhat_y", None, 0.5 * _frozen_peak(card) / card.data["noise"]["gain_dhat_y"]),
+                               ("initial_term", "certificate_dhat_y", 0.5)):
+        doc = json.loads(card.to_json())
+        section = doc["noise"] if where is None else doc["noise"][where]
+        section[key] *= factor
+        (tmp_path / "forged.json").write_text(json.dumps(doc))
+        res = cli("verify", tmp_path / "forged.json")
+        assert res.code != 0 and "gain_dhat_y" in res.out + res.err, (key, res.out, res.err)
+
+
+def test_a_dhat_gain_without_dhat_is_refused(dhat_cards):
+    """A switched card stripped of dhat's matrices that still claims ``gain_dhat_y`` fails its family's checks (and
+    the card's problem, which determines those matrices)."""
+    from uiofmu.families.switched import verify
+    from uiofmu.runtime.kernels import DHAT
+
+    doc = json.loads(dhat_cards["switched"].to_json())
+    for key in DHAT:
+        doc["matrices"].pop(key)
+    doc["ports"] = [port for port in doc["ports"] if port["name"] != "dhat"]
+    card = card_from_data(doc)
+    assert any(not c.holds and "gain_dhat_y" in c.name for c in verify(card))
+    with pytest.raises(uiofmu.CardError, match="matrices.Dy"):
+        recheck(card)

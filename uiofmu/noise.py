@@ -26,6 +26,13 @@ system (a frequency sweep, zoomed into around its peaks), times ``1 + NOISE_MARG
 :data:`NOISE_DIGITS` significant digits; ``X`` is the stabilising solution of the bounded real
 Riccati equation at that ``gamma`` (no solver). The card records the ``gamma`` the re-check proves.
 
+A runtime whose matrices follow a mode or an interval (switched, sampled-data) is certified for every sequence
+by the poly-quadratic lemma, one ``X`` per mode or interval (:func:`lemma_certificate`, solved by CLARABEL,
+rounded up and re-checked alike): ``gain_y`` on :func:`pair_error_system`, ``gain_dhat_y`` on
+:func:`pair_dhat_error_system` (dhat reads the next sample: a system one step ahead with the state
+``(eps, v_prev)``, whose output reads the interval or mode of the step just taken, as lti-uio's
+:func:`dhat_error_step` with one step).
+
 A continuous error system that varies over a grid of points, ``eps' = A_g eps + B_g v``, ``e = C_g eps + D_g v``
 (the delayed UIO on its premise grid), is certified by the continuous lemma with one ``X`` at every point
 (:func:`continuous_brl_checks`), ``X`` a scale of a given Lyapunov matrix (:func:`continuous_brl_certificate`).
@@ -39,6 +46,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from functools import partial
 
 import numpy as np
 
@@ -449,10 +457,16 @@ def brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> list:
                                   Q, terms, length)]
 
 
+def _output(M: np.ndarray, i: int, j: int) -> np.ndarray:
+    """The output matrix of the step ``(i, j)`` of a switched error system: ``M[j]`` of a stack per previous mode,
+    ``M[i][j]`` of a stack per pair (an output that reads both, as dhat's does)."""
+    return M[i, j] if M.ndim == 4 else M[j]
+
+
 def _switched_steps(A, B, C, D) -> list:
     """The steps of a switched error system (see :func:`switched_brl_checks`) as :func:`lemma_checks` takes them."""
     modes = len(A)
-    return [(A[i, j], B[i, j], C[j], D[j], j, i, f"from X_{j + 1} to X_{i + 1}")
+    return [(A[i, j], B[i, j], _output(C, i, j), _output(D, i, j), j, i, f"from X_{j + 1} to X_{i + 1}")
             for i in range(modes) for j in range(modes)]
 
 
@@ -479,7 +493,8 @@ def switched_brl_checks(A, B, C, D, X, gamma: float, label: str = "gain_y") -> l
     over the modes and pairs.
 
     The step from ``k`` to ``k + 1`` in the mode ``i = alpha_k`` after ``j = alpha_(k-1)`` is
-    ``eps+ = A[i][j] eps + B[i][j] v``, ``e = C[j] eps + D[j] v``; the storage ``eps' X[alpha_(k-1)] eps``
+    ``eps+ = A[i][j] eps + B[i][j] v``, ``e = C[j] eps + D[j] v`` (``C[i][j]``, ``D[i][j]`` where ``C`` and ``D``
+    are stacks per pair, as :func:`pair_dhat_error_system`'s); the storage ``eps' X[alpha_(k-1)] eps``
     goes from ``X[j]`` to ``X[i]``: ``X[i] > 0`` and the lemma's matrix from ``X[j]`` to ``X[i]`` ``> 0`` for every
     pair (i, j) give the gain under every switching sequence.
     """
@@ -498,48 +513,179 @@ def pair_error_system(matrices: dict) -> tuple:
     return N, -L, np.repeat(np.eye(n)[None], modes, axis=0), -Xy
 
 
-def switched_brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
+def dhat_error_step(N, L, Xz, Xy, Dy, Yx) -> tuple:
+    """The error of ``dhat`` from output noise ``v`` over one step of an affine runtime, as a system one step
+    ahead.
+
+    With ``xhat_k = Xz z_k + Xy y_k`` and the noise error ``e_k = Xz eps_k - Xy v_k`` (``eps`` the error of ``z``:
+    ``eps+ = N eps - L v``), ``dhat_(k+1) = Dy (y_(k+1) - Yx xhat_k - Yu u_k - Yc)`` with ``Dy C E = I``,
+    ``Yx = C A``, ``Yu = C B`` and ``Yc = C w`` (the plant's step that ``Dy`` inverts) reads the next sample::
+
+        dhat_(k+1) - d_k = Dy (Yx e_k + v_(k+1))
+
+    In the time ``t = k + 1`` the state is ``(eps_(t-1), v_(t-1))``: ``A = [[N, -L], [0, 0]]``, ``B = [0; I]``,
+    ``C = Dy Yx [Xz, -Xy]``, ``D = Dy`` (a shift by one step leaves l2 norms as they are). A runtime on a
+    schedule passes each step's matrices (:func:`pair_dhat_error_system`).
+
+    Returns
+    -------
+    tuple
+        ``(A, B, C, D)`` of the state ``(eps, v_prev)``.
+    """
+    N, L, Xz, Xy, Dy, Yx = (np.asarray(m, dtype=float) for m in (N, L, Xz, Xy, Dy, Yx))
+    nz, p = L.shape
+    A = np.block([[N, -L], [np.zeros((p, nz)), np.zeros((p, p))]])
+    B = np.vstack([np.zeros((nz, p)), np.eye(p)])
+    DyYx = Dy @ Yx
+    return A, B, np.hstack([DyYx @ Xz, -DyYx @ Xy]), Dy
+
+
+def pair_dhat_error_system(matrices: dict) -> tuple:
+    """The error of ``dhat`` from output noise of a runtime on pairs (:func:`pair_error_system`'s), as stacks per
+    pair for :func:`switched_brl_checks`.
+
+    The runtime's step from ``t_k`` in the mode or interval ``i`` after ``j`` is ``z+ = N_ij z + L_ij y + ...``
+    and stores ``Yx_i xhat_k + Yu_i u_k + Yc_i``; at ``t_(k+1)`` the output matrices are those after ``i``:
+    ``xhat_(k+1) = z + Xy_i y``, ``dhat_(k+1) = Dy_i (y_(k+1) - Yx_i xhat_k - Yu_i u_k - Yc_i)``. With ``Dy_i``,
+    ``Yx_i``, ``Yu_i``, ``Yc_i`` the step of the plant in ``i`` (``Dy_i C E_i = I``, ...) and
+    ``e_k = eps_k - Xy_j v_k``::
+
+        dhat_(k+1) - d_k = Dy_i Yx_i (eps_k - Xy_j v_k) + Dy_i v_(k+1)
+
+    so in the time ``t = k + 1``, with the state ``(eps_(t-1), v_(t-1))``, the step ``(i, j)`` (the pair of the
+    step just taken, from ``t - 1`` to ``t``: the same as the state's next step) is :func:`dhat_error_step` of
+    ``(N_ij, L_ij, I, Xy_j, Dy_i, Yx_i)``: ``A[i][j] = [[N_ij, -L_ij], [0, 0]]``, ``B = [0; I]``, the output
+    ``C[i][j] = Dy_i Yx_i [I, -Xy_j]`` and ``D[i][j] = Dy_i`` read both indices. The storage of the state at ``t``
+    is the one of the step before it (``X_j``), so the lemma's pairs are :func:`switched_brl_checks`'s.
+    """
+    N, L, Xy, Dy, Yx = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy", "Dy", "Yx"))
+    modes, n = N.shape[0], N.shape[-1]
+    eye = np.eye(n)
+    steps = [[dhat_error_step(N[i, j], L[i, j], eye, Xy[j], Dy[i], Yx[i]) for j in range(modes)]
+             for i in range(modes)]
+    return tuple(np.array([[step[part] for step in row] for row in steps]) for part in range(4))
+
+
+def pair_section(matrices: dict, reasons: list) -> dict:
+    """The ``noise`` section of a card whose runtime steps on pairs (modes or intervals): ``gain_y``
+    (:func:`pair_error_system`) and, where the card has dhat's matrices, ``gain_dhat_y``
+    (:func:`pair_dhat_error_system`), each by the poly-quadratic lemma for every sequence; ``reasons`` says why the
+    family has no other gain (``gain_w``)."""
+    gain, extra, why = certified(*pair_error_system(matrices), switched=True)
+    said = ([why] if why else []) + list(reasons)
+    gain_dhat = None
+    if matrices.get("Dy") is not None:
+        gain_dhat, extra_dhat, why_dhat = certified(*pair_dhat_error_system(matrices), key="gain_dhat_y",
+                                                    switched=True, balanced=True)
+        extra.update(extra_dhat)
+        said += [why_dhat] if why_dhat else []
+    return section(gain, "; ".join(said) or None, gain_dhat_y=gain_dhat, **extra)
+
+
+def pair_checks(noise, matrices: dict) -> list:
+    """The re-check of the gains of :func:`pair_section` at a card's stored matrices; a ``gain_dhat_y`` claimed by
+    a card without dhat's matrices fails."""
+    out = recheck(noise, *pair_error_system(matrices), switched=True)
+    if not isinstance(noise, dict) or noise.get("gain_dhat_y") is None:
+        return out
+    if any(matrices.get(k) is None for k in ("Dy", "Yx")):
+        return out + [Check("noise.gain_dhat_y claimed by a card without dhat (matrices Dy, Yx present)", 0.0, 1.0,
+                            at_most=False)]
+    return out + recheck(noise, *pair_dhat_error_system(matrices), key="gain_dhat_y", switched=True)
+
+
+def switched_brl_certificate(A, B, C, D, label: str = "gain_y", balanced: bool = False) -> dict:
     """The least certified l2 gain of a switched error system (:func:`switched_brl_checks`); see
-    :func:`lemma_certificate`."""
+    :func:`lemma_certificate` (``balanced``: solved in balanced state coordinates)."""
     A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
     modes = len(A)
     if modes * modes > MAX_PAIRS:
         return {"gamma": None, "why": f"{modes} modes or intervals give {modes * modes} pairs, more than the "
                                       f"{MAX_PAIRS} the lemma is solved for"}
-    sigma = max(hinf_norm(A[i, i], B[i, i], C[i], D[i]) for i in range(modes))
-    return lemma_certificate(_switched_steps(A, B, C, D), modes, sigma, label)
+    sigma = max(hinf_norm(A[i, i], B[i, i], _output(C, i, i), _output(D, i, i)) for i in range(modes))
+    return lemma_certificate(_switched_steps(A, B, C, D), modes, sigma, label, balanced)
 
 
-def lemma_certificate(steps: list, storages: int, sigma: float, label: str = "gain_y") -> dict:
+#: Most sweeps of :func:`state_balance`, and the entries it counts as zero (relative to the largest).
+BALANCE_SWEEPS, BALANCE_FLOOR = 32, 1e-12
+
+
+def state_balance(steps: list) -> np.ndarray:
+    """Powers of 2 ``s`` such that in the coordinates ``eps = diag(s) eps_b`` each state's row of ``[A, B]`` and
+    column of ``[A; C]`` (the largest magnitudes over the steps, the diagonal aside) have about the same sum:
+    Osborne's balancing on the graph of the states, the input and the output, the input and the output held
+    unscaled (the gain is the same in either coordinates). Exact in floating point (powers of 2) and decided on
+    sums of magnitudes, not on any BLAS kernel's rounding: entries below :data:`BALANCE_FLOOR` times the largest
+    (an exact zero computed as rounding, e.g. the rows of a dead-beat ``N``) count as zero, and a state without an
+    in- or outgoing edge keeps 1.
+    """
+    aA, aB, aC = (np.max([np.abs(step[k]) for step in steps], axis=0) for k in range(3))
+    floor = BALANCE_FLOOR * max(float(a.max()) if a.size else 0.0 for a in (aA, aB, aC))
+    aA, aB, aC = (np.where(a > floor, a, 0.0) for a in (aA, aB, aC))
+    aA = aA - np.diag(np.diag(aA))
+    aB, aC = aB.sum(axis=1), aC.sum(axis=0)
+    s = np.ones(len(aA))
+    for _ in range(BALANCE_SWEEPS):
+        moved = False
+        for k in range(len(s)):
+            out = float(np.sum(aA[k] * s) / s[k] + aB[k] / s[k])          # row k of [A_b, B_b]
+            into = float(np.sum(aA[:, k] / s) * s[k] + aC[k] * s[k])      # column k of [A_b; C_b]
+            if out > 0.0 and into > 0.0:
+                f = 2.0 ** round(0.5 * math.log2(out / into))
+                if f != 1.0:
+                    s[k], moved = s[k] * f, True
+        if not moved:
+            break
+    return s
+
+
+def lemma_certificate(steps: list, storages: int, sigma: float, label: str = "gain_y",
+                      balanced: bool = False) -> dict:
     """The least l2 gain that the bounded real lemma of every step (:func:`lemma_checks`) certifies, to
     :data:`NOISE_DIGITS`.
 
     The LMIs of the lemma for every step, with ``storages`` storage matrices and ``g`` bounding
-    ``(gamma / sigma)^2`` minimised (CLARABEL; ``sigma`` a lower bound of ``gamma``, e.g. the largest H-infinity
-    norm of a mode held constant, and the outputs divided by their largest entry, so that the solver sees
-    numbers near 1 whatever the gains); then ``gamma`` from ``g``, times ``1 + NOISE_MARGIN``, rounded up, and
-    re-checked at the stored matrices with the solver's ``X`` (mapped back), growing by :data:`GROWTH` where it
-    fails.
+    ``(gamma / (unit scale))^2`` minimised (CLARABEL; the outputs divided by their largest entry ``scale`` and the
+    input measured in ``unit = sigma / scale``, ``sigma`` a lower bound of ``gamma``, e.g. the largest H-infinity
+    norm of a mode held constant, so that the solver sees numbers near 1 whatever the gains, ``g`` too; where that
+    solve certifies nothing and ``scale`` is not 1, once more with ``unit = sigma``, which CLARABEL solves on some
+    error systems of dhat where the former fails; with ``balanced``, in the state coordinates of
+    :func:`state_balance`); then ``gamma`` from ``g``, times
+    ``1 + NOISE_MARGIN``, rounded up, and re-checked at the stored matrices with the solver's ``X`` (mapped back),
+    growing by :data:`GROWTH` where it fails.
 
     Returns
     -------
     dict
         As :func:`brl_certificate` (``lmi_gamma``, the solver's, in place of ``hinf_norm``).
     """
+    steps = [tuple(np.asarray(m, dtype=float) for m in step[:4]) + tuple(step[4:]) for step in steps]
+    sigma = max(float(sigma), 1e-300)
+    t = state_balance(steps) if balanced else np.ones(steps[0][0].shape[0])       # eps = diag(t) eps_b
+    solved = [(A * t[None, :] / t[:, None], B / t[:, None], C * t[None, :], *rest) for A, B, C, *rest in steps]
+    scale = max(float(np.abs(step[2]).max()) if step[2].size else 0.0 for step in solved) or 1.0
+    found = _lemma_try(steps, solved, t, storages, sigma / scale, scale, label)
+    if found["gamma"] is None and scale != 1.0:
+        again = _lemma_try(steps, solved, t, storages, sigma, scale, label)
+        return again if again["gamma"] is not None else found
+    return found
+
+
+def _lemma_try(steps: list, solved: list, t: np.ndarray, storages: int, unit: float, scale: float,
+               label: str) -> dict:
+    """One solve of :func:`lemma_certificate`'s LMIs (the steps ``solved`` in the coordinates ``eps = diag(t)
+    eps_b``, the input in ``unit``, the output in ``scale``) and the re-check of its gamma at ``steps``."""
     from .lmi import Lmi, LmiSystem
     from .reductions import scalar, symmetric
 
-    steps = [tuple(np.asarray(m, dtype=float) for m in step[:4]) + tuple(step[4:]) for step in steps]
-    n, p, r = steps[0][0].shape[0], steps[0][1].shape[1], steps[0][2].shape[0]
-    sigma = max(float(sigma), 1e-300)
-    scale = max(float(np.abs(step[2]).max()) if step[2].size else 0.0 for step in steps) or 1.0
+    n, p, r = solved[0][0].shape[0], solved[0][1].shape[1], solved[0][2].shape[0]
 
     def build(v, prm, ops):
         out = []
-        for A, B, C, D, s_in, s_out, name in steps:
+        for A, B, C, D, s_in, s_out, name in solved:
             Xo = v[f"X{s_out}"]
-            XA, XB = Xo @ A, Xo @ (B / sigma)
-            Cs, Ds = C / scale, D / (sigma * scale)
+            XA, XB = Xo @ A, Xo @ (B / unit)
+            Cs, Ds = C / scale, D / (unit * scale)
             out.append(Lmi(f"bounded real lemma {name}", ops.bmat([
                 [v[f"X{s_in}"], ops.zeros((n, p)), XA.T, Cs.T],
                 [ops.zeros((p, n)), v["g"] * ops.eye(p), XB.T, Ds.T],
@@ -549,14 +695,18 @@ def lemma_certificate(steps: list, storages: int, sigma: float, label: str = "ga
 
     variables = {**{f"X{s}": symmetric(n) for s in range(storages)}, "g": scalar()}
     system = LmiSystem(f"noise {label}", variables, {}, build, objective=lambda v: v["g"],
-                       structure=([step[:6] for step in steps], sigma, scale))
+                       structure=([step[:6] for step in solved], unit, scale))
     sol = system.solve()
     if not sol.values:
         return {"gamma": None, "why": f"the bounded real lemma's LMIs have no solution (CLARABEL: {sol.status})"}
-    # the LMIs are the lemma of (A, B / sigma, C / scale, D / (sigma scale)) for the input sigma v and the output
-    # e / scale: multiplied by scale^2, its storage inequality is the card's at gamma = sigma scale sqrt(g)
-    X = np.array([0.5 * (sol.values[f"X{s}"] + sol.values[f"X{s}"].T) for s in range(storages)]) * scale ** 2
-    least = sigma * scale * math.sqrt(max(float(sol.values["g"]), 0.0))
+    # the LMIs are the lemma of (A, B / unit, C / scale, D / (unit scale)) for the input unit v and the output
+    # e / scale: multiplied by scale^2, its storage inequality is the card's at gamma = unit scale sqrt(g) (in the
+    # balanced coordinates: X = diag(t)^-1 X_b diag(t)^-1 in the stored ones)
+    Xb = np.array([0.5 * (sol.values[f"X{s}"] + sol.values[f"X{s}"].T) for s in range(storages)]) * scale ** 2
+    X = Xb / t[None, :, None] / t[None, None, :]
+    least = unit * scale * math.sqrt(max(float(sol.values["g"]), 0.0))
+    if not (np.all(np.isfinite(X)) and math.isfinite(least)):
+        return {"gamma": None, "why": "the bounded real lemma's point is not finite in the stored coordinates"}
     gamma = round_up(max(least, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
     for _ in range(TRIES):
         checks = lemma_checks(steps, X, gamma, label)
@@ -794,10 +944,11 @@ def recheck(noise: dict, A, B, C, D, key: str = "gain_y", switched: bool = False
     return lemma + [initial_check(noise if key == "gain_y" else cert, X, key)]
 
 
-def certified(A, B, C, D, key: str = "gain_y", switched: bool = False) -> tuple:
-    """``brl_certificate`` (``switched_brl_certificate`` with ``switched``) as the card stores it: (gain or None,
-    the section's extra keys, why it is None); see :func:`stated`."""
-    cert = (switched_brl_certificate if switched else brl_certificate)(A, B, C, D, key)
+def certified(A, B, C, D, key: str = "gain_y", switched: bool = False, balanced: bool = False) -> tuple:
+    """``brl_certificate`` (``switched_brl_certificate`` with ``switched``, in balanced state coordinates with
+    ``balanced``) as the card stores it: (gain or None, the section's extra keys, why it is None); see
+    :func:`stated`."""
+    cert = (partial(switched_brl_certificate, balanced=balanced) if switched else brl_certificate)(A, B, C, D, key)
     method = ("poly-quadratic bounded real lemma (every switching sequence, at the stored matrices)" if switched
               else "bounded real lemma (discrete, at the stored matrices)")
     return stated(cert, method, key)
@@ -878,7 +1029,7 @@ def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
 
 __all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks",
            "certificate_key", "certified", "continuous_brl_certificate", "continuous_brl_checks",
-           "fir_system", "gain_text", "hinf_norm", "initial_check",
-           "lemma_certificate", "lemma_checks", "noise_design_lines", "noise_lines", "pair_error_system",
-           "peak_to_peak", "recheck", "scaled_definite_check", "section", "stated", "switched_brl_certificate",
-           "switched_brl_checks"]
+           "dhat_error_step", "fir_system", "gain_text", "hinf_norm", "initial_check",
+           "lemma_certificate", "lemma_checks", "noise_design_lines", "noise_lines", "pair_checks",
+           "pair_dhat_error_system", "pair_error_system", "pair_section", "peak_to_peak", "recheck",
+           "scaled_definite_check", "section", "stated", "switched_brl_certificate", "switched_brl_checks"]

@@ -91,8 +91,8 @@ from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex, from_pairs
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..gains import cap_lmis
-from ..noise import (NOISE_DECAY_ROOM, NOISE_METHOD, NOISE_OBJECTIVES, NORM, certified, fastest_within,
-                     hinf_norm, least_of, recheck, section)
+from ..noise import (NOISE_DECAY_ROOM, NOISE_METHOD, NOISE_OBJECTIVES, NORM, certified, dhat_error_step,
+                     fastest_within, hinf_norm, least_of, recheck, section)
 from ..reductions import LYAPUNOV, UPPER_BOUND, matrix, scalar, symmetric
 from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
@@ -546,14 +546,10 @@ def dhat_error_system(matrices: dict) -> tuple:
     ``dhat_k = Dy (y_(k+1) - Yx xhat_k - Yu u_k - Yc)`` with ``Dy C E = I`` and ``Yx = C A`` gives
     ``dhat_k - d_k = Dy (Yx e_k + v_(k+1))``: it reads the next sample, so in the time ``j = k + 1`` its state is
     ``(eps_(j-1), v_(j-1))``, with ``A = [[N, -L], [0, 0]]``, ``B = [0; I]``, ``C = Dy Yx [Xz, -Xy]``, ``D = Dy``
-    (a shift by one step leaves l2 norms as they are).
+    (a shift by one step leaves l2 norms as they are): :func:`uiofmu.noise.dhat_error_step` at the stored ``Xz``.
     """
     N, L, Xz, Xy, Dy, Yx = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xz", "Xy", "Dy", "Yx"))
-    nz, p = L.shape
-    A = np.block([[N, -L], [np.zeros((p, nz)), np.zeros((p, p))]])
-    B = np.vstack([np.zeros((nz, p)), np.eye(p)])
-    DyYx = Dy @ Yx
-    return A, B, np.hstack([DyYx @ Xz, -DyYx @ Xy]), Dy
+    return dhat_error_step(N, L, Xz, Xy, Dy, Yx)
 
 
 #: Why an lti-uio card has no process-noise gain.

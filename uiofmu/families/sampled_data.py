@@ -37,6 +37,11 @@ Corollary 2 reduces exactly to ``ker C`` there (:class:`KerC`, :func:`_reduced_l
 form loses in the solver's cancellation) and recentred on a refused point when its Lyapunov
 matrices are too ill-conditioned for the solver's tolerance; :func:`check` proves that no
 certificate exists when the largest margin of those LMIs (:func:`best_margin`) is negative.
+
+Noise (``y_k = C x_k + v_k``): ``gain_y`` and, where the card has dhat, ``gain_dhat_y`` hold for every sequence of
+design intervals (:func:`noise_of`). dhat after the interval ``h_k`` reads the next sample, so its error
+``Dy_i (C A_i e_k + v_(k+1))`` is a system one step ahead with the state ``(eps, v_prev)``, certified by the
+poly-quadratic bounded real lemma as ``gain_y`` is (:func:`uiofmu.noise.pair_dhat_error_system`).
 """
 
 from __future__ import annotations
@@ -91,15 +96,14 @@ from ..runtime.tolerances import (
     VERIFY_FRACTION,
     ZERO_MARGIN,
 )
-from ..noise import (NOISE_METHOD, NOISE_OBJECTIVES, certified, least_noise_design, pair_error_system,
-                     pair_noise_gain, pair_noise_lmis, recheck, section as noise_section)
+from ..noise import (NOISE_METHOD, NOISE_OBJECTIVES, certified, least_noise_design, pair_checks, pair_error_system,
+                     pair_noise_gain, pair_noise_lmis, pair_section)
 from . import Analysis, DesignResult
 
 NAME = "sampled-data"
 
 #: What a sampled-data card's noise section says of the gains it has not.
 NO_W = "gain_w: not certified for this family (process noise acts between the samples)"
-NO_DHAT = "gain_dhat_y: dhat is not certified against noise in this family"
 
 
 @dataclass(frozen=True)
@@ -644,7 +648,7 @@ def verify(card) -> list:
     claims."""
     d = card.data
     return (checks(d["matrices"], d["decay_bound"]) + [overshoot_check(d["overshoot_bound"], d["matrices"]["Pl"])]
-            + recheck(d.get("noise"), *error_system(d["matrices"]), switched=True))
+            + pair_checks(d.get("noise"), d["matrices"]))
 
 
 def error_system(matrices: dict) -> tuple:
@@ -659,10 +663,14 @@ def error_system(matrices: dict) -> tuple:
 
 
 def noise_of(matrices: dict) -> dict:
-    """The card's ``noise`` section: ``gain_y`` for every sequence of design intervals (:mod:`uiofmu.noise`)."""
-    gain, extra, why = certified(*error_system(matrices), switched=True)
-    reasons = ([why] if why else []) + [NO_W] + ([NO_DHAT] if matrices.get("Dy") is not None else [])
-    return noise_section(gain, "; ".join(reasons), **extra)
+    """The card's ``noise`` section: ``gain_y`` and, where the card has dhat, ``gain_dhat_y``, for every sequence
+    of design intervals (:func:`uiofmu.noise.pair_section`).
+
+    dhat after the interval ``h_k`` (index ``i``, after ``j``) is ``dhat_(k+1) = Dy_i (y_(k+1) - Yx_i xhat_k -
+    Yu_i u_k)`` with the plant sampled at ``h_k`` (``Dy_i = (C E_i)^+``, ``Yx_i = C A_i``, ``Yu_i = C B_i``) and
+    the unknown input held over the interval: ``dhat_(k+1) - d_k = Dy_i C A_i e_k + Dy_i v_(k+1)``
+    (:func:`uiofmu.noise.pair_dhat_error_system`)."""
+    return pair_section(matrices, [NO_W])
 
 
 #: The bound the card states.
@@ -693,9 +701,11 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
         alpha = {"alpha": Determined(1.0 - decay * decay, 1.0)}
     else:                                                   # a fixed alpha is the card's
         alpha = {"alpha": float(opts.alpha), "decay_bound": float(np.sqrt(1.0 - opts.alpha))}
-    return {"noise.norm": "l2", "noise.gain_w": None, "noise.gain_dhat_y": None,     # gain_y: verify re-checks it
-            "dt": None, "schedule": _schedule(opts), "bound": BOUND, "intervals": list(opts.intervals), **alpha,
-            **{f"matrices.{k}": v for k, v in mats.items()}, **figures_of(problem, card_data, analysis)}
+    noise = {"noise.norm": "l2", "noise.gain_w": None}            # gain_y and gain_dhat_y: verify re-checks them
+    if mats["Dy"] is None:
+        noise["noise.gain_dhat_y"] = None
+    return {**noise, "dt": None, "schedule": _schedule(opts), "bound": BOUND, "intervals": list(opts.intervals),
+            **alpha, **{f"matrices.{k}": v for k, v in mats.items()}, **figures_of(problem, card_data, analysis)}
 
 
 #: What the card says of its ``largest_sampled_zero``.
