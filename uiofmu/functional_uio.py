@@ -14,31 +14,30 @@ with ``e = z - T x`` (``T``: ``k x n``) has ``e+ = N e + (N T + J C - T A) x + (
 ``Pi = I - CE (CE)^+`` and ``Z`` free. Then ``T = L P - Z Pi C`` with ``P = I - E (CE)^+ C`` (``P E = 0``), and
 ``T A - N T = J C`` becomes, with ``K = J - N Z Pi``, the equation linear in ``(N, Z, K)``::
 
-    L P A = [N  Z  K] Phi,      Phi = [L P; Pi C A; C]                                   (Darouach 2000, eq. 9)
+    L P A = [N  Z  K] Phi,      Phi = [L P; Pi C A; C]
 
-solvable iff ``rank [L P A; Phi] = rank Phi`` (*functional matching*). Its solutions are
+solvable iff ``rank [L P A; Phi] = rank Phi`` (*functional matching*: the condition of Darouach (2000), "Existence and
+design of functional observers for linear systems", for the decoupled plant). Its solutions are
 ``[N Z K] = L P A Phi^+ - Y (I - Phi Phi^+)`` for any ``Y``, so ``N = Omega_1 - Y beta_1`` (the first ``r``
 columns of ``Omega = L P A Phi^+`` and of ``beta = I - Phi Phi^+``): an output-injection problem on the pair
 ``(Omega_1, beta_1)``. ``N`` can decay faster than ``rho`` iff every mode of ``Omega_1`` that ``beta_1`` does not
-see is inside ``rho`` (*functional detectability*, Darouach's rank condition
-``rank [s L P - L P A; Phi] = rank Phi`` for ``|s| >= rho`` in this parametrisation). ``Y`` is the Riccati gain of
+see is inside ``rho`` (*functional detectability*, with the margin ``ZERO_MARGIN`` of the classical UIO's decay
+condition; the role of Darouach's condition on ``[s L P - L P A; Phi]``). ``Y`` is the Riccati gain of
 :func:`uiofmu.structure.decay_gain`; then ``Z = Omega_2 - Y beta_2``, ``K = Omega_3 - Y beta_3``,
 ``J = K + N Z Pi``, ``Q = L E (CE)^+ + Z Pi``, ``H = T B``.
 
-**Order n** (the fallback). The same construction with ``L`` replaced by the identity is the full-order
-unknown-input observer (its conditions are those of the classical UIO: ``rank CE = rank E`` and detectability);
-``zhat = L xhat`` then has ``R = L`` and ``Q = L Q_n``. The least order this module proves is ``r`` when the three
-order-``r`` conditions hold, else ``n``: orders between ``r`` and ``n`` (an ``L`` completed by further functionals)
-are not searched, so an order reported as ``n`` may not be the least one that exists.
+**The order.** Order ``r`` is tried with ``L``; then ``L`` completed, one direction at a time, by the rows of
+``L (P A)^j`` it does not span (orders ``r+1, r+2, ...``; ``R = [I 0]`` reads ``L x`` off the first ``r``
+components); last the identity (order ``n``, ``R = L``, ``Q = L Q_n``), the full-order unknown-input observer
+whose ``zhat = L xhat`` exists whenever the classical UIO does. The first order whose three conditions hold is
+designed. Orders below ``r`` (functionals read off ``y``) and other completions are not searched: the order is
+the least among those tried, not always the least that exists.
 
 **Certificate.** ``X`` solves ``(N/rho)' X (N/rho) - X = -I`` (``rho^2 X - N' X N = rho^2 I``), re-checked at the
 stored matrices without a solver (:func:`uiofmu.certificate.lyapunov_check`), with the identities above
 (:func:`uiofmu.certificate.identity_check`). Then ``||e_k|| <= sqrt(cond X) rho^k ||e_0||`` and::
 
     ||zhat_k - L x_k|| <= ||R||_2 sqrt(cond X) rho^k ||z_0 - T x_0||.
-
-The initial state: ``zhat_0`` (default zeros) gives ``z_0 = zhat_0 - Q y_0`` at order ``r`` (``R = I``); at order
-``n`` the full-order rule ``z_0 = xhat_0 - Q_n y_0`` applies (``xhat_0`` default zeros).
 """
 
 from __future__ import annotations
@@ -50,6 +49,7 @@ import numpy as np
 from .certificate import Check, decay_check, identity_check, lyapunov_check, positive_check
 from .existence import Condition
 from .runtime.errors import ProblemError
+from .runtime.tolerances import RANK_RTOL, ZERO_MARGIN
 from .structure import decay_gain, rank, unobservable_modes
 
 #: Most functionals ``observer.functional`` lists.
@@ -114,7 +114,12 @@ class FunctionalDesign:
 
 
 def _pinv(M: np.ndarray) -> np.ndarray:
-    return np.linalg.pinv(M, rcond=1e-12) if M.size else M.T.copy()
+    """The pseudo-inverse at the rank tolerance (singular values below ``RANK_RTOL * max(1, s_max)`` dropped, as
+    :func:`uiofmu.structure.rank` does not count them)."""
+    if not M.size:
+        return M.T.copy()
+    s_max = float(np.linalg.norm(M, 2))
+    return np.linalg.pinv(M, rtol=RANK_RTOL * max(1.0, s_max) / max(s_max, 1e-300))
 
 
 def order_conditions(A, C, E, L, rho) -> tuple[tuple, dict | None]:
@@ -146,7 +151,7 @@ def order_conditions(A, C, E, L, rho) -> tuple[tuple, dict | None]:
     beta = np.eye(Phi.shape[0]) - Phi @ Phip
     fixed = unobservable_modes(Omega[:, :r], beta[:, :r])
     largest = float(np.max(np.abs(fixed))) if fixed.size else 0.0
-    detectable = largest < rho
+    detectable = largest + ZERO_MARGIN < rho
     conds.append(Condition("fixed modes inside decay", detectable, True,
                            f"largest fixed mode of the functional error |{largest:.6g}| "
                            f"{'<' if detectable else '>='} decay {rho:g} ({fixed.size} fixed modes)",
@@ -160,7 +165,7 @@ def _design_order(A, B, C, E, L, rho, parts) -> dict:
     """``N, J, H, Q, T`` of the observer estimating ``L x`` at its own order (``R = I``)."""
     r, p = L.shape[0], C.shape[0]
     Omega, beta, Pi = parts["Omega"], parts["beta"], parts["Pi"]
-    Y = decay_gain(Omega[:, :r], beta[:, :r], rho / (1.0 + 1e-3)) if beta.size else np.zeros((r, 0))
+    Y = decay_gain(Omega[:, :r], beta[:, :r], rho)
     NZK = Omega - Y @ beta
     N, Z, K = NZK[:, :r], NZK[:, r:r + p], NZK[:, r + p:]
     Q = L @ E @ parts["CEp"] + Z @ Pi
@@ -215,7 +220,7 @@ def _completions(A, C, E, L):
             w = w - (w @ basis.T) @ basis
             w = w - (w @ basis.T) @ basis
             size = float(np.linalg.norm(w))
-            if size <= 1e-9 * max(1.0, float(np.linalg.norm(row, 2))) or basis.shape[0] + 1 >= n:
+            if size <= RANK_RTOL * max(1.0, float(np.linalg.norm(row, 2))) or basis.shape[0] + 1 >= n:
                 continue
             basis = np.vstack([basis, w / size])
             extra.append(w / size)
