@@ -98,6 +98,7 @@ from ..reductions import LYAPUNOV, UPPER_BOUND, matrix, scalar, symmetric
 from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
 from ..feedthrough import feedthrough_pair
+from .. import functional_uio
 from ..structure import controllable_split, decay_gain, rank
 from ..runtime.tolerances import SEARCH_TOL, ZERO_MARGIN
 from .. import reduced_order
@@ -135,6 +136,9 @@ class Options:
         None for a decay design.
     order : {"full", "reduced"}
         ``observer.order``: the full-order observer, or the one of order ``n - p`` (:mod:`uiofmu.reduced_order`).
+    functional : numpy.ndarray or None
+        ``observer.functional``: the functionals ``L x`` to estimate (:mod:`uiofmu.functional_uio`), None for the
+        state.
     """
 
     decay: object
@@ -147,6 +151,7 @@ class Options:
     noise_gain: float | None = None
     poles: tuple | None = None
     order: str = "full"
+    functional: np.ndarray | None = None
 
     @property
     def step(self) -> float:
@@ -192,7 +197,8 @@ def parse_options(table, plant) -> Options:
             raise ProblemError(f"observer.poles places the error dynamics' poles exactly: remove observer."
                                f"{given[0]} (the decay is the poles' largest modulus)")
     return Options(decay, dt, xhat0, method, table.choice("scaling", SCALINGS, "balance"),
-                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise, noise_gain, poles, order=order)
+                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise, noise_gain, poles, order=order,
+                   functional=functional_uio.parse_option(table, plant))
 
 
 #: ``observer.order``: the full-order observer, or the reduced one (:mod:`uiofmu.reduced_order`).
@@ -265,6 +271,9 @@ def _analysis(problem):
             "that mode, ask for a slower decay or decay = \"max\"",
             {"decay": opts.decay, "largest_fixed_modulus": largest},
             hint="" if ok else _decay_hint(largest)))
+    if opts.functional is not None and decouplable and detectable(conds):
+        conds.extend(functional_uio.analysis_conditions(s.A, plant.C, s.E, opts.functional,
+                                                        1.0 if opts.decay == "max" else float(opts.decay)))
     return Existence(NAME, tuple(conds)), s, fixed
 
 
@@ -897,6 +906,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
     """Design the classical UIO: its gain, certificate and runtime matrices."""
     existence, s, fixed = analysis.existence, analysis.data["sampled"], analysis.data["fixed"]
     plant, opts = problem.plant, problem.options
+    if opts.functional is not None:
+        raise ProblemError(functional_uio.NO_CARD)
     if plant.feeds_d and (opts.noise == "min" or opts.noise_gain is not None):    # options made in code, unparsed
         raise ProblemError(NO_NOISE_DESIGN_WITH_F)
     if opts.order == "reduced":

@@ -1,0 +1,298 @@
+"""Functional unknown-input observers: estimate ``L x`` (``r`` functionals) whatever the unknown input.
+
+For the sampled plant ``x+ = A x + B u + E d``, ``y = C x`` and ``L`` (``r x n``), the observer of order ``k``::
+
+    z+   = N z + J y + H u,        zhat = R z + Q y
+
+with ``e = z - T x`` (``T``: ``k x n``) has ``e+ = N e + (N T + J C - T A) x + (H - T B) u - T E d`` and
+``zhat - L x = R e + (R T + Q C - L) x``. So ``zhat - L x -> 0`` for every ``x_0``, ``u`` and ``d`` when::
+
+    T E = 0,     T A - N T = J C,     H = T B,     R T + Q C = L,     N Schur.
+
+**Order r** (``R = I``, ``T = L - Q C``). ``T E = 0`` reads ``Q (C E) = L E``: it is solvable iff
+``rank [C E; L E] = rank (C E)`` (*functional decoupling*), with ``Q = L E (CE)^+ + Z Pi``,
+``Pi = I - CE (CE)^+`` and ``Z`` free. Then ``T = L P - Z Pi C`` with ``P = I - E (CE)^+ C`` (``P E = 0``), and
+``T A - N T = J C`` becomes, with ``K = J - N Z Pi``, the equation linear in ``(N, Z, K)``::
+
+    L P A = [N  Z  K] Phi,      Phi = [L P; Pi C A; C]
+
+solvable iff ``rank [L P A; Phi] = rank Phi`` (*functional matching*: the condition of Darouach (2000), "Existence and
+design of functional observers for linear systems", for the decoupled plant). Its solutions are
+``[N Z K] = L P A Phi^+ - Y (I - Phi Phi^+)`` for any ``Y``, so ``N = Omega_1 - Y beta_1`` (the first ``r``
+columns of ``Omega = L P A Phi^+`` and of ``beta = I - Phi Phi^+``): an output-injection problem on the pair
+``(Omega_1, beta_1)``. ``N`` can decay faster than ``rho`` iff every mode of ``Omega_1`` that ``beta_1`` does not
+see is inside ``rho`` (*functional detectability*, with the margin ``ZERO_MARGIN`` of the classical UIO's decay
+condition; the role of Darouach's condition on ``[s L P - L P A; Phi]``). ``Y`` is the Riccati gain of
+:func:`uiofmu.structure.decay_gain`; then ``Z = Omega_2 - Y beta_2``, ``K = Omega_3 - Y beta_3``,
+``J = K + N Z Pi``, ``Q = L E (CE)^+ + Z Pi``, ``H = T B``.
+
+**The order.** Order ``r`` is tried with ``L``; then ``L`` completed, one direction at a time, by the rows of
+``L (P A)^j`` it does not span (orders ``r+1, r+2, ...``; ``R = [I 0]`` reads ``L x`` off the first ``r``
+components); last the identity (order ``n``, ``R = L``, ``Q = L Q_n``), the full-order unknown-input observer
+whose ``zhat = L xhat`` exists whenever the classical UIO does. The first order whose three conditions hold is
+designed. Orders below ``r`` (functionals read off ``y``) and other completions are not searched: the order is
+the least among those tried, not always the least that exists.
+
+**Certificate.** ``X`` solves ``(N/rho)' X (N/rho) - X = -I`` (``rho^2 X - N' X N = rho^2 I``), re-checked at the
+stored matrices without a solver (:func:`uiofmu.certificate.lyapunov_check`), with the identities above
+(:func:`uiofmu.certificate.identity_check`). Then ``||e_k|| <= sqrt(cond X) rho^k ||e_0||`` and::
+
+    ||zhat_k - L x_k|| <= ||R||_2 sqrt(cond X) rho^k ||z_0 - T x_0||.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .certificate import Check, decay_check, identity_check, lyapunov_check, positive_check
+from .existence import Condition
+from .runtime.errors import ProblemError
+from .runtime.tolerances import RANK_RTOL, ZERO_MARGIN
+from .structure import decay_gain, rank, unobservable_modes
+
+#: Most functionals ``observer.functional`` lists.
+MAX_FUNCTIONALS = 1000
+
+
+def parse_functional(raw, n: int) -> np.ndarray:
+    """``observer.functional``: a list of ``r`` rows of ``n`` finite numbers, none of them all zeros.
+
+    Raises
+    ------
+    ProblemError
+        Naming the key and the numbers.
+    """
+    key = "observer.functional"
+    if not isinstance(raw, list) or not 1 <= len(raw) <= MAX_FUNCTIONALS:
+        raise ProblemError(f"{key}: expected a list of 1 to {MAX_FUNCTIONALS} rows of {n} numbers, "
+                           f"found {type(raw).__name__}")
+    rows = []
+    for i, row in enumerate(raw):
+        if not isinstance(row, list) or len(row) != n:
+            width = len(row) if isinstance(row, list) else "no list"
+            raise ProblemError(f"{key}[{i}]: expected a row of {n} numbers (the plant has n = {n}), found {width}")
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row):
+            raise ProblemError(f"{key}[{i}]: every entry must be a number")
+        values = np.array(row, dtype=float)
+        if not np.all(np.isfinite(values)):
+            raise ProblemError(f"{key}[{i}]: non-finite entry (inf or nan)")
+        if not np.any(values):
+            raise ProblemError(f"{key}[{i}]: a row of zeros estimates nothing")
+        rows.append(values)
+    return np.vstack(rows)
+
+
+@dataclass(frozen=True)
+class FunctionalDesign:
+    """A functional unknown-input observer ``z+ = N z + J y + H u``, ``zhat = R z + Q y``.
+
+    ``T`` maps the state to the observer's ``z`` (``z - T x -> 0``); ``X`` certifies ``N``'s decay ``rho``.
+    """
+
+    order: int
+    N: np.ndarray
+    J: np.ndarray
+    H: np.ndarray
+    R: np.ndarray
+    Q: np.ndarray
+    T: np.ndarray
+    X: np.ndarray
+    rho: float
+    conditions: tuple
+
+    @property
+    def overshoot(self) -> float:
+        """``sqrt(cond X)``."""
+        w = np.linalg.eigvalsh(self.X)
+        return float(np.sqrt(w[-1] / w[0]))
+
+    def bound(self, e0_norm: float, k) -> np.ndarray:
+        """The certified bound ``||R|| sqrt(cond X) rho^k ||e_0||`` on ``||zhat_k - L x_k||``."""
+        return np.linalg.norm(self.R, 2) * self.overshoot * self.rho ** np.asarray(k, dtype=float) * e0_norm
+
+
+def _pinv(M: np.ndarray) -> np.ndarray:
+    """The pseudo-inverse at the rank tolerance (singular values below ``RANK_RTOL * max(1, s_max)`` dropped, as
+    :func:`uiofmu.structure.rank` does not count them)."""
+    if not M.size:
+        return M.T.copy()
+    s_max = float(np.linalg.norm(M, 2))
+    return np.linalg.pinv(M, rtol=RANK_RTOL * max(1.0, s_max) / max(s_max, 1e-300))
+
+
+def order_conditions(A, C, E, L, rho) -> tuple[tuple, dict | None]:
+    """The three conditions of an observer of order ``rows(L)`` estimating ``L x`` (module docstring), with
+    their numbers, and the matrices of the design when they hold (else None)."""
+    r = L.shape[0]
+    CE, LE = C @ E, L @ E
+    r_ce, r_stack = rank(CE), rank(np.vstack([CE, LE]))
+    decoupled = r_stack == r_ce
+    conds = [Condition("rank [CE; LE] = rank CE", decoupled, True,
+                       f"rank [CE; LE] = {r_stack} {'=' if decoupled else '>'} rank CE = {r_ce}",
+                       {"rank_stack": r_stack, "rank_CE": r_ce})]
+    if not decoupled:
+        return tuple(conds), None
+    CEp = _pinv(CE)
+    P = np.eye(A.shape[0]) - E @ CEp @ C
+    Pi = np.eye(C.shape[0]) - CE @ CEp
+    LP = L @ P
+    Phi = np.vstack([LP, Pi @ C @ A, C])
+    r_phi, r_aug = rank(Phi), rank(np.vstack([LP @ A, Phi]))
+    matched = r_aug == r_phi
+    conds.append(Condition("rank [LPA; Phi] = rank Phi", matched, True,
+                           f"rank [LPA; LP; Pi C A; C] = {r_aug} {'=' if matched else '>'} rank [LP; Pi C A; C] "
+                           f"= {r_phi}", {"rank_augmented": r_aug, "rank_Phi": r_phi}))
+    if not matched:
+        return tuple(conds), None
+    Phip = _pinv(Phi)
+    Omega = LP @ A @ Phip
+    beta = np.eye(Phi.shape[0]) - Phi @ Phip
+    fixed = unobservable_modes(Omega[:, :r], beta[:, :r])
+    largest = float(np.max(np.abs(fixed))) if fixed.size else 0.0
+    detectable = largest + ZERO_MARGIN < rho
+    conds.append(Condition("fixed modes inside decay", detectable, True,
+                           f"largest fixed mode of the functional error |{largest:.6g}| "
+                           f"{'<' if detectable else '>='} decay {rho:g} ({fixed.size} fixed modes)",
+                           {"largest_fixed_mode": largest, "decay": rho, "fixed_modes": int(fixed.size)}))
+    if not detectable:
+        return tuple(conds), None
+    return tuple(conds), {"P": P, "Pi": Pi, "CEp": CEp, "LP": LP, "Omega": Omega, "beta": beta}
+
+
+def _design_order(A, B, C, E, L, rho, parts) -> dict:
+    """``N, J, H, Q, T`` of the observer estimating ``L x`` at its own order (``R = I``)."""
+    r, p = L.shape[0], C.shape[0]
+    Omega, beta, Pi = parts["Omega"], parts["beta"], parts["Pi"]
+    Y = decay_gain(Omega[:, :r], beta[:, :r], rho)
+    NZK = Omega - Y @ beta
+    N, Z, K = NZK[:, :r], NZK[:, r:r + p], NZK[:, r + p:]
+    Q = L @ E @ parts["CEp"] + Z @ Pi
+    T = L - Q @ C
+    return {"N": N, "J": K + N @ Z @ Pi, "H": T @ B, "Q": Q, "T": T}
+
+
+def design(A, B, C, E, L, rho: float) -> FunctionalDesign:
+    """The functional observer of least order this module proves (``r``, else ``n``), certified at ``rho``.
+
+    Raises
+    ------
+    ProblemError
+        When neither order exists (the order-``n`` conditions, i.e. the full-order UIO's, fail); the message
+        gives both orders' failing conditions with their numbers.
+    """
+    from scipy.linalg import solve_discrete_lyapunov
+
+    n, r = A.shape[0], L.shape[0]
+    tried = []
+    for target, R in _completions(A, C, E, L):
+        conds, parts = order_conditions(A, C, E, target, rho)
+        tried.append((target.shape[0], conds))
+        if parts is not None:
+            break
+    else:
+        failed = "; ".join(f"order {k}: " + ", ".join(c.message for c in cs if not c.holds) for k, cs in tried)
+        raise ProblemError(f"observer.functional: no functional unknown-input observer of order {r} to {n} "
+                           f"exists at decay {rho:g}: {failed}")
+    order = target.shape[0]
+    conds = tuple(c for _, cs in tried for c in cs)
+    d = _design_order(A, B, C, E, target, rho, parts)
+    Ns = d["N"] / rho
+    X = solve_discrete_lyapunov(Ns.T, np.eye(order))
+    X = 0.5 * (X + X.T)
+    return FunctionalDesign(order, d["N"], d["J"], d["H"], R, R @ d["Q"], d["T"], X, rho, conds)
+
+
+def _completions(A, C, E, L):
+    """The functionals each order is tried with, and the ``R`` that reads ``L x`` from them: ``L`` (order ``r``),
+    then ``L`` completed by the directions of ``L (P A)^j`` (``j = 1, 2, ...``) that ``L`` and the earlier ones do
+    not span, one at a time, and the identity (order ``n``, the full-order observer, ``R = L``)."""
+    n, r = A.shape[0], L.shape[0]
+    yield L, np.eye(r)
+    CE = C @ E
+    PA = (np.eye(n) - E @ _pinv(CE) @ C) @ A
+    basis = np.linalg.qr(L.T)[0][:, :rank(L)].T
+    current, row, extra = L, L, []
+    for _ in range(n):
+        row = row @ PA
+        for w in row:
+            w = w - (w @ basis.T) @ basis
+            w = w - (w @ basis.T) @ basis
+            size = float(np.linalg.norm(w))
+            if size <= RANK_RTOL * max(1.0, float(np.linalg.norm(row, 2))) or basis.shape[0] + 1 >= n:
+                continue
+            basis = np.vstack([basis, w / size])
+            extra.append(w / size)
+            current = np.vstack([L, np.array(extra)])
+            if current.shape[0] < n:
+                yield current, np.eye(current.shape[0])[:r]
+    if r < n or rank(L) < n:
+        yield np.eye(n), L
+
+
+def checks(design_: FunctionalDesign, A, B, C, E, L) -> list[Check]:
+    """The re-check at the stored matrices, without a solver: decoupling and matching identities, the
+    Lyapunov decrease at ``rho`` and ``rho < 1``."""
+    f = design_
+    scale = max(1.0, float(np.linalg.norm(A, 2)), float(np.linalg.norm(f.N, 2)), float(np.linalg.norm(f.T, 2)))
+    return [
+        identity_check("T E = 0", f.T @ E, float(np.linalg.norm(f.T, 2) * np.linalg.norm(E, 2))),
+        identity_check("T A - N T - J C = 0", f.T @ A - f.N @ f.T - f.J @ C,
+                       scale * scale * max(1.0, float(np.linalg.norm(f.J, 2)) * float(np.linalg.norm(C, 2)))),
+        identity_check("H - T B = 0", f.H - f.T @ B, float(np.linalg.norm(f.T, 2) * np.linalg.norm(B, 2))),
+        identity_check("R T + Q C - L = 0", f.R @ f.T + f.Q @ C - L,
+                       scale * max(1.0, float(np.linalg.norm(f.R, 2)), float(np.linalg.norm(f.Q, 2)
+                                                                              * np.linalg.norm(C, 2)))),
+        positive_check("X > 0", f.X),
+        lyapunov_check("rho^2 X - N'XN > 0", f.N, f.X, f.rho),
+        decay_check(f.rho),
+    ]
+
+
+#: The ``[observer]`` keys a functional observer does not support, and why.
+UNSUPPORTED = {"poles": "places the state observer's poles", "noise": "designs the state observer's gain",
+               "noise_gain": "designs the state observer's gain"}
+
+
+def parse_option(table, plant) -> np.ndarray | None:
+    """``observer.functional`` of an lti-uio problem (None when absent), refusing what the functional observer does
+    not support: a plant whose unknown input feeds through (``plant.F``) and the state observer's ``poles``,
+    ``noise`` and ``noise_gain``."""
+    if not table.has("functional"):
+        return None
+    L = parse_functional(table.get("functional"), plant.n)
+    if plant.feeds_d:
+        raise ProblemError("observer.functional: the functional observer is written for y = C x (+ D u); this plant's "
+                           "unknown input feeds through (plant.F), remove observer.functional")
+    for key, why in UNSUPPORTED.items():
+        if table.has(key):
+            raise ProblemError(f"observer.functional: observer.{key} {why}, which the functional observer does not "
+                               f"use: remove observer.{key}")
+    return L
+
+
+def analysis_conditions(A, C, E, L, rho: float) -> list[Condition]:
+    """The conditions of each order tried (informational, prefixed ``order k:``) and the required one: a functional
+    observer of some order ``r..n`` exists at decay ``rho`` (``rho = 1`` for ``decay = "max"``)."""
+    out, found = [], None
+    for target, _ in _completions(A, C, E, L):
+        conds, parts = order_conditions(A, C, E, target, rho)
+        k = target.shape[0]
+        out.extend(Condition(f"order {k}: {c.name}", c.holds, False, f"order {k}: {c.message}", c.values)
+                   for c in conds)
+        if parts is not None:
+            found = k
+            break
+    n, r = A.shape[0], L.shape[0]
+    msg = (f"functional observer of order {found} (searched {r}..{n}) for the {r} functional(s) of "
+           f"observer.functional" if found else f"no functional observer of order {r}..{n} at decay {rho:g}")
+    out.append(Condition("functional observer order", found is not None, True, msg,
+                         {"order": found, "functionals": r, "n": n}))
+    return out
+
+
+#: The design's refusal: ``uiofmu check`` decides a functional observer, no card or FMU carries one.
+NO_CARD = ("observer.functional: uiofmu check reports the functional observer's conditions and its order; no card or "
+           "FMU carries a functional observer (its zhat output): remove observer.functional to design the state "
+           "observer, whose L xhat estimates L x")
