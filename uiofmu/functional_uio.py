@@ -46,9 +46,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .certificate import Check, decay_check, identity_check, lyapunov_check, positive_check
-from .existence import Condition
+from .certificate import (UNDETERMINED, Check, certificate, decay_check, identity_check, lyapunov_check, magnitude,
+                          overshoot, positive_check)
+from .existence import Condition, complex_list
 from .runtime.errors import ProblemError
+from .scaling import to_data as scaling_data
 from .runtime.tolerances import RANK_RTOL, ZERO_MARGIN
 from .structure import decay_gain, rank, unobservable_modes
 
@@ -231,23 +233,135 @@ def _completions(A, C, E, L):
         yield np.eye(n), L
 
 
-def checks(design_: FunctionalDesign, A, B, C, E, L) -> list[Check]:
-    """The re-check at the stored matrices, without a solver: decoupling and matching identities, the
-    Lyapunov decrease at ``rho`` and ``rho < 1``."""
+def card_matrices(s, C, L, design_: FunctionalDesign) -> dict:
+    """The card's matrices of a design on the sampled plant ``s`` (``A, B, E`` and its affine term ``w``): the
+    affine kernel's ``N``, ``L = J``, ``G = H``, ``c = T w``, ``Xz = R``, ``Xy = Q``, ``C``, with ``Zx = T``
+    (``z_0 = Zx xhat0``), the functionals ``Lf`` (``zhat_0 = Lf xhat0``), the Lyapunov matrix ``X`` and the sampled
+    plant the checks read."""
     f = design_
-    scale = max(1.0, float(np.linalg.norm(A, 2)), float(np.linalg.norm(f.N, 2)), float(np.linalg.norm(f.T, 2)))
+    return {"N": f.N, "L": f.J, "G": f.H, "c": f.T @ s.w, "Xz": f.R, "Xy": f.Q, "C": C, "Zx": f.T, "Lf": L,
+            "X": f.X, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w}
+
+
+def card_checks(matrices: dict, rho: float) -> list[Check]:
+    """The re-check at a card's stored matrices, without a solver: ``Zx E = 0``, ``Zx A - N Zx - L C = 0``,
+    ``Zx B = G``, ``c = Zx w``, ``Xz Zx + Xy C = Lf``, ``X > 0``, ``rho^2 X - N'XN > 0`` and ``rho < 1``."""
+    g = {k: np.asarray(v, dtype=float) for k, v in matrices.items()}
+    T, A, B, E, C = g["Zx"], g["A_sampled"], g["B_sampled"], g["E_sampled"], g["C"]
+    N, J, H, R, Q, Lf = g["N"], g["L"], g["G"], g["Xz"], g["Xy"], g["Lf"]
     return [
-        identity_check("T E = 0", f.T @ E, float(np.linalg.norm(f.T, 2) * np.linalg.norm(E, 2))),
-        identity_check("T A - N T - J C = 0", f.T @ A - f.N @ f.T - f.J @ C,
-                       scale * scale * max(1.0, float(np.linalg.norm(f.J, 2)) * float(np.linalg.norm(C, 2)))),
-        identity_check("H - T B = 0", f.H - f.T @ B, float(np.linalg.norm(f.T, 2) * np.linalg.norm(B, 2))),
-        identity_check("R T + Q C - L = 0", f.R @ f.T + f.Q @ C - L,
-                       scale * max(1.0, float(np.linalg.norm(f.R, 2)), float(np.linalg.norm(f.Q, 2)
-                                                                              * np.linalg.norm(C, 2)))),
-        positive_check("X > 0", f.X),
-        lyapunov_check("rho^2 X - N'XN > 0", f.N, f.X, f.rho),
-        decay_check(f.rho),
+        identity_check("decoupling ||Zx E||", T @ E, magnitude([T, E])),
+        identity_check("||Zx A - N Zx - L C||", T @ A - N @ T - J @ C, magnitude([T, A], [N, T], [J, C])),
+        identity_check("||Zx B - G||", T @ B - H, magnitude([T, B], [H]) if B.size else 0.0),
+        identity_check("||c - Zx w||", g["c"] - T @ g["w_sampled"], magnitude([T, g["w_sampled"][:, None]])),
+        identity_check("||Xz Zx + Xy C - Lf||", R @ T + Q @ C - Lf, magnitude([R, T], [Q, C], [Lf])),
+        positive_check("eig_min(X)", g["X"]),
+        lyapunov_check("eig_min(rho^2 X - N'XN)", N, g["X"], rho),
+        decay_check(rho),
     ]
+
+
+def checks(design_: FunctionalDesign, A, B, C, E, L) -> list[Check]:
+    """:func:`card_checks` of a design on the plant ``x+ = A x + B u + E d`` (no affine term)."""
+    from types import SimpleNamespace
+
+    plant = SimpleNamespace(A=A, B=B, E=E, w=np.zeros(A.shape[0]))
+    return card_checks(card_matrices(plant, C, L, design_), design_.rho)
+
+
+#: The relative room the stored ``overshoot_bound`` takes above its figure (rounding of the norms on another
+#: machine), as the reduced-order observer's.
+OVERSHOOT_ROOM = 1e-9
+
+
+def _overshoot(matrices: dict) -> float:
+    """``max(||Xz|| sqrt(cond X) ||Zx||, ||Lf||)``: ``zhat_k - Lf x_k = -Xz eps_k`` with ``eps = Zx x - z``,
+    ``||eps_k|| <= sqrt(cond X) rho^k ||eps_0||`` and ``eps_0 = Zx (x_0 - xhat0)``; ``zhat_0 = Lf xhat0``."""
+    g = {k: np.asarray(matrices[k], dtype=float) for k in ("Xz", "Zx", "Lf", "X")}
+    norm = lambda M: float(np.linalg.norm(M, 2)) if M.size else 0.0     # noqa: E731
+    return max(norm(g["Xz"]) * overshoot(g["X"]) * norm(g["Zx"]), norm(g["Lf"]))
+
+
+def bound(matrices: dict) -> float:
+    """The card's ``overshoot_bound``: :func:`_overshoot` with :data:`OVERSHOOT_ROOM`, so that
+    ``||zhat_k - Lf x_k|| <= overshoot_bound rho^k ||x_0 - xhat0||`` for every ``k >= 0`` and every ``d``."""
+    return _overshoot(matrices) * (1.0 + OVERSHOOT_ROOM)
+
+
+def overshoot_check(claimed, matrices: dict) -> Check:
+    """``overshoot_bound >= max(||Xz|| sqrt(cond X) ||Zx||, ||Lf||)`` at the stored matrices."""
+    value = float(claimed) if isinstance(claimed, (int, float)) and not isinstance(claimed, bool) else float("nan")
+    return Check("overshoot_bound (needs >= max(||Xz|| sqrt(cond X) ||Zx||, ||Lf||))", value, _overshoot(matrices),
+                 at_most=False)
+
+
+def error_system(matrices: dict) -> tuple:
+    """Measurement noise ``v`` (``y = C x + v``) to the error of ``zhat``: ``eps+ = N eps - L v``,
+    ``zhat - Lf x = -Xz eps + Xy v``."""
+    N, L, Xz, Xy = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xz", "Xy"))
+    return N, -L, -Xz, Xy
+
+
+def process_error_system(matrices: dict) -> tuple:
+    """Process noise ``W w``: ``eps+ = N eps + Zx W_sampled w``, ``zhat - Lf x = -Xz eps``."""
+    N, Zx, W, Xz = (np.asarray(matrices[k], dtype=float) for k in ("N", "Zx", "W_sampled", "Xz"))
+    return N, Zx @ W, -Xz, np.zeros((Xz.shape[0], W.shape[1]))
+
+
+#: The bound a functional card states (the master checks each run of ``zhat`` against it).
+BOUND = "||zhat_k - Lf x_k|| <= overshoot_bound * decay_bound**k * ||x_0 - xhat0||"
+
+
+def card_design(problem, analysis, family):
+    """The functional observer of an lti-uio problem with ``observer.functional`` as a
+    :class:`~uiofmu.families.DesignResult`: the least order :func:`design` proves, at the problem's decay, with
+    the card's matrices (:func:`card_matrices`), its re-check (:func:`card_checks`), ``order`` and
+    ``overshoot_bound``. ``family`` is the lti-uio module (its schedule and noise section).
+
+    Raises
+    ------
+    ProblemError
+        For what the functional design does not support (``decay = "max"``, ``plant.D``) and when no order
+        ``r..n`` exists, naming the failed conditions with their numbers.
+    """
+    from .families import DesignResult
+    from .lmi import LmiSolution
+
+    plant, opts, s = problem.plant, problem.options, analysis.data["sampled"]
+    if opts.decay == "max":
+        raise ProblemError("observer.functional designs the functional observer at a given decay: give "
+                           "observer.decay a number in (0, 1) (decay = \"max\" has no fastest functional design: "
+                           "its gain is the Riccati gain at the decay asked for)")
+    if plant.feeds_u:
+        raise ProblemError("observer.functional: the functional observer is written for y = C x; this plant's known "
+                           "input feeds through (plant.D), remove observer.functional")
+    rho, L = float(opts.decay), opts.functional
+    f = design(s.A, s.B, plant.C, s.E, L, rho)
+    matrices = card_matrices(s, plant.C, L, f)
+    if plant.r:
+        matrices["W_sampled"] = plant.sampled_noise(opts.dt)
+    solution = LmiSolution({"X": f.X}, {"rho2": rho * rho}, "closed form (Riccati gain of the functional error, "
+                           "discrete Lyapunov equation)", {}, True, 0.0, 0.0)
+    cert = certificate(solution, card_checks(matrices, rho), f"{family.NAME} functional design of {problem.name}",
+                       solver="none")
+    eigN = np.linalg.eigvals(f.N)
+    results = {
+        "order": f.order,
+        "decay": rho,
+        "decay_bound": rho,
+        "overshoot_bound": bound(matrices),
+        "overshoot_digits": UNDETERMINED,       # ||Zx||, ||Xz|| read the chosen solution of the matching equation
+        "bound": BOUND,
+        "fixed_modes": complex_list(analysis.data["fixed"]),
+        "invariant_zeros": analysis.existence.value("stable invariant zeros", "zeros"),
+        "eigenvalues_N": complex_list(eigN),
+        "spectral_radius_N": float(np.abs(eigN).max()) if eigN.size else 0.0,
+        "design_method": "riccati (functional error)",
+        "scaling": scaling_data(np.ones(plant.n), "none"),
+        "noise": family.noise_section(matrices),
+    }
+    return DesignResult(f.order, opts.dt, family._schedule(opts), matrices, cert, results, None, opts.xhat0,
+                        nf=L.shape[0])
 
 
 #: The ``[observer]`` keys a functional observer does not support, and why.
@@ -275,24 +389,21 @@ def parse_option(table, plant) -> np.ndarray | None:
 def analysis_conditions(A, C, E, L, rho: float) -> list[Condition]:
     """The conditions of each order tried (informational, prefixed ``order k:``) and the required one: a functional
     observer of some order ``r..n`` exists at decay ``rho`` (``rho = 1`` for ``decay = "max"``)."""
-    out, found = [], None
+    out, found, failed = [], None, []
     for target, _ in _completions(A, C, E, L):
         conds, parts = order_conditions(A, C, E, target, rho)
         k = target.shape[0]
         out.extend(Condition(f"order {k}: {c.name}", c.holds, False, f"order {k}: {c.message}", c.values)
                    for c in conds)
+        failed += [f"order {k}: {c.message}" for c in conds if not c.holds]
         if parts is not None:
             found = k
             break
     n, r = A.shape[0], L.shape[0]
     msg = (f"functional observer of order {found} (searched {r}..{n}) for the {r} functional(s) of "
-           f"observer.functional" if found else f"no functional observer of order {r}..{n} at decay {rho:g}")
+           f"observer.functional" if found else
+           f"no functional observer of order {r}..{n} at decay {rho:g} ({'; '.join(failed)})")
     out.append(Condition("functional observer order", found is not None, True, msg,
                          {"order": found, "functionals": r, "n": n}))
     return out
 
-
-#: The design's refusal: ``uiofmu check`` decides a functional observer, no card or FMU carries one.
-NO_CARD = ("observer.functional: uiofmu check reports the functional observer's conditions and its order; no card or "
-           "FMU carries a functional observer (its zhat output): remove observer.functional to design the state "
-           "observer, whose L xhat estimates L x")

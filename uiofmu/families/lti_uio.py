@@ -171,6 +171,9 @@ def parse_options(table, plant) -> Options:
     dt = parse_period(table, plant, NAME)
     xhat0 = table.vector("xhat0", plant.n, None)
     order = table.choice("order", ORDERS, "full")
+    if order == "reduced" and table.has("functional"):
+        raise ProblemError('observer.functional searches the order of the functional observer itself: remove '
+                           'observer.order = "reduced" (or observer.functional for the reduced state observer)')
     if order == "reduced":
         _reduced_supported(table, plant)
     method = table.choice("method", METHODS, "auto")
@@ -522,6 +525,11 @@ def checks(matrices: dict, rho: float) -> list:
 def verify(card) -> list:
     """Re-check a card's certificate from its matrices alone (no solver), the overshoot and the noise gain it claims."""
     d = card.data
+    if "nf" in d["dims"] or "Lf" in d["matrices"]:       # a functional observer: zhat estimates Lf x
+        return ([*functional_uio.card_checks(d["matrices"], d["decay_bound"]),
+                 functional_uio.overshoot_check(d["overshoot_bound"], d["matrices"]),
+                 Check("order = dims.nz, the functional observer's state (1: yes)",
+                       float(d.get("order") == d["dims"]["nz"]), 1.0, at_most=False)] + noise_checks(d))
     if d.get("order") == "reduced" or "Zx" in d["matrices"]:
         asked = (d.get("problem") or {}).get("observer", {}).get("order", "full")
         return ([Check('the problem asks for observer.order = "reduced" (1: yes)', float(asked == "reduced"), 1.0,
@@ -568,7 +576,9 @@ NO_W = "gain_w: the problem declares no process noise"
 
 def _systems(matrices: dict) -> tuple:
     """The error systems (measurement noise, process noise, dhat) of a card's matrices: the reduced observer's
-    where the matrices hold ``Zx``."""
+    where the matrices hold ``Zx``, the functional observer's (no dhat) where they hold ``Lf``."""
+    if "Lf" in matrices:
+        return functional_uio.error_system, functional_uio.process_error_system, None
     if "Zx" in matrices:
         return (reduced_order.error_system, reduced_order.process_error_system, reduced_order.dhat_error_system)
     return error_system, process_error_system, dhat_error_system
@@ -608,9 +618,10 @@ def noise_section(matrices: dict) -> dict:
 
 
 def gain_figures(card_data: dict) -> tuple:
-    """The gain ``K``, ``||C||`` and ``||A||`` of the sampled plant (:mod:`uiofmu.gains`)."""
+    """The gain ``K`` (a functional observer's ``L``, the gain of ``y``), ``||C||`` and ``||A||`` of the sampled plant
+    (:mod:`uiofmu.gains`)."""
     m = card_data["matrices"]
-    return [m["K"]], float(np.linalg.norm(m["C"], 2)), float(np.linalg.norm(m["A_sampled"], 2))
+    return [m["L"] if "Lf" in m else m["K"]], float(np.linalg.norm(m["C"], 2)), float(np.linalg.norm(m["A_sampled"], 2))
 
 
 def _dhat(s, C) -> dict:
@@ -659,6 +670,12 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
         noise["noise.gain_w"] = None
     if opts.order == "reduced":
         requested["order"] = "reduced"
+    if opts.functional is not None:      # zhat: no M, no dhat; the order the search proves at the decay
+        mats.pop("M", None)
+        mats.update(dict.fromkeys(DHAT), Lf=opts.functional)
+        noise["noise.gain_dhat_y"] = None
+        requested.update({"order": analysis.existence.value("functional observer order", "order"),
+                          "dims.nf": int(opts.functional.shape[0]), "bound": functional_uio.BOUND})
     return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "decay": card_data["decay_bound"], **requested,
             **noise,
             **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
@@ -672,8 +689,9 @@ def figures_of(analysis: Analysis, card_data: dict, problem) -> dict:
     A = analysis.data["sampled"].A
     size, n = float(np.linalg.norm(A, 2)), plant.n
     N = np.asarray(card_data["matrices"]["N"], dtype=float)
-    lmi = str(card_data.get("design_method")).startswith("lmi") and opts.order == "full"
-    kind = opts.scaling if opts.order == "full" else "none"     # the reduced pair is solved unscaled
+    full = opts.order == "full" and opts.functional is None
+    lmi = str(card_data.get("design_method")).startswith("lmi") and full
+    kind = opts.scaling if full else "none"     # the reduced pair and the functional error are solved unscaled
     return {"fixed_modes": computed_values(analysis.data["fixed"], size, n),
             "invariant_zeros": computed_values(from_pairs(analysis.existence.value("stable invariant zeros", "zeros")),
                                                size, n),
@@ -907,7 +925,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     existence, s, fixed = analysis.existence, analysis.data["sampled"], analysis.data["fixed"]
     plant, opts = problem.plant, problem.options
     if opts.functional is not None:
-        raise ProblemError(functional_uio.NO_CARD)
+        return functional_uio.card_design(problem, analysis, sys.modules[__name__])     # its order, zhat
     if plant.feeds_d and (opts.noise == "min" or opts.noise_gain is not None):    # options made in code, unparsed
         raise ProblemError(NO_NOISE_DESIGN_WITH_F)
     if opts.order == "reduced":

@@ -172,6 +172,7 @@ KERNEL_PORTS = {
         PortSpec("mode_prev0", 0, "parameter", "mode assumed before the first step, alpha_{-1}", type="Integer"),
         PortSpec("mode", 0, "input", "mode of the plant over the step from the current communication point (1..N)",
                  type="Integer"),
+        PortSpec("zhat", 0, "output", "estimate of the functionals Lf x at the current communication point"),
     ),
     "window": (
         PortSpec("y", 0, "input", "measured outputs at the current communication point"),
@@ -278,6 +279,9 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
     feeds_u : bool
         Whether ``xhat`` (and so ``r``) depends on the ``u`` of the same communication point (``Xu != 0``).
 
+    A functional observer (``dims.nf``) outputs ``zhat`` (``nf``) in place of ``xhat`` and ``r``: it estimates
+    ``Lf x``, not ``x``, so no residual ``y - C xhat`` (and no ``dhat``) is defined.
+
     Returns
     -------
     list of PortSpec
@@ -296,6 +300,8 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
     if schedule_kind == "mode":
         ports.append(port("mode", 1))
     direct = (("y",) if feeds_y else ()) + (("u",) if feeds_u else ())
+    if "nf" in dims:
+        return ports + [port("zhat", dims["nf"], depends=direct)]
     ports += [port("xhat", n, depends=direct), port("r", p, depends=("y",) + (("u",) if feeds_u else ()))]
     if has_dhat:
         ports.append(port("dhat", q, depends=("y",)))
