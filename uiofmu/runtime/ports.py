@@ -265,6 +265,9 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
                    feeds_u: bool = False) -> list:
     """The declaration of the affine observer kernel (every family today).
 
+    A functional observer (``dims.nf``) outputs ``zhat`` (``nf``) in place of ``xhat`` and ``r``: it estimates
+    ``Lf x``, not ``x``, so no residual ``y - C xhat`` (and no ``dhat``) is defined.
+
     Parameters
     ----------
     dims : dict
@@ -278,9 +281,6 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
         Whether ``xhat`` depends on the ``y`` of the same communication point (``Xy != 0``).
     feeds_u : bool
         Whether ``xhat`` (and so ``r``) depends on the ``u`` of the same communication point (``Xu != 0``).
-
-    A functional observer (``dims.nf``) outputs ``zhat`` (``nf``) in place of ``xhat`` and ``r``: it estimates
-    ``Lf x``, not ``x``, so no residual ``y - C xhat`` (and no ``dhat``) is defined.
 
     Returns
     -------

@@ -379,8 +379,8 @@ static void reset_state(Instance *s) {
 static int mul_size(size_t a, size_t b, size_t *out) { return uiofmu_mul(a, b, SIZE_MAX / sizeof(double), out); }
 
 static void expected_shape(const UiofmuDesign *d, int w, int *rows, int *cols, const char **text) {
-    static const char *const TEXT[M_COUNT] = {"nz x nz", "nz x p", "nz x m", "nz x 1", "ne x nz", "ne x p",
-                                              "p x n", "q x p", "p x n", "p x m", "p x 1", "ne x m", "nz x n",
+    static const char *const TEXT[M_COUNT] = {"nz x nz", "nz x p", "nz x m", "nz x 1", "n x nz", "n x p",
+                                              "p x n", "q x p", "p x n", "p x m", "p x 1", "n x m", "nz x n",
                                               "nf x n"};
     const int ne = estimate_size(d); /* n, or nf for a functional observer */
     const int R[M_COUNT] = {d->nz, d->nz, d->nz, d->nz, ne, ne, d->p, d->q, d->p, d->p, d->p, ne, d->nz, d->nf};
@@ -388,6 +388,8 @@ static void expected_shape(const UiofmuDesign *d, int w, int *rows, int *cols, c
     *rows = R[w];
     *cols = C[w];
     *text = TEXT[w];
+    if (d->nf > 0 && (w == M_Xz || w == M_Xy || w == M_Xu)) /* zhat's rows */
+        *text = w == M_Xz ? "nf x nz" : w == M_Xy ? "nf x p" : "nf x m";
 }
 
 static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
