@@ -286,6 +286,22 @@ def test_fmu_cosimulates_within_the_bound(example_fmus, backend):
     assert "zhat[1]" in header and "zhat_true[1]" in header and not any(h.startswith("xhat[") for h in header)
 
 
+def test_noise_gain_of_zhat_is_respected(example_fmus):
+    """Sensor noise on y: the measured l2 gain from the noise to the error of zhat stays under the card's certified
+    gain_y (the bounded real lemma at the stored matrices, which verify re-checks)."""
+    d = example_fmus
+    card = read_card(d / "card.json")
+    assert card.data["noise"]["gain_y"] > 0 and card.data["noise"].get("gain_dhat_y") is None
+    res = run_cli("cosim", "--plant", d / "plant.fmu", "--observer", d / "obs_c.fmu", "--t-end", "10",
+                  "--noise", "y=0.01,4", "--out", d / "run_noise", "--no-report")
+    assert res.code == 0, res.err
+    metrics = json.loads((d / "run_noise" / "metrics.json").read_text())
+    assert metrics["noise_gain_respected"] is True and metrics["bound_respected"] is True
+    assert 0 < metrics["noise_gain_measured"] <= card.data["noise"]["gain_y"]
+    header = (d / "run_noise" / "results.csv").read_text().splitlines()[0].split(",")
+    assert "zhat_noisy[1]" in header
+
+
 def check_equal_to_the_runtime(path, card) -> None:
     """The observer FMU at ``path`` gives the reference runtime's ``zhat`` (to rounding) on random inputs, from a
     random ``xhat0``; a state saved after a few steps restores the same run."""
