@@ -346,6 +346,8 @@ def test_both_backends_give_the_runtime_zhat(example_fmus, backend):
     d = example_fmus
     card = read_card(d / "card.json")
     check_equal_to_the_runtime(d / f"obs_{backend}.fmu", card)
+    res = run_cli("validate", d / f"obs_{backend}.fmu")          # fmpy's validate_fmu, then random steps
+    assert res.code == 0 and "validate_fmu         no problem" in res.out, res.out + res.err
     with zipfile.ZipFile(d / f"obs_{backend}.fmu") as z:
         described = z.read("modelDescription.xml").decode()
         assert 'name="zhat[1]"' in described and 'name="xhat[' not in described and 'name="r[' not in described
