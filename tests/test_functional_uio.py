@@ -302,6 +302,33 @@ def test_noise_gain_of_zhat_is_respected(example_fmus):
     assert "zhat_noisy[1]" in header
 
 
+@pytest.mark.parametrize("backend", ["c", "python"])
+def test_a_random_plant_cosimulates_within_its_bound(tmp_path, backend):
+    """A seeded plant nobody wrote (6 states, 3 outputs, 2 functionals, process noise through W): designed, built,
+    co-simulated with fmpy within the certified bound, and the measured gain from the process noise to the error
+    of zhat under the card's gain_w."""
+    data = random_problem(*CARD_PLANTS[1])
+    data["plant"]["W"] = (0.2 * np.random.default_rng(9).normal(size=(6, 1))).tolist()
+    path = tmp_path / "p.toml"
+    path.write_text(to_toml(data), encoding="utf-8")
+    assert run_cli("design", path, "-o", tmp_path / "card.json").code == 0
+    card = read_card(tmp_path / "card.json")
+    assert card.data["dims"]["nf"] == 2 and card.data["noise"]["gain_w"] > 0
+    assert run_cli("plant", path, "-o", tmp_path / "plant.fmu", "--backend", backend).code == 0
+    res = run_cli("build", tmp_path / "card.json", "-o", tmp_path / "obs.fmu", "--backend", backend)
+    assert res.code == 0, res.err
+    for noise, out in ((None, "run"), ("w=0.1,2", "run_w")):
+        res = run_cli("cosim", "--plant", tmp_path / "plant.fmu", "--observer", tmp_path / "obs.fmu", "--t-end", "8",
+                      "--out", tmp_path / out, "--no-report", *(("--noise", noise) if noise else ()))
+        assert res.code == 0, res.err
+        metrics = json.loads((tmp_path / out / "metrics.json").read_text())
+        assert metrics["bound_respected"] is True
+        if noise is None:
+            assert metrics["final_error_norm"] < 1e-6 * metrics["initial_error_norm"]
+        else:
+            assert metrics["noise_gain_w_respected"] is True
+
+
 def check_equal_to_the_runtime(path, card) -> None:
     """The observer FMU at ``path`` gives the reference runtime's ``zhat`` (to rounding) on random inputs, from a
     random ``xhat0``; a state saved after a few steps restores the same run."""
