@@ -38,6 +38,14 @@ stored matrices without a solver (:func:`uiofmu.certificate.lyapunov_check`), wi
 (:func:`uiofmu.certificate.identity_check`). Then ``||e_k|| <= sqrt(cond X) rho^k ||e_0||`` and::
 
     ||zhat_k - L x_k|| <= ||R||_2 sqrt(cond X) rho^k ||z_0 - T x_0||.
+
+**The card** (:func:`card_design`) runs on the affine kernel: ``N``, ``L = J``, ``G = H``, ``c = T w``, ``Xz = R``,
+``Xy = Q``, ``Zx = T`` and ``Lf = L``, with ``dims.nz`` the order and ``dims.nf = r``. The runtime starts at
+``z_0 = Zx xhat0`` and outputs ``zhat_0 = Lf xhat0``, then ``zhat_k = Xz z_k + Xy y_k``. With ``eps = Zx x - z``,
+``zhat_k - Lf x_k = -Xz eps_k`` and ``eps_0 = Zx (x_0 - xhat0)``, so the card's bound reads the initial estimate's
+error: ``||zhat_k - Lf x_k|| <= overshoot_bound rho^k ||x_0 - xhat0||`` with
+``overshoot_bound >= max(||Xz|| sqrt(cond X) ||Zx||, ||Lf||)`` (:func:`bound`, re-checked by
+:func:`overshoot_check`).
 """
 
 from __future__ import annotations

@@ -53,6 +53,10 @@ robust algorithm), so the card's ``overshoot_digits`` says the problem does not 
 is (the same LMI or Riccati design, on the reduced decoupled pair) and whose output reconstructs the rest of the
 state from ``y``; the construction, its checks and its bound are in :mod:`uiofmu.reduced_order`. The card records
 ``order`` and stores ``Zx`` (the first step's ``z_0 = Zx (xhat0 - Xy y_0)``).
+
+**Functional** (``observer.functional = L``): the observer of least order (among those searched) estimating the
+functionals ``L x`` whatever ``d``, its conditions in the analysis and its card (``order``, ``dims.nf``, ``Lf``,
+output ``zhat``) from :mod:`uiofmu.functional_uio`.
 """
 
 from __future__ import annotations
