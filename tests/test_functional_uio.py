@@ -179,7 +179,7 @@ def random_problem(seed: int, n: int, p: int, q: int, r: int) -> dict:
             "observer": {"family": "lti-uio", "decay": 0.7, "functional": L.tolist()}}
 
 
-CARD_PLANTS = [(21, 5, 2, 1, 1), (22, 6, 3, 1, 2), (23, 5, 3, 2, 1), (24, 4, 2, 1, 2)]
+CARD_PLANTS = [(21, 5, 2, 1, 1), (22, 6, 3, 1, 2), (23, 5, 3, 2, 1), (24, 4, 2, 1, 2), (3, 4, 2, 1, 4)]
 
 
 @pytest.fixture(scope="module", params=CARD_PLANTS, ids=lambda s: "seed{}-n{}p{}q{}r{}".format(*s))
@@ -201,12 +201,14 @@ def test_cards_decouple_contract_and_verify(random_card):
     assert np.linalg.norm(T @ E) <= 1e-10 * size * np.linalg.norm(E, 2)
     assert np.linalg.norm(T @ A - N @ T - J @ C) <= 1e-10 * size * max(1.0, np.linalg.norm(J, 2))
     assert np.linalg.norm(m["G"] - T @ B) <= 1e-10 * size * np.linalg.norm(B, 2)
-    assert np.linalg.norm(R @ T + Q @ C - Lf) <= 1e-10 * max(1.0, np.linalg.norm(R, 2) * size,
-                                                            np.linalg.norm(Q, 2) * np.linalg.norm(C, 2))
+    read = np.eye(dims["n"]) if dims["nz"] == dims["n"] else Lf       # order n: the state, zhat = Lf xhat
+    assert np.linalg.norm(R @ T + Q @ C - read) <= 1e-10 * max(1.0, np.linalg.norm(R, 2) * size,
+                                                              np.linalg.norm(Q, 2) * np.linalg.norm(C, 2))
     assert np.abs(np.linalg.eigvals(N)).max() < card.data["decay_bound"] == 0.7
     assert card.data["certificate"]["verified"] is True
     assert all(c.holds for c in uiofmu.verify(card))
-    assert [p["name"] for p in card.data["ports"] if p["causality"] == "output"] == ["zhat"]
+    outputs = [p["name"] for p in card.data["ports"] if p["causality"] == "output"]
+    assert outputs == (["xhat", "r", "zhat"] if dims["nz"] == dims["n"] else ["zhat"])
 
 
 def test_zhat_follows_lf_x_whatever_d(random_card):
@@ -223,7 +225,7 @@ def test_zhat_follows_lf_x_whatever_d(random_card):
         obs.set_y(C @ x)
         u = np.array([np.sin(0.3 * k)])
         obs.set_u(u)
-        err = float(np.linalg.norm(obs.xhat() - Lf @ x))
+        err = float(np.linalg.norm(obs.zhat() - Lf @ x))
         assert err <= card.data["overshoot_bound"] * card.data["decay_bound"] ** k * e0 * (1 + 1e-9) + 1e-12
         obs.step(0.1)
         x = A @ x + B @ u + E @ (10.0 * rng.normal(size=E.shape[1]))
@@ -327,6 +329,52 @@ def test_a_random_plant_cosimulates_within_its_bound(tmp_path, backend):
             assert metrics["final_error_norm"] < 1e-6 * metrics["initial_error_norm"]
         else:
             assert metrics["noise_gain_w_respected"] is True
+
+
+@pytest.mark.parametrize("backend", ["c", "python"])
+def test_order_n_outputs_the_state_and_lf_xhat(tmp_path, backend):
+    """Four functionals of a 4-state plant: the observer has order n, so its FMU also outputs xhat and r, with
+    zhat = Lf xhat, equal to the reference runtime, and xhat converges to x in co-simulation."""
+    data = random_problem(3, 4, 2, 1, 4)
+    path = tmp_path / "p.toml"
+    path.write_text(to_toml(data), encoding="utf-8")
+    assert run_cli("design", path, "-o", tmp_path / "card.json").code == 0
+    card = read_card(tmp_path / "card.json")
+    assert card.data["order"] == card.data["dims"]["nz"] == card.data["dims"]["n"] == 4
+    assert run_cli("plant", path, "-o", tmp_path / "plant.fmu", "--backend", backend).code == 0
+    assert run_cli("build", tmp_path / "card.json", "-o", tmp_path / "obs.fmu", "--backend", backend).code == 0
+    rng = np.random.default_rng(8)
+    ref = Runtime(card, xhat0=rng.normal(size=4))
+    with Fmu(tmp_path / "obs.fmu", "observer") as fmu:
+        assert set(fmu.ports("output")) == {"xhat", "r", "zhat"}
+        fmu.initialize(0.0, {"xhat0": ref.xhat0})
+        for k in range(15):
+            y, u = rng.normal(size=2), rng.normal(size=1)
+            for name, value in (("y", y), ("u", u)):
+                fmu.set(name, value)
+            ref.set_y(y)
+            ref.set_u(u)
+            got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("zhat")])
+            np.testing.assert_allclose(got, np.concatenate([ref.xhat(), ref.residual(), ref.zhat()]),
+                                       rtol=1e-11, atol=1e-11)
+            np.testing.assert_allclose(fmu.get("zhat"), card.matrices["Lf"] @ np.asarray(fmu.get("xhat")),
+                                       rtol=1e-11, atol=1e-11)
+            fmu.step(k * 0.1, 0.1)
+            ref.step(0.1)
+    res = run_cli("cosim", "--plant", tmp_path / "plant.fmu", "--observer", tmp_path / "obs.fmu", "--t-end", "8",
+                  "--out", tmp_path / "run", "--no-report")
+    assert res.code == 0, res.err
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["bound_respected"] is True
+    assert metrics["final_error_norm"] < 1e-6 * metrics["initial_error_norm"]
+    import csv
+    rows = list(csv.DictReader((tmp_path / "run" / "results.csv").open()))
+    assert rows and "zhat[4]" in rows[0]
+
+
+def test_dependent_functionals_are_refused():
+    with pytest.raises(ProblemError, match=r"the 2 rows are dependent \(rank 1\)"):
+        fu.parse_functional([[1.0, 2.0, 0.0], [2.0, 4.0, 0.0]], 3)
 
 
 def check_equal_to_the_runtime(path, card) -> None:

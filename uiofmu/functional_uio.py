@@ -40,7 +40,9 @@ stored matrices without a solver (:func:`uiofmu.certificate.lyapunov_check`), wi
     ||zhat_k - L x_k|| <= ||R||_2 sqrt(cond X) rho^k ||z_0 - T x_0||.
 
 **The card** (:func:`card_design`) runs on the affine kernel: ``N``, ``L = J``, ``G = H``, ``c = T w``, ``Xz = R``,
-``Xy = Q``, ``Zx = T`` and ``Lf = L``, with ``dims.nz`` the order and ``dims.nf = r``. The runtime starts at
+``Xy = Q``, ``Zx = T`` and ``Lf = L``, with ``dims.nz`` the order and ``dims.nf = r``; at order ``n`` the
+state instead, ``Xz = F^-1``, ``Xy = F^-1 Qk`` (``F``: the order's functionals, ``T + Qk C = F``) and
+``zhat = Lf xhat``. The runtime starts at
 ``z_0 = Zx xhat0`` and outputs ``zhat_0 = Lf xhat0``, then ``zhat_k = Xz z_k + Xy y_k``. With ``eps = Zx x - z``,
 ``zhat_k - Lf x_k = -Xz eps_k`` and ``eps_0 = Zx (x_0 - xhat0)``, so the card's bound reads the initial estimate's
 error: ``||zhat_k - Lf x_k|| <= overshoot_bound rho^k ||x_0 - xhat0||`` with
@@ -91,7 +93,11 @@ def parse_functional(raw, n: int) -> np.ndarray:
         if not np.any(values):
             raise ProblemError(f"{key}[{i}]: a row of zeros estimates nothing")
         rows.append(values)
-    return np.vstack(rows)
+    L = np.vstack(rows)
+    if rank(L) < len(rows):
+        raise ProblemError(f"{key}: the {len(rows)} rows are dependent (rank {rank(L)}): a functional the others give "
+                           "is estimated by them, remove it")
+    return L
 
 
 @dataclass(frozen=True)
@@ -111,6 +117,8 @@ class FunctionalDesign:
     X: np.ndarray
     rho: float
     conditions: tuple
+    Qk: np.ndarray | None = None      # the Q of the order's own functionals F (``T + Qk C = F``)
+    F: np.ndarray | None = None       # those functionals (L completed); at order n xhat = F^-1 (z + Qk y)
 
     @property
     def overshoot(self) -> float:
@@ -211,7 +219,7 @@ def design(A, B, C, E, L, rho: float) -> FunctionalDesign:
     Ns = d["N"] / rho
     X = solve_discrete_lyapunov(Ns.T, np.eye(order))
     X = 0.5 * (X + X.T)
-    return FunctionalDesign(order, d["N"], d["J"], d["H"], R, R @ d["Q"], d["T"], X, rho, conds)
+    return FunctionalDesign(order, d["N"], d["J"], d["H"], R, R @ d["Q"], d["T"], X, rho, conds, d["Q"], target)
 
 
 def _completions(A, C, E, L):
@@ -245,15 +253,30 @@ def card_matrices(s, C, L, design_: FunctionalDesign) -> dict:
     """The card's matrices of a design on the sampled plant ``s`` (``A, B, E`` and its affine term ``w``): the
     affine kernel's ``N``, ``L = J``, ``G = H``, ``c = T w``, ``Xz = R``, ``Xy = Q``, ``C``, with ``Zx = T``
     (``z_0 = Zx xhat0``), the functionals ``Lf`` (``zhat_0 = Lf xhat0``), the Lyapunov matrix ``X`` and the sampled
-    plant the checks read."""
+    plant the checks read. At order ``n`` the observer estimates the state: its functionals ``F`` (``L``
+    completed, independent rows) are invertible and ``Zx + Qk C = F``, so ``Xz = F^-1``, ``Xy = F^-1 Qk`` give
+    ``xhat = Xz z + Xy y`` and ``zhat = Lf xhat``."""
     f = design_
-    return {"N": f.N, "L": f.J, "G": f.H, "c": f.T @ s.w, "Xz": f.R, "Xy": f.Q, "C": C, "Zx": f.T, "Lf": L,
+    if f.order == C.shape[1]:            # order n: T + Qk C = F (invertible), xhat = F^-1 (z + Qk y), zhat = Lf xhat
+        Xz = np.linalg.inv(f.F)
+        Xy = Xz @ f.Qk
+    else:
+        Xz, Xy = f.R, f.Q
+    return {"N": f.N, "L": f.J, "G": f.H, "c": f.T @ s.w, "Xz": Xz, "Xy": Xy, "C": C, "Zx": f.T, "Lf": L,
             "X": f.X, "A_sampled": s.A, "B_sampled": s.B, "E_sampled": s.E, "w_sampled": s.w}
+
+
+def estimates_state(matrices: dict) -> bool:
+    """Whether a functional card's observer has order ``n`` and so estimates the state (``xhat = Xz z + Xy y``,
+    ``zhat = Lf xhat``): its ``Zx`` is square."""
+    Zx = np.shape(matrices["Zx"])
+    return len(Zx) == 2 and Zx[0] == Zx[1]
 
 
 def card_checks(matrices: dict, rho: float) -> list[Check]:
     """The re-check at a card's stored matrices, without a solver: ``Zx E = 0``, ``Zx A - N Zx - L C = 0``,
-    ``Zx B = G``, ``c = Zx w``, ``Xz Zx + Xy C = Lf``, ``X > 0``, ``rho^2 X - N'XN > 0`` and ``rho < 1``."""
+    ``Zx B = G``, ``c = Zx w``, ``Xz Zx + Xy C = Lf`` (at order ``n``: ``= I``, the state), ``X > 0``,
+    ``rho^2 X - N'XN > 0`` and ``rho < 1``."""
     g = {k: np.asarray(v, dtype=float) for k, v in matrices.items()}
     T, A, B, E, C = g["Zx"], g["A_sampled"], g["B_sampled"], g["E_sampled"], g["C"]
     N, J, H, R, Q, Lf = g["N"], g["L"], g["G"], g["Xz"], g["Xy"], g["Lf"]
@@ -262,7 +285,9 @@ def card_checks(matrices: dict, rho: float) -> list[Check]:
         identity_check("||Zx A - N Zx - L C||", T @ A - N @ T - J @ C, magnitude([T, A], [N, T], [J, C])),
         identity_check("||Zx B - G||", T @ B - H, magnitude([T, B], [H]) if B.size else 0.0),
         identity_check("||c - Zx w||", g["c"] - T @ g["w_sampled"], magnitude([T, g["w_sampled"][:, None]])),
-        identity_check("||Xz Zx + Xy C - Lf||", R @ T + Q @ C - Lf, magnitude([R, T], [Q, C], [Lf])),
+        (identity_check("||Xz Zx + Xy C - I|| (xhat at order n)", R @ T + Q @ C - np.eye(len(A)),
+                        magnitude([R, T], [Q, C], [np.eye(len(A))])) if estimates_state(matrices) else
+         identity_check("||Xz Zx + Xy C - Lf||", R @ T + Q @ C - Lf, magnitude([R, T], [Q, C], [Lf]))),
         positive_check("eig_min(X)", g["X"]),
         lyapunov_check("eig_min(rho^2 X - N'XN)", N, g["X"], rho),
         decay_check(rho),
@@ -287,7 +312,8 @@ def _overshoot(matrices: dict) -> float:
     ``||eps_k|| <= sqrt(cond X) rho^k ||eps_0||`` and ``eps_0 = Zx (x_0 - xhat0)``; ``zhat_0 = Lf xhat0``."""
     g = {k: np.asarray(matrices[k], dtype=float) for k in ("Xz", "Zx", "Lf", "X")}
     norm = lambda M: float(np.linalg.norm(M, 2)) if M.size else 0.0     # noqa: E731
-    return max(norm(g["Xz"]) * overshoot(g["X"]) * norm(g["Zx"]), norm(g["Lf"]))
+    Xz = g["Lf"] @ g["Xz"] if estimates_state(matrices) else g["Xz"]      # zhat = Lf xhat at order n
+    return max(norm(Xz) * overshoot(g["X"]) * norm(g["Zx"]), norm(g["Lf"]))
 
 
 def bound(matrices: dict) -> float:
@@ -306,14 +332,24 @@ def overshoot_check(claimed, matrices: dict) -> Check:
 def error_system(matrices: dict) -> tuple:
     """Measurement noise ``v`` (``y = C x + v``) to the error of ``zhat``: ``eps+ = N eps - L v``,
     ``zhat - Lf x = -Xz eps + Xy v``."""
-    N, L, Xz, Xy = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xz", "Xy"))
+    N, L, Xz, Xy = _zhat_output(matrices)
     return N, -L, -Xz, Xy
 
 
 def process_error_system(matrices: dict) -> tuple:
     """Process noise ``W w``: ``eps+ = N eps + Zx W_sampled w``, ``zhat - Lf x = -Xz eps``."""
-    N, Zx, W, Xz = (np.asarray(matrices[k], dtype=float) for k in ("N", "Zx", "W_sampled", "Xz"))
+    N, _, Xz, _ = _zhat_output(matrices)
+    Zx, W = (np.asarray(matrices[k], dtype=float) for k in ("Zx", "W_sampled"))
     return N, Zx @ W, -Xz, np.zeros((Xz.shape[0], W.shape[1]))
+
+
+def _zhat_output(matrices: dict) -> tuple:
+    """``N``, ``L`` and the output matrices of ``zhat = Xz z + Xy y`` (at order ``n``: ``Lf Xz``, ``Lf Xy``)."""
+    N, L, Xz, Xy = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xz", "Xy"))
+    if estimates_state(matrices):
+        Lf = np.asarray(matrices["Lf"], dtype=float)
+        return N, L, Lf @ Xz, Lf @ Xy
+    return N, L, Xz, Xy
 
 
 #: The bound a functional card states (the master checks each run of ``zhat`` against it).

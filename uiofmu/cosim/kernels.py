@@ -106,9 +106,11 @@ def _affine_observer(fmu: Fmu, card, report: Validation, steps: int, rng) -> Non
     ``dhat`` at every point of :func:`random_observer_run`."""
     rt = Runtime(card)
     for _ in random_observer_run(fmu, rt, steps, rng):
-        if rt.functional:                              # zhat alone
+        if rt.zhat_only:                               # zhat alone
             compare(report, np.asarray(fmu.get("zhat")), rt.xhat())
             continue
+        if rt.functional:                              # order n: zhat = Lf xhat besides
+            compare(report, np.asarray(fmu.get("zhat")), rt.zhat())
         got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")])
         ref = np.concatenate([rt.xhat(), rt.residual(), rt.dhat() if rt.has_dhat else []])
         compare(report, got, ref)

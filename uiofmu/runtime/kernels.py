@@ -41,8 +41,14 @@ RUNTIME_SHAPES = {
 }
 def estimate_size(dims: dict) -> int:
     """The size ``ne`` of the affine kernel's estimate (the rows of ``Xz``, ``Xy``, ``Xu``): ``dims.nf`` for a
-    functional observer (``zhat`` estimates ``Lf x``), else ``n`` (``xhat``)."""
-    return dims.get("nf", dims["n"])
+    functional observer of order below ``n`` (``zhat`` estimates ``Lf x``), else ``n`` (``xhat``; a functional
+    observer of order ``n`` estimates the state, and ``zhat = Lf xhat``)."""
+    return dims["nf"] if zhat_only(dims) else dims["n"]
+
+
+def zhat_only(dims: dict) -> bool:
+    """Whether a card's observer estimates functionals only: ``dims.nf`` with an order ``nz`` below ``n``."""
+    return "nf" in dims and dims["nz"] != dims["n"]
 #: Matrices every affine card has; the ``Dy, Yx, Yu, Yc`` group is present when ``dhat`` is estimated.
 CORE = ("N", "L", "G", "c", "Xz", "Xy", "C")
 DHAT = ("Dy", "Yx", "Yu", "Yc")
@@ -355,4 +361,4 @@ def card_kernel(data: dict) -> Kernel:
 
 
 __all__ = ["CORE", "DEFAULT", "DHAT", "KERNELS", "Kernel", "RUNTIME_SHAPES", "SCHEDULES", "ScheduleKind",
-           "card_kernel", "estimate_size", "kernel_named"]
+           "card_kernel", "estimate_size", "kernel_named", "zhat_only"]

@@ -14,9 +14,10 @@ then ``step(h_k)`` advances::
 with ``z_0 = xhat0 - Xy y_0 [- Xu u_0]``, or ``z_0 = Zx (xhat0 - Xy y_0)`` where the card has ``Zx`` (a
 reduced-order observer, ``nz < n``).
 
-A functional observer (``dims.nf``, matrices ``Lf`` and ``Zx``) estimates ``Lf x`` (``nf`` functionals) instead
-of ``x``: its estimate is ``zhat_k = Xz z_k + Xy y_k`` (``zhat_0 = Lf xhat0``), from ``z_0 = Zx xhat0``, and it
-has no residual and no ``dhat`` (both read ``xhat``); :meth:`Runtime.xhat` returns ``zhat``.
+A functional observer (``dims.nf``, matrices ``Lf`` and ``Zx``) starts at ``z_0 = Zx xhat0`` and estimates ``Lf x``
+(``nf`` functionals): below order ``n`` instead of ``x``, as ``zhat_k = Xz z_k + Xy y_k`` (``zhat_0 = Lf xhat0``),
+with no residual and no ``dhat`` (both read ``xhat``; :meth:`Runtime.xhat` returns ``zhat``); at order ``n``
+besides ``x``, as ``zhat = Lf xhat`` (:meth:`Runtime.zhat`).
 
 with the matrices the schedule picks for (k, h_k, h_{k-1}), and for a switched plant for the
 modes (alpha_k, alpha_{k-1}): the input ``mode`` is the mode of the step about to be taken, and
@@ -61,8 +62,9 @@ class Runtime:
         self.card = card
         d = card.dims
         self.n, self.m, self.p, self.q, self.nz = d["n"], d["m"], d["p"], d["q"], d["nz"]
-        self.functional = "nf" in d            # zhat = Xz z + Xy y estimates Lf x
-        self.ne = d["nf"] if self.functional else self.n
+        self.functional = "nf" in d            # zhat estimates Lf x
+        self.zhat_only = self.functional and self.nz != self.n      # zhat = Xz z + Xy y (else Lf xhat)
+        self.ne = d["nf"] if self.zhat_only else self.n
         self.schedule = make_schedule(card.schedule, card.matrices)
         self.has_dhat = card.has_dhat
         default = card.data["initial"].get("xhat0", [0.0] * self.n)
@@ -180,7 +182,7 @@ class Runtime:
         """The state estimate at the current communication point (a view; copy to keep); a functional
         observer's ``zhat``."""
         if self.k == 0:
-            if self.functional:
+            if self.zhat_only:
                 np.dot(self.card.matrices["Lf"], self.xhat0, out=self._xhat)
             else:
                 self._xhat[:] = self.xhat0
@@ -191,6 +193,10 @@ class Runtime:
         if "Xu" in mats:
             self._xhat += np.dot(mats["Xu"], self.u, out=self._tn)
         return self._xhat
+
+    def zhat(self) -> np.ndarray:
+        """A functional observer's estimate of ``Lf x``: ``Lf xhat`` at order ``n``, else :meth:`xhat`."""
+        return self.xhat() if self.zhat_only else self.card.matrices["Lf"] @ self.xhat()
 
     def residual(self) -> np.ndarray:
         """``r = y - C xhat``."""

@@ -58,7 +58,8 @@ class ObserverModel(StatefulModel):
         """Recompute the outputs from the current inputs and state."""
         named = self.named
         if self.rt.functional:
-            named["zhat"].values[:] = self.rt.xhat()
+            named["zhat"].values[:] = self.rt.zhat()
+        if self.rt.zhat_only:
             self.dirty = False
             return
         named["xhat"].values[:] = self.rt.xhat()

@@ -265,8 +265,9 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
                    feeds_u: bool = False) -> list:
     """The declaration of the affine observer kernel (every family today).
 
-    A functional observer (``dims.nf``) outputs ``zhat`` (``nf``) in place of ``xhat`` and ``r``: it estimates
-    ``Lf x``, not ``x``, so no residual ``y - C xhat`` (and no ``dhat``) is defined.
+    A functional observer (``dims.nf``) outputs ``zhat`` (``nf``) in place of ``xhat`` and ``r`` where its order is
+    below ``n``: it estimates ``Lf x``, not ``x``, so no residual ``y - C xhat`` (and no ``dhat``) is defined; one of
+    order ``n`` estimates the state, and outputs ``xhat``, ``r`` and ``zhat = Lf xhat``.
 
     Parameters
     ----------
@@ -300,9 +301,11 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
     if schedule_kind == "mode":
         ports.append(port("mode", 1))
     direct = (("y",) if feeds_y else ()) + (("u",) if feeds_u else ())
-    if "nf" in dims:
+    if "nf" in dims and dims["nz"] != n:           # functionals only
         return ports + [port("zhat", dims["nf"], depends=direct)]
     ports += [port("xhat", n, depends=direct), port("r", p, depends=("y",) + (("u",) if feeds_u else ()))]
+    if "nf" in dims:                               # order n: zhat = Lf xhat
+        return ports + [port("zhat", dims["nf"], depends=direct)]
     if has_dhat:
         ports.append(port("dhat", q, depends=("y",)))
     return ports

@@ -13,8 +13,9 @@
  *                    z_0    = xhat0 - Xy y_0 [- Xu u_0]    (first step only)
  *                    z_0    = Zx (xhat0 - Xy y_0)          (instead, where the design has Zx: nz < n)
  *
- * A functional observer (nf > 0, matrix Lf) outputs zhat_k = Xz z_k + Xy y_k (zhat_0 = Lf xhat0) in the place
- * of xhat, from z_0 = Zx xhat0, and has neither r nor dhat (both read xhat).
+ * A functional observer (nf > 0, matrix Lf) starts at z_0 = Zx xhat0; below order n (nz != n) it outputs
+ * zhat_k = Xz z_k + Xy y_k (zhat_0 = Lf xhat0) in the place of xhat, and has neither r nor dhat (both read xhat);
+ * at order n it outputs xhat and r as above and zhat_k = Lf xhat_k.
  *                    pred   = Yx xhat_k + Yu u_k + Yc
  *                    z_k+1  = N z_k + L y_k + G u_k + c
  *
@@ -86,7 +87,7 @@ typedef struct {
     int range; /* N of an interval or mode schedule, else 1 (i = j = 0) */
     int sorted; /* the design intervals increase strictly: nearest() bisects them */
     int known[UIOFMU_SLOTS]; /* by uiofmu_slot(x) of each design interval x: its index (-1: none) */
-    double *xhat, *r, *dhat, *tmp;
+    double *xhat, *r, *dhat, *zhat, *tmp;
     double *work[M_COUNT];
     long work_k;
     double *block; /* everything above, one allocation */
@@ -101,8 +102,11 @@ static const char *const MATRIX_NAME[M_COUNT] = {"N", "L", "G", "c", "Xz", "Xy",
 
 static size_t msize(const UiofmuMatrix *M) { return (size_t)M->rows * (size_t)M->cols; }
 
-/* The size of the estimate: nf (zhat, a functional observer) or n (xhat). */
-static inline int estimate_size(const UiofmuDesign *d) { return d->nf > 0 ? d->nf : d->n; }
+/* A functional observer below order n: its estimate is zhat, no xhat. */
+static inline int zhat_only(const UiofmuDesign *d) { return d->nf > 0 && d->nz != d->n; }
+
+/* The size of the estimate: nf (zhat, a functional observer below order n) or n (xhat). */
+static inline int estimate_size(const UiofmuDesign *d) { return zhat_only(d) ? d->nf : d->n; }
 
 /* The sum of a[j] x[j] over j < n, from 0.0 in the order of j (a row of a matrix times x; 0.0 for
    n = 0). Every product below is written with it, row by row, and the sums of a row added in the
@@ -309,7 +313,7 @@ static int estimate(Instance *s, const char *fn, int j) {
     const UiofmuDesign *d = s->d;
     if (d->kind == UIOFMU_GEOMETRIC) evaluate(s, s->k);
     if (s->xhat_current) return 1;
-    if (s->k == 0 && d->nf > 0) { /* zhat_0 = Lf xhat0 */
+    if (s->k == 0 && zhat_only(d)) { /* zhat_0 = Lf xhat0 */
         const double *Lf = s->place[M_Lf].base;
         if (!Lf) return 0;
         for (int i = 0; i < d->nf; i++) s->xhat[i] = dot(Lf + (size_t)i * d->n, s->xhat0, d->n);
@@ -344,8 +348,13 @@ static int refresh(Instance *s, const char *fn) {
     int j = prev_index(s);
     const double *C = matrix(s, fn, M_C, 0, 0);
     if (!C || !estimate(s, fn, j)) return 0;
-    if (d->nf == 0) /* a functional observer has no residual */
+    if (!zhat_only(d)) /* a functional observer below order n has no residual */
         for (int i = 0; i < d->p; i++) s->r[i] = s->y[i] - dot(C + (size_t)i * d->n, s->xhat, d->n);
+    if (d->nf > 0 && !zhat_only(d)) { /* order n: zhat = Lf xhat */
+        const double *Lf = s->place[M_Lf].base;
+        if (!Lf) return 0;
+        for (int i = 0; i < d->nf; i++) s->zhat[i] = dot(Lf + (size_t)i * d->n, s->xhat, d->n);
+    }
     if (d->has_dhat) {
         if (s->k > 0) {
             const double *Dy = matrix(s, fn, M_Dy, 0, j);
@@ -388,7 +397,7 @@ static void expected_shape(const UiofmuDesign *d, int w, int *rows, int *cols, c
     *rows = R[w];
     *cols = C[w];
     *text = TEXT[w];
-    if (d->nf > 0 && (w == M_Xz || w == M_Xy || w == M_Xu)) /* zhat's rows */
+    if (zhat_only(d) && (w == M_Xz || w == M_Xy || w == M_Xu)) /* zhat's rows */
         *text = w == M_Xz ? "nf x nz" : w == M_Xy ? "nf x p" : "nf x m";
 }
 
@@ -487,9 +496,9 @@ static int affine_port(int id, UiofmuPort *out) {
     case UIOFMU_AFFINE_XHAT0: size = d->n; break;
     case UIOFMU_AFFINE_H_PREV0: size = d->kind == UIOFMU_INTERVAL ? 1 : 0; break;
     case UIOFMU_AFFINE_Y: size = d->p; break;
-    case UIOFMU_AFFINE_R: size = d->nf > 0 ? 0 : d->p; break;
+    case UIOFMU_AFFINE_R: size = zhat_only(d) ? 0 : d->p; break;
     case UIOFMU_AFFINE_U: size = d->m; break;
-    case UIOFMU_AFFINE_XHAT: size = d->nf > 0 ? 0 : d->n; break;
+    case UIOFMU_AFFINE_XHAT: size = zhat_only(d) ? 0 : d->n; break;
     case UIOFMU_AFFINE_ZHAT: size = d->nf; break;
     case UIOFMU_AFFINE_DHAT: size = d->has_dhat ? d->q : 0; break;
     case UIOFMU_AFFINE_MODE_PREV0: case UIOFMU_AFFINE_MODE: size = d->kind == UIOFMU_MODE ? 1 : 0; break;
@@ -520,8 +529,8 @@ static void *affine_instantiate(FmuInstance *fmu) {
         }
     size_t mx = (size_t)(d->nz > d->n ? d->nz : d->n);
     if ((size_t)d->p > mx) mx = (size_t)d->p;
-    size_t ne = (size_t)estimate_size(d);
-    s->nblock = (size_t)d->nz + d->p + d->n + d->p + d->m + ne + d->p + d->q + mx + nwork;
+    size_t ne = (size_t)estimate_size(d), nzhat = zhat_only(d) ? 0 : (size_t)d->nf; /* order n: zhat of its own */
+    s->nblock = (size_t)d->nz + d->p + d->n + d->p + d->m + ne + d->p + d->q + nzhat + mx + nwork;
     s->block = (double *)uiofmu_alloc(fmu, s->nblock, sizeof(double));
     if (!s->block) {
         free(s);
@@ -536,6 +545,8 @@ static void *affine_instantiate(FmuInstance *fmu) {
     s->xhat = b; b += ne; /* xhat[n], or zhat[nf] */
     s->r = b; b += d->p;
     s->dhat = b; b += d->q;
+    s->zhat = zhat_only(d) ? s->xhat : b; /* below order n zhat is the estimate itself */
+    b += nzhat;
     s->tmp = b; b += mx;
     for (int w = 0; w < M_COUNT; w++)
         if (d->kind == UIOFMU_GEOMETRIC && w != M_C && d->mat[w].count) { s->work[w] = b; b += msize(&d->mat[w]); }
@@ -599,7 +610,7 @@ static double *affine_real_storage(void *self, int port, int index) {
     double *const first[UIOFMU_AFFINE_PORTS] = {[UIOFMU_AFFINE_XHAT0] = s->xhat0, [UIOFMU_AFFINE_H_PREV0] = &s->h_prev0,
                                                 [UIOFMU_AFFINE_Y] = s->y, [UIOFMU_AFFINE_U] = s->u,
                                                 [UIOFMU_AFFINE_XHAT] = s->xhat, [UIOFMU_AFFINE_R] = s->r,
-                                                [UIOFMU_AFFINE_DHAT] = s->dhat, [UIOFMU_AFFINE_ZHAT] = s->xhat};
+                                                [UIOFMU_AFFINE_DHAT] = s->dhat, [UIOFMU_AFFINE_ZHAT] = s->zhat};
     return uiofmu_element(first, port, index);
 }
 

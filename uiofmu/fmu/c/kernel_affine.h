@@ -42,8 +42,10 @@ enum { UIOFMU_CONSTANT = 0, UIOFMU_INTERVAL = 1, UIOFMU_GEOMETRIC = 2, UIOFMU_MO
 enum { UIOFMU_POLICY_ERROR = 0, UIOFMU_POLICY_NEAREST = 1, UIOFMU_POLICY_COUNT = 2 };
 enum { M_N, M_L, M_G, M_c, M_Xz, M_Xy, M_C, M_Dy, M_Yx, M_Yu, M_Yc, M_Xu, M_Zx, M_Lf, M_COUNT };
 
-/* nf > 0: a functional observer, whose estimate zhat[nf] = Xz z + Xy y (Xz nf x nz, Xy nf x p) estimates Lf x
-   (Lf nf x n): zhat_0 = Lf xhat0, z_0 = Zx xhat0, no r and no dhat. nf = 0: the state observer (xhat[n]). */
+/* nf > 0: a functional observer of the functionals Lf x (Lf nf x n), z_0 = Zx xhat0, no dhat. Below order n
+   (nz != n) its estimate is zhat[nf] = Xz z + Xy y (Xz nf x nz, Xy nf x p), zhat_0 = Lf xhat0, and it has no r; at
+   order n (nz = n) it estimates the state as xhat = Xz z + Xy y, with r, and zhat = Lf xhat.
+   nf = 0: the state observer (xhat[n]). */
 typedef struct {
     int n, m, p, q, nz, has_dhat;
     int nf;
