@@ -479,7 +479,8 @@ def _add_build(sub) -> None:
                                    "(family deadbeat-functional) has inputs y[i] (and theta[i]), outputs gx[i] and "
                                    "the Integer gx_valid[1]; a delayed observer (family delayed-uio) has inputs y[i], "
                                    "ydot[i], u[i], outputs xhat[i], thetahat[i], r[i], sigma_min[1] and the Integer "
-                                   "valid[1].")
+                                   "valid[1]; a functional lti-uio observer (observer.functional) has inputs y[i], "
+                                   "u[i] and the one output zhat[i], its estimate of Lf x.")
     p.add_argument("design", help="design card (JSON) from `uiofmu design`")
     p.add_argument("-o", "--output", metavar="OBS.fmu", help="FMU path (default: NAME_observer.fmu)")
     p.add_argument("--backend", choices=["c", "python"],

@@ -760,7 +760,7 @@ def _first_runtime_difference(observer_fmu, card: Card, steps: int, seed: int, r
     worst, scale = 0.0, 1.0
     with Fmu(observer_fmu, "testing") as fmu:
         for k in random_observer_run(fmu, rt, steps, np.random.default_rng(seed)):
-            got, ref = fmu.get("xhat"), rt.xhat()
+            got, ref = fmu.get("zhat" if rt.zhat_only else "xhat"), rt.xhat()
             scale = max(scale, float(np.abs(ref).max(initial=0.0)))
             diff = np.abs(got - ref)
             worst = max(worst, float(np.where(np.isnan(diff), np.inf, diff).max(initial=0.0)))

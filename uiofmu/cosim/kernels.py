@@ -33,6 +33,8 @@ def _affine_result(card, T, steps, X, Y, U, D, H, MODE, theta_true) -> CosimResu
     one (:func:`uiofmu.families.certified_bound`), and the modes of a switched plant. A run whose error leaves
     the bound plus the fixed floor is checked again with the floor round-off carries
     (:func:`~uiofmu.cosim.roundoff.roundoff_floor`, in ``metrics["roundoff_floor"]``)."""
+    if "zhat" in H:
+        return _zhat_result(card, T, steps, X, Y, U, D, H, MODE)
     XH, R = H["xhat"], H["r"]
     DH = H.get("dhat", np.zeros((len(T), 0)))
     bound = certified_bound(card, X[0] - XH[0], D)
@@ -53,6 +55,23 @@ def _affine_result(card, T, steps, X, Y, U, D, H, MODE, theta_true) -> CosimResu
         leaks = roundoff_floor(card, steps, X, XH, Y, U, D, MODE)
         if leaks is not None:
             result = checked(leaks)
+    return result
+
+
+def _zhat_result(card, T, steps, X, Y, U, D, H, MODE) -> CosimResult:
+    """The run of a functional affine observer (``dims.nf``): ``zhat`` against ``Lf x`` of the plant's state (the
+    result's ``x`` and ``xhat``), with the certified bound ``overshoot_bound decay_bound^k ||x_0 - xhat0||``;
+    ``H["xhat0"]`` is the initial estimate the observer ran from (the master reads its parameter)."""
+    Lf = np.asarray(card.matrices["Lf"], dtype=float)
+    xhat0 = np.asarray(H.get("xhat0", card.data["initial"]["xhat0"]), dtype=float)
+    bound = certified_bound(card, X[0] - xhat0, D)
+    text = (card.data.get("bound", "").replace("overshoot_bound", overshoot_text(card.data))
+            .replace("decay_bound**k", f"{card.data['decay_bound']:.6g}^k"))
+    empty = np.zeros((len(T), 0))
+    result = run_result(T, steps, X @ Lf.T, H["zhat"], Y, U, D, empty, empty, card=card, mode=MODE, bound=bound,
+                        decay=card.data.get("decay_bound"), overshoot=card.data.get("overshoot_bound"),
+                        bound_text=text, roundoff=None)
+    result.estimate = "zhat"
     return result
 
 
@@ -87,6 +106,11 @@ def _affine_observer(fmu: Fmu, card, report: Validation, steps: int, rng) -> Non
     ``dhat`` at every point of :func:`random_observer_run`."""
     rt = Runtime(card)
     for _ in random_observer_run(fmu, rt, steps, rng):
+        if rt.zhat_only:                               # zhat alone
+            compare(report, np.asarray(fmu.get("zhat")), rt.xhat())
+            continue
+        if rt.functional:                              # order n: zhat = Lf xhat besides
+            compare(report, np.asarray(fmu.get("zhat")), rt.zhat())
         got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")])
         ref = np.concatenate([rt.xhat(), rt.residual(), rt.dhat() if rt.has_dhat else []])
         compare(report, got, ref)

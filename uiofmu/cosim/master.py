@@ -312,6 +312,8 @@ def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs,
         with progress(total=K, desc="co-simulation with noise", unit="step", enabled=show_progress) as bar:
             recorded, H, H_twin, twin_recorded = run_twin_loop(plant, obs, twin, plant_inputs, fed, sourced, source,
                                                                v, quantum, T, steps, bar, native, twin_plant)
+        if "zhat" in H:                  # a functional observer: its bound reads x_0 - xhat0
+            H["xhat0"] = H_twin["xhat0"] = np.asarray(obs.get("xhat0"), dtype=float)
     X, Y = recorded["x"], recorded["y"]
     X_twin, Y_twin = twin_recorded["x"], twin_recorded["y"]
     U = source["u"] if "u" in source else np.zeros((K + 1, 0))
@@ -324,7 +326,7 @@ def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs,
                          card, plant_parameters)
     noisy = kernel.result(card, T, steps, X, Y, U, D, H, MODE, theta_true)
     if "y" in noise or quantum:
-        truth = X if kernel.estimate == "xhat" else noisy.functional["true"]
+        truth = noisy.x if kernel.estimate == "xhat" else noisy.functional["true"]     # x, or Lf x (zhat)
         dhat = H.get("dhat")
         v = recorded["y_measured"] - Y                 # what the observer received beyond the plant's y
         result.metrics.update(noise_metrics(card, v, kernel.estimate_of(noisy), kernel.estimate_of(result), truth,
@@ -335,7 +337,7 @@ def _noisy_run(plant_path, observer_path, card: Card, steps: np.ndarray, inputs,
                         "twin_error": kernel.estimate_of(result) - truth}
     result.timing = {"native": native}
     if "w" in noise:
-        truth, truth_twin = ((X, X_twin) if kernel.estimate == "xhat"
+        truth, truth_twin = ((noisy.x, result.x) if kernel.estimate == "xhat"
                              else (noisy.functional["true"], result.functional["true"]))
         error, twin_error = kernel.estimate_of(noisy) - truth, kernel.estimate_of(result) - truth_twin
         w = source["w_noise"][:K]                       # the noise held over each step taken
@@ -376,6 +378,8 @@ def _histories(loop: _Loop, plant: Fmu, obs: Fmu, source: dict, fed: list, K: in
     H = {name: np.zeros((K + 1, size)) for name, size in obs.ports("output").items()}
     for name, history in H.items():
         history[:] = loop.observer_history(name)
+    if "zhat" in H:                      # a functional observer: its bound reads x_0 - xhat0
+        H["xhat0"] = np.asarray(obs.get("xhat0"), dtype=float)
     MODE = None
     if obs.has("mode"):
         MODE = loop.plant_history("mode")[:, 0].copy() if "mode" in fed else np.round(source["mode"])[:, 0]

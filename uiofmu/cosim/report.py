@@ -79,11 +79,18 @@ def _plot_states(ax, t, result, colors, title: str) -> None:
         The panel's title.
     """
     labels = result.labels
+    functional = result.estimate == "zhat"       # x holds Lf x, xhat the observer's zhat
     for i in range(result.x.shape[1]):
         c = colors[i % len(colors)]
-        ax.plot(t, result.x[:, i], color=c, lw=1.6, label=axis_label(labels, "x", i))
-        ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--", label=axis_label(labels, "xhat", i))
-    _unit_axis(ax, labels, "x", result.x.shape[1], "state", "state")
+        ax.plot(t, result.x[:, i], color=c, lw=1.6,
+                label=f"Lf x[{i + 1}]" if functional else axis_label(labels, "x", i))
+        ax.plot(t, result.xhat[:, i], color=c, lw=1.2, ls="--",
+                label=f"zhat[{i + 1}]" if functional else axis_label(labels, "xhat", i))
+    if functional:
+        ax.set_ylabel("Lf x, zhat")
+        title = "the functionals Lf x (solid) and their estimate zhat (dashed)"
+    else:
+        _unit_axis(ax, labels, "x", result.x.shape[1], "state", "state")
     ax.set_title(title)
     ax.legend(ncol=2, fontsize=8, loc="best")
 
@@ -297,7 +304,8 @@ def _plot_error(ax, t, unit: str, result) -> None:
         shown.append(allowed)
     positive = np.concatenate([v[(v > 0) & np.isfinite(v)] for v in shown])
     bottom = float(positive.min()) / 30 if positive.size else 1e-300
-    ax.semilogy(t, np.maximum(norms, bottom), lw=1.5, label="measured ||x - xhat||", zorder=3)
+    error = "||zhat - Lf x||" if result.estimate == "zhat" else "||x - xhat||"
+    ax.semilogy(t, np.maximum(norms, bottom), lw=1.5, label=f"measured {error}", zorder=3)
     if result.bound is not None:
         overshoot = m.get("certified_overshoot")
         ax.semilogy(t, np.maximum(bound, bottom), "k--", lw=1.2,
@@ -315,7 +323,7 @@ def _plot_error(ax, t, unit: str, result) -> None:
     if np.any(norms < bottom) or (result.bound is not None and np.any(result.bound < bottom)):
         ax.set_ylim(bottom=bottom / 2)           # what falls to 0 (or below the drawing) is drawn at the bottom
     ax.set_title(title, fontsize=10)
-    ax.set_ylabel("||x - xhat||")
+    ax.set_ylabel(error)
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
 
 
@@ -391,8 +399,15 @@ def _plot_modes(ax, t, result) -> None:
 
 
 def _plot_inputs(ax, t, result, colors) -> None:
-    """The unknown input against its estimate, or the output residual when there is no estimate."""
-    if result.dhat.size and result.dhat.shape[1]:
+    """The unknown input against its estimate, or the output residual when there is no estimate (a functional
+    observer's run, which has neither: the unknown input)."""
+    if result.estimate == "zhat":
+        for i in range(result.d.shape[1]):
+            ax.step(t, result.d[:, i], where="post", color=colors[i % len(colors)], lw=1.6,
+                    label=f"{axis_label(result.labels, 'd', i)} (held over step)")
+        _unit_axis(ax, result.labels, "d", result.d.shape[1], "unknown input", "d")
+        ax.set_title("unknown input (zhat is decoupled from it; no dhat, no residual)")
+    elif result.dhat.size and result.dhat.shape[1]:
         for i in range(result.d.shape[1]):
             c = colors[i % len(colors)]
             ax.step(t, result.d[:, i], where="post", color=c, lw=1.6,

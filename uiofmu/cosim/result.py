@@ -37,6 +37,7 @@ class CosimResult:
     noise: dict | None = None      # a run with measurement noise: v, its std, the noisy estimate and both errors
     noise_w: dict | None = None    # a run with process noise: w, the noisy loop's error and its twin loop's
     names: dict | None = None      # the names and units when there is no card (a run read back from its files)
+    estimate: str = "xhat"         # "zhat": a functional observer's run, x holding Lf x and xhat its zhat
 
     @property
     def labels(self) -> dict:
@@ -46,16 +47,18 @@ class CosimResult:
 
     def column_labels(self) -> dict:
         """``{column of results.csv: label}`` for every labelled column (``{"xhat[1]": "T_room estimate [K]"}``)."""
+        names = ("x", "xhat") if self.estimate == "xhat" else ()        # Lf x and zhat are no states
         return column_labels(self.labels, {name: getattr(self, name).shape[1]
-                                           for name in ("x", "xhat", "y", "u", "d", "dhat", "r")})
+                                           for name in (*names, "y", "u", "d", "dhat", "r")})
 
     def columns(self) -> dict:
         """Named columns for ``results.csv``."""
         cols = {"time": self.times, "h": np.append(self.h, np.nan)}
+        column = {"x": "zhat_true", "xhat": "zhat"} if self.estimate == "zhat" else {}
         for name in ("x", "xhat", "y", "u", "d", "dhat", "r"):
             arr = getattr(self, name)
             for i in range(arr.shape[1]):
-                cols[f"{name}[{i + 1}]"] = arr[:, i]
+                cols[f"{column.get(name, name)}[{i + 1}]"] = arr[:, i]
         if self.mode is not None:
             cols["mode"] = self.mode
         if self.functional is not None:
@@ -78,7 +81,7 @@ class CosimResult:
                 cols["theta_error_norm"] = np.linalg.norm(dl["thetahat"] - dl["theta"], axis=1)
             cols["sigma_min"], cols["valid"] = dl["sigma_min"], dl["valid"]
         if self.noise is not None:
-            self._noise_columns(cols, "xhat")
+            self._noise_columns(cols, self.estimate)
         return cols
 
     def _noise_columns(self, cols: dict, estimate: str) -> None:

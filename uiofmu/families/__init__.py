@@ -90,6 +90,9 @@ class DesignResult:
         None for a design without one.
     xhat0 : array_like or None
         Initial estimate (None: zeros).
+    nf : int or None
+        A functional observer's number of functionals (the card's ``dims.nf``: it outputs ``zhat``, not
+        ``xhat``); None for an observer of the state.
 
     The runtime kernel of the card is the family's (:attr:`uiofmu.runtime.registry.Entry.kernel`).
     """
@@ -102,6 +105,7 @@ class DesignResult:
     results: dict
     lmi: object
     xhat0: object = None
+    nf: int | None = None
 
 
 def available_family(name: str, key: str = "observer.family"):

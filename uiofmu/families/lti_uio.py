@@ -53,6 +53,10 @@ robust algorithm), so the card's ``overshoot_digits`` says the problem does not 
 is (the same LMI or Riccati design, on the reduced decoupled pair) and whose output reconstructs the rest of the
 state from ``y``; the construction, its checks and its bound are in :mod:`uiofmu.reduced_order`. The card records
 ``order`` and stores ``Zx`` (the first step's ``z_0 = Zx (xhat0 - Xy y_0)``).
+
+**Functional** (``observer.functional = L``): the observer of least order (among those searched) estimating the
+functionals ``L x`` whatever ``d``, its conditions in the analysis and its card (``order``, ``dims.nf``, ``Lf``,
+output ``zhat``) from :mod:`uiofmu.functional_uio`.
 """
 
 from __future__ import annotations
@@ -97,6 +101,7 @@ from ..reductions import LYAPUNOV, UPPER_BOUND, matrix, scalar, symmetric
 from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
 from ..feedthrough import feedthrough_pair
+from .. import functional_uio
 from ..structure import controllable_split, decay_gain, rank
 from ..runtime.tolerances import SEARCH_TOL, ZERO_MARGIN
 from .. import reduced_order
@@ -134,6 +139,9 @@ class Options:
         None for a decay design.
     order : {"full", "reduced"}
         ``observer.order``: the full-order observer, or the one of order ``n - p`` (:mod:`uiofmu.reduced_order`).
+    functional : numpy.ndarray or None
+        ``observer.functional``: the functionals ``L x`` to estimate (:mod:`uiofmu.functional_uio`), None for the
+        state.
     """
 
     decay: object
@@ -146,6 +154,7 @@ class Options:
     noise_gain: float | None = None
     poles: tuple | None = None
     order: str = "full"
+    functional: np.ndarray | None = None
 
     @property
     def step(self) -> float:
@@ -165,6 +174,9 @@ def parse_options(table, plant) -> Options:
     dt = parse_period(table, plant, NAME)
     xhat0 = table.vector("xhat0", plant.n, None)
     order = table.choice("order", ORDERS, "full")
+    if order == "reduced" and table.has("functional"):
+        raise ProblemError('observer.functional searches the order of the functional observer itself: remove '
+                           'observer.order = "reduced" (or observer.functional for the reduced state observer)')
     if order == "reduced":
         _reduced_supported(table, plant)
     method = table.choice("method", METHODS, "auto")
@@ -191,7 +203,8 @@ def parse_options(table, plant) -> Options:
             raise ProblemError(f"observer.poles places the error dynamics' poles exactly: remove observer."
                                f"{given[0]} (the decay is the poles' largest modulus)")
     return Options(decay, dt, xhat0, method, table.choice("scaling", SCALINGS, "balance"),
-                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise, noise_gain, poles, order=order)
+                   table.scalar("gain_cap", None, low=0.0, open_low=True), noise, noise_gain, poles, order=order,
+                   functional=functional_uio.parse_option(table, plant))
 
 
 #: ``observer.order``: the full-order observer, or the reduced one (:mod:`uiofmu.reduced_order`).
@@ -264,6 +277,9 @@ def _analysis(problem):
             "that mode, ask for a slower decay or decay = \"max\"",
             {"decay": opts.decay, "largest_fixed_modulus": largest},
             hint="" if ok else _decay_hint(largest)))
+    if opts.functional is not None and decouplable and detectable(conds):
+        conds.extend(functional_uio.analysis_conditions(s.A, plant.C, s.E, opts.functional,
+                                                        1.0 if opts.decay == "max" else float(opts.decay)))
     return Existence(NAME, tuple(conds)), s, fixed
 
 
@@ -514,6 +530,11 @@ def checks(matrices: dict, rho: float) -> list:
 def verify(card) -> list:
     """Re-check a card's certificate from its matrices alone (no solver), the overshoot and the noise gain it claims."""
     d = card.data
+    if "nf" in d["dims"] or "Lf" in d["matrices"]:       # a functional observer: zhat estimates Lf x
+        return ([*functional_uio.card_checks(d["matrices"], d["decay_bound"]),
+                 functional_uio.overshoot_check(d["overshoot_bound"], d["matrices"]),
+                 Check("order = dims.nz, the functional observer's state (1: yes)",
+                       float(d.get("order") == d["dims"]["nz"]), 1.0, at_most=False)] + noise_checks(d))
     if d.get("order") == "reduced" or "Zx" in d["matrices"]:
         asked = (d.get("problem") or {}).get("observer", {}).get("order", "full")
         return ([Check('the problem asks for observer.order = "reduced" (1: yes)', float(asked == "reduced"), 1.0,
@@ -527,15 +548,19 @@ def error_system(matrices: dict) -> tuple:
     """The error system from measurement noise ``v`` (``y = C x + v``) at the stored matrices:
     ``eps+ = N eps - L v``, ``e = Xz eps - Xy v``, with ``eps = Zx x - z`` (``Zx = P`` and ``Xz = I`` for the
     full-order observer; ``Zx A - N Zx - L C = 0``, ``Zx E = 0`` and ``Xz Zx + Xy C = I``, which :func:`checks` and
-    :func:`uiofmu.reduced_order.checks` re-check; the known input and the affine term cancel as in ``e+ = N e``)."""
-    N, L, Xz, Xy = (np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xz", "Xy"))
+    :func:`uiofmu.reduced_order.checks` re-check; the known input and the affine term cancel as in ``e+ = N e``).
+    A functional observer's ``e = Lf x - zhat`` has the same form with ``Xz Zx + Xy C = Lf``
+    (:func:`uiofmu.functional_uio.estimate_output`)."""
+    N, L = (np.asarray(matrices[k], dtype=float) for k in ("N", "L"))
+    Xz, Xy = functional_uio.estimate_output(matrices)
     return N, -L, Xz, -Xy
 
 
 def process_error_system(matrices: dict) -> tuple:
     """The error system from process noise ``w`` (``x+ = ... + W_sampled w``): ``eps+ = N eps + Zx W_sampled w``,
     ``e = Xz eps`` (the stored ``Zx`` of the reduced observer, ``P`` of the full-order one)."""
-    N, Xz, W = (np.asarray(matrices[k], dtype=float) for k in ("N", "Xz", "W_sampled"))
+    N, W = (np.asarray(matrices[k], dtype=float) for k in ("N", "W_sampled"))
+    Xz = functional_uio.estimate_output(matrices)[0]
     Zx = np.asarray(matrices["Zx"] if "Zx" in matrices else matrices["P"], dtype=float)
     return N, Zx @ W, Xz, np.zeros((Xz.shape[0], W.shape[1]))
 
@@ -588,9 +613,10 @@ def noise_section(matrices: dict) -> dict:
 
 
 def gain_figures(card_data: dict) -> tuple:
-    """The gain ``K``, ``||C||`` and ``||A||`` of the sampled plant (:mod:`uiofmu.gains`)."""
+    """The gain ``K`` (a functional observer's ``L``, the gain of ``y``), ``||C||`` and ``||A||`` of the sampled plant
+    (:mod:`uiofmu.gains`)."""
     m = card_data["matrices"]
-    return [m["K"]], float(np.linalg.norm(m["C"], 2)), float(np.linalg.norm(m["A_sampled"], 2))
+    return [m["L"] if "Lf" in m else m["K"]], float(np.linalg.norm(m["C"], 2)), float(np.linalg.norm(m["A_sampled"], 2))
 
 
 def _dhat(s, C) -> dict:
@@ -639,6 +665,12 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
         noise["noise.gain_w"] = None
     if opts.order == "reduced":
         requested["order"] = "reduced"
+    if opts.functional is not None:      # zhat: no M, no dhat; the order the search proves at the decay
+        mats.pop("M", None)
+        mats.update(dict.fromkeys(DHAT), Lf=opts.functional)
+        noise["noise.gain_dhat_y"] = None
+        requested.update({"order": analysis.existence.value("functional observer order", "order"),
+                          "dims.nf": int(opts.functional.shape[0]), "bound": functional_uio.BOUND})
     return {"dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "decay": card_data["decay_bound"], **requested,
             **noise,
             **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
@@ -652,8 +684,9 @@ def figures_of(analysis: Analysis, card_data: dict, problem) -> dict:
     A = analysis.data["sampled"].A
     size, n = float(np.linalg.norm(A, 2)), plant.n
     N = np.asarray(card_data["matrices"]["N"], dtype=float)
-    lmi = str(card_data.get("design_method")).startswith("lmi") and opts.order == "full"
-    kind = opts.scaling if opts.order == "full" else "none"     # the reduced pair is solved unscaled
+    full = opts.order == "full" and opts.functional is None
+    lmi = str(card_data.get("design_method")).startswith("lmi") and full
+    kind = opts.scaling if full else "none"     # the reduced pair and the functional error are solved unscaled
     return {"fixed_modes": computed_values(analysis.data["fixed"], size, n),
             "invariant_zeros": computed_values(from_pairs(analysis.existence.value("stable invariant zeros", "zeros")),
                                                size, n),
@@ -893,6 +926,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
     """Design the classical UIO: its gain, certificate and runtime matrices."""
     s, fixed = analysis.data["sampled"], analysis.data["fixed"]
     plant, opts = problem.plant, problem.options
+    if opts.functional is not None:
+        return functional_uio.card_design(problem, analysis, NAME, _schedule(opts), noise_section)
     if plant.feeds_d and (opts.noise == "min" or opts.noise_gain is not None):    # options made in code, unparsed
         raise ProblemError(NO_NOISE_DESIGN_WITH_F)
     if opts.order == "reduced":

@@ -53,7 +53,7 @@ from ..runtime.step_rules import StepRule, step_rule
 from ..runtime.tolerances import STEP_RTOL, STEP_ULPS, STEP_ULPS_LIMIT
 
 HERE = Path(__file__).parent / "c"
-MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc", "Xu", "Zx")
+MATRIX_ORDER = ("N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc", "Xu", "Zx", "Lf")
 KINDS = {"constant": "UIOFMU_CONSTANT", "interval": "UIOFMU_INTERVAL", "geometric": "UIOFMU_GEOMETRIC",
          "mode": "UIOFMU_MODE"}
 POLICIES = {"error": "UIOFMU_POLICY_ERROR", "nearest": "UIOFMU_POLICY_NEAREST", "count": "UIOFMU_POLICY_COUNT"}
@@ -441,7 +441,8 @@ def _affine_source(card: Card, guid: str, identifier: str) -> str:
     mode_prev0 = _count(sched.get("mode_prev0", 1), "schedule.mode_prev0") if kind == "mode" else 0
     lines += ["", "const UiofmuDesign UIOFMU_DESIGN = {",
               f"    .n = {int(d['n'])}, .m = {int(d['m'])}, .p = {int(d['p'])}, .q = {int(d['q'])}, "
-              f".nz = {int(d['nz'])}, .has_dhat = {int(card.has_dhat)},",
+              f".nz = {int(d['nz'])}, .has_dhat = {int(card.has_dhat)},"
+              + (f" .nf = {int(d['nf'])}," if "nf" in d else ""),     # absent (0): the data builds with older kernels
               f"    .kind = {KINDS[kind]}, .policy = {POLICIES[sched.get('step_policy', 'error')]},",
               f"    .dt = {_double(dt, 'schedule.dt')}, .alpha = {_double(sched.get('alpha', 0.0), 'schedule.alpha')}, "
               f".h_prev0 = {_double(sched.get('h_prev0', dt), 'schedule.h_prev0')}, "

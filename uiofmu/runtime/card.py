@@ -96,7 +96,7 @@ class Card:
 
     @property
     def dims(self) -> dict:
-        """``n, m, p, q, nz``."""
+        """``n, m, p, q, nz`` (and ``nf``, the functionals of a functional observer's ``zhat``)."""
         return self.data["dims"]
 
     @property
@@ -236,6 +236,8 @@ def check_card(data, require_verified: bool = True) -> dict:
         if d not in dims:
             raise CardError(f"design card dims.{d}: required")
         _integer(dims[d], f"dims.{d}", 1 if d in ("n", "p") else 0, MAX_DIM)
+    if "nf" in dims:                    # a functional observer's zhat: nf functionals Lf x
+        _integer(dims["nf"], "dims.nf", 1, MAX_DIM)
     time = _choice(data["time"], "time", ("continuous", "discrete"))
     dt = data["dt"]
     if dt is not None:

@@ -4,7 +4,8 @@ A kernel (:class:`Kernel`) names the schedule kinds it steps, checks the matrice
 declares the card's ports, and gives the runtime class (the Python reference) and the FMU model that
 wraps it, and the C kernel that packs it (or why there is none). ``affine``: ``z+ = N z + L y + G u + c``,
 ``xhat = Xz z + Xy y`` (``+ Xu u`` where the card has ``Xu``: a plant whose known input feeds through to
-``y``) with the matrices its schedule picks (:mod:`uiofmu.runtime.observer`). ``window``:
+``y``) with the matrices its schedule picks (:mod:`uiofmu.runtime.observer`); a card with ``dims.nf`` (a
+functional observer) outputs ``zhat = Xz z + Xy y`` of ``nf`` functionals ``Lf x`` instead. ``window``:
 ``gx = sum_t w_t(theta) F_t [y window]`` on the last outputs (:mod:`uiofmu.runtime.window`). ``delayed``: a
 continuous-time delayed UIO integrated inside the FMU (:mod:`uiofmu.runtime.delayed`).
 
@@ -34,9 +35,20 @@ from .window import WindowRuntime
 #: Matrices of the affine runtime and their shapes in terms of the dims (before any schedule axes).
 RUNTIME_SHAPES = {
     "N": ("nz", "nz"), "L": ("nz", "p"), "G": ("nz", "m"), "c": ("nz",),
-    "Xz": ("n", "nz"), "Xy": ("n", "p"), "C": ("p", "n"),
-    "Dy": ("q", "p"), "Yx": ("p", "n"), "Yu": ("p", "m"), "Yc": ("p",), "Xu": ("n", "m"), "Zx": ("nz", "n"),
+    "Xz": ("ne", "nz"), "Xy": ("ne", "p"), "C": ("p", "n"),
+    "Dy": ("q", "p"), "Yx": ("p", "n"), "Yu": ("p", "m"), "Yc": ("p",), "Xu": ("ne", "m"), "Zx": ("nz", "n"),
+    "Lf": ("nf", "n"),
 }
+def estimate_size(dims: dict) -> int:
+    """The size ``ne`` of the affine kernel's estimate (the rows of ``Xz``, ``Xy``, ``Xu``): ``dims.nf`` for a
+    functional observer of order below ``n`` (``zhat`` estimates ``Lf x``), else ``n`` (``xhat``; a functional
+    observer of order ``n`` estimates the state, and ``zhat = Lf xhat``)."""
+    return dims["nf"] if zhat_only(dims) else dims["n"]
+
+
+def zhat_only(dims: dict) -> bool:
+    """Whether a card's observer estimates functionals only: ``dims.nf`` with an order ``nz`` below ``n``."""
+    return "nf" in dims and dims["nz"] != dims["n"]
 #: Matrices every affine card has; the ``Dy, Yx, Yu, Yc`` group is present when ``dhat`` is estimated.
 CORE = ("N", "L", "G", "c", "Xz", "Xy", "C")
 DHAT = ("Dy", "Yx", "Yu", "Yc")
@@ -165,6 +177,11 @@ def _check_affine(mats: dict, dims: dict, schedule: dict) -> dict:
     kind = schedule["kind"]
     axes = AXES[kind]
     count = {"interval": len(schedule.get("intervals", ())), "mode": schedule.get("modes")}.get(kind)
+    functional = "nf" in dims
+    if "Lf" in mats and not functional:
+        raise CardError("design card matrices.Lf: the functionals of a functional observer need dims.nf (their "
+                        "number)")
+    dims = {**dims, "ne": estimate_size(dims), "nf": dims.get("nf", 0)}
     out = {}
     for name, value in mats.items():
         key = f"design card matrices.{name}"
@@ -190,10 +207,27 @@ def _check_affine(mats: dict, dims: dict, schedule: dict) -> dict:
     if "Zx" not in out and dims["nz"] != dims["n"]:
         raise CardError(f"design card dims.nz = {dims['nz']} differs from dims.n = {dims['n']}: the first step "
                         "sets z_0 = Zx (xhat0 - Xy y_0), and matrices.Zx is missing")
+    if functional:
+        _check_functional(out, dims, kind)
     partial = [k for k in DHAT if k in out]
     if partial and len(partial) != len(DHAT):
         raise CardError(f"design card matrices: dhat needs all of {', '.join(DHAT)}, found only {', '.join(partial)}")
     return out
+
+
+def _check_functional(out: dict, dims: dict, kind: str) -> None:
+    """A functional observer (``dims.nf``): a constant schedule, ``Lf`` and ``Zx`` (``z_0 = Zx xhat0``), and none
+    of what reads ``xhat`` (``dhat``'s matrices, ``Xu``)."""
+    if kind != "constant":
+        raise CardError(f"design card dims.nf: a functional observer has a constant schedule, found a {kind} schedule")
+    for name in ("Lf", "Zx"):
+        if name not in out:
+            raise CardError(f"design card matrices.{name}: required by a functional observer (dims.nf = "
+                            f"{dims['nf']}): zhat_0 = Lf xhat0 and z_0 = Zx xhat0")
+    extra = [k for k in (*DHAT, "Xu") if k in out]
+    if extra:
+        raise CardError(f"design card matrices.{extra[0]}: a functional observer (dims.nf = {dims['nf']}) estimates "
+                        "no xhat, which dhat and the direct term Xu read")
 
 
 def _check_window(mats: dict, dims: dict, schedule: dict) -> dict:
@@ -327,4 +361,4 @@ def card_kernel(data: dict) -> Kernel:
 
 
 __all__ = ["CORE", "DEFAULT", "DHAT", "KERNELS", "Kernel", "RUNTIME_SHAPES", "SCHEDULES", "ScheduleKind",
-           "card_kernel", "kernel_named"]
+           "card_kernel", "estimate_size", "kernel_named", "zhat_only"]

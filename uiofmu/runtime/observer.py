@@ -14,6 +14,11 @@ then ``step(h_k)`` advances::
 with ``z_0 = xhat0 - Xy y_0 [- Xu u_0]``, or ``z_0 = Zx (xhat0 - Xy y_0)`` where the card has ``Zx`` (a
 reduced-order observer, ``nz < n``).
 
+A functional observer (``dims.nf``, matrices ``Lf`` and ``Zx``) starts at ``z_0 = Zx xhat0`` and estimates ``Lf x``
+(``nf`` functionals): below order ``n`` instead of ``x``, as ``zhat_k = Xz z_k + Xy y_k`` (``zhat_0 = Lf xhat0``),
+with no residual and no ``dhat`` (both read ``xhat``; :meth:`Runtime.xhat` returns ``zhat``); at order ``n``
+besides ``x``, as ``zhat = Lf xhat`` (:meth:`Runtime.zhat`).
+
 with the matrices the schedule picks for (k, h_k, h_{k-1}), and for a switched plant for the
 modes (alpha_k, alpha_{k-1}): the input ``mode`` is the mode of the step about to be taken, and
 the runtime keeps the previous one (``mode_prev``, ``mode_prev0`` before the first step). At the first step
@@ -57,6 +62,9 @@ class Runtime:
         self.card = card
         d = card.dims
         self.n, self.m, self.p, self.q, self.nz = d["n"], d["m"], d["p"], d["q"], d["nz"]
+        self.functional = "nf" in d            # zhat estimates Lf x
+        self.zhat_only = self.functional and self.nz != self.n      # zhat = Xz z + Xy y (else Lf xhat)
+        self.ne = d["nf"] if self.zhat_only else self.n
         self.schedule = make_schedule(card.schedule, card.matrices)
         self.has_dhat = card.has_dhat
         default = card.data["initial"].get("xhat0", [0.0] * self.n)
@@ -69,12 +77,12 @@ class Runtime:
         self.mode = self.mode_prev0
         self.y = np.zeros(self.p)
         self.u = np.zeros(self.m)
-        self._xhat = np.empty(self.n)
+        self._xhat = np.empty(self.ne)
         self._r = np.empty(self.p)
         self._dhat = np.zeros(self.q)
         self._tmp = np.empty(self.nz)
         self._tz = np.empty(self.nz)
-        self._tn = np.empty(self.n)
+        self._tn = np.empty(self.ne)
         self._tp = np.empty(self.p)
         self.reset()
 
@@ -171,9 +179,13 @@ class Runtime:
 
     # -- outputs -----------------------------------------------------------------------
     def xhat(self) -> np.ndarray:
-        """The state estimate at the current communication point (a view; copy to keep)."""
+        """The state estimate at the current communication point (a view; copy to keep); a functional
+        observer's ``zhat``."""
         if self.k == 0:
-            self._xhat[:] = self.xhat0
+            if self.zhat_only:
+                np.dot(self.card.matrices["Lf"], self.xhat0, out=self._xhat)
+            else:
+                self._xhat[:] = self.xhat0
             return self._xhat
         mats = self.schedule.output_matrices(self.k, self.h_prev, self.mode_prev)
         np.dot(mats["Xz"], self.z, out=self._xhat)
@@ -181,6 +193,10 @@ class Runtime:
         if "Xu" in mats:
             self._xhat += np.dot(mats["Xu"], self.u, out=self._tn)
         return self._xhat
+
+    def zhat(self) -> np.ndarray:
+        """A functional observer's estimate of ``Lf x``: ``Lf xhat`` at order ``n``, else :meth:`xhat`."""
+        return self.xhat() if self.zhat_only else self.card.matrices["Lf"] @ self.xhat()
 
     def residual(self) -> np.ndarray:
         """``r = y - C xhat``."""
@@ -214,7 +230,9 @@ class Runtime:
         except ModeRejected as exc:
             raise RuntimeInputError(f"input {exc} at step k = {self.k}") from None
         xhat = self.xhat()
-        if self.k == 0:
+        if self.k == 0 and self.functional:      # z_0 = Zx xhat0 (Zx = T: z estimates T x)
+            self.z = self.card.matrices["Zx"] @ self.xhat0
+        elif self.k == 0:
             out = self.schedule.output_matrices(0, self.h_prev, self.mode_prev)
             self.z = self.xhat0 - out["Xy"] @ self.y
             if "Xu" in out:

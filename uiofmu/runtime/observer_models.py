@@ -14,7 +14,8 @@ from .window import WindowRuntime
 
 
 class ObserverModel(StatefulModel):
-    """The observer of a design card as FMU ports: ``y, u -> xhat, r, dhat``."""
+    """The observer of a design card as FMU ports: ``y, u -> xhat, r, dhat`` (a functional observer's
+    ``y, u -> zhat``)."""
 
     kind = "observer"
 
@@ -56,6 +57,11 @@ class ObserverModel(StatefulModel):
     def refresh(self) -> None:
         """Recompute the outputs from the current inputs and state."""
         named = self.named
+        if self.rt.functional:
+            named["zhat"].values[:] = self.rt.zhat()
+        if self.rt.zhat_only:
+            self.dirty = False
+            return
         named["xhat"].values[:] = self.rt.xhat()
         named["r"].values[:] = self.rt.residual()
         if self.rt.has_dhat:

@@ -172,6 +172,7 @@ KERNEL_PORTS = {
         PortSpec("mode_prev0", 0, "parameter", "mode assumed before the first step, alpha_{-1}", type="Integer"),
         PortSpec("mode", 0, "input", "mode of the plant over the step from the current communication point (1..N)",
                  type="Integer"),
+        PortSpec("zhat", 0, "output", "estimate of the functionals Lf x at the current communication point"),
     ),
     "window": (
         PortSpec("y", 0, "input", "measured outputs at the current communication point"),
@@ -264,6 +265,10 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
                    feeds_u: bool = False) -> list:
     """The declaration of the affine observer kernel (every family today).
 
+    A functional observer (``dims.nf``) outputs ``zhat`` (``nf``) in place of ``xhat`` and ``r`` where its order is
+    below ``n``: it estimates ``Lf x``, not ``x``, so no residual ``y - C xhat`` (and no ``dhat``) is defined; one of
+    order ``n`` estimates the state, and outputs ``xhat``, ``r`` and ``zhat = Lf xhat``.
+
     Parameters
     ----------
     dims : dict
@@ -296,7 +301,11 @@ def observer_ports(dims: dict, schedule_kind: str, has_dhat: bool, feeds_y: bool
     if schedule_kind == "mode":
         ports.append(port("mode", 1))
     direct = (("y",) if feeds_y else ()) + (("u",) if feeds_u else ())
+    if "nf" in dims and dims["nz"] != n:           # functionals only
+        return ports + [port("zhat", dims["nf"], depends=direct)]
     ports += [port("xhat", n, depends=direct), port("r", p, depends=("y",) + (("u",) if feeds_u else ()))]
+    if "nf" in dims:                               # order n: zhat = Lf xhat
+        return ports + [port("zhat", dims["nf"], depends=direct)]
     if has_dhat:
         ports.append(port("dhat", q, depends=("y",)))
     return ports

@@ -12,6 +12,10 @@
  *   fmi2DoStep(t_k, h_k):
  *                    z_0    = xhat0 - Xy y_0 [- Xu u_0]    (first step only)
  *                    z_0    = Zx (xhat0 - Xy y_0)          (instead, where the design has Zx: nz < n)
+ *
+ * A functional observer (nf > 0, matrix Lf) starts at z_0 = Zx xhat0; below order n (nz != n) it outputs
+ * zhat_k = Xz z_k + Xy y_k (zhat_0 = Lf xhat0) in the place of xhat, and has neither r nor dhat (both read xhat);
+ * at order n it outputs xhat and r as above and zhat_k = Lf xhat_k.
  *                    pred   = Yx xhat_k + Yu u_k + Yc
  *                    z_k+1  = N z_k + L y_k + G u_k + c
  *
@@ -83,7 +87,7 @@ typedef struct {
     int range; /* N of an interval or mode schedule, else 1 (i = j = 0) */
     int sorted; /* the design intervals increase strictly: nearest() bisects them */
     int known[UIOFMU_SLOTS]; /* by uiofmu_slot(x) of each design interval x: its index (-1: none) */
-    double *xhat, *r, *dhat, *tmp;
+    double *xhat, *r, *dhat, *zhat, *tmp;
     double *work[M_COUNT];
     long work_k;
     double *block; /* everything above, one allocation */
@@ -91,12 +95,18 @@ typedef struct {
 } Instance;
 
 static const char *const MATRIX_NAME[M_COUNT] = {"N", "L", "G", "c", "Xz", "Xy", "C", "Dy", "Yx", "Yu", "Yc",
-                                                           "Xu", "Zx"};
+                                                           "Xu", "Zx", "Lf"};
 
 /* ---------------------------------------------------------------------------------------- */
 /* The maths                                                                                  */
 
 static size_t msize(const UiofmuMatrix *M) { return (size_t)M->rows * (size_t)M->cols; }
+
+/* A functional observer below order n: its estimate is zhat, no xhat. */
+static inline int zhat_only(const UiofmuDesign *d) { return d->nf > 0 && d->nz != d->n; }
+
+/* The size of the estimate: nf (zhat, a functional observer below order n) or n (xhat). */
+static inline int estimate_size(const UiofmuDesign *d) { return zhat_only(d) ? d->nf : d->n; }
 
 /* The sum of a[j] x[j] over j < n, from 0.0 in the order of j (a row of a matrix times x; 0.0 for
    n = 0). Every product below is written with it, row by row, and the sums of a row added in the
@@ -303,6 +313,13 @@ static int estimate(Instance *s, const char *fn, int j) {
     const UiofmuDesign *d = s->d;
     if (d->kind == UIOFMU_GEOMETRIC) evaluate(s, s->k);
     if (s->xhat_current) return 1;
+    if (s->k == 0 && zhat_only(d)) { /* zhat_0 = Lf xhat0 */
+        const double *Lf = s->place[M_Lf].base;
+        if (!Lf) return 0;
+        for (int i = 0; i < d->nf; i++) s->xhat[i] = dot(Lf + (size_t)i * d->n, s->xhat0, d->n);
+        s->xhat_current = 1;
+        return 1;
+    }
     if (s->k == 0) {
         memcpy(s->xhat, s->xhat0, d->n * sizeof(double));
         s->xhat_current = 1;
@@ -314,12 +331,13 @@ static int estimate(Instance *s, const char *fn, int j) {
     }
     const double *Xz = matrix(s, fn, M_Xz, 0, j), *Xy = Xz ? matrix(s, fn, M_Xy, 0, j) : NULL;
     if (!Xz || !Xy) return 0;
-    for (int i = 0; i < d->n; i++)
+    int ne = estimate_size(d);
+    for (int i = 0; i < ne; i++)
         s->xhat[i] = dot(Xz + (size_t)i * d->nz, s->z, d->nz) + dot(Xy + (size_t)i * d->p, s->y, d->p);
     /* absent: no direct term of u; only a constant schedule has one, pick()'s for every (i, j) */
     const double *Xu = s->place[M_Xu].base;
     if (Xu)
-        for (int i = 0; i < d->n; i++) s->xhat[i] += dot(Xu + (size_t)i * d->m, s->u, d->m);
+        for (int i = 0; i < ne; i++) s->xhat[i] += dot(Xu + (size_t)i * d->m, s->u, d->m);
     s->xhat_current = 1;
     return 1;
 }
@@ -330,7 +348,13 @@ static int refresh(Instance *s, const char *fn) {
     int j = prev_index(s);
     const double *C = matrix(s, fn, M_C, 0, 0);
     if (!C || !estimate(s, fn, j)) return 0;
-    for (int i = 0; i < d->p; i++) s->r[i] = s->y[i] - dot(C + (size_t)i * d->n, s->xhat, d->n);
+    if (!zhat_only(d)) /* a functional observer below order n has no residual */
+        for (int i = 0; i < d->p; i++) s->r[i] = s->y[i] - dot(C + (size_t)i * d->n, s->xhat, d->n);
+    if (d->nf > 0 && !zhat_only(d)) { /* order n: zhat = Lf xhat */
+        const double *Lf = s->place[M_Lf].base;
+        if (!Lf) return 0;
+        for (int i = 0; i < d->nf; i++) s->zhat[i] = dot(Lf + (size_t)i * d->n, s->xhat, d->n);
+    }
     if (d->has_dhat) {
         if (s->k > 0) {
             const double *Dy = matrix(s, fn, M_Dy, 0, j);
@@ -365,12 +389,16 @@ static int mul_size(size_t a, size_t b, size_t *out) { return uiofmu_mul(a, b, S
 
 static void expected_shape(const UiofmuDesign *d, int w, int *rows, int *cols, const char **text) {
     static const char *const TEXT[M_COUNT] = {"nz x nz", "nz x p", "nz x m", "nz x 1", "n x nz", "n x p",
-                                              "p x n", "q x p", "p x n", "p x m", "p x 1", "n x m", "nz x n"};
-    const int R[M_COUNT] = {d->nz, d->nz, d->nz, d->nz, d->n, d->n, d->p, d->q, d->p, d->p, d->p, d->n, d->nz};
-    const int C[M_COUNT] = {d->nz, d->p, d->m, 1, d->nz, d->p, d->n, d->p, d->n, d->m, 1, d->m, d->n};
+                                              "p x n", "q x p", "p x n", "p x m", "p x 1", "n x m", "nz x n",
+                                              "nf x n"};
+    const int ne = estimate_size(d); /* n, or nf for a functional observer */
+    const int R[M_COUNT] = {d->nz, d->nz, d->nz, d->nz, ne, ne, d->p, d->q, d->p, d->p, d->p, ne, d->nz, d->nf};
+    const int C[M_COUNT] = {d->nz, d->p, d->m, 1, d->nz, d->p, d->n, d->p, d->n, d->m, 1, d->m, d->n, d->n};
     *rows = R[w];
     *cols = C[w];
     *text = TEXT[w];
+    if (zhat_only(d) && (w == M_Xz || w == M_Xy || w == M_Xu)) /* zhat's rows */
+        *text = w == M_Xz ? "nf x nz" : w == M_Xy ? "nf x p" : "nf x m";
 }
 
 static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
@@ -383,6 +411,15 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
                                    "(the first step sets z from xhat0)", d->nz, d->n);
     if (d->has_dhat != 0 && d->has_dhat != 1)
         return uiofmu_design_error(msg, len, "has_dhat = %d is neither 0 nor 1", d->has_dhat);
+    if (d->nf < 0 || d->nf > MAX_DIM)
+        return uiofmu_design_error(msg, len, "dims.nf = %d is out of range [0, %d]", d->nf, MAX_DIM);
+    if ((d->nf > 0) != (d->mat[M_Lf].count > 0))
+        return uiofmu_design_error(msg, len, "dims.nf = %d and matrix Lf (%d blocks): a functional observer has "
+                                   "both, a state observer neither", d->nf, d->mat[M_Lf].count);
+    if (d->nf > 0 && (d->mat[M_Zx].count == 0 || d->kind != UIOFMU_CONSTANT || d->has_dhat ||
+                      d->mat[M_Xu].count != 0))
+        return uiofmu_design_error(msg, len, "a functional observer (dims.nf = %d) needs the matrix Zx and a constant "
+                                   "schedule, and has no dhat and no Xu", d->nf);
     if (d->kind < UIOFMU_CONSTANT || d->kind > UIOFMU_MODE)
         return uiofmu_design_error(msg, len, "schedule kind %d is unknown", d->kind);
     if (d->policy < UIOFMU_POLICY_ERROR || d->policy > UIOFMU_POLICY_COUNT ||
@@ -427,7 +464,7 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
         if (w == M_Xu && d->kind != UIOFMU_CONSTANT)
             return uiofmu_design_error(msg, len, "matrix Xu (the direct term of u in xhat) needs a constant schedule, "
                                        "found a %s one", KIND[d->kind]);
-        if (w == M_Zx && d->kind != UIOFMU_CONSTANT)
+        if ((w == M_Zx || w == M_Lf) && d->kind != UIOFMU_CONSTANT)
             return uiofmu_design_error(msg, len, "matrix Zx (the first step's z_0 = Zx (xhat0 - Xy y_0)) needs a "
                                        "constant schedule, found a %s one", KIND[d->kind]);
         if (w == M_C || d->kind == UIOFMU_CONSTANT) want = 1;
@@ -458,9 +495,11 @@ static int affine_port(int id, UiofmuPort *out) {
     switch (id) {
     case UIOFMU_AFFINE_XHAT0: size = d->n; break;
     case UIOFMU_AFFINE_H_PREV0: size = d->kind == UIOFMU_INTERVAL ? 1 : 0; break;
-    case UIOFMU_AFFINE_Y: case UIOFMU_AFFINE_R: size = d->p; break;
+    case UIOFMU_AFFINE_Y: size = d->p; break;
+    case UIOFMU_AFFINE_R: size = zhat_only(d) ? 0 : d->p; break;
     case UIOFMU_AFFINE_U: size = d->m; break;
-    case UIOFMU_AFFINE_XHAT: size = d->n; break;
+    case UIOFMU_AFFINE_XHAT: size = zhat_only(d) ? 0 : d->n; break;
+    case UIOFMU_AFFINE_ZHAT: size = d->nf; break;
     case UIOFMU_AFFINE_DHAT: size = d->has_dhat ? d->q : 0; break;
     case UIOFMU_AFFINE_MODE_PREV0: case UIOFMU_AFFINE_MODE: size = d->kind == UIOFMU_MODE ? 1 : 0; break;
     default: return 0;
@@ -490,7 +529,8 @@ static void *affine_instantiate(FmuInstance *fmu) {
         }
     size_t mx = (size_t)(d->nz > d->n ? d->nz : d->n);
     if ((size_t)d->p > mx) mx = (size_t)d->p;
-    s->nblock = (size_t)d->nz + d->p + d->n + d->p + d->m + d->n + d->p + d->q + mx + nwork;
+    size_t ne = (size_t)estimate_size(d), nzhat = zhat_only(d) ? 0 : (size_t)d->nf; /* order n: zhat of its own */
+    s->nblock = (size_t)d->nz + d->p + d->n + d->p + d->m + ne + d->p + d->q + nzhat + mx + nwork;
     s->block = (double *)uiofmu_alloc(fmu, s->nblock, sizeof(double));
     if (!s->block) {
         free(s);
@@ -502,9 +542,11 @@ static void *affine_instantiate(FmuInstance *fmu) {
     s->xhat0 = b; b += d->n;
     s->y = b; b += d->p;
     s->u = b; b += d->m;
-    s->xhat = b; b += d->n;
+    s->xhat = b; b += ne; /* xhat[n], or zhat[nf] */
     s->r = b; b += d->p;
     s->dhat = b; b += d->q;
+    s->zhat = zhat_only(d) ? s->xhat : b; /* below order n zhat is the estimate itself */
+    b += nzhat;
     s->tmp = b; b += mx;
     for (int w = 0; w < M_COUNT; w++)
         if (d->kind == UIOFMU_GEOMETRIC && w != M_C && d->mat[w].count) { s->work[w] = b; b += msize(&d->mat[w]); }
@@ -568,7 +610,7 @@ static double *affine_real_storage(void *self, int port, int index) {
     double *const first[UIOFMU_AFFINE_PORTS] = {[UIOFMU_AFFINE_XHAT0] = s->xhat0, [UIOFMU_AFFINE_H_PREV0] = &s->h_prev0,
                                                 [UIOFMU_AFFINE_Y] = s->y, [UIOFMU_AFFINE_U] = s->u,
                                                 [UIOFMU_AFFINE_XHAT] = s->xhat, [UIOFMU_AFFINE_R] = s->r,
-                                                [UIOFMU_AFFINE_DHAT] = s->dhat};
+                                                [UIOFMU_AFFINE_DHAT] = s->dhat, [UIOFMU_AFFINE_ZHAT] = s->zhat};
     return uiofmu_element(first, port, index);
 }
 
@@ -641,7 +683,10 @@ static UiofmuResult affine_step(void *self, double t, double h) {
         if (!Yx || !Yu || !Yc) return UIOFMU_BROKEN;
     }
     if (!estimate(s, fn, j)) return UIOFMU_BROKEN; /* xhat_k (and the geometric matrices of step k) */
-    if (s->k == 0) {
+    if (s->k == 0 && d->nf > 0) { /* z_0 = Zx xhat0 (check_design_data: a functional observer has Zx) */
+        const double *Zx = s->place[M_Zx].base;
+        for (int e = 0; e < d->nz; e++) s->z[e] = dot(Zx + (size_t)e * d->n, s->xhat0, d->n);
+    } else if (s->k == 0) {
         const double *Zx = s->place[M_Zx].base;
         double *v = Zx ? s->tmp : s->z; /* with Zx (nz < n), xhat0 - Xy y_0 goes through tmp (n doubles) */
         for (int e = 0; e < d->n; e++) v[e] = s->xhat0[e] - dot(Xy + (size_t)e * d->p, s->y, d->p);

@@ -24,7 +24,7 @@
 
 /* The ports the kernel implements (the ids of the variable table; uiofmu.runtime.ports.observer_ports):
    xhat0[n] parameter, h_prev0[1] parameter (interval schedules), y[p] and u[m] inputs,
-   xhat[n], r[p] and dhat[q] (with Dy) outputs, all Real; mode schedules add the Integer
+   xhat[n], r[p] and dhat[q] (with Dy) outputs, all Real (a functional observer: zhat[nf] instead); mode schedules add the Integer
    parameter mode_prev0[1] and the Integer input mode[1]. Their ids (UIOFMU_AFFINE_XHAT0 ...
    UIOFMU_AFFINE_PORTS), names, causalities and types are generated at build time from
    uiofmu/runtime/ports.py (KERNEL_PORTS["affine"]); the variable table lists them in the order of
@@ -40,10 +40,15 @@ typedef struct {
 
 enum { UIOFMU_CONSTANT = 0, UIOFMU_INTERVAL = 1, UIOFMU_GEOMETRIC = 2, UIOFMU_MODE = 3 };
 enum { UIOFMU_POLICY_ERROR = 0, UIOFMU_POLICY_NEAREST = 1, UIOFMU_POLICY_COUNT = 2 };
-enum { M_N, M_L, M_G, M_c, M_Xz, M_Xy, M_C, M_Dy, M_Yx, M_Yu, M_Yc, M_Xu, M_Zx, M_COUNT };
+enum { M_N, M_L, M_G, M_c, M_Xz, M_Xy, M_C, M_Dy, M_Yx, M_Yu, M_Yc, M_Xu, M_Zx, M_Lf, M_COUNT };
 
+/* nf > 0: a functional observer of the functionals Lf x (Lf nf x n), z_0 = Zx xhat0, no dhat. Below order n
+   (nz != n) its estimate is zhat[nf] = Xz z + Xy y (Xz nf x nz, Xy nf x p), zhat_0 = Lf xhat0, and it has no r; at
+   order n (nz = n) it estimates the state as xhat = Xz z + Xy y, with r, and zhat = Lf xhat.
+   nf = 0: the state observer (xhat[n]). */
 typedef struct {
     int n, m, p, q, nz, has_dhat;
+    int nf;
     int kind, policy;
     double dt, alpha, h_prev0, step_rtol;
     int nintervals;
