@@ -498,6 +498,40 @@ def test_a_sampled_data_cards_gain_holds_for_interval_sequences(plant):
     _refused(forged, "bounded real lemma")
 
 
+def test_an_ltv_cards_dhat_gain_holds_along_its_schedule(ltv_card):
+    """dhat's gain with one X at the vertices of (alpha^k, alpha^2k): at least the limit observer's peak, re-checked,
+    and the runtime's dhat fed y + v against its twin fed y, along the schedule from k = 0, stays below it; a card
+    with the gain lowered, or claiming it without its certificate, is refused."""
+    from uiofmu.families.ltv_auid import noise_steps
+
+    card = ltv_card[0]
+    gain = card.data["noise"]["gain_dhat_y"]
+    limit = sweep_peak(*noise_steps(card.data["matrices"], dhat=True)[0][:4], 4001)
+    assert limit <= gain <= 10 * limit
+    assert all(c.holds for c in recheck(card_from_data(json.loads(card.to_json()))))
+    m = card.data["matrices"]
+    As, Bs, Es, Cs = (np.asarray(m[k], dtype=float) for k in ("A_sampled", "B_sampled", "E_sampled", "C"))
+    rng = np.random.default_rng(17)
+    for steps in (40, 600):
+        v = 1e-3 * rng.normal(size=(steps, card.dims["p"]))
+        x = rng.normal(size=len(As))
+        noisy, twin = Runtime(card), Runtime(card)
+        diff = []
+        for k in range(steps):
+            u, d = rng.normal(size=Bs.shape[1]), rng.normal(size=Es.shape[1])
+            noisy.set_y(Cs @ x + v[k]), noisy.set_u(u), twin.set_y(Cs @ x), twin.set_u(u)
+            diff.append(noisy.dhat() - twin.dhat())
+            noisy.step(card.dt), twin.step(card.dt)
+            x = As @ x + Bs @ u + Es @ d
+        assert np.linalg.norm(diff) <= gain * np.linalg.norm(v)
+    forged = copy.deepcopy(card.data)
+    forged["noise"]["gain_dhat_y"] = 0.5 * limit
+    _refused(forged, "bounded real lemma")
+    forged = copy.deepcopy(card.data)
+    forged["noise"].pop("certificate_dhat_y")
+    _refused(forged, "noise.gain_dhat_y claimed without its certificate")
+
+
 def test_a_long_window_states_the_sum_of_its_coefficients_norms():
     """A formula whose filter has more states than FIR_STATES gets the triangle inequality's bound."""
     from uiofmu.families.deadbeat_functional import FIR_STATES, noise_of

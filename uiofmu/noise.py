@@ -588,10 +588,16 @@ def pair_checks(noise, matrices: dict) -> list:
     out = recheck(noise, *pair_error_system(matrices), switched=True)
     if not isinstance(noise, dict) or noise.get("gain_dhat_y") is None:
         return out
+    return out + (dhat_missing(matrices) or
+                  recheck(noise, *pair_dhat_error_system(matrices), key="gain_dhat_y", switched=True))
+
+
+def dhat_missing(matrices: dict) -> list:
+    """The failed check of a ``gain_dhat_y`` claimed by a card without dhat's matrices ``Dy``, ``Yx``; none else."""
     if any(matrices.get(k) is None for k in ("Dy", "Yx")):
-        return out + [Check("noise.gain_dhat_y claimed by a card without dhat (matrices Dy, Yx present)", 0.0, 1.0,
-                            at_most=False)]
-    return out + recheck(noise, *pair_dhat_error_system(matrices), key="gain_dhat_y", switched=True)
+        return [Check("noise.gain_dhat_y claimed by a card without dhat (matrices Dy, Yx present)", 0.0, 1.0,
+                      at_most=False)]
+    return []
 
 
 def switched_brl_certificate(A, B, C, D, label: str = "gain_y", balanced: bool = False) -> dict:
@@ -1029,7 +1035,7 @@ def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
 
 __all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks",
            "certificate_key", "certified", "continuous_brl_certificate", "continuous_brl_checks",
-           "dhat_error_step", "fir_system", "gain_text", "hinf_norm", "initial_check",
+           "dhat_error_step", "dhat_missing", "fir_system", "gain_text", "hinf_norm", "initial_check",
            "lemma_certificate", "lemma_checks", "noise_design_lines", "noise_lines", "pair_checks",
            "pair_dhat_error_system", "pair_error_system", "pair_section", "peak_to_peak", "recheck",
            "scaled_definite_check", "section", "stated", "switched_brl_certificate", "switched_brl_checks"]

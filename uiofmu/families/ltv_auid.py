@@ -67,14 +67,14 @@ from ..existence import Condition, Existence, complex_list, format_complex, from
 from ..lmi import Lmi, LmiSystem, held_margin, tune
 from ..structure import unobservable_modes
 from ..runtime.tolerances import LMI_MARGIN, SEARCH_TOL, ZERO_MARGIN
-from ..noise import hinf_norm, lemma_certificate, recheck, section as noise_section, stated
+from ..noise import dhat_error_step, dhat_missing, hinf_norm, lemma_certificate, recheck, stated
+from ..noise import section as noise_section
 from . import Analysis, DesignResult
 
 NAME = "ltv-auid"
 
 #: What an ltv-auid card's noise section says of the gains it has not.
 NO_W = "gain_w: not certified for this family"
-NO_DHAT = "gain_dhat_y: dhat is not certified against noise in this family"
 
 #: The vertices in ``(a, b)`` of a triangle that holds ``(alpha^k, alpha^2k)`` for every k: ``b = a^2`` on [0, 1]
 #: lies above ``b = 0`` and ``b = 2a - 1`` (its tangents at 0 and 1) and below ``b = a``.
@@ -315,10 +315,10 @@ def verify(card) -> list:
     claims."""
     d = card.data
     return (checks(d) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
-            + recheck(d.get("noise"), None, None, None, None, steps=noise_steps(d["matrices"])))
+            + noise_checks(d.get("noise"), d["matrices"]))
 
 
-def noise_steps(matrices: dict) -> list:
+def noise_steps(matrices: dict, dhat: bool = False) -> list:
     """The error system from output noise at the stored matrices, at the vertices :data:`NOISE_VERTICES`.
 
     The runtime's matrices are polynomials in ``a = alpha^k`` of degree at most 2 (``N``, ``L``, ``Xy``, with
@@ -326,8 +326,12 @@ def noise_steps(matrices: dict) -> list:
     follows ``eps+ = N(a) eps - L(a) v``, ``e = eps - Xy(a) v``. Read with ``b`` for ``a^2``, each is affine in
     ``(a, b)``, and so is the bounded real lemma's matrix: the lemma at the three vertices with one ``X`` holds at
     every ``(alpha^k, alpha^2k)`` inside, hence along the whole schedule (:func:`uiofmu.noise.lemma_checks`).
+
+    With ``dhat``, the error of dhat (:func:`uiofmu.noise.dhat_error_step`: ``dhat_k - d_k = Dy (Yx e_k +
+    v_(k+1))``, a system one step ahead whose state ``(eps_k, v_k)`` steps by ``N(a), L(a)`` and whose output
+    ``Dy Yx [I, -Xy(a)]`` reads the same ``a = alpha^k``; ``Dy``, ``Yx`` are constant): affine in ``(a, b)`` too.
     """
-    g = {k: np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy")}
+    g = {k: np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy") + (("Dy", "Yx") if dhat else ())}
     if any(len(c) > 3 for c in g.values()):
         raise ValueError("a runtime polynomial of degree above 2: the noise vertices do not hold it")
     n = g["N"].shape[-1]
@@ -335,20 +339,41 @@ def noise_steps(matrices: dict) -> list:
     def at(c, a, b):
         return sum(m * ci for m, ci in zip((1.0, a, b), c))
 
-    return [(at(g["N"], a, b), -at(g["L"], a, b), np.eye(n), -at(g["Xy"], a, b), 0, 0, f"at (a, a^2) = ({a:g}, {b:g})")
-            for a, b in NOISE_VERTICES]
+    def system(a, b):
+        N, L, Xy = (at(g[k], a, b) for k in ("N", "L", "Xy"))
+        return dhat_error_step(N, L, np.eye(n), Xy, at(g["Dy"], a, b), at(g["Yx"], a, b)) if dhat else \
+            (N, -L, np.eye(n), -Xy)
+
+    return [(*system(a, b), 0, 0, f"at (a, a^2) = ({a:g}, {b:g})") for a, b in NOISE_VERTICES]
 
 
 def noise_of(matrices: dict) -> dict:
     """The card's ``noise`` section: ``gain_y`` along the whole schedule (:func:`noise_steps`), its least value by
     :func:`uiofmu.noise.lemma_certificate` with one ``X``, scaled by the limit observer's gain (``a = 0``; the gain
-    along the schedule is at least that)."""
+    along the schedule is at least that); ``gain_dhat_y`` alike where the card has dhat."""
+    method = "bounded real lemma with one X at the vertices of (alpha^k, alpha^2k)"
     steps = noise_steps(matrices)
-    limit = hinf_norm(*steps[0][:4])
-    gain, extra, why = stated(lemma_certificate(steps, 1, limit),
-                              "bounded real lemma with one X at the vertices of (alpha^k, alpha^2k)")
-    reasons = ([why] if why else []) + [NO_W] + ([NO_DHAT] if matrices.get("Dy") is not None else [])
-    return noise_section(gain, "; ".join(reasons), **extra)
+    gain, extra, why = stated(lemma_certificate(steps, 1, hinf_norm(*steps[0][:4])), method)
+    reasons = ([why] if why else []) + [NO_W]
+    gain_dhat = None
+    if matrices.get("Dy") is not None:
+        steps = noise_steps(matrices, dhat=True)
+        gain_dhat, extra_dhat, why_dhat = stated(lemma_certificate(steps, 1, hinf_norm(*steps[0][:4]),
+                                                                   "gain_dhat_y", balanced=True),
+                                                 method, key="gain_dhat_y")
+        extra.update(extra_dhat)
+        reasons += [why_dhat] if why_dhat else []
+    return noise_section(gain, "; ".join(reasons), gain_dhat_y=gain_dhat, **extra)
+
+
+def noise_checks(noise, matrices: dict) -> list:
+    """The re-check of the gains of :func:`noise_of` at a card's stored matrices; a ``gain_dhat_y`` claimed by a
+    card without dhat's matrices fails."""
+    out = recheck(noise, None, None, None, None, steps=noise_steps(matrices))
+    if not isinstance(noise, dict) or noise.get("gain_dhat_y") is None:
+        return out
+    return out + (dhat_missing(matrices) or
+                  recheck(noise, None, None, None, None, key="gain_dhat_y", steps=noise_steps(matrices, dhat=True)))
 
 
 def gain_figures(card_data: dict) -> tuple:
@@ -397,8 +422,10 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
                                                  two(A1), n),
                "eigenvalues_N_k0": spectrum(A1 - T1 @ C), "eigenvalues_N_inf": spectrum(A2 - T2 @ C),
                "norm_MCE": Determined(two(MCE), two(M) * two(C) * two(s.E))}
-    return {"noise.norm": "l2", "noise.gain_w": None, "noise.gain_dhat_y": None,     # gain_y: verify re-checks it
-            "dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "alpha": opts.alpha, "eta": opts.eta,
+    noise = {"noise.norm": "l2", "noise.gain_w": None}            # gain_y and gain_dhat_y: verify re-checks them
+    if poly["Dy"] is None:
+        noise["noise.gain_dhat_y"] = None
+    return {**noise, "dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "alpha": opts.alpha, "eta": opts.eta,
             "mu": mu, "tau1": tau1, "tau2": tau2, "decay_bound": float(np.sqrt(1 - tau2)),
             "initial_decay_bound": float(np.sqrt(1 - tau1)), **{f"matrices.{k}": v for k, v in mats.items()}, **figures}
 
