@@ -52,8 +52,14 @@ NOISE_DIGITS = 3
 #: Relative margin added to the H-infinity norm before it is rounded up and certified.
 NOISE_MARGIN = 1e-3
 
-#: Points of the frequency sweep on [0, pi] (besides the angles of the error system's poles).
+#: Points of the frequency sweep on [0, pi] (besides the angles of the error system's poles), where the level sets
+#: of :func:`hinf_norm` cannot be read.
 SWEEP_POINTS = 512
+
+#: The level sets of :func:`hinf_norm`: the level tried above the largest response found (relative: the norm is
+#: found to it), the relative distance from the unit circle within which an eigenvalue of its pencil counts as on
+#: it, and the most levels tried before the sweep decides.
+LEVEL_GAP, CIRCLE_TOL, LEVELS = 1e-10, 1e-6, 40
 
 #: Angles per bracket in each round of the stacked zoom around the sweep's peaks, and the bracket width it stops at.
 ZOOM_POINTS, ZOOM_WIDTH = 33, 1e-12
@@ -386,20 +392,109 @@ def _refine(A, B, C, D, lo: np.ndarray, hi: np.ndarray) -> float:
         hi = np.minimum(w[rows, np.minimum(j + 1, ZOOM_POINTS - 1)], np.pi)
 
 
-def hinf_norm(A, B, C, D) -> float:
-    """The H-infinity norm of the discrete system ``(A, B, C, D)`` (``A`` Schur stable).
-
-    A sweep of :data:`SWEEP_POINTS` angles on [0, pi] and the angles of the poles, then a stacked zoom
-    (:func:`_refine`) into the brackets of the three largest; a value below the true norm is caught by the
-    certificate's re-check.
-    """
-    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+def _sweep_norm(A, B, C, D) -> float:
+    """The largest :func:`_response` of a sweep of :data:`SWEEP_POINTS` angles on [0, pi] and the angles of the
+    poles, refined by a stacked zoom (:func:`_refine`) into the brackets of the three largest: where the
+    level sets of :func:`hinf_norm` cannot be read off its pencil."""
     poles = np.abs(np.angle(np.linalg.eigvals(A))) if len(A) else np.zeros(0)
     w = np.unique(np.concatenate([np.linspace(0.0, np.pi, SWEEP_POINTS), poles]))
     g = _response(A, B, C, D, w)
     step = np.pi / (SWEEP_POINTS - 1)
     top = w[np.argsort(g)[-3:]]
     return max(float(g.max()), _refine(A, B, C, D, np.maximum(top - step, 0.0), np.minimum(top + step, np.pi)))
+
+
+def _crossings(A, B, C, D, level: float):
+    """The angles in [0, pi] at which ``level`` is a singular value of ``G(e^{jw}) = C (e^{jw} I - A)^-1 B + D``:
+    the unit-circle eigenvalues ``z`` of the pencil ``M - z E`` (see :func:`hinf_norm`), for ``G / level`` at
+    level 1. None when the pencil leaves some eigenvalue undetermined (``alpha = beta = 0``: a singular pencil) or
+    not finite, or when its eigenvalues near the circle do not come in the pairs ``(z, 1 / conj(z))`` its
+    structure gives them to :data:`CIRCLE_TOL` (rounding has moved them too far to tell which are on it)."""
+    from scipy.linalg.lapack import dggev
+
+    n, m = B.shape
+    Bs, Cs, Ds = B, C / level, D / level
+    big_b, big_c = float(np.abs(B).max()), float(np.abs(Cs).max())
+    if big_b > 0.0 and big_c > 0.0:        # eps = c eps_s, c a power of 2: B and C / level of one size
+        c = 2.0 ** round(0.5 * math.log2(big_b / big_c))
+        Bs, Cs = B / c, Cs * c
+    M, E = np.zeros((2, 2 * n + m, 2 * n + m))
+    M[:n, :n], M[:n, 2 * n:], M[2 * n:, :n], M[2 * n:, n:2 * n] = A, Bs, Ds.T @ Cs, Bs.T
+    M[2 * n:, 2 * n:] = Ds.T @ Ds - np.eye(m)
+    M[range(n, 2 * n), range(n, 2 * n)] = 1.0
+    E[range(n), range(n)] = 1.0
+    E[n:2 * n, :n], E[n:2 * n, n:2 * n], E[n:2 * n, 2 * n:] = Cs.T @ Cs, A.T, Cs.T @ Ds
+    re, im, beta, _, _, _, info = dggev(M, E, compute_vl=0, compute_vr=0, overwrite_a=1, overwrite_b=1)
+    alpha = re + 1j * im
+    a, b = np.abs(alpha), np.abs(beta)
+    if info != 0 or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))) or np.any(np.maximum(a, b) == 0.0):
+        return None
+    near = (a < 2.0 * b) & (b < 2.0 * a)
+    z = alpha[near] / beta[near]
+    on = np.abs(np.abs(z) - 1.0) <= CIRCLE_TOL
+    mirror = 1.0 / np.conj(z[~on])              # the eigenvalues off the circle come in pairs (z, 1 / conj(z))
+    if len(mirror) and np.any(np.abs(mirror[:, None] - z[None, :]).min(axis=1) > CIRCLE_TOL * np.abs(mirror)):
+        return None
+    return np.abs(np.angle(z[on]))
+
+
+def hinf_norm(A, B, C, D) -> float:
+    """The H-infinity norm of the discrete system ``(A, B, C, D)`` (``A`` Schur stable): a lower bound, the
+    largest singular value of ``G(e^{jw})`` at an angle found, within :data:`LEVEL_GAP` of the norm.
+
+    The level sets (Boyd and Balakrishnan; Bruinsma and Steinbuch): ``level`` is a singular value of
+    ``G(z) = C (zI - A)^-1 B + D`` at ``z = e^{jw}`` when ``level^2 u = G(z)^H G(z) u`` for some ``u != 0``; with
+    ``x = (zI - A)^-1 B u``, ``y = C x + D u`` and ``p`` the state of ``G(1/z)'`` fed ``y``, that is the pencil
+    ``M v = z E v`` in ``v = (x, p, u)``::
+
+        M = [[A, 0, B], [0, I, 0], [D'C, B', D'D - level^2 I]],   E = [[I, 0, 0], [C'C, A', C'D], [0, 0, 0]]
+
+    (for ``G / level`` at level 1, numbers near 1 whatever the gains). Its eigenvalues on the unit circle are the
+    angles where the response crosses ``level``. The largest response at ``0``, ``pi`` and the angles of the
+    poles is a first lower bound; then, at the level ``(1 + LEVEL_GAP)`` times the lower bound, the response at
+    the midpoints between the crossings (and the ends) is the next one (above the level wherever a midpoint
+    falls in an interval the response exceeds it: quadratic convergence near a peak), until no eigenvalue is on
+    the circle (the norm is below that level) or the midpoints bring no increase (the level is at the peak to
+    the rounding of the eigenvalues). Where the pencil's eigenvalues are undetermined or :data:`LEVELS` levels
+    do not settle it, the sweep :func:`_sweep_norm` (never below the levels' bound). A value below the true norm
+    is caught by the certificate's re-check.
+    """
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    Ab, Bb, Cb, _ = _balanced(A, B, C)
+    return _level_norm(Ab, Bb, Cb, D)
+
+
+def _balanced(A, B, C) -> tuple:
+    """``(A, B, C)`` in the coordinates ``eps = diag(s) eps_b`` that balance ``A`` (``scipy.linalg.matrix_balance``,
+    powers of 2: exact, and the response is the same), and ``s``."""
+    from scipy.linalg import matrix_balance
+
+    s = matrix_balance(A, permute=False, separate=True)[1][0] if len(A) else np.ones(0)
+    return A * s[None, :] / s[:, None], B / s[:, None], C * s[None, :], s
+
+
+def _level_norm(A, B, C, D) -> float:
+    """:func:`hinf_norm` of a system whose ``A`` is balanced (:func:`_balanced`)."""
+    if not (B.shape[1] and C.shape[0]):
+        return 0.0
+    if not len(A):
+        return float(_response(A, B, C, D, np.zeros(1))[0])
+    poles = np.abs(np.angle(np.linalg.eigvals(A)))
+    best = float(_response(A, B, C, D, np.concatenate([[0.0, np.pi], poles])).max())
+    for _ in range(LEVELS):
+        if not (math.isfinite(best) and best > 0.0):
+            break
+        cross = _crossings(A, B, C, D, best * (1.0 + LEVEL_GAP))
+        if cross is None:
+            break
+        if not len(cross):
+            return best
+        edges = np.unique(np.concatenate([[0.0], np.minimum(cross, np.pi), [np.pi]]))
+        found = float(_response(A, B, C, D, 0.5 * (edges[1:] + edges[:-1])).max())
+        if not found > best:
+            return best
+        best = found
+    return max(best, _sweep_norm(A, B, C, D)) if math.isfinite(best) else _sweep_norm(A, B, C, D)
 
 
 def scaled_definite_check(name: str, Q: np.ndarray, terms: np.ndarray, length: int) -> Check:
@@ -585,16 +680,13 @@ def brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
     -------
     dict
         ``gamma`` (the gain the re-check proves), ``X``, ``initial_term`` (``sqrt(eig_max(X))``),
-        ``hinf_norm`` (the sweep's) and the checks; ``gamma`` None (with ``why``) when no try certifies.
+        ``hinf_norm`` (:func:`hinf_norm`'s) and the checks; ``gamma`` None (with ``why``) when no try certifies.
     """
-    from scipy.linalg import matrix_balance
-
     A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
-    norm = hinf_norm(A, B, C, D)
-    s = matrix_balance(A, permute=False, separate=True)[1][0] if len(A) else np.ones(0)
-    Ab, Bb, Cb = A * s[None, :] / s[:, None], B / s[:, None], C * s[None, :]      # eps = diag(s) eps_b
+    Ab, Bb, Cb, s = _balanced(A, B, C)                                          # eps = diag(s) eps_b
+    norm = _level_norm(Ab, Bb, Cb, D)
     # delta I added to C'C raises the gain by at most delta h^2 / (2 gamma), h = ||(zI - A)^-1 B||_inf.
-    h = hinf_norm(Ab, Bb, np.eye(len(A)), np.zeros_like(B))
+    h = _level_norm(Ab, Bb, np.eye(len(A)), np.zeros_like(B))
     gamma = round_up(max(norm, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
     for _ in range(TRIES):
         delta = (0.1 * (gamma - norm) * gamma) / max(h * h, 1e-300) if gamma > norm else 0.0
