@@ -34,7 +34,6 @@ coefficients' norms (:func:`peak_to_peak`).
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 
@@ -514,11 +513,12 @@ def _brl_matrix(A, B, C, D, X_in, X_out, gamma: float) -> tuple:
     """The bounded real lemma's matrix of one step from storage ``X_in`` to ``X_out``, and its terms' sizes."""
     aA, aB, aC, aD, aI, aO = (np.abs(m) for m in (A, B, C, D, X_in, X_out))
     g2 = float(gamma) ** 2
-    eye = np.eye(B.shape[1])
-    Q = np.block([[X_in - A.T @ X_out @ A - C.T @ C, -(A.T @ X_out @ B + C.T @ D)],
-                  [-(B.T @ X_out @ A + D.T @ C), g2 * eye - B.T @ X_out @ B - D.T @ D]])
-    terms = np.block([[aI + aA.T @ aO @ aA + aC.T @ aC, aA.T @ aO @ aB + aC.T @ aD],
-                      [aB.T @ aO @ aA + aD.T @ aC, g2 * eye + aB.T @ aO @ aB + aD.T @ aD]])
+    n, eye = len(A), np.eye(B.shape[1])
+    Q, terms = np.empty((2, n + B.shape[1], n + B.shape[1]))
+    Q[:n, :n], Q[:n, n:] = X_in - A.T @ X_out @ A - C.T @ C, -(A.T @ X_out @ B + C.T @ D)
+    Q[n:, :n], Q[n:, n:] = -(B.T @ X_out @ A + D.T @ C), g2 * eye - B.T @ X_out @ B - D.T @ D
+    terms[:n, :n], terms[:n, n:] = aI + aA.T @ aO @ aA + aC.T @ aC, aA.T @ aO @ aB + aC.T @ aD
+    terms[n:, :n], terms[n:, n:] = aB.T @ aO @ aA + aD.T @ aC, g2 * eye + aB.T @ aO @ aB + aD.T @ aD
     return 0.5 * (Q + Q.T), terms
 
 
@@ -659,13 +659,46 @@ def lemma_certificate(steps: list, storages: int, sigma: float, label: str = "ga
 
 def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
     """The stabilising solution of the bounded real Riccati equation at ``gamma``, with ``delta I`` added to
-    ``C'C`` (the strictness the re-check needs)."""
-    from scipy.linalg import solve_discrete_are
+    ``C'C`` (the strictness the re-check needs).
+
+    With ``Q = C'C + delta I``, ``R = D'D - gamma^2 I`` and ``S = C'D``, ``X`` solves
+    ``X = A'XA - (A'XB + S)(B'XB + R)^-1 (B'XA + S') + Q`` with ``A + B K`` Schur stable. It is read off the
+    stable deflating subspace ``[I; X] T`` of the extended pencil in ``(x, p, u)`` (Van Dooren)::
+
+        H = [[A, 0, B], [-Q, I, -S], [S', 0, R]],   J = [[I, 0, 0], [0, A', 0], [0, -B', 0]]
+
+    after a diagonal scaling ``diag(d, 1/d, e)`` in powers of 2 that keeps its structure (``d`` the geometric
+    mean of what ``matrix_balance`` gives ``x`` and ``p``; Benner), the ``u`` columns deflated by an orthogonal
+    complement of ``[B; -S; R]``, and the ``n`` eigenvalues inside the unit circle ordered first
+    (``scipy.linalg.ordqz``).
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When the pencil does not have ``n`` eigenvalues inside the circle or the subspace is not a graph.
+    """
+    from scipy.linalg import matrix_balance, ordqz
 
     n, m = B.shape
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        X = solve_discrete_are(A, B, C.T @ C + delta * np.eye(n), D.T @ D - gamma * gamma * np.eye(m), s=C.T @ D)
+    H, J = np.zeros((2, 2 * n + m, 2 * n + m))
+    H[:n, :n], H[:n, 2 * n:], H[n:2 * n, :n] = A, B, -(C.T @ C + delta * np.eye(n))
+    H[n:2 * n, 2 * n:], H[2 * n:, :n], H[2 * n:, 2 * n:] = -(C.T @ D), D.T @ C, D.T @ D - gamma * gamma * np.eye(m)
+    H[range(n, 2 * n), range(n, 2 * n)] = 1.0
+    J[range(n), range(n)] = 1.0
+    J[n:2 * n, n:2 * n], J[2 * n:, n:2 * n] = A.T, -B.T
+    size = np.abs(H) + np.abs(J)
+    np.fill_diagonal(size, 0.0)
+    e = np.log2(matrix_balance(size, permute=False, separate=True)[1][0])
+    d = 2.0 ** np.round(0.5 * (e[n:2 * n] - e[:n]))
+    scale = np.concatenate([d, 1.0 / d, 2.0 ** e[2 * n:]])
+    H, J = H * scale[:, None] / scale[None, :], J * scale[:, None] / scale[None, :]
+    q = np.linalg.qr(H[:, 2 * n:], mode="complete")[0][:, m:]
+    _, _, alpha, beta, _, Z = ordqz(q.T @ H[:, :2 * n], q.T @ J[:, :2 * n], sort="iuc", output="real",
+                                    check_finite=False)
+    if np.count_nonzero(np.abs(alpha) < np.abs(beta)) != n:
+        raise np.linalg.LinAlgError(f"the Riccati pencil at gamma = {gamma:g} has not {n} eigenvalues inside the "
+                                    "unit circle")
+    X = np.linalg.solve(Z[:n, :n].T, Z[n:, :n].T).T * d[:, None] * d[None, :]      # [I; X] spans [Z_11; Z_21]
     return 0.5 * (X + X.T)
 
 
