@@ -22,7 +22,8 @@ lemma at the card's stored matrices: with ``X > 0``::
 summed along a run gives ``||e||^2 <= gamma^2 ||v||^2 + eps_0' X eps_0``, so ``initial_term`` is
 ``sqrt(eig_max(X))``. Both inequalities are decided as the decay is (:func:`uiofmu.certificate.definite_check`:
 a verdict that no BLAS kernel's rounding can change). ``gamma`` is the H-infinity norm of the error
-system (a frequency sweep, zoomed into around its peaks), times ``1 + NOISE_MARGIN``, rounded up to
+system (:func:`hinf_norm`: the level sets of its symplectic pencil, within 1e-10 below the norm; a frequency
+sweep where the pencil's eigenvalues cannot be read), times ``1 + NOISE_MARGIN``, rounded up to
 :data:`NOISE_DIGITS` significant digits; ``X`` is the stabilising solution of the bounded real
 Riccati equation at that ``gamma`` (no solver). The card records the ``gamma`` the re-check proves.
 
