@@ -354,14 +354,14 @@ def section(gain_y=None, reason=None, gain_w=None, gain_dhat_y=None, **extra) ->
 def _response(A, B, C, D, w: np.ndarray) -> np.ndarray:
     """The largest singular value of ``C (e^{jw} I - A)^-1 B + D`` at each angle ``w``.
 
-    All angles at once: one stacked solve and one stacked SVD, the same LAPACK calls on the same numbers
-    as one angle at a time, so each value is the same to the last bit.
+    All angles at once: one stacked solve (``B`` broadcast along the stack) and one stacked SVD, the same LAPACK
+    calls on the same numbers as one angle at a time, so each value is the same to the last bit.
     """
     w = np.asarray(w, dtype=float)
     n = len(A)
     if n:
         Z = np.exp(1j * w)[:, None, None] * np.eye(n) - A
-        H = D + C @ np.linalg.solve(Z, np.broadcast_to(B, (len(w),) + B.shape))
+        H = D + C @ np.linalg.solve(Z, B.astype(complex))
     else:
         H = np.broadcast_to(D, (len(w),) + D.shape)
     if not (len(w) and H.shape[-2] and H.shape[-1]):
