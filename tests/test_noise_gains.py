@@ -183,10 +183,10 @@ def test_the_level_set_norm_meets_a_dense_sweep_on_random_systems():
 
 
 def test_the_level_set_norm_of_systems_at_the_edges():
-    """No inputs or outputs, no states, a pole 1e-7 from the circle at -1, a nilpotent shift register, an
-    all-pass section (norm 1 at every angle), and the DC motor's error system with gains of 2e6, in its units and
-    in others (the system is balanced before the pencil's eigenvalues are read: unbalanced, they leave their pairs
-    and would be refused)."""
+    """No inputs or outputs, no states, a pole 1e-7 from the circle at -1, a nilpotent shift register, inputs
+    and outputs in units 1e300 apart, an all-pass section (norm 1 at every angle), and the DC motor's error
+    system with gains of 2e6, in its units and in others (the system is balanced before the pencil's eigenvalues
+    are read: unbalanced, they leave their pairs and would be refused)."""
     assert hinf_norm(np.eye(2) / 2, np.zeros((2, 0)), np.ones((1, 2)), np.zeros((1, 0))) == 0.0
     assert hinf_norm(np.eye(2) / 2, np.ones((2, 1)), np.zeros((0, 2)), np.zeros((0, 1))) == 0.0
     D = np.array([[1.0, 2.0], [3.0, -1.0]])
@@ -195,6 +195,7 @@ def test_the_level_set_norm_of_systems_at_the_edges():
     assert hinf_norm([[pole]], [[1.0]], [[1.0]], [[0.0]]) == pytest.approx(1.0 / (1.0 + pole), rel=1e-9)
     A, B, C, D = fir_system([np.array([[1.0, 2.0]]), np.array([[0.5, -1.0]]), np.array([[3.0, 0.1]])])
     assert hinf_norm(A, B, C, D) == pytest.approx(reference_peak(A, B, C, D), rel=1e-12)
+    assert hinf_norm([[0.5]], [[1e150]], [[1e-150]], [[0.0]]) == pytest.approx(2.0, rel=1e-12)   # B, C 1e300 apart
     a = 0.5                                         # (1 - a z) / (z - a): |.| = 1 on the circle
     assert hinf_norm([[a]], [[1.0 - a * a]], [[1.0]], [[-a]]) == pytest.approx(1.0, rel=1e-14)
     card = uiofmu.design(problem_from_data(dc_motor(0.7)))

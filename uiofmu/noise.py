@@ -416,7 +416,7 @@ def _crossings(A, B, C, D, level: float):
     Bs, Cs, Ds = B, C / level, D / level
     big_b, big_c = float(np.abs(B).max()), float(np.abs(Cs).max())
     if big_b > 0.0 and big_c > 0.0:        # eps = c eps_s, c a power of 2: B and C / level of one size
-        c = 2.0 ** round(0.5 * math.log2(big_b / big_c))
+        c = math.ldexp(1.0, max(-1000, min(1000, round(0.5 * (math.log2(big_b) - math.log2(big_c))))))
         Bs, Cs = B / c, Cs * c
     M, E = np.zeros((2, 2 * n + m, 2 * n + m))
     M[:n, :n], M[:n, 2 * n:], M[2 * n:, :n], M[2 * n:, n:2 * n] = A, Bs, Ds.T @ Cs, Bs.T
@@ -424,6 +424,8 @@ def _crossings(A, B, C, D, level: float):
     M[range(n, 2 * n), range(n, 2 * n)] = 1.0
     E[range(n), range(n)] = 1.0
     E[n:2 * n, :n], E[n:2 * n, n:2 * n], E[n:2 * n, 2 * n:] = Cs.T @ Cs, A.T, Cs.T @ Ds
+    if not (np.isfinite(M).all() and np.isfinite(E).all()):
+        return None
     re, im, beta, _, _, _, info = dggev(M, E, compute_vl=0, compute_vr=0, overwrite_a=1, overwrite_b=1)
     alpha = re + 1j * im
     a, b = np.abs(alpha), np.abs(beta)
@@ -676,7 +678,8 @@ def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
     Raises
     ------
     numpy.linalg.LinAlgError
-        When the pencil does not have ``n`` eigenvalues inside the circle or the subspace is not a graph.
+        When the pencil is not finite, does not have ``n`` eigenvalues inside the circle, or its subspace is not a
+        graph.
     """
     from scipy.linalg import matrix_balance, ordqz
 
@@ -688,6 +691,8 @@ def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
     J[range(n), range(n)] = 1.0
     J[n:2 * n, n:2 * n], J[2 * n:, n:2 * n] = A.T, -B.T
     size = np.abs(H) + np.abs(J)
+    if not np.isfinite(size).all():
+        raise np.linalg.LinAlgError(f"the Riccati pencil at gamma = {gamma:g} has entries beyond double precision")
     np.fill_diagonal(size, 0.0)
     e = np.log2(matrix_balance(size, permute=False, separate=True)[1][0])
     d = 2.0 ** np.round(0.5 * (e[n:2 * n] - e[:n]))
