@@ -466,12 +466,25 @@ def hinf_norm(A, B, C, D) -> float:
     return _level_norm(Ab, Bb, Cb, D)
 
 
-def _balanced(A, B, C) -> tuple:
-    """``(A, B, C)`` in the coordinates ``eps = diag(s) eps_b`` that balance ``A`` (``scipy.linalg.matrix_balance``,
-    powers of 2: exact, and the response is the same), and ``s``."""
-    from scipy.linalg import matrix_balance
+def _balancing(A) -> np.ndarray:
+    """The diagonal scaling (powers of 2) that balances the rows and columns of ``A``, no permutation: LAPACK's
+    ``dgebal``, the call ``scipy.linalg.matrix_balance(A, permute=False)`` makes, without its wrappers."""
+    from scipy.linalg.lapack import dgebal
 
-    s = matrix_balance(A, permute=False, separate=True)[1][0] if len(A) else np.ones(0)
+    if not len(A):
+        return np.ones(0)
+    if not np.isfinite(A).all():
+        raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
+    _, lo, hi, scale, info = dgebal(A, scale=1, permute=0)
+    if info != 0 or (lo, hi) != (0, len(A) - 1) or not np.isfinite(scale).all():
+        raise np.linalg.LinAlgError(f"dgebal did not balance a {len(A)}x{len(A)} matrix (info {info})")
+    return np.asarray(scale, dtype=float)
+
+
+def _balanced(A, B, C) -> tuple:
+    """``(A, B, C)`` in the coordinates ``eps = diag(s) eps_b`` that balance ``A`` (:func:`_balancing`, powers of
+    2: exact, and the response is the same), and ``s``."""
+    s = _balancing(A)
     return A * s[None, :] / s[:, None], B / s[:, None], C * s[None, :], s
 
 
@@ -671,7 +684,7 @@ def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
         H = [[A, 0, B], [-Q, I, -S], [S', 0, R]],   J = [[I, 0, 0], [0, A', 0], [0, -B', 0]]
 
     after a diagonal scaling ``diag(d, 1/d, e)`` in powers of 2 that keeps its structure (``d`` the geometric
-    mean of what ``matrix_balance`` gives ``x`` and ``p``; Benner), the ``u`` columns deflated by an orthogonal
+    mean of what :func:`_balancing` gives ``x`` and ``p``; Benner), the ``u`` columns deflated by an orthogonal
     complement of ``[B; -S; R]``, and the ``n`` eigenvalues inside the unit circle ordered first
     (``scipy.linalg.ordqz``).
 
@@ -681,12 +694,14 @@ def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
         When the pencil is not finite, does not have ``n`` eigenvalues inside the circle, or its subspace is not a
         graph.
     """
-    from scipy.linalg import matrix_balance, ordqz
+    from scipy.linalg import ordqz
 
     n, m = B.shape
     H, J = np.zeros((2, 2 * n + m, 2 * n + m))
-    H[:n, :n], H[:n, 2 * n:], H[n:2 * n, :n] = A, B, -(C.T @ C + delta * np.eye(n))
-    H[n:2 * n, 2 * n:], H[2 * n:, :n], H[2 * n:, 2 * n:] = -(C.T @ D), D.T @ C, D.T @ D - gamma * gamma * np.eye(m)
+    with np.errstate(all="ignore"):         # an overflow is refused below
+        H[:n, :n], H[:n, 2 * n:], H[n:2 * n, :n] = A, B, -(C.T @ C + delta * np.eye(n))
+        H[n:2 * n, 2 * n:], H[2 * n:, :n] = -(C.T @ D), D.T @ C
+        H[2 * n:, 2 * n:] = D.T @ D - gamma * gamma * np.eye(m)
     H[range(n, 2 * n), range(n, 2 * n)] = 1.0
     J[range(n), range(n)] = 1.0
     J[n:2 * n, n:2 * n], J[2 * n:, n:2 * n] = A.T, -B.T
@@ -694,7 +709,7 @@ def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
     if not np.isfinite(size).all():
         raise np.linalg.LinAlgError(f"the Riccati pencil at gamma = {gamma:g} has entries beyond double precision")
     np.fill_diagonal(size, 0.0)
-    e = np.log2(matrix_balance(size, permute=False, separate=True)[1][0])
+    e = np.log2(_balancing(size))
     d = 2.0 ** np.round(0.5 * (e[n:2 * n] - e[:n]))
     scale = np.concatenate([d, 1.0 / d, 2.0 ** e[2 * n:]])
     H, J = H * scale[:, None] / scale[None, :], J * scale[:, None] / scale[None, :]
