@@ -172,14 +172,16 @@ def reference_peak(A, B, C, D) -> float:
 
 
 def test_the_level_set_norm_meets_a_dense_sweep_on_random_systems():
-    """The level sets (no sweep) agree with a dense sweep zoomed into its peaks to 1e-9 on 300 random stable
-    systems, lightly damped poles and feedthrough among them: never below (the level gap is 1e-10), and never
-    above but by what a peak narrower than the grid's step hides from the sweep."""
+    """The level sets (no sweep) against a dense sweep zoomed into its peaks, on 300 random stable systems,
+    lightly damped poles and feedthrough among them: never below it by more than 1e-9 (the level gap is 1e-10),
+    and never above it but by rounding; with poles 1e-2 to 1e-6 from the circle, by what the sweep's zoom
+    misses of the top of a peak that narrow (1e-9 at most)."""
     rng = np.random.default_rng(20261203)
     for k in range(300):
         A, B, C, D = random_stable_system(rng, k % 3)
         value, reference = hinf_norm(A, B, C, D), reference_peak(A, B, C, D)
-        assert reference * (1.0 - 1e-9) <= value <= reference * (1.0 + 1e-9), (k, value, reference)
+        above = 1e-9 if k % 3 == 1 else 1e-13
+        assert reference * (1.0 - 1e-9) <= value <= reference * (1.0 + above), (k, value, reference)
 
 
 def test_the_level_set_norm_of_systems_at_the_edges():
