@@ -458,8 +458,9 @@ def hinf_norm(A, B, C, D) -> float:
     falls in an interval the response exceeds it: quadratic convergence near a peak), until no eigenvalue is on
     the circle (the norm is below that level) or the midpoints bring no increase (the level is at the peak to
     the rounding of the eigenvalues). Where the pencil's eigenvalues are undetermined or :data:`LEVELS` levels
-    do not settle it, the sweep :func:`_sweep_norm` (never below the levels' bound). A value below the true norm
-    is caught by the certificate's re-check.
+    do not settle it, the sweep :func:`_sweep_norm` (never below the levels' bound). The system is first brought
+    to the coordinates that balance ``A`` (:func:`_balanced`), where rounding leaves the pencil's eigenvalues in
+    their pairs; a value below the true norm is caught by the certificate's re-check.
     """
     A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
     Ab, Bb, Cb, _ = _balanced(A, B, C)
@@ -683,10 +684,11 @@ def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
 
         H = [[A, 0, B], [-Q, I, -S], [S', 0, R]],   J = [[I, 0, 0], [0, A', 0], [0, -B', 0]]
 
-    after a diagonal scaling ``diag(d, 1/d, e)`` in powers of 2 that keeps its structure (``d`` the geometric
-    mean of what :func:`_balancing` gives ``x`` and ``p``; Benner), the ``u`` columns deflated by an orthogonal
-    complement of ``[B; -S; R]``, and the ``n`` eigenvalues inside the unit circle ordered first
-    (``scipy.linalg.ordqz``).
+    after a diagonal scaling ``diag(d, 1/d, e)`` in powers of 2 that keeps its structure (Benner: with ``s`` the
+    balancing of the pencil's magnitudes, :func:`_balancing`, ``d = sqrt(s_p / s_x)`` rounded to a power of 2
+    and ``e = s_u``; ``X`` is ``diag(d)`` times the scaled pencil's ``X`` times ``diag(d)``), the ``u`` columns
+    deflated by an orthogonal complement of ``[B; -S; R]``, and the ``n`` eigenvalues inside the unit circle
+    ordered first (``scipy.linalg.ordqz``).
 
     Raises
     ------
@@ -727,7 +729,7 @@ def brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
     """The least certified l2 gain of ``eps+ = A eps + B v``, ``e = C eps + D v`` to :data:`NOISE_DIGITS`.
 
     The Riccati equation is solved in the coordinates that balance ``A`` (powers of 2, exact:
-    ``scipy.linalg.matrix_balance``), where a plant with gains of 1e6 still has an accurate solution, and its
+    :func:`_balancing`), where a plant with gains of 1e6 still has an accurate solution, and its
     ``X`` is mapped back; the checks are at the given matrices.
 
     Returns
