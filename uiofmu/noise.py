@@ -22,7 +22,8 @@ lemma at the card's stored matrices: with ``X > 0``::
 summed along a run gives ``||e||^2 <= gamma^2 ||v||^2 + eps_0' X eps_0``, so ``initial_term`` is
 ``sqrt(eig_max(X))``. Both inequalities are decided as the decay is (:func:`uiofmu.certificate.definite_check`:
 a verdict that no BLAS kernel's rounding can change). ``gamma`` is the H-infinity norm of the error
-system (a frequency sweep, zoomed into around its peaks), times ``1 + NOISE_MARGIN``, rounded up to
+system (:func:`hinf_norm`: the level sets of its symplectic pencil, within 1e-10 below the norm; a frequency
+sweep where the pencil's eigenvalues cannot be read), times ``1 + NOISE_MARGIN``, rounded up to
 :data:`NOISE_DIGITS` significant digits; ``X`` is the stabilising solution of the bounded real
 Riccati equation at that ``gamma`` (no solver). The card records the ``gamma`` the re-check proves.
 
@@ -45,7 +46,6 @@ coefficients' norms (:func:`peak_to_peak`).
 from __future__ import annotations
 
 import math
-import warnings
 from functools import partial
 
 import numpy as np
@@ -65,8 +65,14 @@ NOISE_DIGITS = 3
 #: Relative margin added to the H-infinity norm before it is rounded up and certified.
 NOISE_MARGIN = 1e-3
 
-#: Points of the frequency sweep on [0, pi] (besides the angles of the error system's poles).
+#: Points of the frequency sweep on [0, pi] (besides the angles of the error system's poles), where the level sets
+#: of :func:`hinf_norm` cannot be read.
 SWEEP_POINTS = 512
+
+#: The level sets of :func:`hinf_norm`: the level tried above the largest response found (relative: the norm is
+#: found to it), the relative distance from the unit circle within which an eigenvalue of its pencil counts as on
+#: it, and the most levels tried before the sweep decides.
+LEVEL_GAP, CIRCLE_TOL, LEVELS = 1e-10, 1e-6, 40
 
 #: Angles per bracket in each round of the stacked zoom around the sweep's peaks, and the bracket width it stops at.
 ZOOM_POINTS, ZOOM_WIDTH = 33, 1e-12
@@ -362,14 +368,14 @@ def section(gain_y=None, reason=None, gain_w=None, gain_dhat_y=None, **extra) ->
 def _response(A, B, C, D, w: np.ndarray) -> np.ndarray:
     """The largest singular value of ``C (e^{jw} I - A)^-1 B + D`` at each angle ``w``.
 
-    All angles at once: one stacked solve and one stacked SVD, the same LAPACK calls on the same numbers
-    as one angle at a time, so each value is the same to the last bit.
+    All angles at once: one stacked solve (``B`` broadcast along the stack) and one stacked SVD, the same LAPACK
+    calls on the same numbers as one angle at a time, so each value is the same to the last bit.
     """
     w = np.asarray(w, dtype=float)
     n = len(A)
     if n:
         Z = np.exp(1j * w)[:, None, None] * np.eye(n) - A
-        H = D + C @ np.linalg.solve(Z, np.broadcast_to(B, (len(w),) + B.shape))
+        H = D + C @ np.linalg.solve(Z, B.astype(complex))
     else:
         H = np.broadcast_to(D, (len(w),) + D.shape)
     if not (len(w) and H.shape[-2] and H.shape[-1]):
@@ -400,20 +406,125 @@ def _refine(A, B, C, D, lo: np.ndarray, hi: np.ndarray) -> float:
         hi = np.minimum(w[rows, np.minimum(j + 1, ZOOM_POINTS - 1)], np.pi)
 
 
-def hinf_norm(A, B, C, D) -> float:
-    """The H-infinity norm of the discrete system ``(A, B, C, D)`` (``A`` Schur stable).
-
-    A sweep of :data:`SWEEP_POINTS` angles on [0, pi] and the angles of the poles, then a stacked zoom
-    (:func:`_refine`) into the brackets of the three largest; a value below the true norm is caught by the
-    certificate's re-check.
-    """
-    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+def _sweep_norm(A, B, C, D) -> float:
+    """The largest :func:`_response` of a sweep of :data:`SWEEP_POINTS` angles on [0, pi] and the angles of the
+    poles, refined by a stacked zoom (:func:`_refine`) into the brackets of the three largest: where the
+    level sets of :func:`hinf_norm` cannot be read off its pencil."""
     poles = np.abs(np.angle(np.linalg.eigvals(A))) if len(A) else np.zeros(0)
     w = np.unique(np.concatenate([np.linspace(0.0, np.pi, SWEEP_POINTS), poles]))
     g = _response(A, B, C, D, w)
     step = np.pi / (SWEEP_POINTS - 1)
     top = w[np.argsort(g)[-3:]]
     return max(float(g.max()), _refine(A, B, C, D, np.maximum(top - step, 0.0), np.minimum(top + step, np.pi)))
+
+
+def _crossings(A, B, C, D, level: float):
+    """The angles in [0, pi] at which ``level`` is a singular value of ``G(e^{jw}) = C (e^{jw} I - A)^-1 B + D``:
+    the unit-circle eigenvalues ``z`` of the pencil ``M - z E`` (see :func:`hinf_norm`), for ``G / level`` at
+    level 1. None when the pencil leaves some eigenvalue undetermined (``alpha = beta = 0``: a singular pencil) or
+    not finite, or when its eigenvalues near the circle do not come in the pairs ``(z, 1 / conj(z))`` its
+    structure gives them to :data:`CIRCLE_TOL` (rounding has moved them too far to tell which are on it)."""
+    from scipy.linalg.lapack import dggev
+
+    n, m = B.shape
+    Bs, Cs, Ds = B, C / level, D / level
+    big_b, big_c = float(np.abs(B).max()), float(np.abs(Cs).max())
+    if big_b > 0.0 and big_c > 0.0:        # eps = c eps_s, c a power of 2: B and C / level of one size
+        c = math.ldexp(1.0, max(-1000, min(1000, round(0.5 * (math.log2(big_b) - math.log2(big_c))))))
+        Bs, Cs = B / c, Cs * c
+    M, E = np.zeros((2, 2 * n + m, 2 * n + m))
+    M[:n, :n], M[:n, 2 * n:], M[2 * n:, :n], M[2 * n:, n:2 * n] = A, Bs, Ds.T @ Cs, Bs.T
+    M[2 * n:, 2 * n:] = Ds.T @ Ds - np.eye(m)
+    M[range(n, 2 * n), range(n, 2 * n)] = 1.0
+    E[range(n), range(n)] = 1.0
+    E[n:2 * n, :n], E[n:2 * n, n:2 * n], E[n:2 * n, 2 * n:] = Cs.T @ Cs, A.T, Cs.T @ Ds
+    if not (np.isfinite(M).all() and np.isfinite(E).all()):
+        return None
+    re, im, beta, _, _, _, info = dggev(M, E, compute_vl=0, compute_vr=0, overwrite_a=1, overwrite_b=1)
+    alpha = re + 1j * im
+    a, b = np.abs(alpha), np.abs(beta)
+    if info != 0 or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))) or np.any(np.maximum(a, b) == 0.0):
+        return None
+    near = (a < 2.0 * b) & (b < 2.0 * a)
+    z = alpha[near] / beta[near]
+    on = np.abs(np.abs(z) - 1.0) <= CIRCLE_TOL
+    mirror = 1.0 / np.conj(z[~on])              # the eigenvalues off the circle come in pairs (z, 1 / conj(z))
+    if len(mirror) and np.any(np.abs(mirror[:, None] - z[None, :]).min(axis=1) > CIRCLE_TOL * np.abs(mirror)):
+        return None
+    return np.abs(np.angle(z[on]))
+
+
+def hinf_norm(A, B, C, D) -> float:
+    """The H-infinity norm of the discrete system ``(A, B, C, D)`` (``A`` Schur stable): a lower bound, the
+    largest singular value of ``G(e^{jw})`` at an angle found, within :data:`LEVEL_GAP` of the norm.
+
+    The level sets (Boyd and Balakrishnan; Bruinsma and Steinbuch): ``level`` is a singular value of
+    ``G(z) = C (zI - A)^-1 B + D`` at ``z = e^{jw}`` when ``level^2 u = G(z)^H G(z) u`` for some ``u != 0``; with
+    ``x = (zI - A)^-1 B u``, ``y = C x + D u`` and ``p`` the state of ``G(1/z)'`` fed ``y``, that is the pencil
+    ``M v = z E v`` in ``v = (x, p, u)``::
+
+        M = [[A, 0, B], [0, I, 0], [D'C, B', D'D - level^2 I]],   E = [[I, 0, 0], [C'C, A', C'D], [0, 0, 0]]
+
+    (for ``G / level`` at level 1, numbers near 1 whatever the gains). Its eigenvalues on the unit circle are the
+    angles where the response crosses ``level``. The largest response at ``0``, ``pi`` and the angles of the
+    poles is a first lower bound; then, at the level ``(1 + LEVEL_GAP)`` times the lower bound, the response at
+    the midpoints between the crossings (and the ends) is the next one (above the level wherever a midpoint
+    falls in an interval the response exceeds it: quadratic convergence near a peak), until no eigenvalue is on
+    the circle (the norm is below that level) or the midpoints bring no increase (the level is at the peak to
+    the rounding of the eigenvalues). Where the pencil's eigenvalues are undetermined or :data:`LEVELS` levels
+    do not settle it, the sweep :func:`_sweep_norm` (never below the levels' bound). The system is first brought
+    to the coordinates that balance ``A`` (:func:`_balanced`), where rounding leaves the pencil's eigenvalues in
+    their pairs; a value below the true norm is caught by the certificate's re-check.
+    """
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
+    Ab, Bb, Cb, _ = _balanced(A, B, C)
+    return _level_norm(Ab, Bb, Cb, D)
+
+
+def _balancing(A) -> np.ndarray:
+    """The diagonal scaling (powers of 2) that balances the rows and columns of ``A``, no permutation: LAPACK's
+    ``dgebal``, the call ``scipy.linalg.matrix_balance(A, permute=False)`` makes, without its wrappers."""
+    from scipy.linalg.lapack import dgebal
+
+    if not len(A):
+        return np.ones(0)
+    if not np.isfinite(A).all():
+        raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
+    _, lo, hi, scale, info = dgebal(A, scale=1, permute=0)
+    if info != 0 or (lo, hi) != (0, len(A) - 1) or not np.isfinite(scale).all():
+        raise np.linalg.LinAlgError(f"dgebal did not balance a {len(A)}x{len(A)} matrix (info {info})")
+    return np.asarray(scale, dtype=float)
+
+
+def _balanced(A, B, C) -> tuple:
+    """``(A, B, C)`` in the coordinates ``eps = diag(s) eps_b`` that balance ``A`` (:func:`_balancing`, powers of
+    2: exact, and the response is the same), and ``s``."""
+    s = _balancing(A)
+    return A * s[None, :] / s[:, None], B / s[:, None], C * s[None, :], s
+
+
+def _level_norm(A, B, C, D) -> float:
+    """:func:`hinf_norm` of a system whose ``A`` is balanced (:func:`_balanced`)."""
+    if not (B.shape[1] and C.shape[0]):
+        return 0.0
+    if not len(A):
+        return float(_response(A, B, C, D, np.zeros(1))[0])
+    poles = np.abs(np.angle(np.linalg.eigvals(A)))
+    best = float(_response(A, B, C, D, np.concatenate([[0.0, np.pi], poles])).max())
+    for _ in range(LEVELS):
+        if not (math.isfinite(best) and best > 0.0):
+            break
+        cross = _crossings(A, B, C, D, best * (1.0 + LEVEL_GAP))
+        if cross is None:
+            break
+        if not len(cross):
+            return best
+        edges = np.unique(np.concatenate([[0.0], np.minimum(cross, np.pi), [np.pi]]))
+        found = float(_response(A, B, C, D, 0.5 * (edges[1:] + edges[:-1])).max())
+        if not found > best:
+            return best
+        best = found
+    return max(best, _sweep_norm(A, B, C, D)) if math.isfinite(best) else _sweep_norm(A, B, C, D)
 
 
 def scaled_definite_check(name: str, Q: np.ndarray, terms: np.ndarray, length: int) -> Check:
@@ -433,11 +544,12 @@ def _brl_matrix(A, B, C, D, X_in, X_out, gamma: float) -> tuple:
     """The bounded real lemma's matrix of one step from storage ``X_in`` to ``X_out``, and its terms' sizes."""
     aA, aB, aC, aD, aI, aO = (np.abs(m) for m in (A, B, C, D, X_in, X_out))
     g2 = float(gamma) ** 2
-    eye = np.eye(B.shape[1])
-    Q = np.block([[X_in - A.T @ X_out @ A - C.T @ C, -(A.T @ X_out @ B + C.T @ D)],
-                  [-(B.T @ X_out @ A + D.T @ C), g2 * eye - B.T @ X_out @ B - D.T @ D]])
-    terms = np.block([[aI + aA.T @ aO @ aA + aC.T @ aC, aA.T @ aO @ aB + aC.T @ aD],
-                      [aB.T @ aO @ aA + aD.T @ aC, g2 * eye + aB.T @ aO @ aB + aD.T @ aD]])
+    n, eye = len(A), np.eye(B.shape[1])
+    Q, terms = np.empty((2, n + B.shape[1], n + B.shape[1]))
+    Q[:n, :n], Q[:n, n:] = X_in - A.T @ X_out @ A - C.T @ C, -(A.T @ X_out @ B + C.T @ D)
+    Q[n:, :n], Q[n:, n:] = -(B.T @ X_out @ A + D.T @ C), g2 * eye - B.T @ X_out @ B - D.T @ D
+    terms[:n, :n], terms[:n, n:] = aI + aA.T @ aO @ aA + aC.T @ aC, aA.T @ aO @ aB + aC.T @ aD
+    terms[n:, :n], terms[n:, n:] = aB.T @ aO @ aA + aD.T @ aC, g2 * eye + aB.T @ aO @ aB + aD.T @ aD
     return 0.5 * (Q + Q.T), terms
 
 
@@ -726,13 +838,52 @@ def _lemma_try(steps: list, solved: list, t: np.ndarray, storages: int, unit: fl
 
 def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
     """The stabilising solution of the bounded real Riccati equation at ``gamma``, with ``delta I`` added to
-    ``C'C`` (the strictness the re-check needs)."""
-    from scipy.linalg import solve_discrete_are
+    ``C'C`` (the strictness the re-check needs).
+
+    With ``Q = C'C + delta I``, ``R = D'D - gamma^2 I`` and ``S = C'D``, ``X`` solves
+    ``X = A'XA - (A'XB + S)(B'XB + R)^-1 (B'XA + S') + Q`` with ``A + B K`` Schur stable. It is read off the
+    stable deflating subspace ``[I; X] T`` of the extended pencil in ``(x, p, u)`` (Van Dooren)::
+
+        H = [[A, 0, B], [-Q, I, -S], [S', 0, R]],   J = [[I, 0, 0], [0, A', 0], [0, -B', 0]]
+
+    after a diagonal scaling ``diag(d, 1/d, e)`` in powers of 2 that keeps its structure (Benner: with ``s`` the
+    balancing of the pencil's magnitudes, :func:`_balancing`, ``d = sqrt(s_p / s_x)`` rounded to a power of 2
+    and ``e = s_u``; ``X`` is ``diag(d)`` times the scaled pencil's ``X`` times ``diag(d)``), the ``u`` columns
+    deflated by an orthogonal complement of ``[B; -S; R]``, and the ``n`` eigenvalues inside the unit circle
+    ordered first (``scipy.linalg.ordqz``).
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When the pencil is not finite, does not have ``n`` eigenvalues inside the circle, or its subspace is not a
+        graph.
+    """
+    from scipy.linalg import ordqz
 
     n, m = B.shape
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        X = solve_discrete_are(A, B, C.T @ C + delta * np.eye(n), D.T @ D - gamma * gamma * np.eye(m), s=C.T @ D)
+    H, J = np.zeros((2, 2 * n + m, 2 * n + m))
+    with np.errstate(all="ignore"):         # an overflow is refused below
+        H[:n, :n], H[:n, 2 * n:], H[n:2 * n, :n] = A, B, -(C.T @ C + delta * np.eye(n))
+        H[n:2 * n, 2 * n:], H[2 * n:, :n] = -(C.T @ D), D.T @ C
+        H[2 * n:, 2 * n:] = D.T @ D - gamma * gamma * np.eye(m)
+    H[range(n, 2 * n), range(n, 2 * n)] = 1.0
+    J[range(n), range(n)] = 1.0
+    J[n:2 * n, n:2 * n], J[2 * n:, n:2 * n] = A.T, -B.T
+    size = np.abs(H) + np.abs(J)
+    if not np.isfinite(size).all():
+        raise np.linalg.LinAlgError(f"the Riccati pencil at gamma = {gamma:g} has entries beyond double precision")
+    np.fill_diagonal(size, 0.0)
+    e = np.log2(_balancing(size))
+    d = 2.0 ** np.round(0.5 * (e[n:2 * n] - e[:n]))
+    scale = np.concatenate([d, 1.0 / d, 2.0 ** e[2 * n:]])
+    H, J = H * scale[:, None] / scale[None, :], J * scale[:, None] / scale[None, :]
+    q = np.linalg.qr(H[:, 2 * n:], mode="complete")[0][:, m:]
+    _, _, alpha, beta, _, Z = ordqz(q.T @ H[:, :2 * n], q.T @ J[:, :2 * n], sort="iuc", output="real",
+                                    check_finite=False)
+    if np.count_nonzero(np.abs(alpha) < np.abs(beta)) != n:
+        raise np.linalg.LinAlgError(f"the Riccati pencil at gamma = {gamma:g} has not {n} eigenvalues inside the "
+                                    "unit circle")
+    X = np.linalg.solve(Z[:n, :n].T, Z[n:, :n].T).T * d[:, None] * d[None, :]      # [I; X] spans [Z_11; Z_21]
     return 0.5 * (X + X.T)
 
 
@@ -740,23 +891,20 @@ def brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
     """The least certified l2 gain of ``eps+ = A eps + B v``, ``e = C eps + D v`` to :data:`NOISE_DIGITS`.
 
     The Riccati equation is solved in the coordinates that balance ``A`` (powers of 2, exact:
-    ``scipy.linalg.matrix_balance``), where a plant with gains of 1e6 still has an accurate solution, and its
+    :func:`_balancing`), where a plant with gains of 1e6 still has an accurate solution, and its
     ``X`` is mapped back; the checks are at the given matrices.
 
     Returns
     -------
     dict
         ``gamma`` (the gain the re-check proves), ``X``, ``initial_term`` (``sqrt(eig_max(X))``),
-        ``hinf_norm`` (the sweep's) and the checks; ``gamma`` None (with ``why``) when no try certifies.
+        ``hinf_norm`` (:func:`hinf_norm`'s) and the checks; ``gamma`` None (with ``why``) when no try certifies.
     """
-    from scipy.linalg import matrix_balance
-
     A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
-    norm = hinf_norm(A, B, C, D)
-    s = matrix_balance(A, permute=False, separate=True)[1][0] if len(A) else np.ones(0)
-    Ab, Bb, Cb = A * s[None, :] / s[:, None], B / s[:, None], C * s[None, :]      # eps = diag(s) eps_b
+    Ab, Bb, Cb, s = _balanced(A, B, C)                                          # eps = diag(s) eps_b
+    norm = _level_norm(Ab, Bb, Cb, D)
     # delta I added to C'C raises the gain by at most delta h^2 / (2 gamma), h = ||(zI - A)^-1 B||_inf.
-    h = hinf_norm(Ab, Bb, np.eye(len(A)), np.zeros_like(B))
+    h = _level_norm(Ab, Bb, np.eye(len(A)), np.zeros_like(B))
     gamma = round_up(max(norm, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
     for _ in range(TRIES):
         delta = (0.1 * (gamma - norm) * gamma) / max(h * h, 1e-300) if gamma > norm else 0.0

@@ -31,8 +31,14 @@ VERSION = 1
 REQUIRED = ("format", "version", "family", "name", "dims", "time", "dt", "schedule", "matrices",
             "initial", "certificate", "problem")
 
+#: The types ``to_lists`` returns as they are (exactly these: numpy's float64 is a float too, and is converted).
+_PLAIN = frozenset((str, int, float, bool, type(None)))
+
+
 def to_lists(value):
     """Arrays (and complex numbers) to nested lists of floats, recursively."""
+    if type(value) in _PLAIN:                       # most leaves: nothing to convert
+        return value
     if isinstance(value, np.ndarray):
         return value.tolist() if value.dtype.kind in "biuf" else to_lists(value.tolist())
     if isinstance(value, dict):
