@@ -492,13 +492,13 @@ def _rank_deficient(seed, n=4, p=2, q=2):
     return A, B, C, E, L
 
 
-def _hidden_mode(seed, m=3, p=2, q=1):
-    """A mode at 1.1 that no output sees, driven by the other states and driving none: the decoupled pair is not
+def _hidden_mode(seed, m=3, p=2, q=1, mode=1.1):
+    """A mode (at 1.1) that no output sees, driven by the other states and driving none: the decoupled pair is not
     detectable, while the functional of the other states never sees that mode."""
     rng = np.random.default_rng(seed)
     A1 = rng.normal(size=(m, m))
     A1 /= 1.2 * np.max(np.abs(np.linalg.eigvals(A1)))
-    A = np.block([[A1, np.zeros((m, 1))], [rng.normal(size=(1, m)), np.array([[1.1]])]])
+    A = np.block([[A1, np.zeros((m, 1))], [rng.normal(size=(1, m)), np.array([[mode]])]])
     B, E = rng.normal(size=(m + 1, 1)), np.vstack([rng.normal(size=(m, q)), np.zeros((1, q))])
     C = np.hstack([rng.normal(size=(p, m)), np.zeros((p, 1))])
     L = np.hstack([rng.normal(size=(1, m)), np.zeros((1, 1))])
@@ -558,6 +558,21 @@ def test_check_design_verify_without_full_uio(tmp_path, make, seed):
     assert card.data["spectral_radius_N"] < card.data["decay_bound"] == 0.7
     assert all(c.holds for c in uiofmu.verify(card))
     assert run_cli("verify", tmp_path / "card.json").code == 0
+
+
+def test_functional_observer_faster_than_the_full_state_fixed_mode(tmp_path):
+    """The hidden mode at 0.9: the full-state observer exists but cannot decay faster than 0.9; the functional
+    observer, which never sees that mode, is checked, designed and verified at decay 0.7."""
+    A, B, C, E, L = _hidden_mode(0, mode=0.9)
+    path = tmp_path / "p.toml"
+    path.write_text(to_toml(_problem(A, B, C, E, L)), encoding="utf-8")
+    res = run_cli("check", path)
+    assert res.code == 0 and "functional observer of order 1 (searched 1..4)" in res.out, res.err
+    assert "requested decay 0.7 <= largest fixed mode modulus 0.9: " in res.out and fu.NOT_REQUIRED in res.out
+    assert run_cli("design", path, "-o", tmp_path / "card.json").code == 0
+    card = read_card(tmp_path / "card.json")
+    assert card.data["spectral_radius_N"] < card.data["decay_bound"] == 0.7
+    assert all(c.holds for c in uiofmu.verify(card))
 
 
 def test_neither_observer_is_refused_with_its_numbers(tmp_path):
