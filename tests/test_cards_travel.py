@@ -20,7 +20,8 @@ ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = [ROOT / "examples" / f"{n}.toml" for n in ("seed000_example1", "seed000_example1_ltv",
                                                        "seed000_example2_consistent", "seed001_example",
                                                        "seed002_setup2", "seed002_three_modes", "seed003_example",
-                                                       "seed003_needs_theta", "functional_uio")] + \
+                                                       "seed003_needs_theta", "functional_uio",
+                                                       "functional_without_full_uio")] + \
     [ROOT / "plants" / n / "problem.toml" for n in ("quarter_car", "two_room_building")]
 #: Plants of our own where rounding decides the last digits: two unknown inputs nearly collinear
 #: (cond(CE) = 7e6, so M = -E (CE)^+ moves by 1.2e-9 between Prescott or Sandybridge and the default

@@ -42,6 +42,26 @@ def test_functional_uio_example(cli, tmp_path):
     assert m["bound_respected"] is True and m["final_error_norm"] < 1e-6 * m["initial_error_norm"]
 
 
+def test_functional_without_full_uio_example(cli, tmp_path):
+    """examples/functional_without_full_uio.toml end to end: rank(CE) < rank(E) told as not required, check finds
+    order 1, design writes it, the C FMU's zhat meets Lf x of the plant's state within the certified bound."""
+    path = EXAMPLES / "functional_without_full_uio.toml"
+    res = cli("check", path)
+    assert res.code == 0 and "functional observer of order 1 (searched 1..4)" in res.out, res.err
+    assert "rank(CE) = 1 < rank(E) = 2" in res.out and "not required for a functional observer" in res.out
+    assert cli("design", path, "-o", tmp_path / "card.json").code == 0
+    card = json.loads((tmp_path / "card.json").read_text())
+    assert card["order"] == card["dims"]["nz"] == 1 and card["dims"]["nf"] == 1
+    assert cli("verify", tmp_path / "card.json").code == 0
+    assert cli("plant", path, "-o", tmp_path / "plant.fmu").code == 0
+    assert cli("build", tmp_path / "card.json", "-o", tmp_path / "obs.fmu").code == 0
+    res = cli("cosim", "--plant", tmp_path / "plant.fmu", "--observer", tmp_path / "obs.fmu", "--out", tmp_path / "run",
+              "--no-report")
+    assert res.code == 0, res.err
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["bound_respected"] is True and m["final_error_norm"] < 1e-6 * m["initial_error_norm"]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("script,outputs", [
     ("seed000_example1.py", ["figure1_classical.png", "report.png", "metrics.json"]),

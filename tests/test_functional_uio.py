@@ -2,7 +2,9 @@
 matching identities at rounding level, the decay certified and re-checked, ``zhat - L x`` within the certified
 bound whatever the unknown input, the least order found below ``n`` where one exists, and bad functionals refused;
 their cards (``observer.functional``: ``order``, ``Lf``, ``zhat``) designed, re-checked by ``verify`` (an edited one
-fails), built on both backends and co-simulated within the certified bound."""
+fails), built on both backends and co-simulated within the certified bound; and where no observer of the whole state
+exists (``rank(CE) < rank(E)``, or an undetectable decoupled mode the functional does not see), the functional
+observer checked, designed, verified and co-simulated, and a plant with neither refused with its numbers."""
 
 from __future__ import annotations
 
@@ -473,6 +475,152 @@ def test_design_refusals_name_the_condition(tmp_path, edit, words):
     path.write_text(to_toml(doc), encoding="utf-8")
     res = run_cli("design", path, "-o", tmp_path / "card.json")
     assert res.code == 2 and words in res.err, res.err
+
+
+# -- where no observer of the whole state exists ---------------------------------------------------------------
+def _rank_deficient(seed, n=4, p=2, q=2):
+    """``rank(CE) = 1 < rank(E) = 2`` (one output sees ``E d``, the other reads a direction ``E`` does not reach),
+    and ``L E`` in the span of ``CE``: no full-state UIO, the functional decoupling holds."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(n, n))
+    A /= 1.2 * np.max(np.abs(np.linalg.eigvals(A)))
+    B, E = rng.normal(size=(n, 1)), rng.normal(size=(n, q))
+    unreached = np.linalg.svd(E.T)[2][q:]                  # rows w with w E = 0
+    c1 = rng.normal(size=n)
+    C = np.vstack([c1] + [rng.normal(size=n - q) @ unreached for _ in range(p - 1)])
+    L = (rng.normal() * c1 + rng.normal(size=n - q) @ unreached)[None, :]
+    return A, B, C, E, L
+
+
+def _hidden_mode(seed, m=3, p=2, q=1, mode=1.1):
+    """A mode (at 1.1) that no output sees, driven by the other states and driving none: the decoupled pair is not
+    detectable, while the functional of the other states never sees that mode."""
+    rng = np.random.default_rng(seed)
+    A1 = rng.normal(size=(m, m))
+    A1 /= 1.2 * np.max(np.abs(np.linalg.eigvals(A1)))
+    A = np.block([[A1, np.zeros((m, 1))], [rng.normal(size=(1, m)), np.array([[mode]])]])
+    B, E = rng.normal(size=(m + 1, 1)), np.vstack([rng.normal(size=(m, q)), np.zeros((1, q))])
+    C = np.hstack([rng.normal(size=(p, m)), np.zeros((p, 1))])
+    L = np.hstack([rng.normal(size=(1, m)), np.zeros((1, 1))])
+    return A, B, C, E, L
+
+
+#: Seeded plants with no full-state UIO and a functional one at decay 0.7: rank(CE) < rank(E), or an undetectable
+#: decoupled mode the functional does not see.
+NO_FULL_UIO = [(_rank_deficient, 3), (_rank_deficient, 5), (_rank_deficient, 8), (_hidden_mode, 0), (_hidden_mode, 4)]
+
+
+def _problem(A, B, C, E, L, name="functional-no-full-uio", decay=0.7) -> dict:
+    return {"name": name, "plant": {"time": "discrete", "dt": 0.1, "A": A.tolist(), "B": B.tolist(), "E": E.tolist(),
+                                    "C": C.tolist(), "x0": np.linspace(1.0, -1.0, A.shape[0]).tolist()},
+            "observer": {"family": "lti-uio", "decay": decay, "functional": L.tolist()}}
+
+
+@pytest.mark.parametrize("make, seed", NO_FULL_UIO, ids=lambda v: getattr(v, "__name__", str(v)))
+def test_functional_observer_where_no_full_uio_exists(make, seed):
+    """The full-state conditions fail (rank(CE) < rank(E), or a fixed mode at 1.1), yet the analysis finds the
+    functional observer, its design decouples (T E = 0, T A - N T = J C, R T + Q C = L) and decays inside 0.7,
+    and ``zhat - L x`` stays within the certified bound under a large unknown input."""
+    from uiofmu.decoupling import fixed_modes_condition, rank_condition
+
+    A, B, C, E, L = make(seed)
+    full = rank_condition(C, E)
+    assert not full.holds or not fixed_modes_condition(A, E, C)[0].holds
+    existence = uiofmu.check(problem_from_data(_problem(A, B, C, E, L)))
+    assert existence.exists
+    assert not any(c.required for c in existence.conditions if c.name != "functional observer order")
+    design = fu.design(A, B, C, E, L, 0.7)
+    assert design.order == existence.value("functional observer order", "order") < A.shape[0]
+    assert all(c.holds for c in fu.checks(design, A, B, C, E, L))
+    size = max(1.0, np.linalg.norm(design.T, 2)) * max(1.0, np.linalg.norm(A, 2), np.linalg.norm(design.N, 2))
+    assert np.linalg.norm(design.T @ E) <= 1e-10 * size * np.linalg.norm(E, 2)
+    assert np.linalg.norm(design.T @ A - design.N @ design.T - design.J @ C) <= 1e-10 * size * max(
+        1.0, np.linalg.norm(design.J, 2))
+    assert np.linalg.norm(design.R @ design.T + design.Q @ C - L) <= 1e-10 * size * max(1.0, np.linalg.norm(design.Q))
+    assert np.abs(np.linalg.eigvals(design.N)).max() < 0.7
+    worst, last = _simulate(design, A, B, C, E, L, seed)
+    assert worst <= 0.0 and last < 1e-6
+
+
+@pytest.mark.parametrize("make, seed", NO_FULL_UIO[::3], ids=lambda v: getattr(v, "__name__", str(v)))
+def test_check_design_verify_without_full_uio(tmp_path, make, seed):
+    """``check`` exits 0 with the functional order, the failed full-state condition told as not required; the
+    card designed, marked verified and re-checked by ``verify``."""
+    A, B, C, E, L = make(seed)
+    path = tmp_path / "p.toml"
+    path.write_text(to_toml(_problem(A, B, C, E, L)), encoding="utf-8")
+    res = run_cli("check", path)
+    assert res.code == 0 and "functional observer of order 1 (searched 1..4)" in res.out, res.err
+    assert f"({fu.NOT_REQUIRED})" in res.out
+    assert run_cli("design", path, "-o", tmp_path / "card.json").code == 0
+    card = read_card(tmp_path / "card.json")
+    assert card.data["order"] == card.data["dims"]["nz"] == 1 and card.data["certificate"]["verified"] is True
+    assert card.data["spectral_radius_N"] < card.data["decay_bound"] == 0.7
+    assert all(c.holds for c in uiofmu.verify(card))
+    assert run_cli("verify", tmp_path / "card.json").code == 0
+
+
+def test_functional_observer_faster_than_the_full_state_fixed_mode(tmp_path):
+    """The hidden mode at 0.9: the full-state observer exists but cannot decay faster than 0.9; the functional
+    observer, which never sees that mode, is checked, designed and verified at decay 0.7."""
+    A, B, C, E, L = _hidden_mode(0, mode=0.9)
+    path = tmp_path / "p.toml"
+    path.write_text(to_toml(_problem(A, B, C, E, L)), encoding="utf-8")
+    res = run_cli("check", path)
+    assert res.code == 0 and "functional observer of order 1 (searched 1..4)" in res.out, res.err
+    assert "requested decay 0.7 <= largest fixed mode modulus 0.9: " in res.out and fu.NOT_REQUIRED in res.out
+    assert run_cli("design", path, "-o", tmp_path / "card.json").code == 0
+    card = read_card(tmp_path / "card.json")
+    assert card.data["spectral_radius_N"] < card.data["decay_bound"] == 0.7
+    assert all(c.holds for c in uiofmu.verify(card))
+
+
+def test_neither_observer_is_refused_with_its_numbers(tmp_path):
+    """rank(CE) < rank(E) and the functional's own conditions failing: ``check`` and ``design`` exit 2,
+    both naming the failed functional conditions with their numbers (order 1's fixed mode, the decoupling of the
+    completions)."""
+    A, B, C, E, L = _rank_deficient(0)
+    path = tmp_path / "p.toml"
+    path.write_text(to_toml(_problem(A, B, C, E, L)), encoding="utf-8")
+    res = run_cli("check", path)
+    assert res.code == 2, res.out + res.err
+    assert "no functional observer of order 1..4 at decay 0.7" in res.out
+    assert "order 1: largest fixed mode of the functional error |8.81538| >= decay 0.7" in res.out
+    assert "order 2: rank [CE; LE] = 2 > rank CE = 1" in res.out
+    res = run_cli("design", path, "-o", tmp_path / "card.json")
+    assert res.code == 2 and "order 1: largest fixed mode of the functional error |8.81538| >= decay 0.7" in res.err
+    assert not (tmp_path / "card.json").exists()
+
+
+NO_FULL = EXAMPLES / "functional_without_full_uio.toml"
+
+
+@pytest.fixture(scope="module")
+def no_full_fmus(tmp_path_factory):
+    d = tmp_path_factory.mktemp("no_full_uio")
+    assert run_cli("design", NO_FULL, "--out", d / "card.json").code == 0
+    assert run_cli("plant", NO_FULL, "-o", d / "plant.fmu").code == 0
+    for backend in ("c", "python"):
+        res = run_cli("build", d / "card.json", "-o", d / f"obs_{backend}.fmu", "--backend", backend)
+        assert res.code == 0, res.err
+    return d
+
+
+@pytest.mark.parametrize("backend", ["c", "python"])
+def test_no_full_uio_example_cosimulates_within_the_bound(no_full_fmus, backend):
+    """The example with rank(CE) = 1 < rank(E) = 2: its order-1 card has no invariant zeros (no decoupled pair),
+    and both FMUs, run by fmpy against the plant FMU, keep ``zhat`` within the card's bound on ``Lf x``, down by
+    1e-6 over the run, with both unknown inputs acting."""
+    d = no_full_fmus
+    card = read_card(d / "card.json")
+    assert card.data["order"] == 1 and "invariant_zeros" not in card.data
+    res = run_cli("cosim", "--plant", d / "plant.fmu", "--observer", d / f"obs_{backend}.fmu", "--t-end", "6",
+                  "--steps", "uniform:0.1:0.1", "--out", d / f"run_{backend}", "--no-report")
+    assert res.code == 0, res.err
+    metrics = json.loads((d / f"run_{backend}" / "metrics.json").read_text())
+    assert metrics["bound_respected"] is True
+    assert metrics["initial_error_norm"] > 0.1
+    assert metrics["final_error_norm"] < 1e-6 * metrics["initial_error_norm"]
 
 
 if __name__ == "__main__":

@@ -11,7 +11,8 @@ with ``e = z - T x`` (``T``: ``k x n``) has ``e+ = N e + (N T + J C - T A) x + (
 
 **Order r** (``R = I``, ``T = L - Q C``). ``T E = 0`` reads ``Q (C E) = L E``: it is solvable iff
 ``rank [C E; L E] = rank (C E)`` (*functional decoupling*), with ``Q = L E (CE)^+ + Z Pi``,
-``Pi = I - CE (CE)^+`` and ``Z`` free. Then ``T = L P - Z Pi C`` with ``P = I - E (CE)^+ C`` (``P E = 0``), and
+``Pi = I - CE (CE)^+`` and ``Z`` free. Then ``T = L P - Z Pi C`` with ``P = I - E (CE)^+ C`` (``L P E = 0``:
+``L E`` lies in the row space of ``CE``, so ``L E (CE)^+ CE = L E``), and
 ``T A - N T = J C`` becomes, with ``K = J - N Z Pi``, the equation linear in ``(N, Z, K)``::
 
     L P A = [N  Z  K] Phi,      Phi = [L P; Pi C A; C]
@@ -25,6 +26,17 @@ see is inside ``rho`` (*functional detectability*, with the margin ``ZERO_MARGIN
 condition; the role of Darouach's condition on ``[s L P - L P A; Phi]``). ``Y`` is the Riccati gain of
 :func:`uiofmu.structure.decay_gain`; then ``Z = Omega_2 - Y beta_2``, ``K = Omega_3 - Y beta_3``,
 ``J = K + N Z Pi``, ``Q = L E (CE)^+ + Z Pi``, ``H = T B``.
+
+**Without a full-state observer.** Nothing above reads ``rank(CE) = rank(E)`` or the decoupled pair of the
+full-state observer: ``P E = 0`` needs ``rank(CE) = rank(E)``, ``L P E = 0`` only the functional decoupling, and the
+matching and the fixed modes are written on ``L P``, ``Pi C A`` and ``C``. Each condition is also necessary for its
+order (``R = I``): every ``Q`` with ``Q CE = L E`` and every ``[N Z K]`` solving the matching are of the forms
+above, so ``N`` ranges over ``Omega_1 - Y beta_1`` and no other ``N`` exists. So an observer of ``L x`` exists
+where none of ``x`` does: an unknown input that reaches only states ``L x`` does not depend on
+(``rank(CE) < rank(E)``), a fixed mode of the decoupled pair outside the decay that the functional error does not
+see. Only order ``n`` (``F = I``: ``rank [CE; E] =
+rank CE`` is ``rank(CE) = rank(E)``) brings the full-state conditions back; lti-uio with ``observer.functional``
+decides on these conditions alone and tells the full-state ones as notes (:func:`informational`).
 
 **The order.** Order ``r`` is tried with ``L``; then ``L`` completed, one direction at a time, by the rows of
 ``L (P A)^j`` it does not span (orders ``r+1, r+2, ...``; ``R = [I 0]`` reads ``L x`` off the first ``r``
@@ -52,7 +64,7 @@ error: ``||zhat_k - Lf x_k|| <= overshoot_bound rho^k ||x_0 - xhat0||`` with
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -386,7 +398,7 @@ def card_design(problem, analysis, name: str, schedule: dict, noise_section):
         "overshoot_digits": UNDETERMINED,       # ||Zx||, ||Xz|| read the chosen solution of the matching equation
         "bound": BOUND,
         "fixed_modes": complex_list(analysis.data["fixed"]),
-        "invariant_zeros": analysis.existence.value("stable invariant zeros", "zeros"),
+        **full_state_zeros(analysis.existence),
         "eigenvalues_N": complex_list(eigN),
         "spectral_radius_N": float(np.abs(eigN).max()) if eigN.size else 0.0,
         "design_method": "riccati (functional error)",
@@ -417,6 +429,27 @@ def parse_option(table, plant) -> np.ndarray | None:
             raise ProblemError(f"observer.functional: observer.{key} {why}, which the functional observer does not "
                                f"use: remove observer.{key}")
     return L
+
+
+#: What the full-state unknown-input observer's conditions say under ``observer.functional``.
+NOT_REQUIRED = "the full-state observer's condition, not required for a functional observer"
+
+
+def informational(conditions: list) -> list[Condition]:
+    """The full-state observer's conditions, told but not required: a functional observer exists on conditions of
+    its own (:func:`analysis_conditions`), which ``rank(CE) = rank(E)`` and a detectable decoupled pair are not.
+    A failing one says so in its message (its hint, which would make the full-state observer exist, dropped)."""
+    return [c if not c.required else replace(c, required=False) if c.holds else
+            replace(c, required=False, hint="", message=f"{c.message} ({NOT_REQUIRED})") for c in conditions]
+
+
+def full_state_zeros(existence) -> dict:
+    """``{"invariant_zeros": ...}``, the zeros the full-state conditions computed (a card's figure), or nothing
+    where ``rank(CE) < rank(E)`` left them out (no decoupled pair, nothing the functional observer reads)."""
+    names = [c.name for c in existence.conditions]
+    if "stable invariant zeros" not in names:
+        return {}
+    return {"invariant_zeros": existence.value("stable invariant zeros", "zeros")}
 
 
 def analysis_conditions(A, C, E, L, rho: float) -> list[Condition]:

@@ -56,7 +56,9 @@ state from ``y``; the construction, its checks and its bound are in :mod:`uiofmu
 
 **Functional** (``observer.functional = L``): the observer of least order (among those searched) estimating the
 functionals ``L x`` whatever ``d``, its conditions in the analysis and its card (``order``, ``dims.nf``, ``Lf``,
-output ``zhat``) from :mod:`uiofmu.functional_uio`.
+output ``zhat``) from :mod:`uiofmu.functional_uio`. Its conditions alone decide: the conditions above, which an
+observer of the whole state needs, are told as notes (a functional observer exists where ``rank(CE) < rank(E)``
+or the decoupled pair is not detectable, when ``L x`` does not see what fails).
 """
 
 from __future__ import annotations
@@ -277,7 +279,8 @@ def _analysis(problem):
             "that mode, ask for a slower decay or decay = \"max\"",
             {"decay": opts.decay, "largest_fixed_modulus": largest},
             hint="" if ok else _decay_hint(largest)))
-    if opts.functional is not None and decouplable and detectable(conds):
+    if opts.functional is not None:      # the functional conditions decide; the full-state ones are told
+        conds = functional_uio.informational(conds)
         conds.extend(functional_uio.analysis_conditions(s.A, plant.C, s.E, opts.functional,
                                                         1.0 if opts.decay == "max" else float(opts.decay)))
     return Existence(NAME, tuple(conds)), s, fixed
@@ -687,9 +690,9 @@ def figures_of(analysis: Analysis, card_data: dict, problem) -> dict:
     full = opts.order == "full" and opts.functional is None
     lmi = str(card_data.get("design_method")).startswith("lmi") and full
     kind = opts.scaling if full else "none"     # the reduced pair and the functional error are solved unscaled
+    zeros = functional_uio.full_state_zeros(analysis.existence)     # absent only where rank(CE) < rank(E)
     return {"fixed_modes": computed_values(analysis.data["fixed"], size, n),
-            "invariant_zeros": computed_values(from_pairs(analysis.existence.value("stable invariant zeros", "zeros")),
-                                               size, n),
+            **{k: computed_values(from_pairs(v), size, n) for k, v in zeros.items()},
             "eigenvalues_N": spectrum(N), "spectral_radius_N": spectrum(N, "radius"),
             "scaling": scaling_data(state_scaling(plant.A, opts.scaling) if lmi else np.ones(n), kind)}
 
