@@ -90,6 +90,7 @@ EXAMPLES = (
     Example("accelerometer-feedthrough", "examples/accelerometer_feedthrough.toml"),
     Example("pole-placement", "examples/pole_placement.toml"),
     Example("reduced-order-carts", "examples/reduced_order.toml"),
+    Example("functional-uio", "examples/functional_uio.toml"),
     Example("seed000-example1-ltv", "examples/seed000_example1_ltv.toml"),
     Example("two-room-building", "plants/two_room_building/problem.toml"),
     Example("quarter-car", "plants/quarter_car/problem.toml"),
@@ -737,10 +738,11 @@ def _ecospy(observer: Row, plant: Row, paths: dict, card, ours) -> str:
     spec = observer.experiment
     K = observer.limited.get("ecospy") or int(round(spec["stopTime"] / spec["stepSize"]))
     kernel = cosim_kernel(card)
-    estimate = kernel.estimate
+    Lf = card.matrices.get("Lf")                  # a functional observer's zhat estimates Lf x
+    estimate = kernel.estimate if Lf is None else "zhat"
     run = run_ecospy(paths[plant.file], paths[observer.file], spec["stepSize"], K, default_inputs(card),
                      estimate=estimate)
-    T, X, E = run.times, run.x, run.xhat
+    T, X, E = run.times, run.x if Lf is None else run.x @ np.asarray(Lf, dtype=float).T, run.xhat
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(E)) and np.ptp(E) > 0):
         raise RuntimeError("the estimate is not finite or never moved")
     if T.shape != ours.times.shape or not np.allclose(T, ours.times, rtol=1e-12, atol=0.0):
