@@ -103,6 +103,17 @@ def run_cli(*argv: str) -> Result:
     return Result(code, out.getvalue(), err.getvalue())
 
 
+def built_with_both_backends(problem, folder):
+    """``uiofmu design`` of the problem file into ``folder/card.json``, its plant FMU ``folder/plant.fmu`` and its
+    observer built by each backend (``folder/obs_c.fmu``, ``folder/obs_python.fmu``); returns ``folder``."""
+    assert run_cli("design", problem, "--out", folder / "card.json").code == 0
+    assert run_cli("plant", problem, "-o", folder / "plant.fmu").code == 0
+    for backend in ("c", "python"):
+        res = run_cli("build", folder / "card.json", "-o", folder / f"obs_{backend}.fmu", "--backend", backend)
+        assert res.code == 0, res.err
+    return folder
+
+
 @pytest.fixture
 def cli():
     return run_cli

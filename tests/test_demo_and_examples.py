@@ -24,34 +24,14 @@ def test_demo(cli, tmp_path):
         assert (tmp_path / "demo" / name).stat().st_size > 0
 
 
-def test_functional_uio_example(cli, tmp_path):
-    """examples/functional_uio.toml end to end: check finds order 3, design writes it, the C FMU's zhat meets Lf x
-    of the plant's state within the certified bound."""
-    path = EXAMPLES / "functional_uio.toml"
-    res = cli("check", path)
-    assert res.code == 0 and "functional observer of order 3 (searched 1..5)" in res.out, res.err
+def _functional_end_to_end(cli, path, tmp_path, order: int) -> str:
+    """check, design, verify, plant, build (C) and cosim of a functional problem file: the card of ``order``, the C
+    FMU's zhat against Lf x of the plant's state within the certified bound and down by 1e-6; ``check``'s output."""
+    checked = cli("check", path)
+    assert checked.code == 0, checked.err
     assert cli("design", path, "-o", tmp_path / "card.json").code == 0
     card = json.loads((tmp_path / "card.json").read_text())
-    assert card["order"] == card["dims"]["nz"] == 3 and card["dims"]["nf"] == 1
-    assert cli("plant", path, "-o", tmp_path / "plant.fmu").code == 0
-    assert cli("build", tmp_path / "card.json", "-o", tmp_path / "obs.fmu").code == 0
-    res = cli("cosim", "--plant", tmp_path / "plant.fmu", "--observer", tmp_path / "obs.fmu", "--out", tmp_path / "run",
-              "--no-report")
-    assert res.code == 0, res.err
-    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
-    assert m["bound_respected"] is True and m["final_error_norm"] < 1e-6 * m["initial_error_norm"]
-
-
-def test_functional_without_full_uio_example(cli, tmp_path):
-    """examples/functional_without_full_uio.toml end to end: rank(CE) < rank(E) told as not required, check finds
-    order 1, design writes it, the C FMU's zhat meets Lf x of the plant's state within the certified bound."""
-    path = EXAMPLES / "functional_without_full_uio.toml"
-    res = cli("check", path)
-    assert res.code == 0 and "functional observer of order 1 (searched 1..4)" in res.out, res.err
-    assert "rank(CE) = 1 < rank(E) = 2" in res.out and "not required for a functional observer" in res.out
-    assert cli("design", path, "-o", tmp_path / "card.json").code == 0
-    card = json.loads((tmp_path / "card.json").read_text())
-    assert card["order"] == card["dims"]["nz"] == 1 and card["dims"]["nf"] == 1
+    assert card["order"] == card["dims"]["nz"] == order and card["dims"]["nf"] == 1
     assert cli("verify", tmp_path / "card.json").code == 0
     assert cli("plant", path, "-o", tmp_path / "plant.fmu").code == 0
     assert cli("build", tmp_path / "card.json", "-o", tmp_path / "obs.fmu").code == 0
@@ -60,6 +40,22 @@ def test_functional_without_full_uio_example(cli, tmp_path):
     assert res.code == 0, res.err
     m = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert m["bound_respected"] is True and m["final_error_norm"] < 1e-6 * m["initial_error_norm"]
+    return checked.out
+
+
+def test_functional_uio_example(cli, tmp_path):
+    """examples/functional_uio.toml end to end: check finds order 3, design writes it, the C FMU's zhat meets Lf x
+    of the plant's state within the certified bound."""
+    out = _functional_end_to_end(cli, EXAMPLES / "functional_uio.toml", tmp_path, 3)
+    assert "functional observer of order 3 (searched 1..5)" in out
+
+
+def test_functional_without_full_uio_example(cli, tmp_path):
+    """examples/functional_without_full_uio.toml end to end: rank(CE) < rank(E) told as not required, check finds
+    order 1, design writes it, the C FMU's zhat meets Lf x of the plant's state within the certified bound."""
+    out = _functional_end_to_end(cli, EXAMPLES / "functional_without_full_uio.toml", tmp_path, 1)
+    assert "functional observer of order 1 (searched 1..4)" in out
+    assert "rank(CE) = 1 < rank(E) = 2" in out and "not required for a functional observer" in out
 
 
 @pytest.mark.slow

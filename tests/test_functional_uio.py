@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import uiofmu  # noqa: E402
 from cfmu import NEEDS_CC, check_sanitized, random_calls, script_main  # noqa: E402
-from tests.conftest import EXAMPLES, run_cli  # noqa: E402
+from tests.conftest import EXAMPLES, built_with_both_backends, run_cli  # noqa: E402
 from uiofmu import functional_uio as fu  # noqa: E402
 from uiofmu.cosim.fmi import Fmu  # noqa: E402
 from uiofmu.problem import problem_from_data, to_toml  # noqa: E402
@@ -259,13 +259,7 @@ FUNCTIONAL_H = 0.1
 
 @pytest.fixture(scope="module")
 def example_fmus(tmp_path_factory):
-    d = tmp_path_factory.mktemp("functional")
-    assert run_cli("design", FUNCTIONAL, "--out", d / "card.json").code == 0
-    assert run_cli("plant", FUNCTIONAL, "-o", d / "plant.fmu").code == 0
-    for backend in ("c", "python"):
-        res = run_cli("build", d / "card.json", "-o", d / f"obs_{backend}.fmu", "--backend", backend)
-        assert res.code == 0, res.err
-    return d
+    return built_with_both_backends(FUNCTIONAL, tmp_path_factory.mktemp("functional"))
 
 
 def test_example_card_records_order_three(example_fmus):
@@ -597,13 +591,7 @@ NO_FULL = EXAMPLES / "functional_without_full_uio.toml"
 
 @pytest.fixture(scope="module")
 def no_full_fmus(tmp_path_factory):
-    d = tmp_path_factory.mktemp("no_full_uio")
-    assert run_cli("design", NO_FULL, "--out", d / "card.json").code == 0
-    assert run_cli("plant", NO_FULL, "-o", d / "plant.fmu").code == 0
-    for backend in ("c", "python"):
-        res = run_cli("build", d / "card.json", "-o", d / f"obs_{backend}.fmu", "--backend", backend)
-        assert res.code == 0, res.err
-    return d
+    return built_with_both_backends(NO_FULL, tmp_path_factory.mktemp("no_full_uio"))
 
 
 @pytest.mark.parametrize("backend", ["c", "python"])

@@ -22,7 +22,7 @@ from uiofmu.problem import problem_from_data, to_toml  # noqa: E402
 from uiofmu.runtime.card import read_card  # noqa: E402
 from uiofmu.runtime.errors import ProblemError  # noqa: E402
 from uiofmu.runtime.observer import Runtime  # noqa: E402
-from tests.conftest import EXAMPLES, run_cli  # noqa: E402
+from tests.conftest import EXAMPLES, built_with_both_backends, run_cli  # noqa: E402
 
 EXAMPLE = EXAMPLES / "reduced_order.toml"
 #: The example's period.
@@ -142,13 +142,7 @@ def test_full_order_is_the_default():
 
 @pytest.fixture(scope="module")
 def example_fmus(tmp_path_factory):
-    d = tmp_path_factory.mktemp("reduced")
-    assert run_cli("design", EXAMPLE, "--out", d / "card.json").code == 0
-    assert run_cli("plant", EXAMPLE, "-o", d / "plant.fmu").code == 0
-    for backend in ("c", "python"):
-        res = run_cli("build", d / "card.json", "-o", d / f"obs_{backend}.fmu", "--backend", backend)
-        assert res.code == 0, res.err
-    return d
+    return built_with_both_backends(EXAMPLE, tmp_path_factory.mktemp("reduced"))
 
 
 @pytest.mark.parametrize("backend", ["c", "python"])
