@@ -300,6 +300,21 @@ def test_noise_gain_of_zhat_is_respected(example_fmus):
     assert "zhat_noisy[1]" in header
 
 
+@pytest.mark.parametrize("noise", [None, "y=0.01,4"])
+def test_report_draws_a_functional_run_again_from_its_files(example_fmus, tmp_path, noise):
+    """``uiofmu report DIR`` of a functional run (``zhat_true[i]``, ``zhat[i]``, with noise ``zhat_noisy[i]``) draws
+    the very figure ``cosim`` drew."""
+    d, out = example_fmus, tmp_path / "run"
+    res = run_cli("cosim", "--plant", d / "plant.fmu", "--observer", d / "obs_c.fmu", "--t-end", "3", "--out", out,
+                  *(["--noise", noise] if noise else []))
+    assert res.code == 0, res.err
+    drawn = (out / "report.png").read_bytes()
+    (out / "report.png").unlink()
+    res = run_cli("report", out)
+    assert res.code == 0, res.err
+    assert (out / "report.png").read_bytes() == drawn
+
+
 @pytest.mark.parametrize("backend", ["c", "python"])
 def test_a_random_plant_cosimulates_within_its_bound(tmp_path, backend):
     """A seeded plant nobody wrote (6 states, 3 outputs, 2 functionals, process noise through W): designed, built,

@@ -639,7 +639,8 @@ def _read_results(path) -> dict:
     numbers in every row, a column ``time`` increasing from 0 and ``h`` its steps, at least one step.
     The table is CSV, or the binary ``.npz`` or ``.parquet`` of ``uiofmu cosim --format``."""
     columns = _binary_columns(path) if path.suffix in (".npz", ".parquet") else _csv_columns(path)
-    for name in ("time", "h", "x[1]"):
+    truth = "zhat_true[1]" if "zhat[1]" in columns else "x[1]"      # a functional affine observer's: Lf x
+    for name in ("time", "h", truth):
         if name not in columns:
             raise ProblemError(f"{path}: no column {name} (a table written by `uiofmu cosim` has one)")
     t, h = columns["time"], columns["h"][:-1]
@@ -737,7 +738,9 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
     computed again (:func:`~uiofmu.cosim.result.run_result`) from them and the design's numbers in ``metrics``
     (read from ``where``)."""
     T, H = columns["time"], columns["h"][:-1]
-    X, XH, D, DH = (_vector(columns, n, path) for n in ("x", "xhat", "d", "dhat"))
+    estimate = "zhat" if "zhat[1]" in columns else "xhat"      # a functional affine observer: zhat against Lf x
+    X, XH, D, DH = (_vector(columns, n, path) for n in (("zhat_true", "zhat") if estimate == "zhat" else ("x", "xhat"))
+                    + ("d", "dhat"))
     Y, U = _vector(columns, "y", path), _vector(columns, "u", path)
     args = [T, H, X, XH, Y, U, D, _vector(columns, "r", path), DH]
     names = metrics.get("plant_labels", {})
@@ -754,7 +757,8 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
     if "gx_valid" in columns:                            # a functional observer
         return run_result(*args, mode=mode, names=names, **_functional_run(columns, path, metrics, where))
     if X.shape != XH.shape:                              # every observer but the functional one estimates x
-        raise ProblemError(f"{path}: {X.shape[1]} columns x[i] but {XH.shape[1]} columns xhat[i]")
+        true, est = ("zhat_true", "zhat") if estimate == "zhat" else ("x", "xhat")
+        raise ProblemError(f"{path}: {X.shape[1]} columns {true}[i] but {XH.shape[1]} columns {est}[i]")
     if "valid" in columns and "sigma_min" in columns:    # a delayed observer
         return run_result(*args, names=names, delayed=_delayed_run(columns, path, metrics, where))
     bound = columns.get("bound")
@@ -764,6 +768,7 @@ def _result_from_table(columns: dict, path, metrics: dict, where):
         overshoot = _number(metrics, ("certified_overshoot",), where, optional=True)
     result = run_result(*args, bound=bound, decay=decay, overshoot=overshoot, mode=mode, names=names,
                         roundoff=_roundoff(metrics, where) if bound is not None else None)
+    result.estimate = estimate
     return _with_noise(result, columns, path, metrics, where)
 
 
@@ -784,7 +789,7 @@ def _with_noise(result, columns: dict, path, metrics: dict, where):
     section = metrics.get("noise")
     if "v[1]" not in columns or not isinstance(section, dict) or "std" not in section:
         return result
-    v, estimate = _vector(columns, "v", path), _vector(columns, "xhat_noisy", path)
+    v, estimate = _vector(columns, "v", path), _vector(columns, f"{result.estimate}_noisy", path)
     level = section.get("effective_std", section["std"])
     std = np.asarray(level, dtype=float) if isinstance(level, list) else None
     if estimate.shape != result.x.shape or std is None or std.shape != (v.shape[1],):
