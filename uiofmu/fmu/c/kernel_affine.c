@@ -465,8 +465,9 @@ static int check_design_data(const UiofmuDesign *d, char *msg, size_t len) {
             return uiofmu_design_error(msg, len, "matrix Xu (the direct term of u in xhat) needs a constant schedule, "
                                        "found a %s one", KIND[d->kind]);
         if ((w == M_Zx || w == M_Lf) && d->kind != UIOFMU_CONSTANT)
-            return uiofmu_design_error(msg, len, "matrix Zx (the first step's z_0 = Zx (xhat0 - Xy y_0)) needs a "
-                                       "constant schedule, found a %s one", KIND[d->kind]);
+            return uiofmu_design_error(msg, len, "matrix %s (%s) needs a constant schedule, found a %s one",
+                                       MATRIX_NAME[w], w == M_Zx ? "the first step's z_0 = Zx (xhat0 - Xy y_0)"
+                                                                 : "the functionals zhat estimates", KIND[d->kind]);
         if (w == M_C || d->kind == UIOFMU_CONSTANT) want = 1;
         else if (d->kind == UIOFMU_INTERVAL) want = (size_t)d->nintervals * (w == M_N || w == M_L ? (size_t)d->nintervals : 1);
         else if (d->kind == UIOFMU_MODE) want = (size_t)d->modes * (w == M_N || w == M_L ? (size_t)d->modes : 1);
