@@ -625,6 +625,19 @@ def pair_error_system(matrices: dict) -> tuple:
     return N, -L, np.repeat(np.eye(n)[None], modes, axis=0), -Xy
 
 
+def pair_process_error_system(matrices: dict) -> tuple:
+    """The error system from process noise ``w`` (held over the step: ``x+ = ... + W_i w``, ``W_i`` the card's
+    ``W_sampled`` of this step's mode or interval) of a runtime stepping on pairs, as stacks for
+    :func:`switched_brl_checks`: ``eps+ = N_ij eps + (I - Xy_i C) W_i w``, ``e = eps`` (``eps = (I - Xy_j C) x - z``
+    is the error itself without output noise; the family's identities make every other input cancel, as in
+    :func:`pair_error_system`)."""
+    N, Xy, C, W = (np.asarray(matrices[k], dtype=float) for k in ("N", "Xy", "C", "W_sampled"))
+    modes, n = N.shape[0], N.shape[-1]
+    B = (np.eye(n)[None] - Xy @ C) @ W                                  # (modes, n, r): this step's i
+    return (N, np.repeat(B[:, None], modes, axis=1), np.repeat(np.eye(n)[None], modes, axis=0),
+            np.zeros((modes, n, W.shape[-1])))
+
+
 def dhat_error_step(N, L, Xz, Xy, Dy, Yx) -> tuple:
     """The error of ``dhat`` from output noise ``v`` over one step of an affine runtime, as a system one step
     ahead.
@@ -680,24 +693,37 @@ def pair_dhat_error_system(matrices: dict) -> tuple:
 
 def pair_section(matrices: dict, reasons: list) -> dict:
     """The ``noise`` section of a card whose runtime steps on pairs (modes or intervals): ``gain_y``
-    (:func:`pair_error_system`) and, where the card has dhat's matrices, ``gain_dhat_y``
-    (:func:`pair_dhat_error_system`), each by the poly-quadratic lemma for every sequence; ``reasons`` says why the
-    family has no other gain (``gain_w``)."""
+    (:func:`pair_error_system`), ``gain_w`` where the card has ``W_sampled`` (:func:`pair_process_error_system`) and,
+    where it has dhat's matrices, ``gain_dhat_y`` (:func:`pair_dhat_error_system`), each by the poly-quadratic lemma
+    for every sequence; ``reasons`` says why the card has no ``gain_w`` where it has none."""
     gain, extra, why = certified(*pair_error_system(matrices), switched=True)
-    said = ([why] if why else []) + list(reasons)
+    said = [why] if why else []
+    gain_w = None
+    if matrices.get("W_sampled") is not None and np.shape(matrices["W_sampled"])[-1]:
+        gain_w, extra_w, why_w = certified(*pair_process_error_system(matrices), key="gain_w", switched=True)
+        extra.update(extra_w)
+        said += [why_w] if why_w else []
+    else:
+        said += list(reasons)
     gain_dhat = None
     if matrices.get("Dy") is not None:
         gain_dhat, extra_dhat, why_dhat = certified(*pair_dhat_error_system(matrices), key="gain_dhat_y",
                                                     switched=True, balanced=True)
         extra.update(extra_dhat)
         said += [why_dhat] if why_dhat else []
-    return section(gain, "; ".join(said) or None, gain_dhat_y=gain_dhat, **extra)
+    return section(gain, "; ".join(said) or None, gain_w=gain_w, gain_dhat_y=gain_dhat, **extra)
 
 
 def pair_checks(noise, matrices: dict) -> list:
     """The re-check of the gains of :func:`pair_section` at a card's stored matrices; a ``gain_dhat_y`` claimed by
     a card without dhat's matrices fails."""
     out = recheck(noise, *pair_error_system(matrices), switched=True)
+    if isinstance(noise, dict) and noise.get("gain_w") is not None:
+        if matrices.get("W_sampled") is None:
+            out.append(Check("noise.gain_w claimed by a card without the sampled process noise (matrix W_sampled "
+                             "present)", 0.0, 1.0, at_most=False))
+        else:
+            out += recheck(noise, *pair_process_error_system(matrices), key="gain_w", switched=True)
     if not isinstance(noise, dict) or noise.get("gain_dhat_y") is None:
         return out
     return out + (dhat_missing(matrices) or
@@ -1185,5 +1211,6 @@ __all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_cer
            "certificate_key", "certified", "continuous_brl_certificate", "continuous_brl_checks",
            "dhat_error_step", "dhat_missing", "fir_system", "gain_text", "hinf_norm", "initial_check",
            "lemma_certificate", "lemma_checks", "noise_design_lines", "noise_lines", "pair_checks",
-           "pair_dhat_error_system", "pair_error_system", "pair_section", "peak_to_peak", "recheck",
+           "pair_dhat_error_system", "pair_error_system", "pair_process_error_system", "pair_section",
+           "peak_to_peak", "recheck",
            "scaled_definite_check", "section", "stated", "switched_brl_certificate", "switched_brl_checks"]

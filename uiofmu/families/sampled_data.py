@@ -103,7 +103,7 @@ from . import Analysis, DesignResult
 NAME = "sampled-data"
 
 #: What a sampled-data card's noise section says of the gains it has not.
-NO_W = "gain_w: not certified for this family (process noise acts between the samples)"
+NO_W = "gain_w: the problem declares no process noise"
 
 
 @dataclass(frozen=True)
@@ -662,9 +662,16 @@ def error_system(matrices: dict) -> tuple:
     return pair_error_system(matrices)
 
 
+def sampled_noise(plant, intervals) -> np.ndarray:
+    """``W`` sampled at each design interval (the noise held over the interval, as ``E``): ``W_sampled[i]``."""
+    return np.array([plant.sampled_noise(h) for h in intervals])
+
+
 def noise_of(matrices: dict) -> dict:
-    """The card's ``noise`` section: ``gain_y`` and, where the card has dhat, ``gain_dhat_y``, for every sequence
-    of design intervals (:func:`uiofmu.noise.pair_section`).
+    """The card's ``noise`` section: ``gain_y``, ``gain_w`` where the problem declares ``[plant] W`` (the error
+    ``eps+ = L_ij eps + (I - K_i C) W_i w``, ``W_i`` sampled at the interval ``h_k``: by (13) and (12) every other
+    input cancels, :func:`uiofmu.noise.pair_process_error_system`) and, where the card has dhat, ``gain_dhat_y``,
+    for every sequence of design intervals (:func:`uiofmu.noise.pair_section`).
 
     dhat after the interval ``h_k`` (index ``i``, after ``j``) is ``dhat_(k+1) = Dy_i (y_(k+1) - Yx_i xhat_k -
     Yu_i u_k)`` with the plant sampled at ``h_k`` (``Dy_i = (C E_i)^+``, ``Yx_i = C A_i``, ``Yu_i = C B_i``) and
@@ -701,7 +708,11 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
         alpha = {"alpha": Determined(1.0 - decay * decay, 1.0)}
     else:                                                   # a fixed alpha is the card's
         alpha = {"alpha": float(opts.alpha), "decay_bound": float(np.sqrt(1.0 - opts.alpha))}
-    noise = {"noise.norm": "l2", "noise.gain_w": None}            # gain_y and gain_dhat_y: verify re-checks them
+    noise = {"noise.norm": "l2"}                       # gain_y, gain_w and gain_dhat_y: verify re-checks them
+    if plant.r:
+        mats["W_sampled"] = sampled_noise(plant, opts.intervals)
+    else:
+        noise["noise.gain_w"] = None
     if mats["Dy"] is None:
         noise["noise.gain_dhat_y"] = None
     return {**noise, "dt": None, "schedule": _schedule(opts), "bound": BOUND, "intervals": list(opts.intervals),
@@ -972,6 +983,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
     if not existence.holds("rank(C E(h)) = q"):
         for k in ("Dy", "Yx", "Yu", "Yc"):
             matrices.pop(k)
+    if problem.plant.r:
+        matrices["W_sampled"] = sampled_noise(problem.plant, opts.intervals)
     cert = certificate(sol, checks(matrices, decay), f"{NAME} design of {problem.name}")
     zeros = existence.value("stable sampled invariant zeros", "per_interval")
     diagonal = matrices["N"][np.arange(N), np.arange(N)]            # L_ii: a constant interval
