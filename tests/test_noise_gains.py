@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import tomllib
 import sys
 from pathlib import Path
 
@@ -585,6 +586,43 @@ def test_an_ltv_cards_dhat_gain_holds_along_its_schedule(ltv_card):
     forged = copy.deepcopy(card.data)
     forged["noise"].pop("certificate_dhat_y")
     _refused(forged, "noise.gain_dhat_y claimed without its certificate")
+
+
+def test_an_ltv_cards_process_noise_gain_holds_along_its_schedule(example1_path):
+    """gain_w of the LTV observer with [plant] W: the next point's Xy reads alpha a, affine in (a, a^2) too, so one X
+    at the vertices holds along the schedule: at least the limit observer's peak, re-checked, and two loops (one
+    plant driven by w, one without) give errors whose difference stays under gain_w ||w|| from k = 0; a card with
+    the gain lowered, or claiming it without W_sampled, is refused."""
+    from uiofmu.families.ltv_auid import noise_steps
+
+    doc = tomllib.loads((example1_path.parent / "seed000_example1_ltv.toml").read_text())
+    doc["plant"]["W"] = [[1.0], [0.5]]
+    card = uiofmu.design(problem_from_data(doc))
+    gain, alpha = card.data["noise"]["gain_w"], card.data["alpha"]
+    limit = sweep_peak(*noise_steps(card.data["matrices"], alpha=alpha)[0][:4], 4001)
+    assert limit <= gain <= 10 * limit
+    assert all(c.holds for c in recheck(card_from_data(json.loads(card.to_json()))))
+    m = card.data["matrices"]
+    As, Bs, Es, Cs, Ws = (np.asarray(m[k], dtype=float) for k in ("A_sampled", "B_sampled", "E_sampled", "C",
+                                                                  "W_sampled"))
+    rng = np.random.default_rng(23)
+    for steps in (30, 500):
+        w = rng.normal(size=(steps, Ws.shape[1]))
+        x = x_twin = rng.normal(size=len(As))
+        noisy, twin = Runtime(card), Runtime(card)
+        diff = []
+        for k in range(steps):
+            u, d = rng.normal(size=Bs.shape[1]), rng.normal(size=Es.shape[1])
+            noisy.set_y(Cs @ x), noisy.set_u(u), twin.set_y(Cs @ x_twin), twin.set_u(u)
+            diff.append((x - noisy.xhat()) - (x_twin - twin.xhat()))
+            noisy.step(card.dt), twin.step(card.dt)
+            x, x_twin = As @ x + Bs @ u + Es @ d + Ws @ w[k], As @ x_twin + Bs @ u + Es @ d
+        assert np.linalg.norm(diff) <= gain * np.linalg.norm(w)
+    for edit, words in ((lambda d: d["noise"].update(gain_w=0.5 * limit), "bounded real lemma"),
+                        (lambda d: d["matrices"].pop("W_sampled"), "W_sampled")):
+        forged = copy.deepcopy(card.data)
+        edit(forged)
+        _refused(forged, words)
 
 
 def test_a_long_window_states_the_sum_of_its_coefficients_norms():

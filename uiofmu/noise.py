@@ -719,23 +719,26 @@ def pair_checks(noise, matrices: dict) -> list:
     a card without dhat's matrices fails."""
     out = recheck(noise, *pair_error_system(matrices), switched=True)
     if isinstance(noise, dict) and noise.get("gain_w") is not None:
-        if matrices.get("W_sampled") is None:
-            out.append(Check("noise.gain_w claimed by a card without the sampled process noise (matrix W_sampled "
-                             "present)", 0.0, 1.0, at_most=False))
-        else:
-            out += recheck(noise, *pair_process_error_system(matrices), key="gain_w", switched=True)
+        out += (claimed_without("gain_w", matrices, ("W_sampled",), "the sampled process noise") or
+                recheck(noise, *pair_process_error_system(matrices), key="gain_w", switched=True))
     if not isinstance(noise, dict) or noise.get("gain_dhat_y") is None:
         return out
     return out + (dhat_missing(matrices) or
                   recheck(noise, *pair_dhat_error_system(matrices), key="gain_dhat_y", switched=True))
 
 
-def dhat_missing(matrices: dict) -> list:
-    """The failed check of a ``gain_dhat_y`` claimed by a card without dhat's matrices ``Dy``, ``Yx``; none else."""
-    if any(matrices.get(k) is None for k in ("Dy", "Yx")):
-        return [Check("noise.gain_dhat_y claimed by a card without dhat (matrices Dy, Yx present)", 0.0, 1.0,
+def claimed_without(key: str, matrices: dict, names: tuple, what: str) -> list:
+    """The failed check of a gain ``noise.<key>`` claimed by a card without the matrices ``names`` its error system
+    is made of (``what`` they are); none where the card has them."""
+    if any(matrices.get(k) is None for k in names):
+        return [Check(f"noise.{key} claimed by a card without {what} (matrices {', '.join(names)} present)", 0.0, 1.0,
                       at_most=False)]
     return []
+
+
+def dhat_missing(matrices: dict) -> list:
+    """:func:`claimed_without` of ``gain_dhat_y``: dhat's matrices ``Dy``, ``Yx``."""
+    return claimed_without("gain_dhat_y", matrices, ("Dy", "Yx"), "dhat")
 
 
 def switched_brl_certificate(A, B, C, D, label: str = "gain_y", balanced: bool = False) -> dict:
@@ -1208,7 +1211,7 @@ def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
 
 
 __all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks",
-           "certificate_key", "certified", "continuous_brl_certificate", "continuous_brl_checks",
+           "certificate_key", "certified", "claimed_without", "continuous_brl_certificate", "continuous_brl_checks",
            "dhat_error_step", "dhat_missing", "fir_system", "gain_text", "hinf_norm", "initial_check",
            "lemma_certificate", "lemma_checks", "noise_design_lines", "noise_lines", "pair_checks",
            "pair_dhat_error_system", "pair_error_system", "pair_process_error_system", "pair_section",

@@ -67,14 +67,14 @@ from ..existence import Condition, Existence, complex_list, format_complex, from
 from ..lmi import Lmi, LmiSystem, held_margin, tune
 from ..structure import unobservable_modes
 from ..runtime.tolerances import LMI_MARGIN, SEARCH_TOL, ZERO_MARGIN
-from ..noise import dhat_error_step, dhat_missing, hinf_norm, lemma_certificate, recheck, stated
+from ..noise import claimed_without, dhat_error_step, dhat_missing, hinf_norm, lemma_certificate, recheck, stated
 from ..noise import section as noise_section
 from . import Analysis, DesignResult
 
 NAME = "ltv-auid"
 
 #: What an ltv-auid card's noise section says of the gains it has not.
-NO_W = "gain_w: not certified for this family"
+NO_W = "gain_w: the problem declares no process noise"
 
 #: The vertices in ``(a, b)`` of a triangle that holds ``(alpha^k, alpha^2k)`` for every k: ``b = a^2`` on [0, 1]
 #: lies above ``b = 0`` and ``b = 2a - 1`` (its tangents at 0 and 1) and below ``b = a``.
@@ -315,10 +315,10 @@ def verify(card) -> list:
     claims."""
     d = card.data
     return (checks(d) + [overshoot_check(d["overshoot_bound"], [d["matrices"]["X"]])]
-            + noise_checks(d.get("noise"), d["matrices"]))
+            + noise_checks(d.get("noise"), d["matrices"], float(d["alpha"])))
 
 
-def noise_steps(matrices: dict, dhat: bool = False) -> list:
+def noise_steps(matrices: dict, dhat: bool = False, alpha: float | None = None) -> list:
     """The error system from output noise at the stored matrices, at the vertices :data:`NOISE_VERTICES`.
 
     The runtime's matrices are polynomials in ``a = alpha^k`` of degree at most 2 (``N``, ``L``, ``Xy``, with
@@ -330,6 +330,11 @@ def noise_steps(matrices: dict, dhat: bool = False) -> list:
     With ``dhat``, the error of dhat (:func:`uiofmu.noise.dhat_error_step`: ``dhat_k - d_k = Dy (Yx e_k +
     v_(k+1))``, a system one step ahead whose state ``(eps_k, v_k)`` steps by ``N(a), L(a)`` and whose output
     ``Dy Yx [I, -Xy(a)]`` reads the same ``a = alpha^k``; ``Dy``, ``Yx`` are constant): affine in ``(a, b)`` too.
+
+    With ``alpha``, the error from process noise ``w`` (held over the step, ``x+ = ... + W_sampled w``): with
+    ``y`` noise-free, ``e_k = (I - Xy(a) C) x_k - z_k`` and the certificate's identities leave
+    ``e+ = N(a) e + (I - Xy(alpha a) C) W_sampled w``: the next point's ``Xy`` reads ``alpha a``, whose
+    coefficients ``alpha^j c_j`` keep it affine in ``(a, b)``.
     """
     g = {k: np.asarray(matrices[k], dtype=float) for k in ("N", "L", "Xy") + (("Dy", "Yx") if dhat else ())}
     if any(len(c) > 3 for c in g.values()):
@@ -341,20 +346,34 @@ def noise_steps(matrices: dict, dhat: bool = False) -> list:
 
     def system(a, b):
         N, L, Xy = (at(g[k], a, b) for k in ("N", "L", "Xy"))
+        if alpha is not None:
+            C, W = (np.asarray(matrices[k], dtype=float) for k in ("C", "W_sampled"))
+            following = at([c * alpha ** j for j, c in enumerate(g["Xy"])], a, b)      # Xy(alpha a)
+            return N, (np.eye(n) - following @ C) @ W, np.eye(n), np.zeros((n, W.shape[1]))
         return dhat_error_step(N, L, np.eye(n), Xy, at(g["Dy"], a, b), at(g["Yx"], a, b)) if dhat else \
             (N, -L, np.eye(n), -Xy)
 
     return [(*system(a, b), 0, 0, f"at (a, a^2) = ({a:g}, {b:g})") for a, b in NOISE_VERTICES]
 
 
-def noise_of(matrices: dict) -> dict:
+def noise_of(matrices: dict, alpha: float) -> dict:
     """The card's ``noise`` section: ``gain_y`` along the whole schedule (:func:`noise_steps`), its least value by
     :func:`uiofmu.noise.lemma_certificate` with one ``X``, scaled by the limit observer's gain (``a = 0``; the gain
-    along the schedule is at least that); ``gain_dhat_y`` alike where the card has dhat."""
+    along the schedule is at least that); ``gain_w`` where the problem declares ``W`` and ``gain_dhat_y`` where the
+    card has dhat, alike."""
     method = "bounded real lemma with one X at the vertices of (alpha^k, alpha^2k)"
     steps = noise_steps(matrices)
     gain, extra, why = stated(lemma_certificate(steps, 1, hinf_norm(*steps[0][:4])), method)
-    reasons = ([why] if why else []) + [NO_W]
+    reasons = [why] if why else []
+    gain_w = None
+    if matrices.get("W_sampled") is not None and np.shape(matrices["W_sampled"])[1]:
+        steps = noise_steps(matrices, alpha=alpha)
+        gain_w, extra_w, why_w = stated(lemma_certificate(steps, 1, hinf_norm(*steps[0][:4]), "gain_w"), method,
+                                        key="gain_w")
+        extra.update(extra_w)
+        reasons += [why_w] if why_w else []
+    else:
+        reasons.append(NO_W)
     gain_dhat = None
     if matrices.get("Dy") is not None:
         steps = noise_steps(matrices, dhat=True)
@@ -363,13 +382,16 @@ def noise_of(matrices: dict) -> dict:
                                                  method, key="gain_dhat_y")
         extra.update(extra_dhat)
         reasons += [why_dhat] if why_dhat else []
-    return noise_section(gain, "; ".join(reasons), gain_dhat_y=gain_dhat, **extra)
+    return noise_section(gain, "; ".join(reasons) or None, gain_w=gain_w, gain_dhat_y=gain_dhat, **extra)
 
 
-def noise_checks(noise, matrices: dict) -> list:
-    """The re-check of the gains of :func:`noise_of` at a card's stored matrices; a ``gain_dhat_y`` claimed by a
-    card without dhat's matrices fails."""
+def noise_checks(noise, matrices: dict, alpha: float) -> list:
+    """The re-check of the gains of :func:`noise_of` at a card's stored matrices; a ``gain_w`` claimed by a card
+    without ``W_sampled``, or a ``gain_dhat_y`` by one without dhat's matrices, fails."""
     out = recheck(noise, None, None, None, None, steps=noise_steps(matrices))
+    if isinstance(noise, dict) and noise.get("gain_w") is not None:
+        out += (claimed_without("gain_w", matrices, ("W_sampled",), "the sampled process noise") or
+                recheck(noise, None, None, None, None, key="gain_w", steps=noise_steps(matrices, alpha=alpha)))
     if not isinstance(noise, dict) or noise.get("gain_dhat_y") is None:
         return out
     return out + (dhat_missing(matrices) or
@@ -422,7 +444,11 @@ def determined(problem, card_data, analysis: Analysis) -> dict:
                                                  two(A1), n),
                "eigenvalues_N_k0": spectrum(A1 - T1 @ C), "eigenvalues_N_inf": spectrum(A2 - T2 @ C),
                "norm_MCE": Determined(two(MCE), two(M) * two(C) * two(s.E))}
-    noise = {"noise.norm": "l2", "noise.gain_w": None}            # gain_y and gain_dhat_y: verify re-checks them
+    noise = {"noise.norm": "l2"}                       # gain_y, gain_w and gain_dhat_y: verify re-checks them
+    if problem.plant.r:
+        mats["W_sampled"] = problem.plant.sampled_noise(opts.dt)
+    else:
+        noise["noise.gain_w"] = None
     if poly["Dy"] is None:
         noise["noise.gain_dhat_y"] = None
     return {**noise, "dt": opts.dt, "schedule": _schedule(opts), "bound": BOUND, "alpha": opts.alpha, "eta": opts.eta,
@@ -507,6 +533,8 @@ def design(problem, analysis: Analysis) -> DesignResult:
         "eigenvalues_N_inf": complex_list(np.linalg.eigvals(A2 - T2 @ C)),
         "norm_MCE": float(np.linalg.norm(M @ C @ s.E, 2)),
         "search": searched,
-        "noise": noise_of(matrices),
     })
+    if plant.r:
+        matrices["W_sampled"] = plant.sampled_noise(opts.dt)
+    results["noise"] = noise_of(matrices, opts.alpha)
     return DesignResult(plant.n, opts.dt, _schedule(opts), matrices, cert, results, (system, least), opts.xhat0)
