@@ -691,27 +691,33 @@ def pair_dhat_error_system(matrices: dict) -> tuple:
     return tuple(np.array([[step[part] for step in row] for row in steps]) for part in range(4))
 
 
-def pair_section(matrices: dict, reasons: list) -> dict:
+def gains_section(matrices: dict, y, w, dhat, no_w: str) -> dict:
+    """A ``noise`` section of the gains certified by ``y()``, ``w()`` and ``dhat()`` (each ``(gain, extra, why)``,
+    :func:`stated`): ``w`` where the card has ``W_sampled`` with a column, ``dhat`` where it has dhat's ``Dy``; ``no_w``
+    says why a card without ``W_sampled`` has no ``gain_w``."""
+    gain, extra, why = y()
+    reasons, gains = [why] if why else [], {"gain_w": None, "gain_dhat_y": None}
+    has = {"gain_w": matrices.get("W_sampled") is not None and np.shape(matrices["W_sampled"])[-1] > 0,
+           "gain_dhat_y": matrices.get("Dy") is not None}
+    for key, certify in (("gain_w", w), ("gain_dhat_y", dhat)):
+        if has[key]:
+            gains[key], more, why = certify()
+            extra.update(more)
+            reasons += [why] if why else []
+        elif key == "gain_w":
+            reasons.append(no_w)
+    return section(gain, "; ".join(reasons) or None, **gains, **extra)
+
+
+def pair_section(matrices: dict, no_w: str) -> dict:
     """The ``noise`` section of a card whose runtime steps on pairs (modes or intervals): ``gain_y``
     (:func:`pair_error_system`), ``gain_w`` where the card has ``W_sampled`` (:func:`pair_process_error_system`) and,
     where it has dhat's matrices, ``gain_dhat_y`` (:func:`pair_dhat_error_system`), each by the poly-quadratic lemma
-    for every sequence; ``reasons`` says why the card has no ``gain_w`` where it has none."""
-    gain, extra, why = certified(*pair_error_system(matrices), switched=True)
-    said = [why] if why else []
-    gain_w = None
-    if matrices.get("W_sampled") is not None and np.shape(matrices["W_sampled"])[-1]:
-        gain_w, extra_w, why_w = certified(*pair_process_error_system(matrices), key="gain_w", switched=True)
-        extra.update(extra_w)
-        said += [why_w] if why_w else []
-    else:
-        said += list(reasons)
-    gain_dhat = None
-    if matrices.get("Dy") is not None:
-        gain_dhat, extra_dhat, why_dhat = certified(*pair_dhat_error_system(matrices), key="gain_dhat_y",
-                                                    switched=True, balanced=True)
-        extra.update(extra_dhat)
-        said += [why_dhat] if why_dhat else []
-    return section(gain, "; ".join(said) or None, gain_w=gain_w, gain_dhat_y=gain_dhat, **extra)
+    for every sequence (:func:`gains_section`)."""
+    return gains_section(
+        matrices, lambda: certified(*pair_error_system(matrices), switched=True),
+        lambda: certified(*pair_process_error_system(matrices), key="gain_w", switched=True),
+        lambda: certified(*pair_dhat_error_system(matrices), key="gain_dhat_y", switched=True, balanced=True), no_w)
 
 
 def pair_checks(noise, matrices: dict) -> list:
@@ -1212,7 +1218,7 @@ def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
 
 __all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks",
            "certificate_key", "certified", "claimed_without", "continuous_brl_certificate", "continuous_brl_checks",
-           "dhat_error_step", "dhat_missing", "fir_system", "gain_text", "hinf_norm", "initial_check",
+           "dhat_error_step", "dhat_missing", "fir_system", "gain_text", "gains_section", "hinf_norm", "initial_check",
            "lemma_certificate", "lemma_checks", "noise_design_lines", "noise_lines", "pair_checks",
            "pair_dhat_error_system", "pair_error_system", "pair_process_error_system", "pair_section",
            "peak_to_peak", "recheck",

@@ -98,7 +98,7 @@ from ..existence import Condition, Existence, complex_list, format_complex, from
 from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..gains import cap_lmis
 from ..noise import (NOISE_DECAY_ROOM, NOISE_METHOD, NOISE_OBJECTIVES, NORM, certified, dhat_error_step,
-                     fastest_within, hinf_norm, least_of, recheck, section)
+                     fastest_within, gains_section, hinf_norm, least_of, recheck)
 from ..reductions import LYAPUNOV, UPPER_BOUND, matrix, scalar, symmetric
 from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
@@ -598,21 +598,9 @@ def noise_checks(card_data: dict) -> list:
 def noise_section(matrices: dict) -> dict:
     """The card's ``noise`` section (:mod:`uiofmu.noise`): ``gain_y``, and ``gain_w`` where the problem declares
     ``[plant] W``, each by the bounded real lemma at the stored matrices."""
-    gain, extra, why = certified(*error_system(matrices))
-    reasons = [why] if why else []
-    gain_w = None
-    if matrices.get("W_sampled") is not None and np.shape(matrices["W_sampled"])[1]:
-        gain_w, extra_w, why_w = certified(*process_error_system(matrices), key="gain_w")
-        extra.update(extra_w)
-        reasons += [why_w] if why_w else []
-    else:
-        reasons.append(NO_W)
-    gain_dhat = None
-    if matrices.get("Dy") is not None:
-        gain_dhat, extra_dhat, why_dhat = certified(*dhat_error_system(matrices), key="gain_dhat_y")
-        extra.update(extra_dhat)
-        reasons += [why_dhat] if why_dhat else []
-    return section(gain, "; ".join(reasons) or None, gain_w=gain_w, gain_dhat_y=gain_dhat, **extra)
+    return gains_section(matrices, lambda: certified(*error_system(matrices)),
+                         lambda: certified(*process_error_system(matrices), key="gain_w"),
+                         lambda: certified(*dhat_error_system(matrices), key="gain_dhat_y"), NO_W)
 
 
 def gain_figures(card_data: dict) -> tuple:

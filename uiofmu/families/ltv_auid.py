@@ -67,8 +67,8 @@ from ..existence import Condition, Existence, complex_list, format_complex, from
 from ..lmi import Lmi, LmiSystem, held_margin, tune
 from ..structure import unobservable_modes
 from ..runtime.tolerances import LMI_MARGIN, SEARCH_TOL, ZERO_MARGIN
-from ..noise import claimed_without, dhat_error_step, dhat_missing, hinf_norm, lemma_certificate, recheck, stated
-from ..noise import section as noise_section
+from ..noise import (claimed_without, dhat_error_step, dhat_missing, gains_section, hinf_norm, lemma_certificate,
+                     recheck, stated)
 from . import Analysis, DesignResult
 
 NAME = "ltv-auid"
@@ -362,27 +362,14 @@ def noise_of(matrices: dict, alpha: float) -> dict:
     along the schedule is at least that); ``gain_w`` where the problem declares ``W`` and ``gain_dhat_y`` where the
     card has dhat, alike."""
     method = "bounded real lemma with one X at the vertices of (alpha^k, alpha^2k)"
-    steps = noise_steps(matrices)
-    gain, extra, why = stated(lemma_certificate(steps, 1, hinf_norm(*steps[0][:4])), method)
-    reasons = [why] if why else []
-    gain_w = None
-    if matrices.get("W_sampled") is not None and np.shape(matrices["W_sampled"])[1]:
-        steps = noise_steps(matrices, alpha=alpha)
-        gain_w, extra_w, why_w = stated(lemma_certificate(steps, 1, hinf_norm(*steps[0][:4]), "gain_w"), method,
-                                        key="gain_w")
-        extra.update(extra_w)
-        reasons += [why_w] if why_w else []
-    else:
-        reasons.append(NO_W)
-    gain_dhat = None
-    if matrices.get("Dy") is not None:
-        steps = noise_steps(matrices, dhat=True)
-        gain_dhat, extra_dhat, why_dhat = stated(lemma_certificate(steps, 1, hinf_norm(*steps[0][:4]),
-                                                                   "gain_dhat_y", balanced=True),
-                                                 method, key="gain_dhat_y")
-        extra.update(extra_dhat)
-        reasons += [why_dhat] if why_dhat else []
-    return noise_section(gain, "; ".join(reasons) or None, gain_w=gain_w, gain_dhat_y=gain_dhat, **extra)
+
+    def gain(key: str, **form):
+        steps = noise_steps(matrices, **form)
+        return stated(lemma_certificate(steps, 1, hinf_norm(*steps[0][:4]), key, balanced=key == "gain_dhat_y"),
+                      method, key=key)
+
+    return gains_section(matrices, lambda: gain("gain_y"), lambda: gain("gain_w", alpha=alpha),
+                         lambda: gain("gain_dhat_y", dhat=True), NO_W)
 
 
 def noise_checks(noise, matrices: dict, alpha: float) -> list:

@@ -677,7 +677,7 @@ def noise_of(matrices: dict) -> dict:
     Yu_i u_k)`` with the plant sampled at ``h_k`` (``Dy_i = (C E_i)^+``, ``Yx_i = C A_i``, ``Yu_i = C B_i``) and
     the unknown input held over the interval: ``dhat_(k+1) - d_k = Dy_i C A_i e_k + Dy_i v_(k+1)``
     (:func:`uiofmu.noise.pair_dhat_error_system`)."""
-    return pair_section(matrices, [NO_W])
+    return pair_section(matrices, NO_W)
 
 
 #: The bound the card states.

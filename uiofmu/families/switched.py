@@ -402,7 +402,7 @@ def noise_of(matrices: dict) -> dict:
     dhat after a step in the mode ``i`` (after ``j``) is ``dhat_(k+1) = Dy_i (y_(k+1) - Yx_i xhat_k - Yu_i u_k -
     Yc_i)`` (``Dy_i = (C E_i)^+``, ``Yx_i = C A_i``, ``Yu_i = C B_i``, ``Yc_i = C w_i``): ``dhat_(k+1) - d_k =
     Dy_i C A_i (eps_k - Q_j v_k) + Dy_i v_(k+1)`` (:func:`uiofmu.noise.pair_dhat_error_system`)."""
-    return pair_section(matrices, [NO_W])
+    return pair_section(matrices, NO_W)
 
 
 #: The bound the card states.
