@@ -137,7 +137,8 @@ def _one_draw_a_step(spec: str, t_end: float, seed: int) -> list:
 
 @pytest.mark.parametrize("spec", ["choice:0.1,0.3", "choice:0.2", "choice:0.1,0.2,0.3,0.4,0.5,0.6,0.7",
                                   "uniform:0.01:0.5", "uniform:0.3:0.3", "dropout:0.1:0.3:2", "dropout:0.1:0.9:7",
-                                  "dropout:0.1:0.5:0", "dropout:0.1:0:3", "dropout:0.1:0.99:1000"])
+                                  "dropout:0.1:0.5:0", "dropout:0.1:0:3", "dropout:0.1:0.99:1000",
+                                  "dropout:0.1:0.5:" + "9" * 30])
 def test_drawn_at_once_the_steps_are_those_drawn_one_at_a_time(spec):
     for seed in range(12):
         for t_end in (0.05, 1.0, 7.3, 400.0):
@@ -148,6 +149,8 @@ def test_drawn_at_once_the_steps_are_those_drawn_one_at_a_time(spec):
 def test_too_many_steps_are_refused():
     with pytest.raises(ProblemError, match="needs more than 10000000 steps"):
         step_sequence("uniform:1e-6:2e-6", 1e3, seed=1)
+    with pytest.raises(ProblemError, match=r"needs more than 33554432 random draws \(a sample arrives too rarely\)"):
+        step_sequence("dropout:0.1:0.99999999:" + "9" * 30, 1e3, seed=1)
 
 
 def test_continuous_plant_lti_observer_end_to_end(tmp_path, cli):

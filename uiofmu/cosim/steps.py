@@ -26,6 +26,9 @@ from ..runtime.files import read_text
 
 #: Most communication steps of one run.
 MAX_STEPS = 10_000_000
+#: Most random numbers one block of a random SPEC draws (a dropout that loses nearly every sample needs many a
+#: step): 256 MB of them.
+MAX_DRAWS = 2**25
 
 
 def _positive(text: str, what: str, quote: bool = True) -> float:
@@ -85,7 +88,7 @@ def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
         return _file_steps(rest, t_end)
     block, _, mean = _random_kind(spec)
     limit = t_end * (1 - 1e-12)
-    wanted = int(min(t_end / mean * 1.25, MAX_STEPS)) + 16
+    wanted, drawn = int(min(t_end / mean * 1.25, MAX_STEPS)) + 16, -1
     while True:
         steps = block(np.random.default_rng(seed), wanted)
         reached = np.cumsum(steps)          # sequential sums: the times the loop ``t += h`` reaches
@@ -94,7 +97,10 @@ def step_sequence(spec: str, t_end: float, seed: int = 0) -> np.ndarray:
             raise ProblemError(f"--steps {short_spec(spec)} with --t-end {t_end:g} needs more than {MAX_STEPS} steps")
         if count <= len(steps):
             return steps[:count]
-        wanted *= 2
+        if len(steps) == drawn:             # a block of MAX_DRAWS draws gave no more steps
+            raise ProblemError(f"--steps {short_spec(spec)} with --t-end {t_end:g} needs more than {MAX_DRAWS} random "
+                               "draws (a sample arrives too rarely)")
+        wanted, drawn = 2 * wanted, len(steps)
 
 
 def short_spec(spec: str, limit: int = 80) -> str:
@@ -182,8 +188,10 @@ def _dropout_losses(rng: np.random.Generator, wanted: int, prob: float, most: in
     """
     if most == 0:
         return np.zeros(wanted, dtype=np.int64)
-    arrived = np.flatnonzero(rng.random(int(wanted * (1 + min(prob / (1 - prob), most))) + 1) >= prob)
+    draws = min(int(wanted * (1 + min(prob / (1 - prob), most))) + 1, MAX_DRAWS)
+    arrived = np.flatnonzero(rng.random(draws) >= prob)
     runs = np.diff(arrived, prepend=-1) - 1          # losses before each arrival
+    most = min(most, draws + 1)                      # no run of the block is longer: the same steps, in int64
     full, rest = np.divmod(runs, most)
     lost = np.full(int((full + 1).sum()), most, dtype=np.int64)
     lost[np.cumsum(full + 1) - 1] = rest
