@@ -76,6 +76,42 @@ def discarded(call, *words) -> None:
     _failed(DISCARD, call, words)
 
 
+def equal_to_the_runtime(path, card, h: float, read, expected) -> np.ndarray:
+    """Run the observer FMU at ``path`` and the reference runtime on the same 20 random ``y``, ``u`` from a random
+    ``xhat0``, steps of ``h``: ``read(fmu)`` equals ``expected(runtime)`` to 1e-11 at every point, and a state saved at
+    point 5 and restored gives the same outputs bit for bit from there. Returns the runtime's last ``z``."""
+    from uiofmu.runtime.observer import Runtime
+
+    rng = np.random.default_rng(3)
+    dims = card.data["dims"]
+    xhat0 = rng.standard_normal(dims["n"])
+    ref = Runtime(card, xhat0=xhat0)
+    inputs = [(rng.standard_normal(dims["p"]), rng.standard_normal(dims["m"])) for _ in range(20)]
+    with Fmu(path, "observer") as fmu:
+        fmu.initialize(0.0, {"xhat0": xhat0})
+        outs = []
+        for k, (y, u) in enumerate(inputs):
+            fmu.set("y", y)
+            fmu.set("u", u)
+            ref.set_y(y)
+            ref.set_u(u)
+            got = read(fmu)
+            np.testing.assert_allclose(got, expected(ref), rtol=1e-11, atol=1e-11)
+            outs.append(got)
+            if k == 5:
+                saved = fmu.serialize(fmu.get_state())
+            fmu.step(k * h, h)
+            ref.step(h)
+        fmu.set_state(fmu.deserialize(saved))        # at t_5, the inputs of t_5 set
+        fmu.step(5 * h, h)
+        for k, (y, u) in enumerate(inputs[6:], start=6):
+            fmu.set("y", y)
+            fmu.set("u", u)
+            np.testing.assert_array_equal(read(fmu), outs[k])
+            fmu.step(k * h, h)
+    return ref.z
+
+
 def run_plant(fmu, rt, h: float, ks: range, t0: float, feed, outputs, reference):
     """Steps ``ks`` of period ``h`` from ``t0`` on the plant FMU and, when given, its runtime ``rt``:
     at each point ``feed(k)`` sets the inputs of both, the outputs are sampled (the FMU's ports

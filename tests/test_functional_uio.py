@@ -20,7 +20,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import uiofmu  # noqa: E402
-from cfmu import NEEDS_CC, check_sanitized, random_calls, script_main  # noqa: E402
+from cfmu import NEEDS_CC, check_sanitized, equal_to_the_runtime, random_calls, script_main  # noqa: E402
 from tests.conftest import EXAMPLES, built_with_both_backends, run_cli  # noqa: E402
 from uiofmu import functional_uio as fu  # noqa: E402
 from uiofmu.cosim.fmi import Fmu  # noqa: E402
@@ -397,34 +397,9 @@ def test_dependent_functionals_are_refused():
 def check_equal_to_the_runtime(path, card) -> None:
     """The observer FMU at ``path`` gives the reference runtime's ``zhat`` (to rounding) on random inputs, from a
     random ``xhat0``; a state saved after a few steps restores the same run."""
-    rng = np.random.default_rng(3)
-    dims = card.data["dims"]
-    xhat0 = rng.standard_normal(dims["n"])
-    ref = Runtime(card, xhat0=xhat0)
-    inputs = [(rng.standard_normal(dims["p"]), rng.standard_normal(dims["m"])) for _ in range(20)]
     with Fmu(path, "observer") as fmu:
         assert set(fmu.ports("output")) == {"zhat"}
-        fmu.initialize(0.0, {"xhat0": xhat0})
-        outs = []
-        for k, (y, u) in enumerate(inputs):
-            for name, value in (("y", y), ("u", u)):
-                fmu.set(name, value)
-            ref.set_y(y)
-            ref.set_u(u)
-            got = np.asarray(fmu.get("zhat"))
-            np.testing.assert_allclose(got, ref.xhat(), rtol=1e-11, atol=1e-11)
-            outs.append(got)
-            if k == 5:
-                saved = fmu.serialize(fmu.get_state())
-            fmu.step(k * FUNCTIONAL_H, FUNCTIONAL_H)
-            ref.step(FUNCTIONAL_H)
-        fmu.set_state(fmu.deserialize(saved))        # at t_5, the inputs of t_5 set
-        fmu.step(5 * FUNCTIONAL_H, FUNCTIONAL_H)
-        for k, (y, u) in enumerate(inputs[6:], start=6):
-            fmu.set("y", y)
-            fmu.set("u", u)
-            np.testing.assert_array_equal(fmu.get("zhat"), outs[k])
-            fmu.step(k * FUNCTIONAL_H, FUNCTIONAL_H)
+    equal_to_the_runtime(path, card, FUNCTIONAL_H, lambda fmu: np.asarray(fmu.get("zhat")), lambda ref: ref.xhat())
 
 
 def check_observer(path, card) -> None:

@@ -16,8 +16,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import uiofmu  # noqa: E402
-from cfmu import NEEDS_CC, check_sanitized, random_calls, script_main  # noqa: E402
-from uiofmu.cosim.fmi import Fmu  # noqa: E402
+from cfmu import NEEDS_CC, check_sanitized, equal_to_the_runtime, random_calls, script_main  # noqa: E402
 from uiofmu.problem import problem_from_data, to_toml  # noqa: E402
 from uiofmu.runtime.card import read_card  # noqa: E402
 from uiofmu.runtime.errors import ProblemError  # noqa: E402
@@ -163,36 +162,10 @@ def test_fmu_cosimulates_within_the_bound(example_fmus, backend):
 def check_equal_to_the_runtime(path, card) -> None:
     """The observer FMU at ``path`` gives the reference runtime's outputs (to rounding) on random inputs, from a
     random ``xhat0``; a state saved after a few steps restores the same run."""
-    rng = np.random.default_rng(3)
-    dims = card.data["dims"]
-    xhat0 = rng.standard_normal(dims["n"])
-    ref = Runtime(card, xhat0=xhat0)
-    inputs = [(rng.standard_normal(dims["p"]), rng.standard_normal(dims["m"])) for _ in range(20)]
-    with Fmu(path, "observer") as fmu:
-        fmu.initialize(0.0, {"xhat0": xhat0})
-        outs = []
-        for k, (y, u) in enumerate(inputs):
-            fmu.set("y", y)
-            fmu.set("u", u)
-            ref.set_y(y)
-            ref.set_u(u)
-            got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")])
-            np.testing.assert_allclose(got, np.concatenate([ref.xhat(), ref.residual(), ref.dhat()]),
-                                       rtol=1e-11, atol=1e-11)
-            outs.append(got)
-            if k == 5:
-                saved = fmu.serialize(fmu.get_state())
-            fmu.step(k * H, H)
-            ref.step(H)
-        assert ref.z.shape == (dims["nz"],)
-        fmu.set_state(fmu.deserialize(saved))        # at t_5, the inputs of t_5 set
-        fmu.step(5 * H, H)
-        for k, (y, u) in enumerate(inputs[6:], start=6):
-            fmu.set("y", y)
-            fmu.set("u", u)
-            got = np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")])
-            np.testing.assert_array_equal(got, outs[k])
-            fmu.step(k * H, H)
+    z = equal_to_the_runtime(path, card, H,
+                             lambda fmu: np.concatenate([fmu.get("xhat"), fmu.get("r"), fmu.get("dhat")]),
+                             lambda ref: np.concatenate([ref.xhat(), ref.residual(), ref.dhat()]))
+    assert z.shape == (card.data["dims"]["nz"],)
 
 
 def check_observer(path, card) -> None:
