@@ -168,7 +168,7 @@ FIGURE_DIGITS, UNDETERMINED = 4, 0
 HELD_FIGURE_DIGITS = 2
 
 
-def figure_digits(solution: LmiSolution) -> int:
+def figure_digits(solution: LmiSolution, spread: float = 1.0) -> int:
     """The significant digits that a figure read off ``solution``'s point (the overshoot) has on every machine.
 
     :data:`FIGURE_DIGITS` for a closed form, or for the optimum of the system's own objective that
@@ -179,13 +179,14 @@ def figure_digits(solution: LmiSolution) -> int:
     objective at a held margin not reproduced, the point of largest margin, a point reused from
     another value, an optimum whose variables are so large that the solver's tolerance leaves its
     normalisations loose): such a figure moved by factors between BLAS kernels (6.4 against 550 on a
-    plant at the edge), so no digit of it is the problem's.
+    plant at the edge), so no digit of it is the problem's. ``spread`` is the system's
+    :attr:`~uiofmu.lmi.LmiSystem.figure_spread`.
     """
     if solution.status.startswith("closed form"):
         return FIGURE_DIGITS
     if solution.held and solution.reproduced:
         return HELD_FIGURE_DIGITS
-    if accurate_optimum(solution):
+    if accurate_optimum(solution, spread):
         return FIGURE_DIGITS
     return UNDETERMINED
 

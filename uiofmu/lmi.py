@@ -36,10 +36,12 @@ from .runtime.tolerances import (
     FIGURE_RTOL,
     HELD_AGREEMENT,
     HELD_PROBE,
+    HELD_PROBES,
     LMI_MARGIN,
     MARGIN_DECISION_RTOL,
     MARGIN_SOLVER_TOL,
     POINT_RTOL,
+    FIRST_MARGIN_AGREEMENT,
     MARGIN_AGREEMENT,
     MARGIN_NEAR,
     MARGIN_PROBE,
@@ -133,6 +135,9 @@ class LmiSolution:
     #: ``relative_margin`` is the margin held), and whether its figure was reproduced by a second solve.
     held: bool = False
     reproduced: bool = False
+    #: For a point of largest margin refused because a second solve :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE`
+    #: away did not reproduce its margin (:func:`search`): the two margins, which the solver did not resolve.
+    unresolved: tuple | None = None
 
 
 def eig_min(lmis: list[Lmi]) -> dict:
@@ -260,6 +265,11 @@ class LmiSystem:
     figure : callable, optional
         ``figure(values) -> float``: the figure a card reads off a point (its overshoot), which
         :meth:`least_at_margin` reproduces before it counts as the problem's; the objective without it.
+    figure_spread : float
+        Largest over smallest eigenvalue of the normalisations' constant (the plant's identity in these
+        coordinates, :func:`uiofmu.scaling.plant_identity`; 1 for the identity): a normalisation met to the
+        solver's tolerance relative to the point's size is met that much less accurately, relative, in its
+        smallest direction, which the figure reads (:func:`accurate_optimum`).
     structure : optional
         Everything ``build`` and ``objective`` read besides the variables and the parameters (the family's
         matrices; see :func:`uiofmu.conic.fingerprint`). Systems of equal structure share one traced conic
@@ -288,6 +298,7 @@ class LmiSystem:
     certify: Callable | None = None
     recentre: Callable | None = None
     figure: Callable | None = None
+    figure_spread: float = 1.0
     structure: object = None
     _conic: object = field(init=False, repr=False, default=None)
     _margin: tuple | None = field(init=False, repr=False, default=None)
@@ -389,10 +400,12 @@ class LmiSystem:
 
         Whether CLARABEL reached that optimum is not read off its word (``optimal`` or
         ``optimal_inaccurate`` moved with the BLAS kernel, on answers equal to 1e-5 and on answers 40 %
-        apart alike): the problem is solved once more with the margin held
-        :data:`~uiofmu.runtime.tolerances.HELD_PROBE` higher (lower, where CLARABEL gives up on that one), and
-        the point's figure (:attr:`figure`, else the objective) is reproduced when the two agree to
-        :data:`~uiofmu.runtime.tolerances.HELD_AGREEMENT`.
+        apart alike): the problem is solved again with the margin held
+        :data:`~uiofmu.runtime.tolerances.HELD_PROBE` higher, lower, twice that higher and lower
+        (:data:`~uiofmu.runtime.tolerances.HELD_PROBES`), until the figures (:attr:`figure`, else the
+        objective) of two solves agree to :data:`~uiofmu.runtime.tolerances.HELD_AGREEMENT`: the figure is then
+        reproduced, and the earlier of the two points is kept. An answer CLARABEL did not converge to is one
+        solve that agrees with no other (58.94 against 58.74 and 58.74).
 
         Returns
         -------
@@ -405,11 +418,16 @@ class LmiSystem:
         sol = self._held_once(held, parameters)
         if not sol.verified:
             return sol
-        for probe in (HELD_PROBE, -HELD_PROBE):         # a second try where CLARABEL gave up on the first
-            again = self._held_once(held * (1.0 + probe), parameters)
-            if again.verified:
-                same = reproduced(self._figure_of(sol), self._figure_of(again), HELD_AGREEMENT)
-                return replace(sol, status=f"{sol.status}, {REPRODUCED}", reproduced=True) if same else sol
+        found = [(self._figure_of(sol), sol)]
+        for k in HELD_PROBES:
+            again = self._held_once(held * (1.0 + k * HELD_PROBE), parameters)
+            if not again.verified:                      # CLARABEL gave up on this one: the next probe
+                continue
+            figure = self._figure_of(again)
+            kept = next((s for f, s in found if reproduced(f, figure, HELD_AGREEMENT)), None)
+            if kept is not None:                        # two solves agree: the earlier of them is kept
+                return replace(kept, status=f"{kept.status}, {REPRODUCED}", reproduced=True)
+            found.append((figure, again))
         return sol
 
     def _figure_of(self, sol: LmiSolution) -> float:
@@ -709,6 +727,12 @@ class LmiSystem:
             returned no point, its status and the LMIs that need slack.
         """
         params = ", ".join(f"{k} = {v:.6g}" for k, v in sol.parameters.items())
+        if sol.unresolved is not None:
+            raise InfeasibleError(
+                f"{self.name} LMIs at {params}: the largest margin moved by more than {FIRST_MARGIN_AGREEMENT:g} of "
+                f"itself at a value {MARGIN_PROBE:g} away: the solver does not resolve these LMIs' margins, so no "
+                "value of the range would be decided the same under every BLAS kernel; units that bring the states "
+                "to comparable sizes, or a slower requirement, give margins it resolves")
         if sol.values:
             lmis = self.evaluate(sol.values, sol.parameters)
             bad = [f"{k}: eig_min = {v:.3g} < {b:.3g}"
@@ -819,7 +843,7 @@ def search(system: LmiSystem, parameter: str, feasible_end: float, infeasible_en
             found = _bisect(decide, parameter, f, float(feasible_end), float(infeasible_end), tol, safe_end, walk,
                             bar)
             solves += found[3]
-            if found[2].verified:
+            if found[2].verified or found[2].unresolved:     # no plain solve decides what the margins cannot
                 break
         good, bad, best, _, threshold = found
         if not best.verified:
@@ -839,20 +863,22 @@ def _passes(sol: LmiSolution, threshold: float) -> bool:
     return sol.verified and (sol.relative_margin is None or sol.relative_margin >= threshold)
 
 
-def _judged(decide: Callable, parameter: str, value: float, threshold: float) -> LmiSolution:
+def _judged(decide: Callable, parameter: str, value: float, threshold: float, first: bool = False) -> LmiSolution:
     """``decide`` at ``value``; a largest margin within a factor :data:`~uiofmu.runtime.tolerances.MARGIN_NEAR`
-    of ``threshold`` is decided once more at a value :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE` away,
-    and counts only when the two agree to :data:`~uiofmu.runtime.tolerances.MARGIN_AGREEMENT` (else the value
-    is refused: its margin is lost in the solver's rounding, which moves with the BLAS kernel). The solution
-    returned carries the smaller margin."""
+    of ``threshold`` (any margin, with ``first``: the first value that passes sets the search's threshold) is
+    decided once more at a value :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE` away, and counts only when
+    the two agree to :data:`~uiofmu.runtime.tolerances.MARGIN_AGREEMENT` (to
+    :data:`~uiofmu.runtime.tolerances.FIRST_MARGIN_AGREEMENT` with ``first``; else the value is refused, its two
+    margins kept as ``unresolved``: its margin is lost in the solver's rounding, which moves with the BLAS
+    kernel). The solution returned carries the smaller margin."""
     sol = decide(**{parameter: value})
     t = sol.relative_margin
-    if t is None or not sol.verified or not threshold / MARGIN_NEAR <= t <= MARGIN_NEAR * threshold:
+    if t is None or not sol.verified or not (first or threshold / MARGIN_NEAR <= t <= MARGIN_NEAR * threshold):
         return sol
     again = decide(**{parameter: value * (1.0 + MARGIN_PROBE)})
     s = again.relative_margin
-    if s is None or not reproduced(t, s, MARGIN_AGREEMENT):
-        return replace(sol, verified=False)
+    if s is None or not reproduced(t, s, FIRST_MARGIN_AGREEMENT if first else MARGIN_AGREEMENT):
+        return replace(sol, verified=False, unresolved=(t, float("nan") if s is None else s))
     return replace(sol, relative_margin=min(t, s))
 
 
@@ -880,8 +906,10 @@ def _bisect(decide: Callable, parameter: str, f: Callable, good: float, bad: flo
     -------
     (float, float, LmiSolution, int, float)
         The best value and the nearest refused one, the solution at the best value (not verified
-        when nothing verified: then the one closest to ``safe_end``), the solves made, and the
-        threshold the margins were held to.
+        when nothing verified: then the one closest to ``safe_end``, or the first whose margin the solver
+        did not resolve, where the search stops), the solves made, and the threshold the margins were held
+        to. A value that passes away from theory's limit sets the threshold, so it is decided twice
+        (:func:`_judged` with ``first``).
     """
     step = min(tol, 0.5 * abs(good - bad))
     near = bad + (step if good > bad else -step)
@@ -891,15 +919,15 @@ def _bisect(decide: Callable, parameter: str, f: Callable, good: float, bad: flo
     if _passes(best, floor):
         return near, bad, best, 1, _threshold(best)
     bad, refused, solves = near, best, 2
-    best = decide(**{parameter: f(good)})
+    best = _judged(decide, parameter, f(good), floor, first=True)
     bar.update()
     start = good
     for k in range(1, walk + 1 if safe_end is not None else 1):
-        if best.verified:
+        if best.verified or best.unresolved:
             break
         bad, refused = good, best
         good = start + (safe_end - start) * (1.0 - 0.5 ** k)
-        best = decide(**{parameter: f(good)})
+        best = _judged(decide, parameter, f(good), floor, first=True)
         solves += 1
         bar.update()
     if not best.verified:
@@ -917,12 +945,13 @@ def _bisect(decide: Callable, parameter: str, f: Callable, good: float, bad: flo
     return good, bad, best, solves, threshold
 
 
-def accurate_optimum(solution: LmiSolution) -> bool:
+def accurate_optimum(solution: LmiSolution, spread: float = 1.0) -> bool:
     """Whether ``solution`` is the optimum of its system's own objective that CLARABEL reached to its full
     tolerance (``optimal``), with normalisations held to :data:`~uiofmu.runtime.tolerances.FIGURE_RTOL` (the
-    solver's tolerance is relative to the point's size): a figure read off it is the problem's."""
+    solver's tolerance is relative to the point's size, and ``spread`` times less accurate in the
+    normalisations' smallest direction: :attr:`LmiSystem.figure_spread`): a figure read off it is the problem's."""
     return (solution.status == "optimal" and solution.relative_margin is None
-            and POINT_RTOL * point_scale(solution.values) <= FIGURE_RTOL)
+            and POINT_RTOL * point_scale(solution.values) * spread <= FIGURE_RTOL)
 
 
 def held_margin(solution: LmiSolution, threshold: float | None = None) -> float | None:
@@ -1008,7 +1037,7 @@ def tune(system: LmiSystem, parameter: str, requested, *, feasible_end: float, i
     value = float(requested)
     at = {parameter: f(value)}
     sol = system.solve(**at)
-    if sol.verified and accurate_optimum(sol):
+    if sol.verified and accurate_optimum(sol, system.figure_spread):
         return Tuned(value, sol, None)
     if system.decides_by_margin:
         decided = system.largest_margin(**at)

@@ -11,8 +11,9 @@ written for ``(T^-1 A T, T^-1 E, T^-1 B, C T)`` and their variables mapped back 
 
 which turns each LMI of the scaled coordinates into the same LMI of the plant's coordinates,
 pre- and post-multiplied by ``diag(T^-T, ...)`` and its transpose: feasible in one set of
-coordinates exactly when feasible in the other. Only the normalisation (``Xs >= I`` becomes
-``X >= T^-T T^-1``) and the numbers the solver sees change. The card's matrices are always in
+coordinates exactly when feasible in the other. The normalisations are written in the plant's
+coordinates (``Xs >= T' T``, :func:`plant_identity`), so that the least overshoot the LMIs find is the
+plant's; only the numbers the solver sees change. The card's matrices are always in
 the plant's coordinates, and the certificate is re-checked there.
 
 The change is the reduction :class:`StateScaling` (:mod:`uiofmu.reductions`): ``apply`` builds the
@@ -76,6 +77,24 @@ def scaled_output(C, t):
     return np.asarray(C, dtype=float) * np.asarray(t, dtype=float)[None, :]
 
 
+def plant_identity(t) -> np.ndarray:
+    """The plant's identity in the scaled coordinates, ``T' I T = diag(t**2)``: a Lyapunov matrix ``Xs`` of the
+    scaled coordinates satisfies ``Xs >= T' T`` exactly when its plant's ``X = T^-T Xs T^-1`` satisfies ``X >= I``.
+    Normalisations written with it (``Xs >= T' T``, ``Xs <= mu T' T``) bound the plant's overshoot
+    ``sqrt(eig_max(X) / eig_min(X))`` by ``sqrt(mu)``: the least ``mu`` is then the figure the card records
+    (the square of its overshoot bound), which the problem determines, rather than the scaled coordinates'
+    own, whose minimisers may differ in the plant's overshoot."""
+    t = np.asarray(t, dtype=float)
+    return np.diag(t * t)
+
+
+def identity_spread(t) -> float:
+    """Largest over smallest entry of :func:`plant_identity` (``max(t)^2 / min(t)^2``): the
+    :attr:`~uiofmu.lmi.LmiSystem.figure_spread` of LMIs normalised with it."""
+    t = np.asarray(t, dtype=float)
+    return float((t.max() / t.min()) ** 2) if t.size else 1.0
+
+
 @dataclass(frozen=True)
 class PlantLmis:
     """A family's LMIs over a plant, the problem :class:`StateScaling` accepts.
@@ -130,4 +149,5 @@ def to_data(t, kind: str) -> dict:
                     "in the plant's coordinates"}
 
 
-__all__ = ["PlantLmis", "SCALINGS", "StateScaling", "scaled_output", "scaled_step", "state_scaling", "to_data"]
+__all__ = ["PlantLmis", "SCALINGS", "StateScaling", "identity_spread", "plant_identity", "scaled_output", "scaled_step",
+           "state_scaling", "to_data"]

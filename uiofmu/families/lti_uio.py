@@ -99,8 +99,8 @@ from ..lmi import Lmi, LmiSolution, LmiSystem, Tuned, tune
 from ..gains import cap_lmis
 from ..noise import (NOISE_DECAY_ROOM, NOISE_METHOD, NOISE_OBJECTIVES, NORM, certified, dhat_error_step,
                      fastest_within, gains_section, hinf_norm, least_of, recheck)
-from ..reductions import LYAPUNOV, UPPER_BOUND, matrix, scalar, symmetric
-from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
+from ..reductions import LYAPUNOV, UNCHANGED, UPPER_BOUND, matrix, scalar, symmetric
+from ..scaling import SCALINGS, PlantLmis, StateScaling, identity_spread, plant_identity, state_scaling
 from ..scaling import to_data as scaling_data
 from ..feedthrough import feedthrough_pair
 from .. import functional_uio
@@ -314,27 +314,34 @@ def analyse(problem, solver: bool = True) -> Analysis:
     return Analysis(existence, {"sampled": s, "fixed": fixed})
 
 
-def _lmis(PA, C, gain_cap: float | None = None):
+def _lmis(PA, C, gain_cap: float | None = None, unit=None):
     """The decay LMI, and with ``gain_cap`` the LMIs of ``||X^-1 W|| <= gain_cap`` (:func:`uiofmu.gains.cap_lmis`;
-    in the scaled coordinates, whose gain bounds the plant's: ``K = T Ks``, ``T <= I``)."""
+    in the scaled coordinates, whose gain bounds the plant's: ``K = T Ks``, ``T <= I``).
+
+    ``unit`` is the plant's identity in the LMIs' coordinates (:func:`uiofmu.scaling.plant_identity`; the
+    identity when None): the normalisations ``X >= I`` and ``X <= t I`` hold in the plant's coordinates, so the
+    least ``t`` is the square of the card's overshoot bound. The largest-margin search drops their constants,
+    so it decides as it would with the identity.
+    """
     n, p = C.shape[1], C.shape[0]
 
     def build(v, prm, ops):
         X, W, t = v["X"], v["W"], v["t"]
         Y = X @ PA - W @ C
+        eye = ops.eye(n) if unit is None else unit
         capped = [] if gain_cap is None else cap_lmis(gain_cap, [("X", X, [("W", W)])], v["s"], ops)
         return [
             Lmi("decay (Schur form of N'XN < rho^2 X)", ops.bmat([[prm["rho2"] * X, Y.T], [Y, X]])),
-            Lmi("X >= I", X - ops.eye(n), strict=False),
-            Lmi("X <= t I", t * ops.eye(n) - X, strict=False),
+            Lmi("X >= I", X - eye, strict=False),
+            Lmi("X <= t I", t * eye - X, strict=False),
             *capped,
         ]
 
-    variables = {"X": symmetric(n), "W": matrix((n, p)), "t": scalar(UPPER_BOUND)}
+    variables = {"X": symmetric(n), "W": matrix((n, p)), "t": scalar(UPPER_BOUND if unit is None else UNCHANGED)}
     if gain_cap is not None:
         variables["s"] = scalar()
     return LmiSystem(f"{NAME} decay", variables, {"rho2": 0.98}, build, objective=lambda v: v["t"], homogeneous=True,
-                     structure=(PA, C, gain_cap))
+                     structure=(PA, C, gain_cap, unit))
 
 
 def _noise_lmis(PA, C, M, T, sigma: float, gain_cap: float | None = None) -> LmiSystem:
@@ -793,8 +800,10 @@ def _tuned(s, pair: Pair, t, largest: float, opts: Options, name: str) -> tuple[
     """The decay and its certificate of the full-order observer (:func:`_decay`), the LMI system solved in the
     coordinates scaled by ``t`` (:class:`uiofmu.scaling.StateScaling`)."""
     scaling = StateScaling(t)
-    system, inverse = scaling.apply(PlantLmis(lambda steps, Cs: _lmis(steps[0].A, Cs, opts.gain_cap),
+    system, inverse = scaling.apply(PlantLmis(lambda steps, Cs: _lmis(steps[0].A, Cs, opts.gain_cap,
+                                                                              plant_identity(t)),
                                               [replace(s, A=pair.A)], pair.C))
+    system.figure_spread = identity_spread(t)
     return _decay(system, lambda v: scaling.invert(v, inverse), pair, checks, largest, opts, name)
 
 
@@ -933,7 +942,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         tuned, method, system, placed = _placement(pair, opts.poles, len(fixed), problem.name)
     else:
         tuned, method, system = _tuned(s, pair, t, largest, opts, problem.name)
-    rho, sol = tuned.value, tuned.solution
+    rho, sol, spread = tuned.value, tuned.solution, 1.0 if system is None else system.figure_spread
     searched = tuned.search.to_data() if tuned.search else None
     noise_design = None
     if opts.noise_gain is not None:
@@ -947,7 +956,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     if placed is not None:
         digits = placed["overshoot_digits"]
     else:
-        digits = UNDETERMINED if method == NOISE_METHOD else figure_digits(sol)
+        digits = UNDETERMINED if method == NOISE_METHOD else figure_digits(sol, spread)
     eigN = np.linalg.eigvals(matrices["N"])
     extra = {**({} if noise_design is None else {"noise_design": noise_design}),
              **({} if placed is None else {"poles": complex_list(_sorted(eigN)), "poles_placed": placed["placed"],

@@ -45,6 +45,12 @@ SEARCH_MARGIN_FRACTION = 0.01
 #: solver did not converge to moves by percents (measured: 334 to 478 between kernels on a plant at the edge).
 HELD_PROBE = 1e-6
 
+#: The further solves of :meth:`uiofmu.lmi.LmiSystem.least_at_margin`, in multiples of :data:`HELD_PROBE`, made in
+#: turn until two figures agree: CLARABEL gives up on some (InsufficientProgress) and stops short on others (an
+#: answer 0.34 % above two that agreed to 1e-4, on a plant at the edge), so a third and a fourth decide where two
+#: disagree.
+HELD_PROBES = (1, -1, 2, -2)
+
 #: The two figures of :meth:`uiofmu.lmi.LmiSystem.least_at_margin` agree, and the figure counts as the problem's
 #: (printed to 2 significant digits), when they differ by at most this, relative.
 HELD_AGREEMENT = 1e-3
@@ -61,6 +67,15 @@ MARGIN_PROBE = 1e-9
 
 #: See :data:`MARGIN_NEAR` (relative to the larger margin).
 MARGIN_AGREEMENT = 0.5
+
+#: The first value that passes a ``"max"`` search away from theory's limit sets its threshold
+#: (:data:`SEARCH_MARGIN_FRACTION` of its margin), so its margin is decided once more at a value :data:`MARGIN_PROBE`
+#: away whatever its size, and counts only when the two agree to this (relative to the larger); otherwise the search
+#: stops there and refuses. A margin the solver resolves moves by far less over 1e-9 of the value (2 % on the worst
+#: plants of the robustness generator, whose LMIs need gains of 1e7), while on a badly scaled plant needing gains of
+#: 1.6e6 CLARABEL's inaccurate optima put the margin anywhere in -1.2e-6..9e-7 along the range and the first value's
+#: two solves 1e-9 apart 75 % apart under one BLAS kernel, of opposite signs under another.
+FIRST_MARGIN_AGREEMENT = 0.1
 
 #: The largest threshold of a ``"max"`` search (see :data:`SEARCH_MARGIN_FRACTION`).
 SEARCH_MARGIN_CAP = 1e-6
