@@ -1,6 +1,6 @@
 """The command line loads only what a command uses: ``uiofmu --help`` neither numpy nor the runtime, and
 ``check``, ``design``, ``build`` and ``verify`` no optimiser, plotting, FMU importer or scheduler they do not
-use. Measured on ``sys.modules`` in a fresh interpreter, not on a clock.
+use (and ``check`` of a discrete plant no scipy). Measured on ``sys.modules`` in a fresh interpreter, not on a clock.
 
 Its BLAS libraries (numpy's and scipy's OpenBLAS) start with one thread, unless the user chose a number,
 and the environment is left as it was; ``import uiofmu`` and its API set no variable and start no library
@@ -119,6 +119,7 @@ def test_check_design_verify_build_load_only_what_they_use(tmp_path):
         assert not unwanted(modules, NEVER), (name, unwanted(modules, NEVER))
     assert "clarabel" in design and "uiofmu.synthesis" in verify          # the probe saw the work done
     assert not unwanted(check | verify, ("clarabel",))                  # no solve in check and verify
+    assert "scipy.linalg" in design and not unwanted(check, ("scipy",))  # a discrete plant's check needs none
 
 
 @pytest.mark.skipif(c_compiler() is None, reason="no C compiler for the C backend")

@@ -19,10 +19,12 @@ OpenBLAS starts its pool of threads when it loads, from the number it reads then
 ``OPENBLAS_NUM_THREADS`` (or ``GOTO_NUM_THREADS``, ``OMP_NUM_THREADS``), and its threads spin
 while they wait: a pool limited afterwards has cost its CPU already (``import numpy, scipy.linalg``
 takes 0.37 s of CPU on a 2-core machine, 0.20 s with one thread). So numpy's BLAS library is loaded
-by :func:`start_with_one_thread` and scipy's by :func:`one_blas_thread` (``with_scipy``) with
-``OPENBLAS_NUM_THREADS=1`` in the environment, set only around their imports (:func:`loading_blas`)
-and removed after them: the C compiler, the co-simulation loop, Dask's workers and other children
-see the environment the user gave. A user who set one of these variables keeps the number chosen
+by :func:`start_with_one_thread`, and scipy's (and cvxpy's) where uiofmu first imports them
+(:func:`blas_module`), with ``OPENBLAS_NUM_THREADS=1`` in the environment, set only around their
+imports (:func:`loading_blas`) and removed after them; a command that needs no scipy (``uiofmu check``
+of a discrete plant) does not import it. The processes started later (the C compiler, the
+co-simulation loop, Dask's workers, which Dask starts with one BLAS thread of its own accord)
+inherit the user's environment. A user who set one of these variables keeps the number chosen
 (``make test-blas`` runs with 2 threads), and ``import uiofmu`` changes nothing of this.
 """
 
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import importlib
 import os
 import sys
 
@@ -72,12 +75,22 @@ def loading_blas():
             os.environ["OPENBLAS_NUM_THREADS"] = empty
 
 
+def blas_module(name: str):
+    """The module ``name``, one whose import loads a BLAS library (``"scipy.linalg"``, ``"scipy.signal"``,
+    ``"cvxpy"``), imported in :func:`loading_blas`: uiofmu imports scipy and cvxpy through it, where it
+    first needs them, so that the command line starts their OpenBLAS with one thread there."""
+    module = sys.modules.get(name)
+    if module is None:
+        with loading_blas():
+            module = importlib.import_module(name)
+    return module
+
+
 def _blas(with_scipy: bool):
     """The threadpoolctl controller of the BLAS libraries loaded now (made again when modules were added)."""
     global _controller, _modules
-    if with_scipy and "scipy.linalg" not in sys.modules:
-        with loading_blas():
-            import scipy.linalg  # noqa: F401 - scipy's own OpenBLAS, loaded before the limit so that it covers it
+    if with_scipy and not _one_at_load:
+        blas_module("scipy.linalg")      # scipy's own OpenBLAS, loaded before the limit so that it covers it
     if _controller is None or len(sys.modules) != _modules:
         from threadpoolctl import ThreadpoolController
 
@@ -92,7 +105,9 @@ def one_blas_thread(with_scipy: bool = False):
     Parameters
     ----------
     with_scipy : bool, optional
-        Import ``scipy.linalg`` first (the block uses it), so that its OpenBLAS is limited too.
+        Import ``scipy.linalg`` first (the block may use it), so that its OpenBLAS is limited too; not in
+        the command line's process, where it starts with one thread wherever uiofmu first imports it
+        (:func:`blas_module`), and a block that needs no scipy does not import it.
 
     Nested uses cost about 10 us each. Without :mod:`threadpoolctl` (it is a dependency of uiofmu,
     but a runtime copy inside an FMU has numpy only) the block runs as it is.
