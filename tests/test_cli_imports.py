@@ -71,6 +71,18 @@ threads = {i["filepath"]: i["num_threads"] for i in threadpoolctl.threadpool_inf
 print(json.dumps({"threads": threads, "environment_kept": dict(os.environ) == before}), file=sys.stderr)
 """
 
+#: Runs ``uiofmu check`` of its first argument through ``uiofmu.cli.main``, then ``uiofmu.check`` of it (the API),
+#: and prints whether scipy.linalg was loaded after each.
+AFTER_MAIN_PROBE = """\
+import json, sys
+import uiofmu
+from uiofmu.cli import main
+code = main(["check", sys.argv[1]])
+by_main = "scipy.linalg" in sys.modules
+uiofmu.check(uiofmu.load_problem(sys.argv[1]))
+print(json.dumps({"code": code, "by_main": by_main, "by_api": "scipy.linalg" in sys.modules}), file=sys.stderr)
+"""
+
 #: The variables OpenBLAS reads for its number of threads (uiofmu.threads.THREAD_VARIABLES).
 THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
 
@@ -158,3 +170,10 @@ def test_import_uiofmu_sets_no_variable(tmp_path):
     report = probe(LIBRARY_PROBE, "uiofmu", EXAMPLES / "seed000_example1.toml", cwd=tmp_path)
     assert plain["environment_kept"] and report["environment_kept"], (plain, report)
     assert report["threads"] == plain["threads"], (report["threads"], plain["threads"])
+
+
+def test_a_program_that_runs_main_goes_on_as_a_library(tmp_path):
+    """After ``uiofmu.cli.main`` returns, uiofmu imports scipy as a library does again: the API's check loads
+    scipy.linalg first (to hold its OpenBLAS to one thread), where the command's own check needed none."""
+    report = probe(AFTER_MAIN_PROBE, EXAMPLES / "seed000_example1.toml", cwd=tmp_path)
+    assert report == {"code": 0, "by_main": False, "by_api": True}, report

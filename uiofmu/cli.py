@@ -696,8 +696,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from .threads import one_blas_thread, start_with_one_thread
 
-        start_with_one_thread()              # OpenBLAS's pools start with one thread (uiofmu.threads)
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), start_with_one_thread():    # OpenBLAS starts with one thread
             # numbers that overflow become an exit-2 message of the step that meets them; numpy's
             # warnings on the way there would only add lines to it
             warnings.simplefilter("ignore", RuntimeWarning)

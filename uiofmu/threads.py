@@ -14,7 +14,7 @@ is entered (the design and the re-check, which use scipy, import it first; the m
 only where it needs it), and :mod:`threadpoolctl` reads the loaded libraries again only
 when modules were imported since it last read them.
 
-The command line goes one step further, in its own process only (:func:`start_with_one_thread`):
+The command line goes one step further, for its commands only (:func:`start_with_one_thread`):
 OpenBLAS starts its pool of threads when it loads, from the number it reads then in
 ``OPENBLAS_NUM_THREADS`` (or ``GOTO_NUM_THREADS``, ``OMP_NUM_THREADS``), and its threads spin
 while they wait: a pool limited afterwards has cost its CPU already (``import numpy, scipy.linalg``
@@ -44,20 +44,27 @@ _modules = 0
 _one_at_load = False            # set by the command line: BLAS libraries load with one thread
 
 
-def start_with_one_thread() -> None:
-    """Load numpy's BLAS now, and scipy's when uiofmu first needs it, with one thread (the command line's
-    process only; nothing when the user set one of :data:`THREAD_VARIABLES`)."""
+@contextlib.contextmanager
+def start_with_one_thread():
+    """Run the block (a command of the command line) with the BLAS libraries it loads started with one
+    thread: numpy's now, scipy's and cvxpy's where uiofmu first imports them (:func:`blas_module`);
+    nothing when the user set one of :data:`THREAD_VARIABLES`. After the block, uiofmu imports them
+    as a library does again (a program that calls :func:`uiofmu.cli.main` goes on as it was)."""
     global _one_at_load
     _one_at_load = not any(os.environ.get(name) for name in THREAD_VARIABLES)
-    with loading_blas():
-        import numpy  # noqa: F401 - numpy's OpenBLAS, started with one thread
+    try:
+        with loading_blas():
+            import numpy  # noqa: F401 - numpy's OpenBLAS, started with one thread
+        yield
+    finally:
+        _one_at_load = False
 
 
 @contextlib.contextmanager
 def loading_blas():
     """Import BLAS libraries in the block with ``OPENBLAS_NUM_THREADS=1``, then restore the environment.
 
-    Only after :func:`start_with_one_thread`; otherwise the block runs as it is. OpenBLAS reads the
+    Only inside :func:`start_with_one_thread`; otherwise the block runs as it is. OpenBLAS reads the
     variable once, when it loads: a library already loaded keeps its threads, and the processes started
     after the block do not see the variable.
     """
