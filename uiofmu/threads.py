@@ -113,7 +113,8 @@ def one_blas_thread(with_scipy: bool = False):
     ----------
     with_scipy : bool, optional
         Import ``scipy.linalg`` first (the block may use it), so that its OpenBLAS is limited too; not in
-        the command line's process, where it starts with one thread wherever uiofmu first imports it
+        a command of the command line that starts its libraries with one thread (the user set no
+        thread variable): there scipy's starts with one thread wherever uiofmu first imports it
         (:func:`blas_module`), and a block that needs no scipy does not import it.
 
     Nested uses cost about 10 us each. Without :mod:`threadpoolctl` (it is a dependency of uiofmu,
