@@ -1,6 +1,10 @@
 """The command line loads only what a command uses: ``uiofmu --help`` neither numpy nor the runtime, and
 ``check``, ``design``, ``build`` and ``verify`` no optimiser, plotting, FMU importer or scheduler they do not
-use. Measured on ``sys.modules`` in a fresh interpreter, not on a clock."""
+use (and ``check`` of a discrete plant no scipy). Measured on ``sys.modules`` in a fresh interpreter, not on a clock.
+
+Its BLAS libraries (numpy's and scipy's OpenBLAS) start with one thread, unless the user chose a number,
+and the environment is left as it was; ``import uiofmu`` and its API set no variable and start no library
+with fewer threads than it would have (:mod:`uiofmu.threads`). Read off threadpoolctl and ``os.environ``."""
 
 from __future__ import annotations
 
@@ -39,6 +43,61 @@ def loaded(*argv, cwd) -> set:
     return set(report["modules"])
 
 
+#: Runs ``uiofmu.cli.main`` on argv (its first argument, JSON) and prints the exit code, the number of threads of
+#: every BLAS library loaded (after main: the number it started with, or the user's) and whether the environment
+#: is the one the process had before main.
+THREADS_PROBE = """\
+import json, os, sys
+import threadpoolctl        # first: its import sets KMP_DUPLICATE_LIB_OK (Intel's OpenMP), a default of its own
+before = dict(os.environ)
+from uiofmu.cli import main
+code = main(json.loads(sys.argv[1]))
+threads = {i["filepath"]: i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"}
+print(json.dumps({"code": code, "threads": threads, "environment_kept": dict(os.environ) == before}), file=sys.stderr)
+"""
+
+#: The BLAS libraries' threads and the environment after ``import uiofmu`` and a check of Example 1 (the API), or
+#: after importing numpy and scipy.linalg alone (its first argument ``"plain"``).
+LIBRARY_PROBE = """\
+import json, os, sys
+import threadpoolctl
+before = dict(os.environ)
+if sys.argv[1] == "plain":
+    import numpy, scipy.linalg
+else:
+    import uiofmu
+    uiofmu.check(uiofmu.load_problem(sys.argv[2]))
+threads = {i["filepath"]: i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"}
+print(json.dumps({"threads": threads, "environment_kept": dict(os.environ) == before}), file=sys.stderr)
+"""
+
+#: Runs ``uiofmu check`` of its first argument through ``uiofmu.cli.main``, then ``uiofmu.check`` of it (the API),
+#: and prints whether scipy.linalg was loaded after each.
+AFTER_MAIN_PROBE = """\
+import json, sys
+import uiofmu
+from uiofmu.cli import main
+code = main(["check", sys.argv[1]])
+by_main = "scipy.linalg" in sys.modules
+uiofmu.check(uiofmu.load_problem(sys.argv[1]))
+print(json.dumps({"code": code, "by_main": by_main, "by_api": "scipy.linalg" in sys.modules}), file=sys.stderr)
+"""
+
+#: The variables OpenBLAS reads for its number of threads (uiofmu.threads.THREAD_VARIABLES).
+THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def probe(script: str, *args, cwd, **variables) -> dict:
+    """What ``script`` reports (its last line on stderr, JSON) in a fresh interpreter whose environment has no
+    thread variable but ``variables``."""
+    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
+    env.update(variables, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.run([sys.executable, "-c", script, *map(str, args)], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stderr.strip().splitlines()[-1])
+
+
 def unwanted(modules: set, names) -> list:
     """Those of ``names`` (or their submodules) among ``modules``."""
     return sorted(m for m in modules if any(m == n or m.startswith(n + ".") for n in names))
@@ -72,6 +131,7 @@ def test_check_design_verify_build_load_only_what_they_use(tmp_path):
         assert not unwanted(modules, NEVER), (name, unwanted(modules, NEVER))
     assert "clarabel" in design and "uiofmu.synthesis" in verify          # the probe saw the work done
     assert not unwanted(check | verify, ("clarabel",))                  # no solve in check and verify
+    assert "scipy.linalg" in design and not unwanted(check, ("scipy",))  # a discrete plant's check needs none
 
 
 @pytest.mark.skipif(c_compiler() is None, reason="no C compiler for the C backend")
@@ -81,3 +141,39 @@ def test_build_loads_no_fmu_importer(tmp_path):
     modules = loaded("build", card, "-o", tmp_path / "observer.fmu", "--backend", "c", cwd=tmp_path)
     assert (tmp_path / "observer.fmu").is_file()
     assert not unwanted(modules, NEVER), unwanted(modules, NEVER)
+
+
+def test_the_command_line_starts_its_blas_libraries_with_one_thread(tmp_path):
+    """numpy's and scipy's OpenBLAS start with one thread in ``uiofmu design`` and ``verify``; the variable that
+    does it is set around their imports only, so the process's environment (its children's) is the user's."""
+    example, card = EXAMPLES / "seed000_example1.toml", tmp_path / "card.json"
+    for argv in (["design", example, "-o", card], ["verify", card]):
+        report = probe(THREADS_PROBE, json.dumps([str(a) for a in argv]), cwd=tmp_path)
+        assert report["code"] == 0 and report["environment_kept"], (argv[0], report)
+        assert len(report["threads"]) == 2, report["threads"]             # numpy's and scipy's
+        assert set(report["threads"].values()) == {1}, (argv[0], report["threads"])
+
+
+def test_the_command_line_keeps_the_users_number_of_threads(tmp_path):
+    """A user's OPENBLAS_NUM_THREADS is the number the libraries start with (``make test-blas`` sets 2)."""
+    plain = probe(LIBRARY_PROBE, "plain", cwd=tmp_path, OPENBLAS_NUM_THREADS="2")
+    report = probe(THREADS_PROBE, json.dumps(["check", str(EXAMPLES / "seed000_example1.toml")]), cwd=tmp_path,
+                   OPENBLAS_NUM_THREADS="2")
+    assert report["code"] == 0 and report["environment_kept"], report
+    assert report["threads"] == plain["threads"], (report["threads"], plain["threads"])
+
+
+def test_import_uiofmu_sets_no_variable(tmp_path):
+    """The library (``import uiofmu``, its API) sets no environment variable, and the BLAS libraries it loads
+    start with the threads they start with in a plain ``import numpy, scipy.linalg``."""
+    plain = probe(LIBRARY_PROBE, "plain", cwd=tmp_path)
+    report = probe(LIBRARY_PROBE, "uiofmu", EXAMPLES / "seed000_example1.toml", cwd=tmp_path)
+    assert plain["environment_kept"] and report["environment_kept"], (plain, report)
+    assert report["threads"] == plain["threads"], (report["threads"], plain["threads"])
+
+
+def test_a_program_that_runs_main_goes_on_as_a_library(tmp_path):
+    """After ``uiofmu.cli.main`` returns, uiofmu imports scipy as a library does again: the API's check loads
+    scipy.linalg first (to hold its OpenBLAS to one thread), where the command's own check needed none."""
+    report = probe(AFTER_MAIN_PROBE, EXAMPLES / "seed000_example1.toml", cwd=tmp_path)
+    assert report == {"code": 0, "by_main": False, "by_api": True}, report

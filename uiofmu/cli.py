@@ -5,7 +5,8 @@ Exit codes: 0 success; 2 a problem the user can fix (one message on stderr, no t
 
 Each command imports what it uses when it runs: ``uiofmu --help`` and the parser load neither numpy nor
 the runtime package, and ``check``, ``design``, ``build`` and ``verify`` neither cvxpy, scipy.optimize,
-matplotlib, fmpy nor dask (``tests/test_cli_imports.py``).
+matplotlib, fmpy nor dask (``tests/test_cli_imports.py``). numpy's and scipy's BLAS libraries start with
+one thread unless the user chose a number (:func:`uiofmu.threads.start_with_one_thread`).
 """
 
 from __future__ import annotations
@@ -88,12 +89,13 @@ def _cmd_tradeoff(args) -> int:
     from .progress import progress
     from .runtime.files import check_output_file
     from .runtime.text import identifier
-    from .tradeoff import tradeoff, write
+    from .tradeoff import POINTS, tradeoff, write
 
     problem = load_problem(args.problem)
     out = check_output_file(args.output or f"{identifier(problem.name)}.tradeoff.png", "trade-off plot")
-    with progress(total=3 + 2 * args.points, desc="designs", unit="design") as bar:
-        result = tradeoff(problem, args.points, bar.update)
+    points = POINTS if args.points is None else args.points
+    with progress(total=3 + 2 * points, desc="designs", unit="design") as bar:
+        result = tradeoff(problem, points, bar.update)
     png, table = write(result, out)
     print(f"{problem.name}: noise gain against decay, {len(result.points)} decays from the fastest certified one, "
           f"{result.fastest:.6g}: {png} (table: {table})")
@@ -412,9 +414,13 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
     def format_help(self):
-        """The help text; a description given as a function is written when the help is shown."""
+        """The help text; a description or an argument's help given as a function is written when the help
+        is shown (so that the parser imports nothing it would need only for the help)."""
         if callable(self.description):
             self.description = self.description()
+        for action in self._actions:
+            if callable(action.help):
+                action.help = action.help()
         return super().format_help()
 
 
@@ -450,10 +456,15 @@ def _add_design(sub) -> None:
     p.set_defaults(func=_cmd_design)
 
 
-def _add_tradeoff(sub) -> None:
-    """The arguments of ``uiofmu tradeoff``."""
+def _points_help() -> str:
+    """The help of ``tradeoff --points`` (its default is :mod:`uiofmu.tradeoff`'s: written when shown)."""
     from .tradeoff import POINTS
 
+    return f"decays to design at, the fastest included (default {POINTS})"
+
+
+def _add_tradeoff(sub) -> None:
+    """The arguments of ``uiofmu tradeoff``."""
     p = sub.add_parser("tradeoff", help="plot the certified noise gain against the decay over the certified range",
                        description="Design the problem at decays from the fastest one its family certifies "
                                    "(decay = \"max\") toward 1, by default (least overshoot bound) and by least "
@@ -465,8 +476,7 @@ def _add_tradeoff(sub) -> None:
     p.add_argument("problem", help="problem file (TOML) or a plants/NAME folder")
     p.add_argument("-o", "--output", metavar="TRADEOFF.png", help="plot path (default: NAME.tradeoff.png); the "
                                                                   "table goes next to it as .csv")
-    p.add_argument("--points", type=int, default=POINTS, metavar="N",
-                   help=f"decays to design at, the fastest included (default {POINTS})")
+    p.add_argument("--points", type=int, metavar="N").help = _points_help      # written when shown
     p.set_defaults(func=_cmd_tradeoff)
 
 
@@ -684,9 +694,9 @@ def main(argv: list[str] | None = None) -> int:
     if extra:
         parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)[:200]}")
     try:
-        from .threads import one_blas_thread
+        from .threads import one_blas_thread, start_with_one_thread
 
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), start_with_one_thread():    # OpenBLAS starts with one thread
             # numbers that overflow become an exit-2 message of the step that meets them; numpy's
             # warnings on the way there would only add lines to it
             warnings.simplefilter("ignore", RuntimeWarning)

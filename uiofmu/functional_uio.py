@@ -75,6 +75,7 @@ from .runtime.errors import ProblemError
 from .scaling import to_data as scaling_data
 from .runtime.tolerances import RANK_RTOL, ZERO_MARGIN
 from .structure import decay_gain, rank, unobservable_modes
+from .threads import blas_module
 
 #: Most functionals ``observer.functional`` lists.
 MAX_FUNCTIONALS = 1000
@@ -212,7 +213,7 @@ def design(A, B, C, E, L, rho: float) -> FunctionalDesign:
         When neither order exists (the order-``n`` conditions, i.e. the full-order UIO's, fail); the message
         gives both orders' failing conditions with their numbers.
     """
-    from scipy.linalg import solve_discrete_lyapunov
+    solve_discrete_lyapunov = blas_module("scipy.linalg").solve_discrete_lyapunov
 
     n, r = A.shape[0], L.shape[0]
     tried = []

@@ -52,6 +52,7 @@ from .runtime.tolerances import (
     SOLVER_TOL,
     VERIFY_FRACTION,
 )
+from .threads import blas_module
 
 
 @dataclass(frozen=True)
@@ -83,9 +84,7 @@ def _cp_sym(M):
 
 def _cvxpy():
     """cvxpy, imported on first use (reading problems and cards does not need it)."""
-    import cvxpy
-
-    return cvxpy
+    return blas_module("cvxpy")
 
 
 def _np_bmat(rows) -> np.ndarray:

@@ -52,6 +52,7 @@ import numpy as np
 
 from .certificate import Check, definite_check, figure_text, rounding_floor, round_up
 from .runtime.tolerances import ROUNDING_FACTOR
+from .threads import blas_module
 
 #: The norm every gain of a card's ``noise`` section is in.
 NORM = "l2"
@@ -424,7 +425,7 @@ def _crossings(A, B, C, D, level: float):
     level 1. None when the pencil leaves some eigenvalue undetermined (``alpha = beta = 0``: a singular pencil) or
     not finite, or when its eigenvalues near the circle do not come in the pairs ``(z, 1 / conj(z))`` its
     structure gives them to :data:`CIRCLE_TOL` (rounding has moved them too far to tell which are on it)."""
-    from scipy.linalg.lapack import dggev
+    dggev = blas_module("scipy.linalg.lapack").dggev
 
     n, m = B.shape
     Bs, Cs, Ds = B, C / level, D / level
@@ -484,7 +485,7 @@ def hinf_norm(A, B, C, D) -> float:
 def _balancing(A) -> np.ndarray:
     """The diagonal scaling (powers of 2) that balances the rows and columns of ``A``, no permutation: LAPACK's
     ``dgebal``, the call ``scipy.linalg.matrix_balance(A, permute=False)`` makes, without its wrappers."""
-    from scipy.linalg.lapack import dgebal
+    dgebal = blas_module("scipy.linalg.lapack").dgebal
 
     if not len(A):
         return np.ones(0)
@@ -893,7 +894,7 @@ def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
         When the pencil is not finite, does not have ``n`` eigenvalues inside the circle, or its subspace is not a
         graph.
     """
-    from scipy.linalg import ordqz
+    ordqz = blas_module("scipy.linalg").ordqz
 
     n, m = B.shape
     H, J = np.zeros((2, 2 * n + m, 2 * n + m))

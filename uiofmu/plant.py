@@ -15,6 +15,7 @@ import numpy as np
 
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_matrix, as_scalar, as_vector, freeze
+from .threads import blas_module
 
 
 #: Largest magnitude of a plant entry: products of a few such numbers stay finite in double precision.
@@ -93,7 +94,7 @@ def discretize(A: np.ndarray, inputs: np.ndarray, h: float) -> tuple[np.ndarray,
     Gd : (n, k) array
         ``integral_0^h exp(A s) ds @ inputs``.
     """
-    from scipy.linalg import expm        # here, not at import: reading a card needs no scipy
+    expm = blas_module("scipy.linalg").expm        # here, not at import: reading a card needs no scipy
 
     n, k = inputs.shape
     aug = np.zeros((n + k, n + k))

@@ -35,6 +35,7 @@ from typing import Callable
 import numpy as np
 
 from .reductions import CongruenceData, DiagonalCongruence, Reduction, congruent, roles
+from .threads import blas_module
 
 #: The values of ``observer.scaling``: balance the states (default), or design as given.
 SCALINGS = ("balance", "none")
@@ -58,7 +59,7 @@ def state_scaling(A, kind: str = "balance") -> np.ndarray:
     A = np.asarray(A, dtype=float)
     if kind == "none" or A.size == 0 or not np.all(np.isfinite(A)):
         return np.ones(A.shape[0])
-    from scipy.linalg import matrix_balance
+    matrix_balance = blas_module("scipy.linalg").matrix_balance
 
     _, (t, _) = matrix_balance(A, permute=False, separate=True)
     return np.asarray(t, dtype=float) / float(np.max(t))

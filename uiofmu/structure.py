@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .runtime.tolerances import RANK_RTOL
+from .threads import blas_module
 
 
 def _count_above(s: np.ndarray, rank_rtol: float) -> int:
@@ -131,7 +132,7 @@ def decay_gain(A: np.ndarray, C: np.ndarray, rho: float) -> np.ndarray:
         When the Riccati equation has no stabilising solution (a mode ``C`` does not see is
         not inside ``rho``).
     """
-    from scipy.linalg import solve_discrete_are
+    solve_discrete_are = blas_module("scipy.linalg").solve_discrete_are
 
     n, p = C.shape[1], C.shape[0]
     As = A / rho

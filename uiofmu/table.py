@@ -8,8 +8,6 @@ key nobody read. Messages name the key's full path.
 
 from __future__ import annotations
 
-import difflib
-
 from .runtime.errors import ProblemError
 from .runtime.matrices import as_scalar, as_vector
 
@@ -34,6 +32,8 @@ def closest_key(key, candidates) -> str | None:
         The candidate most alike ``key`` when its similarity (difflib's ratio, ignoring case) is at
         least :data:`TYPO_SIMILARITY`.
     """
+    import difflib                                  # here: only a key that is not known needs it
+
     names = {str(c).lower()[:100]: str(c) for c in candidates if isinstance(c, str) and c != key}
     near = difflib.get_close_matches(str(key).lower()[:100], list(names), n=1, cutoff=TYPO_SIMILARITY)
     return names[near[0]] if near else None

@@ -8,7 +8,8 @@ against how fast the estimate converges. The plot marks the problem's own design
 (and, with ``observer.noise_gain``, the fastest decay within that gain); a table with the same numbers is
 written next to it.
 
-The module imports what it uses when it runs (the command line's parser reads :data:`POINTS` only).
+The module imports what it uses when it runs (the command line reads :data:`POINTS` only when it shows
+``uiofmu tradeoff --help`` or runs the command).
 
 A family offers the trade-off when its module has ``noise_options(options, decay, noise)``: its options at
 another decay with the noise objective ``"default"`` or ``"min"`` (:mod:`uiofmu.families`), and reads the decay

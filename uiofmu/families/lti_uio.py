@@ -106,6 +106,7 @@ from ..feedthrough import feedthrough_pair
 from .. import functional_uio
 from ..structure import controllable_split, decay_gain, rank
 from ..runtime.tolerances import SEARCH_TOL, ZERO_MARGIN
+from ..threads import blas_module
 from .. import reduced_order
 from . import Analysis, DesignResult
 
@@ -700,7 +701,7 @@ def _riccati(PA, C, rho: float) -> Tuned:
     form is not evaluated: with the large gains of weakly observable modes its smallest
     eigenvalue drowns in round-off, while the Lyapunov inequality itself does not.
     """
-    from scipy.linalg import solve_discrete_lyapunov
+    solve_discrete_lyapunov = blas_module("scipy.linalg").solve_discrete_lyapunov
 
     try:
         K = decay_gain(PA, C, rho)
@@ -869,7 +870,7 @@ def _placement(pair: Pair, poles: tuple, fixed_count: int, name: str) -> tuple:
         ``(Tuned, design_method, None, record)``, the record holding ``placed`` (the poles asked for),
         ``overshoot_digits`` and the card's ``placement`` entry.
     """
-    from scipy.signal import place_poles
+    place_poles = blas_module("scipy.signal").place_poles
 
     A, C = pair.A, pair.C
     Vo, _ = controllable_split(A.T, C.T)                 # the observable subspace of (A, C)

@@ -90,6 +90,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..runtime.registry import FAMILIES
+from ..threads import blas_module
 
 #: The families the campaign covers, with the code that decorrelates their streams (the registry's
 #: :attr:`~uiofmu.runtime.registry.Entry.random_code`).
@@ -261,7 +262,7 @@ def _conditioned(rng, k: int, spread: float) -> np.ndarray:
 
 def _normal_form(rng, n, p, q, zero_specs, nz, pole_values, rank_deficient):
     """(A, E, C) in the coordinates (xi, eta) with the zeros built in and the poles placed."""
-    from scipy.signal import place_poles
+    place_poles = blas_module("scipy.signal").place_poles
 
     E1 = _orthogonal(rng, p)[:, :q] if q <= p else rng.normal(size=(p, q))
     no = n - p - nz
@@ -294,7 +295,7 @@ def _normal_form(rng, n, p, q, zero_specs, nz, pole_values, rank_deficient):
 
 def _balanced(A, E, C):
     """Diagonal similarity that balances A (keeps poles and zeros)."""
-    from scipy.linalg import matrix_balance
+    matrix_balance = blas_module("scipy.linalg").matrix_balance
 
     _, (s, _) = matrix_balance(A, permute=False, separate=True)
     return A * (1.0 / s)[:, None] * s[None, :], E / s[:, None], C * s[None, :]

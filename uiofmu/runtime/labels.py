@@ -12,7 +12,6 @@ into the variable's ``description`` and the unit into its ``unit`` and ``<UnitDe
 from __future__ import annotations
 
 import re
-from xml.etree.ElementTree import Element
 
 from .text import check_text
 
@@ -129,14 +128,17 @@ def column_labels(labels: dict, sizes: dict) -> dict:
             if element_label(labels, port, i) != (None, None)}
 
 
-def apply_labels(root: Element, ports, labels: dict) -> None:
-    """Put the names and units into a ``modelDescription.xml`` tree written from ``ports``.
+def apply_labels(root, ports, labels: dict) -> None:
+    """Put the names and units into a ``modelDescription.xml`` tree (``root``, its ElementTree element)
+    written from ``ports``.
 
     Each labelled ``ScalarVariable`` (found by its name ``port[i]``) gets its name before its
     description (``"T_room: state estimate at ..."``) and its unit on its ``<Real>``; the units
     used are declared in ``<UnitDefinitions>`` right after ``<CoSimulation>`` (the order of the
     FMI 2.0 schema). ElementTree escapes every value; nothing else changes.
     """
+    from xml.etree.ElementTree import Element       # here: reading a problem or a card needs no XML
+
     variables = {v.get("name"): v for v in root.iter("ScalarVariable")}
     used = []
     for port in ports:

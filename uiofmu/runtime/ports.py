@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from xml.etree.ElementTree import SubElement
 
 from .errors import CardError
 from .experiments import default_horizon
@@ -130,6 +129,8 @@ def plant_spec(data: dict, experiment: dict | None = None, labels: dict | None =
 
 def write_experiment(root, spec: dict) -> None:
     """Append ``<DefaultExperiment>`` (:func:`experiment`'s numbers, written with ``repr``)."""
+    from xml.etree.ElementTree import SubElement      # here: only what writes an FMU needs the XML
+
     spec = experiment(spec["stepSize"], spec["stopTime"])
     SubElement(root, "DefaultExperiment", {k: repr(v) for k, v in spec.items()})
 
@@ -138,6 +139,8 @@ def model_structure(root, ports) -> None:
     """Append ``<ModelStructure>`` for variables written in declaration order (value reference =
     index - 1): every output under ``<Outputs>`` with the inputs it depends on (``dependencies``,
     possibly empty: no feedthrough) and under ``<InitialUnknowns>`` (outputs are ``calculated``)."""
+    from xml.etree.ElementTree import SubElement
+
     first, index, outputs = {}, 1, []
     for port in ports:
         first[port.name] = index

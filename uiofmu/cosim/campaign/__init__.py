@@ -43,12 +43,12 @@ from .sampling import batches, scaled_inputs, scenario, scenarios
 from .scheduler import SCHEDULER_TIMEOUT_S, SchedulerError, probe_scheduler, scheduler_address
 from .staging import OUTPUTS, Staging
 from .tally import MAX_REASONS, QUANTILE_KEYS, QUANTILES, Tally, reason_kind, summary
-from .worker import Loaded, load, run_batch, run_row, run_scenario, scalar_metrics
+from .worker import Loaded, batch_results, load, run_batch, run_row, run_scenario, scalar_metrics
 
 __all__ = ["AXES_KEYS", "AXIS_LIMIT", "Axis", "BATCHES_PER_WORKER", "CAMPAIGN_KEYS", "Campaign", "HEAD", "KINDS",
            "Loaded", "MAX_REASONS", "MAX_RUNS", "MAX_SEED", "OUTPUTS", "PREFERRED", "QUANTILES", "QUANTILE_KEYS",
            "RowFile", "SCHEDULER_TIMEOUT_S", "SchedulerError", "Setup", "Staging", "Tally", "axis_columns",
-           "batches", "build_fmus", "campaign_from_data", "check_steps_axis", "load", "load_campaign",
+           "batch_results", "batches", "build_fmus", "campaign_from_data", "check_steps_axis", "load", "load_campaign",
            "parse_axis", "plot_campaign", "prepare", "probe_scheduler", "read_table", "reason_kind", "replay",
            "run_batch", "run_campaign", "run_row", "run_scenario", "scaled_inputs", "scalar_metrics", "scenario",
            "scenarios", "scheduler_address", "summary"]

@@ -55,10 +55,11 @@ def flat(sc: dict) -> dict:
     return out
 
 
-def axis_cells(campaign: Campaign, setup: Setup, sc: dict) -> list:
-    """The row and axis cells of scenario ``sc``, in the table's order (:data:`HEAD`, :func:`axis_columns`)."""
+def axis_cells(sc: dict, columns: list) -> list:
+    """The row and axis cells of scenario ``sc`` in ``columns``, the table's (:data:`HEAD` and
+    :func:`axis_columns`, found once for many rows)."""
     values = flat(sc)
-    return [cell(values.get(c)) for c in HEAD + axis_columns(campaign, setup)]
+    return [cell(values.get(c)) for c in columns]
 
 
 def read_table(path) -> list:

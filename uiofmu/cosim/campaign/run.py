@@ -12,12 +12,12 @@ from ...threads import single_blas_thread
 from .file import Campaign
 from .fmus import Setup, prepare
 from .plot import plot_campaign
-from .rows import RowFile, axis_cells, cell, flat, read_table
+from .rows import RowFile, cell, flat, read_table
 from .sampling import batches, scenario
 from .scheduler import probe_scheduler, scheduler_address, start_client
 from .staging import Staging
 from .tally import Tally, summary
-from .worker import run_batch, run_scenario, scalar_metrics
+from .worker import batch_results, run_batch, run_scenario, scalar_metrics
 
 #: Batches in flight per worker: submitted, running, or finished and waiting for an earlier batch
 #: to be written (the client holds at most this many batches per worker).
@@ -80,9 +80,7 @@ class _Run:
             return fut.result()
         except Exception as exc:  # noqa: BLE001 - a worker died (a crash inside an FMU) or was lost
             reason = f"worker lost: {type(exc).__name__}: {' '.join(str(exc).split())}"[:500]
-            return [(row, axis_cells(self.campaign, self.setup, sc), sc.get("plant_mismatch"),
-                     {"status": "crashed", "reason": reason})
-                    for row in rows for sc in [scenario(self.campaign, self.setup, row)]]
+            return batch_results(self.campaign, self.setup, rows, lambda sc: {"status": "crashed", "reason": reason})
 
     def _write_ready(self, everything: bool = False) -> None:
         """Write the finished batches that follow the rows written (``everything``: all of them, in order)."""

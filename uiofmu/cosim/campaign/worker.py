@@ -20,7 +20,7 @@ from ...threads import single_blas_thread
 from .fmus import Setup
 from ..noise import Noise
 from .file import Campaign
-from .rows import axis_cells
+from .rows import HEAD, axis_cells, axis_columns
 from .sampling import scaled_inputs, scenario
 
 
@@ -149,26 +149,35 @@ def run_row(setup: Setup, sc: dict) -> dict:
     return {"status": "ok", "reason": "", "wall_s": time.perf_counter() - t0, **scalar_metrics(result.metrics)}
 
 
-@single_blas_thread
-def run_batch(setup: Setup, campaign: Campaign, rows: range) -> list:
-    """A Dask task: the rows ``rows`` made into scenarios (:func:`scenario`) and run one after the other in
-    this worker.
+def batch_results(campaign: Campaign, setup: Setup, rows: range, outcome) -> list:
+    """The results of a batch of rows as the client writes them, each row's scenario (:func:`scenario`)
+    given to ``outcome`` in row order (:func:`run_row` in a worker; a crash for every row of a batch whose
+    worker was lost).
 
     Returns
     -------
     list of tuple
         Per row ``(row, cells, plant_mismatch, result)``: the row's axis cells for the table
-        (:func:`axis_cells`), its plant's mismatch (None without the axis) and :func:`run_row`'s result.
+        (:func:`axis_cells`, under the table's columns found once for the batch), its plant's mismatch
+        (None without the axis) and ``outcome(scenario)``.
     """
-    import warnings
-
+    columns = HEAD + axis_columns(campaign, setup)
     out = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        for row in rows:
-            sc = scenario(campaign, setup, row)
-            out.append((row, axis_cells(campaign, setup, sc), sc.get("plant_mismatch"), run_row(setup, sc)))
+    for row in rows:
+        sc = scenario(campaign, setup, row)
+        out.append((row, axis_cells(sc, columns), sc.get("plant_mismatch"), outcome(sc)))
     return out
 
 
-__all__ = ["Loaded", "load", "run_batch", "run_row", "run_scenario", "scalar_metrics"]
+@single_blas_thread
+def run_batch(setup: Setup, campaign: Campaign, rows: range) -> list:
+    """A Dask task: the rows ``rows`` made into scenarios and run one after the other in this worker
+    (:func:`batch_results` of :func:`run_row`)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return batch_results(campaign, setup, rows, lambda sc: run_row(setup, sc))
+
+
+__all__ = ["Loaded", "batch_results", "load", "run_batch", "run_row", "run_scenario", "scalar_metrics"]
