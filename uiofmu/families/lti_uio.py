@@ -491,17 +491,49 @@ def _fastest_within(s, C, M, t, fastest: float, sol: LmiSolution, system, method
     return rho, least, (system, noise[0]), NOISE_METHOD, {**record, "gain_y": gain, "search": search}
 
 
-def checks(matrices: dict, rho: float) -> list:
+#: The matrices the identities of :func:`checks` that read nothing of the point (without feedthrough) are made of:
+#: the same bytes at every point of one design's search.
+FIXED_IDENTITIES = ("P", "E_sampled", "M", "C", "B_sampled", "G", "Xy", "Xz", "c", "w_sampled")
+
+
+def checks(matrices: dict, rho: float, fixed: dict | None = None) -> list:
     """The certificate's checks at the stored matrices (used by the design and by :func:`verify`).
 
     Decoupling ``(I+MC)E = 0``, the observer identities ``PA - NP - LC = 0``, ``PB = G`` and
     ``c = P w``, the output ``xhat = z - M y`` (``Xz = I``, ``Xy = -M``), the reported gain
     ``K = L + N M``, ``X > 0`` and the decay ``rho^2 X - N'XN > 0``: every matrix the runtime uses
     is checked.
+
+    ``fixed`` (a design's, for the points of its search) keeps the identities that read no matrix of the point
+    (decoupling, ``PB = G``, ``P = I + MC``, ``Xy = -M``, ``Xz = I``, ``c = P w``; those of a plant with feedthrough
+    read ``L`` and are not kept) by the bytes of the matrices they read (:data:`FIXED_IDENTITIES`): the same
+    calls on the same bytes would find the same checks to the last bit.
     """
     g = {k: np.asarray(v, dtype=float) for k, v in matrices.items()}
-    P, A, B, E, C = g["P"], g["A_sampled"], g["B_sampled"], g["E_sampled"], g["C"]
-    N, L, G, X = g["N"], g["L"], g["G"], g["X"]
+    P, A, C, N, L = g["P"], g["A_sampled"], g["C"], g["N"], g["L"]
+    key = None
+    if fixed is not None and "F" not in g and "D" not in g:
+        key = tuple((g[k].shape, g[k].tobytes()) for k in FIXED_IDENTITIES)
+    same = fixed.get(key) if key is not None else None
+    if same is None:
+        same = identity_checks(*_fixed_identities(g))
+        if key is not None:
+            fixed[key] = same
+    moving = identity_checks(
+        ("||PA - NP - LC||", P @ A - N @ P - L @ C, magnitude([P, A], [N, P], [L, C])),
+        ("||K - (L + NM)|| (the gain the card reports)", g["K"] - L - N @ g["M"], magnitude([L], [N, g["M"]])))
+    first = 1 + ("F" in g)                   # decoupling, then the inputs' and P = I + MC up to ``upto``
+    upto = first + 1 + ("D" in g)
+    return [*same[:first], moving[0], *same[first:upto + 1], moving[1], *same[upto + 1:],
+            positive_check("eig_min(X)", g["X"]),
+            lyapunov_check("eig_min(rho^2 X - N'XN)", N, g["X"], rho),
+            decay_check(rho)]
+
+
+def _fixed_identities(g: dict) -> list:
+    """The identities of :func:`checks` other than ``PA - NP - LC`` and ``K = L + NM``, in the card's order:
+    ``(name, residual, magnitude)``."""
+    P, B, E, C, L = g["P"], g["B_sampled"], g["E_sampled"], g["C"], g["L"]
     if "F" in g:         # y = C x + D u + F d: P E = L F and M F = 0 (uiofmu.feedthrough)
         F = g["F"]
         decoupling = [("decoupling ||(I+MC)E - LF||", P @ E - L @ F, magnitude([E], [g["M"], C, E], [L, F])),
@@ -509,25 +541,16 @@ def checks(matrices: dict, rho: float) -> list:
     else:
         decoupling = [("decoupling ||(I+MC)E||", P @ E, magnitude([E], [g["M"], C, E]))]
     if "D" in g:         # the observer runs on y - D u
-        D = g["D"]
+        D, G = g["D"], g["G"]
         inputs = [("||PB - LD - G||", P @ B - L @ D - G, magnitude([P, B], [L, D], [G])),
                   ("||Xu - MD||", g["Xu"] - g["M"] @ D, magnitude([g["M"], D]))]
     else:
-        inputs = [("||PB - G||", P @ B - G, magnitude([P, B], [G]) if B.size else 0.0)]
-    return [
-        *identity_checks(
-            *decoupling,
-            ("||PA - NP - LC||", P @ A - N @ P - L @ C, magnitude([P, A], [N, P], [L, C])),
-            *inputs,
+        inputs = [("||PB - G||", P @ B - g["G"], magnitude([P, B], [g["G"]]) if B.size else 0.0)]
+    return [*decoupling, *inputs,
             ("||P - (I + MC)||", P - np.eye(len(P)) - g["M"] @ C, magnitude([g["M"], C])),
-            ("||K - (L + NM)|| (the gain the card reports)", g["K"] - L - N @ g["M"], magnitude([L], [N, g["M"]])),
             ("||Xy + M||", g["Xy"] + g["M"], magnitude([g["M"]])),
             ("||Xz - I||", g["Xz"] - np.eye(len(P)), 1.0),
-            ("||c - P w||", g["c"] - P @ g["w_sampled"], magnitude([P, g["w_sampled"][:, None]]))),
-        positive_check("eig_min(X)", X),
-        lyapunov_check("eig_min(rho^2 X - N'XN)", N, X, rho),
-        decay_check(rho),
-    ]
+            ("||c - P w||", g["c"] - P @ g["w_sampled"], magnitude([P, g["w_sampled"][:, None]]))]
 
 
 def verify(card) -> list:
@@ -758,6 +781,9 @@ class Pair:
     #: The card's matrices and checks of the points :meth:`checked` evaluated (by the bytes of ``X``, the gain and
     #: the decay, and the checks): the design's own points only, the pair being made for one design.
     seen: dict = field(default_factory=dict, compare=False, repr=False)
+    #: The identities of :func:`checks` that read nothing of the point, kept for the points of one design (its
+    #: ``fixed``).
+    fixed: dict = field(default_factory=dict, compare=False, repr=False)
 
     def lmi_runtime(self, values: dict) -> dict:
         """:attr:`runtime` of an LMI point in the plant's coordinates (``X`` and ``W = X gain``)."""
@@ -776,7 +802,8 @@ class Pair:
         key = (check, float(rho), X.shape, X.tobytes(), gain.shape, gain.tobytes())
         if key not in self.seen:
             matrices = self.runtime(X, gain)
-            self.seen[key] = (matrices, check(matrices, float(rho)))
+            found = check(matrices, float(rho), self.fixed) if check is checks else check(matrices, float(rho))
+            self.seen[key] = (matrices, found)
         matrices, found = self.seen[key]
         return dict(matrices), list(found)
 
