@@ -476,7 +476,14 @@ class ConicProblem:
     def data(self, params: dict):
         """CLARABEL's ``A`` (CSC) and ``b`` at the parameter values (one for every parameter)."""
         weights = np.array([1.0] + [float(params[k]) for k in self.keys[1:]])
-        A = sp.csc_matrix((self._values @ weights, self._indices, self._indptr), shape=(self.nrows, self.nvar))
+        cached = getattr(self, "_csc_index", None)       # (a copy of a problem keeps its original's: checked)
+        if cached is None or cached[0] is not self._indices or cached[1] is not self._indptr:
+            # the index dtype scipy chooses (int32 where it holds them), converted once instead of at every solve
+            fits = max(self.nrows, self.nvar, int(self._indptr[-1])) <= np.iinfo(np.int32).max
+            cached = self._csc_index = (self._indices, self._indptr, *(
+                (self._indices.astype(np.int32), self._indptr.astype(np.int32)) if fits else
+                (self._indices, self._indptr)))
+        A = sp.csc_matrix((self._values @ weights, *cached[2:]), shape=(self.nrows, self.nvar))
         return A, self._b @ weights
 
     def solve(self, params: dict, tol: float, reduced: float | None = None):
