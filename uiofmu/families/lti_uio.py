@@ -785,11 +785,6 @@ class Pair:
     #: ``fixed``).
     fixed: dict = field(default_factory=dict, compare=False, repr=False)
 
-    def lmi_runtime(self, values: dict) -> dict:
-        """:attr:`runtime` of an LMI point in the plant's coordinates (``X`` and ``W = X gain``)."""
-        X = values["X"]
-        return self.runtime(X, self.gain(values))
-
     def checked(self, X: np.ndarray, gain: np.ndarray, rho: float, check) -> tuple[dict, list]:
         """The card's matrices of ``(X, gain)`` (:attr:`runtime`) and ``check(matrices, rho)`` at them.
 
