@@ -42,6 +42,22 @@ def test_tampered_card_fails_recheck(example1_card):
     assert "eig_min(rho^2 X - N'XN)" in failed and "||PA - NP - LC||" in failed
 
 
+def test_kept_checks_are_the_checks_made_afresh(example1_card):
+    """The certificate a design keeps from its search's re-check, with the identities that read nothing of the
+    point checked once for the search's points, is the one the checks make afresh at the card's matrices."""
+    from uiofmu.families.lti_uio import checks
+
+    card, _ = example1_card
+    m = {k: np.asarray(v, dtype=float) for k, v in card.data["matrices"].items()}
+    rho = card.data["decay_bound"]
+    afresh = [c.to_data() | {"name": c.name} for c in checks(m, rho)]
+    assert [{**v, "name": k} for k, v in card.data["certificate"]["checks"].items()] == afresh
+    kept: dict = {}
+    other = checks({**m, "K": 1.5 * m["K"], "L": 1.5 * m["L"]}, rho, kept)      # another point first
+    assert len(kept) == 1 and not all(c.holds for c in other)
+    assert [c.to_data() | {"name": c.name} for c in checks(m, rho, kept)] == afresh
+
+
 def test_requested_decay(tmp_path, example1_path):
     text = example1_path.read_text().replace('decay = "max"', "decay = 0.995")
     path = tmp_path / "p.toml"

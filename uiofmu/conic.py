@@ -308,6 +308,7 @@ class ConicProblem:
     def __init__(self, variables: dict, parameters: dict, build, objective, margin: float):
         self.specs = variables
         self._forms = {}                 # the forms margin_form derived, by their arguments
+        self._layouts = {}               # what those forms share whatever the margin held (_margin_layout)
         self.offsets, self.sizes, self._basis = {}, {}, {}
         traced = {}
         total = 0
@@ -400,7 +401,25 @@ class ConicProblem:
         return self._forms[key]
 
     def _margin_form(self, name: str, margin: float, tie_break: float, held: float | None) -> tuple:
-        """:meth:`margin_form`, derived afresh (:meth:`margin_form` keeps each form it derived)."""
+        """:meth:`margin_form`, derived afresh (:meth:`margin_form` keeps each form it derived); the forms at
+        different ``held`` differ only in the trace row's values, so their layout (:meth:`_margin_layout`) is
+        derived once."""
+        key = (name, margin, tie_break, held is not None)
+        if key not in self._layouts:
+            self._layouts[key] = self._margin_layout(name, margin, tie_break, held is not None)
+        out, size, trace_vals, tail, order = self._layouts[key]
+        if held is not None:                                  # size t - held sum traces = 0
+            trace_vals = -held * trace_vals
+        out = copy.copy(out)
+        out._forms, out._layouts = {}, {}
+        out._values = np.vstack([self._values, trace_vals, *tail])[order]
+        return out, size
+
+    def _margin_layout(self, name: str, margin: float, tie_break: float, held: bool) -> tuple:
+        """What a form of :meth:`margin_form` (``held``: one at a margin held) takes from this problem whatever the
+        margin held: the form without its coefficients' values, the size of the normalised matrices, the trace
+        row's values (minus the sum of the normalised matrices' diagonal rows), the rows after them, and the order
+        of the coefficients."""
         def diagonal(first, m):
             j = np.arange(m)
             return first + j * (j + 1) // 2 + j
@@ -411,7 +430,7 @@ class ConicProblem:
             raise ValueError("a largest-margin problem needs a normalisation (a non-strict LMI with a constant part)")
         norm_diag = np.concatenate([diagonal(r, m) for r, _, m in norms])
         size = int(sum(m for *_, m in norms))
-        t_rows = np.sort(np.concatenate(strict + ([] if held is not None else [norm_diag])))
+        t_rows = np.sort(np.concatenate(strict + ([] if held else [norm_diag])))
         keys = len(self.keys)
         cols = np.repeat(np.arange(self.nvar), np.diff(self._indptr))
         on_trace = np.isin(self._indices, norm_diag)          # the trace row: minus the sum of those rows
@@ -420,33 +439,29 @@ class ConicProblem:
         np.add.at(trace_vals, where, -self._values[on_trace])
         t_vals = np.zeros((t_rows.size, keys))
         t_vals[:, 0] = 1.0                                    # s = F - t I
-        trace_t = np.zeros((0, keys))
-        if held is not None:                                  # size t - held sum traces = 0
-            trace_vals, trace_t = -held * trace_vals, float(size) * np.eye(1, keys)
+        trace_t = float(size) * np.eye(1, keys) if held else np.zeros((0, keys))
         rows = np.concatenate([self._indices, np.full(trace_cols.size + len(trace_t), self.nrows), t_rows])
         cols = np.concatenate([cols, trace_cols, np.full(len(trace_t), self.nvar), np.full(t_rows.size, self.nvar)])
-        vals = np.vstack([self._values, trace_vals, trace_t, t_vals])
         order = np.lexsort((rows, cols))
         out = copy.copy(self)
-        out._forms = {}
         out.nvar, out.nrows = self.nvar + 1, self.nrows + 1
-        out._indices, out._values = rows[order], vals[order]
+        out._indices, out._values = rows[order], None
         out._indptr = np.searchsorted(cols[order], np.arange(out.nvar + 1))
         b = self._b.copy()
         for rows_ in strict:
             b[rows_, 0] += margin                             # the strictness margin is t now
-        if held is None:
+        if not held:
             for r, c, _ in norms:
                 b[r:r + c, 0] = 0.0                           # the normalisation's constant goes
-        out._b = np.vstack([b, np.zeros((1, keys)) if held is not None else np.eye(1, keys)])  # traces add up to 1
+        out._b = np.vstack([b, np.zeros((1, keys)) if held else np.eye(1, keys)])  # traces add up to 1
         out.cones = [*self.cones, clarabel.ZeroConeT(1)]
-        out.q = np.concatenate([self.q, [0.0]]) if held is not None else np.concatenate([tie_break * self.q, [-1.0]])
+        out.q = np.concatenate([self.q, [0.0]]) if held else np.concatenate([tie_break * self.q, [-1.0]])
         out.P = sp.csc_matrix((np.zeros(0), np.zeros(0, int), np.zeros(out.nvar + 1, int)),
                               shape=(out.nvar, out.nvar))
         out.specs = {**self.specs, name: ("scalar",)}
         out.offsets, out.sizes = {**self.offsets, name: self.nvar}, {**self.sizes, name: 1}
         out._basis = {**self._basis, name: np.ones((1, 1, 1))}
-        return out, size
+        return out, size, trace_vals, (trace_t, t_vals), order
 
     def _pattern(self, blocks: list, to_row: np.ndarray, to_weight: np.ndarray):
         """``A``'s pattern (CSC) and its values per parameter key, from dense coefficient blocks
@@ -476,7 +491,14 @@ class ConicProblem:
     def data(self, params: dict):
         """CLARABEL's ``A`` (CSC) and ``b`` at the parameter values (one for every parameter)."""
         weights = np.array([1.0] + [float(params[k]) for k in self.keys[1:]])
-        A = sp.csc_matrix((self._values @ weights, self._indices, self._indptr), shape=(self.nrows, self.nvar))
+        cached = getattr(self, "_csc_index", None)       # (a copy of a problem keeps its original's: checked)
+        if cached is None or cached[0] is not self._indices or cached[1] is not self._indptr:
+            # the index dtype scipy chooses (int32 where it holds them), converted once instead of at every solve
+            fits = max(self.nrows, self.nvar, int(self._indptr[-1])) <= np.iinfo(np.int32).max
+            cached = self._csc_index = (self._indices, self._indptr, *(
+                (self._indices.astype(np.int32), self._indptr.astype(np.int32)) if fits else
+                (self._indices, self._indptr)))
+        A = sp.csc_matrix((self._values @ weights, *cached[2:]), shape=(self.nrows, self.nvar))
         return A, self._b @ weights
 
     def solve(self, params: dict, tol: float, reduced: float | None = None):

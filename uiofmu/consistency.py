@@ -154,21 +154,32 @@ def condition(matrices) -> float:
 
 def dhat_record(C, A, B, E, w) -> dict:
     """dhat's matrices of stacked sampled plants ``A[k], B[k], E[k], w[k]`` (a stack of one for a
-    single plant): ``Dy[k] = (C E[k])^+``, ``Yx[k] = C A[k]``, ``Yu[k] = C B[k]``, ``Yc[k] = C w[k]``."""
+    single plant): ``Dy[k] = (C E[k])^+``, ``Yx[k] = C A[k]``, ``Yu[k] = C B[k]``, ``Yc[k] = C w[k]``
+    (:func:`dhat_matrices`), each with the tolerance a re-computation is compared with."""
+    A, B, E, w = (np.asarray(x, dtype=float) for x in (A, B, E, w))
+    values = dhat_matrices(C, A, B, E, w)
+    return {"Dy": conditioned(values["Dy"], condition(np.einsum("ij,kjl->kil", C, E))),
+            "Yx": product(C, A, values["Yx"]), "Yu": product(C, B, values["Yu"]),
+            "Yc": product(C, w[..., None], values["Yc"])}
+
+
+def dhat_matrices(C, A, B, E, w) -> dict:
+    """The values of :func:`dhat_record` alone (what a design stores; the tolerances are for the consistency
+    check of a card)."""
     A, B, E, w = (np.asarray(x, dtype=float) for x in (A, B, E, w))
     CE = np.einsum("ij,kjl->kil", C, E)
-    return {"Dy": conditioned(np.array([np.linalg.pinv(m) for m in CE]), condition(CE)),
-            "Yx": product(C, A), "Yu": product(C, B), "Yc": product(C, w[..., None], squeeze=True)}
+    return {"Dy": np.array([np.linalg.pinv(m) for m in CE]), "Yx": np.einsum("ij,kjl->kil", C, A),
+            "Yu": np.einsum("ij,kjl->kil", C, B), "Yc": np.einsum("ij,kjl->kil", C, w[..., None])[..., 0]}
 
 
-def product(C, X, squeeze: bool = False) -> Determined:
-    """``C @ X[k]`` for a stack ``X``, compared relative to ``max(|C| |X[k]|)`` (the size of its terms: an
-    entry that is zero in exact arithmetic is computed as rounding of that size, or as exact zero, by
-    different kernels); ``squeeze`` drops a last axis of length 1."""
+def product(C, X, value=None) -> Determined:
+    """``C @ X[k]`` for a stack ``X`` (``value``, when already computed: its shape is kept), compared relative to
+    ``max(|C| |X[k]|)`` (the size of its terms: an entry that is zero in exact arithmetic is computed as rounding of
+    that size, or as exact zero, by different kernels)."""
     X = np.asarray(X, dtype=float)
-    value = np.einsum("ij,kjl->kil", C, X)
+    value = np.einsum("ij,kjl->kil", C, X) if value is None else value
     terms = np.einsum("ij,kjl->kil", np.abs(C), np.abs(X))
-    return Determined(value[..., 0] if squeeze else value, float(terms.max()) if terms.size else 0.0)
+    return Determined(value, float(terms.max()) if terms.size else 0.0)
 
 
 def first(record: dict) -> dict:
@@ -420,5 +431,5 @@ def plant_record(problem) -> dict:
 
 
 __all__ = ["DETERMINED", "SAME_RTOL", "Determined", "Spectrum", "computed_values", "condition", "conditioned",
-           "consistency_checks", "dhat_record", "eigen_rtol", "existence_checks", "first", "plant_record",
-           "plant_scale", "product", "same_check", "spectrum"]
+           "consistency_checks", "dhat_matrices", "dhat_record", "eigen_rtol", "existence_checks", "first",
+           "plant_record", "plant_scale", "product", "same_check", "spectrum"]

@@ -504,13 +504,14 @@ def _balanced(A, B, C) -> tuple:
     return A * s[None, :] / s[:, None], B / s[:, None], C * s[None, :], s
 
 
-def _level_norm(A, B, C, D) -> float:
-    """:func:`hinf_norm` of a system whose ``A`` is balanced (:func:`_balanced`)."""
+def _level_norm(A, B, C, D, poles: np.ndarray | None = None) -> float:
+    """:func:`hinf_norm` of a system whose ``A`` is balanced (:func:`_balanced`); ``poles``: the angles of the
+    eigenvalues of ``A`` (:func:`_pole_angles`), where already computed."""
     if not (B.shape[1] and C.shape[0]):
         return 0.0
     if not len(A):
         return float(_response(A, B, C, D, np.zeros(1))[0])
-    poles = np.abs(np.angle(np.linalg.eigvals(A)))
+    poles = _pole_angles(A) if poles is None else poles
     best = float(_response(A, B, C, D, np.concatenate([[0.0, np.pi], poles])).max())
     for _ in range(LEVELS):
         if not (math.isfinite(best) and best > 0.0):
@@ -526,6 +527,11 @@ def _level_norm(A, B, C, D) -> float:
             return best
         best = found
     return max(best, _sweep_norm(A, B, C, D)) if math.isfinite(best) else _sweep_norm(A, B, C, D)
+
+
+def _pole_angles(A) -> np.ndarray:
+    """The angles in [0, pi] of the eigenvalues of ``A``."""
+    return np.abs(np.angle(np.linalg.eigvals(A)))
 
 
 def scaled_definite_check(name: str, Q: np.ndarray, terms: np.ndarray, length: int) -> Check:
@@ -938,9 +944,10 @@ def brl_certificate(A, B, C, D, label: str = "gain_y") -> dict:
     """
     A, B, C, D = (np.asarray(m, dtype=float) for m in (A, B, C, D))
     Ab, Bb, Cb, s = _balanced(A, B, C)                                          # eps = diag(s) eps_b
-    norm = _level_norm(Ab, Bb, Cb, D)
+    poles = _pole_angles(Ab) if len(A) else None                               # both norms' first angles
+    norm = _level_norm(Ab, Bb, Cb, D, poles)
     # delta I added to C'C raises the gain by at most delta h^2 / (2 gamma), h = ||(zI - A)^-1 B||_inf.
-    h = _level_norm(Ab, Bb, np.eye(len(A)), np.zeros_like(B))
+    h = _level_norm(Ab, Bb, np.eye(len(A)), np.zeros_like(B), poles)
     gamma = round_up(max(norm, 1e-300) * (1.0 + NOISE_MARGIN), NOISE_DIGITS)
     for _ in range(TRIES):
         delta = (0.1 * (gamma - norm) * gamma) / max(h * h, 1e-300) if gamma > norm else 0.0

@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from . import __version__
-from .runtime.card import FORMAT, VERSION, Card, card_from_data, declared_ports, to_lists
+from .runtime.card import FORMAT, VERSION, Card, check_card, declared_ports, to_lists
 from .runtime.errors import CardError, InfeasibleError, NumericalError, ProblemError
 from .existence import Existence
 from .families import DesignResult, available_family
@@ -233,5 +233,8 @@ def assemble_card(problem: Problem, result: DesignResult, existence: Existence, 
                    "solver_s": sum(s.solver_time for s in systems), "solves": sum(s.solves for s in systems),
                    "backend": systems[0].backend if systems else "none"},
     }
-    data["ports"] = [port.to_data() for port in declared_ports(data, result.matrices)]
-    return card_from_data(data)
+    # The card checked as any reader checks it (check_card), and its ports declared from the matrices that check
+    # returns: the check of the ports against the same matrices, which a card read later gets, holds by construction.
+    matrices = check_card(data)
+    data["ports"] = [port.to_data() for port in declared_ports(data, matrices)]
+    return Card(data, matrices)

@@ -64,7 +64,7 @@ or the decoupled pair is not detectable, when ``L x`` does not see what fails).
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -74,7 +74,7 @@ from ..certificate import (
     certificate,
     round_up,
     decay_check,
-    identity_check,
+    identity_checks,
     lyapunov_check,
     magnitude,
     UNDETERMINED,
@@ -91,7 +91,8 @@ from ..decoupling import (
     sampled_decoupling_conditions,
     short_above,
 )
-from ..consistency import computed_values, condition, conditioned, dhat_record, first, spectrum
+from ..consistency import (computed_values, condition, conditioned, dhat_matrices, dhat_record, first,
+                           spectrum)
 from ..runtime.card import DHAT
 from ..runtime.errors import InfeasibleError, ProblemError
 from ..existence import Condition, Existence, complex_list, format_complex, from_pairs
@@ -498,44 +499,66 @@ def _fastest_within(s, C, M, t, fastest: float, sol: LmiSolution, system, method
     return rho, least, (system, noise[0]), NOISE_METHOD, {**record, "gain_y": gain, "search": search}
 
 
-def checks(matrices: dict, rho: float) -> list:
+#: The matrices the identities of :func:`checks` that read nothing of the point (without feedthrough) are made of:
+#: the same bytes at every point of one design's search.
+FIXED_IDENTITIES = ("P", "E_sampled", "M", "C", "B_sampled", "G", "Xy", "Xz", "c", "w_sampled")
+
+
+def checks(matrices: dict, rho: float, fixed: dict | None = None) -> list:
     """The certificate's checks at the stored matrices (used by the design and by :func:`verify`).
 
     Decoupling ``(I+MC)E = 0``, the observer identities ``PA - NP - LC = 0``, ``PB = G`` and
     ``c = P w``, the output ``xhat = z - M y`` (``Xz = I``, ``Xy = -M``), the reported gain
     ``K = L + N M``, ``X > 0`` and the decay ``rho^2 X - N'XN > 0``: every matrix the runtime uses
     is checked.
+
+    ``fixed`` (a design's, for the points of its search) keeps the identities that read no matrix of the point
+    (decoupling, ``PB = G``, ``P = I + MC``, ``Xy = -M``, ``Xz = I``, ``c = P w``; those of a plant with feedthrough
+    read ``L`` and are not kept) by the bytes of the matrices they read (:data:`FIXED_IDENTITIES`): the same
+    calls on the same bytes would find the same checks to the last bit.
     """
     g = {k: np.asarray(v, dtype=float) for k, v in matrices.items()}
-    P, A, B, E, C = g["P"], g["A_sampled"], g["B_sampled"], g["E_sampled"], g["C"]
-    N, L, G, X = g["N"], g["L"], g["G"], g["X"]
+    P, A, C, N, L = g["P"], g["A_sampled"], g["C"], g["N"], g["L"]
+    key = None
+    if fixed is not None and "F" not in g and "D" not in g:
+        key = tuple((g[k].shape, g[k].tobytes()) for k in FIXED_IDENTITIES)
+    same = fixed.get(key) if key is not None else None
+    if same is None:
+        same = identity_checks(*_fixed_identities(g))
+        if key is not None:
+            fixed[key] = same
+    moving = identity_checks(
+        ("||PA - NP - LC||", P @ A - N @ P - L @ C, magnitude([P, A], [N, P], [L, C])),
+        ("||K - (L + NM)|| (the gain the card reports)", g["K"] - L - N @ g["M"], magnitude([L], [N, g["M"]])))
+    first = 1 + ("F" in g)                   # decoupling, then the inputs' and P = I + MC up to ``upto``
+    upto = first + 1 + ("D" in g)
+    return [*same[:first], moving[0], *same[first:upto + 1], moving[1], *same[upto + 1:],
+            positive_check("eig_min(X)", g["X"]),
+            lyapunov_check("eig_min(rho^2 X - N'XN)", N, g["X"], rho),
+            decay_check(rho)]
+
+
+def _fixed_identities(g: dict) -> list:
+    """The identities of :func:`checks` other than ``PA - NP - LC`` and ``K = L + NM``, in the card's order:
+    ``(name, residual, magnitude)``."""
+    P, B, E, C, L = g["P"], g["B_sampled"], g["E_sampled"], g["C"], g["L"]
     if "F" in g:         # y = C x + D u + F d: P E = L F and M F = 0 (uiofmu.feedthrough)
         F = g["F"]
-        decoupling = [identity_check("decoupling ||(I+MC)E - LF||", P @ E - L @ F,
-                                     magnitude([E], [g["M"], C, E], [L, F])),
-                      identity_check("decoupling ||MF||", g["M"] @ F, magnitude([g["M"], F]))]
+        decoupling = [("decoupling ||(I+MC)E - LF||", P @ E - L @ F, magnitude([E], [g["M"], C, E], [L, F])),
+                      ("decoupling ||MF||", g["M"] @ F, magnitude([g["M"], F]))]
     else:
-        decoupling = [identity_check("decoupling ||(I+MC)E||", P @ E, magnitude([E], [g["M"], C, E]))]
+        decoupling = [("decoupling ||(I+MC)E||", P @ E, magnitude([E], [g["M"], C, E]))]
     if "D" in g:         # the observer runs on y - D u
-        D = g["D"]
-        inputs = [identity_check("||PB - LD - G||", P @ B - L @ D - G, magnitude([P, B], [L, D], [G])),
-                  identity_check("||Xu - MD||", g["Xu"] - g["M"] @ D, magnitude([g["M"], D]))]
+        D, G = g["D"], g["G"]
+        inputs = [("||PB - LD - G||", P @ B - L @ D - G, magnitude([P, B], [L, D], [G])),
+                  ("||Xu - MD||", g["Xu"] - g["M"] @ D, magnitude([g["M"], D]))]
     else:
-        inputs = [identity_check("||PB - G||", P @ B - G, magnitude([P, B], [G]) if B.size else 0.0)]
-    return [
-        *decoupling,
-        identity_check("||PA - NP - LC||", P @ A - N @ P - L @ C, magnitude([P, A], [N, P], [L, C])),
-        *inputs,
-        identity_check("||P - (I + MC)||", P - np.eye(len(P)) - g["M"] @ C, magnitude([g["M"], C])),
-        identity_check("||K - (L + NM)|| (the gain the card reports)", g["K"] - L - N @ g["M"],
-                       magnitude([L], [N, g["M"]])),
-        identity_check("||Xy + M||", g["Xy"] + g["M"], magnitude([g["M"]])),
-        identity_check("||Xz - I||", g["Xz"] - np.eye(len(P)), 1.0),
-        identity_check("||c - P w||", g["c"] - P @ g["w_sampled"], magnitude([P, g["w_sampled"][:, None]])),
-        positive_check("eig_min(X)", X),
-        lyapunov_check("eig_min(rho^2 X - N'XN)", N, X, rho),
-        decay_check(rho),
-    ]
+        inputs = [("||PB - G||", P @ B - g["G"], magnitude([P, B], [g["G"]]) if B.size else 0.0)]
+    return [*decoupling, *inputs,
+            ("||P - (I + MC)||", P - np.eye(len(P)) - g["M"] @ C, magnitude([g["M"], C])),
+            ("||Xy + M||", g["Xy"] + g["M"], magnitude([g["M"]])),
+            ("||Xz - I||", g["Xz"] - np.eye(len(P)), 1.0),
+            ("||c - P w||", g["c"] - P @ g["w_sampled"], magnitude([P, g["w_sampled"][:, None]]))]
 
 
 def verify(card) -> list:
@@ -763,11 +786,33 @@ class Pair:
     A: np.ndarray
     C: np.ndarray
     runtime: object
+    #: The card's matrices and checks of the points :meth:`checked` evaluated (by the bytes of ``X``, the gain and
+    #: the decay, and the checks): the design's own points only, the pair being made for one design.
+    seen: dict = field(default_factory=dict, compare=False, repr=False)
+    #: The identities of :func:`checks` that read nothing of the point, kept for the points of one design (its
+    #: ``fixed``).
+    fixed: dict = field(default_factory=dict, compare=False, repr=False)
 
-    def lmi_runtime(self, values: dict) -> dict:
-        """:attr:`runtime` of an LMI point in the plant's coordinates (``X`` and ``W = X gain``)."""
-        X = values["X"]
-        return self.runtime(X, self.gain(values))
+    def checked(self, X: np.ndarray, gain: np.ndarray, rho: float, check) -> tuple[dict, list]:
+        """The card's matrices of ``(X, gain)`` (:attr:`runtime`) and ``check(matrices, rho)`` at them.
+
+        A point a search re-checked is kept as it was re-checked: the certificate of the design is then the checks
+        already made at its matrices, which the same calls on the same bytes of ``X``, the gain and ``rho`` would
+        make again to the last bit (the runtime's matrices and every check are deterministic functions of them).
+        The matrices returned are a copy: the card may add to them.
+        """
+        X, gain = np.asarray(X, dtype=float), np.asarray(gain, dtype=float)
+        key = (check, float(rho), X.shape, X.tobytes(), gain.shape, gain.tobytes())
+        if key not in self.seen:
+            matrices = self.runtime(X, gain)
+            found = check(matrices, float(rho), self.fixed) if check is checks else check(matrices, float(rho))
+            self.seen[key] = (matrices, found)
+        matrices, found = self.seen[key]
+        return dict(matrices), list(found)
+
+    def lmi_checked(self, values: dict, rho: float, check) -> tuple[dict, list]:
+        """:meth:`checked` of an LMI point in the plant's coordinates (``X`` and ``W = X gain``)."""
+        return self.checked(values["X"], self.gain(values), rho, check)
 
     @staticmethod
     def gain(values: dict) -> np.ndarray:
@@ -815,8 +860,8 @@ def _decay(system: LmiSystem, back, pair: Pair, check, largest: float, opts: Opt
     certificate's checks at the runtime's matrices (``check(matrices, rho)``) hold too. The point's ``K`` is the
     gain of ``pair`` (``N = pair.A - K pair.C``); the full-order and the reduced observer share it."""
     PA, C = pair.A, pair.C
-    system.certify = lambda v, prm: all(c.holds for c in check(pair.lmi_runtime(back(v)),
-                                                                   float(np.sqrt(prm["rho2"]))))
+    system.certify = lambda v, prm: all(c.holds for c in pair.lmi_checked(back(v), float(np.sqrt(prm["rho2"])),
+                                                                           check)[1])
     system.figure = lambda v: overshoot(back(v)["X"])
     if opts.method == "riccati":
         return _riccati(PA, C, float(opts.decay)), "riccati", system
@@ -934,7 +979,6 @@ def design(problem, analysis: Analysis) -> DesignResult:
     if opts.order == "reduced":
         return _reduced(problem, analysis)
     C = plant.C
-    M = decoupling_gain(C, s.E)
     pair = decoupled_pair(plant, s)
     t = state_scaling(plant.A, opts.scaling)
     largest = float(np.abs(fixed).max()) if fixed.size else 0.0
@@ -947,20 +991,20 @@ def design(problem, analysis: Analysis) -> DesignResult:
     searched = tuned.search.to_data() if tuned.search else None
     noise_design = None
     if opts.noise_gain is not None:
-        rho, sol, system, method, noise_design = _fastest_within(s, C, M, t, rho, sol, system, method, opts,
-                                                                 problem.name)
+        rho, sol, system, method, noise_design = _fastest_within(s, C, decoupling_gain(C, s.E), t, rho, sol, system,
+                                                                 method, opts, problem.name)
     elif opts.noise == "min":
-        rho, sol, system, method, noise_design = _noise_design(s, C, M, t, rho, sol, system, method, opts,
-                                                               problem.name)
-    matrices = pair.runtime(sol.values["X"], sol.values["K"])
-    cert = certificate(sol, checks(matrices, rho), f"{NAME} design of {problem.name}", solver=_solver(method))
+        rho, sol, system, method, noise_design = _noise_design(s, C, decoupling_gain(C, s.E), t, rho, sol, system,
+                                                               method, opts, problem.name)
+    matrices, found = pair.checked(sol.values["X"], sol.values["K"], rho, checks)
+    cert = certificate(sol, found, f"{NAME} design of {problem.name}", solver=_solver(method))
     if placed is not None:
         digits = placed["overshoot_digits"]
     else:
         digits = UNDETERMINED if method == NOISE_METHOD else figure_digits(sol, spread)
-    eigN = np.linalg.eigvals(matrices["N"])
     extra = {**({} if noise_design is None else {"noise_design": noise_design}),
-             **({} if placed is None else {"poles": complex_list(_sorted(eigN)), "poles_placed": placed["placed"],
+             **({} if placed is None else {"poles": complex_list(_sorted(np.linalg.eigvals(matrices["N"]))),
+                                           "poles_placed": placed["placed"],
                                            "placement": placed["record"]})}
     figures = {"decay": rho, "overshoot_bound": overshoot(matrices["X"]), "overshoot_digits": digits,
                "search": searched, "design_method": method,
@@ -980,9 +1024,8 @@ def _reduced(problem, analysis: Analysis) -> DesignResult:
     tuned, method, system = _decay(_lmis(pair.A, pair.C, opts.gain_cap), dict, pair, reduced_order.checks, largest,
                                    opts, problem.name)
     rho, sol = tuned.value, tuned.solution
-    matrices = pair.runtime(sol.values["X"], sol.values["K"])
-    cert = certificate(sol, reduced_order.checks(matrices, rho), f"{NAME} reduced-order design of {problem.name}",
-                       solver=_solver(method))
+    matrices, found = pair.checked(sol.values["X"], sol.values["K"], rho, reduced_order.checks)
+    cert = certificate(sol, found, f"{NAME} reduced-order design of {problem.name}", solver=_solver(method))
     figures = {"decay": rho, "overshoot_bound": reduced_order.bound(matrices),
                "overshoot_digits": UNDETERMINED,       # ||Zx|| reads the gain, which the LMI's optimum does not fix
                "search": tuned.search.to_data() if tuned.search else None, "design_method": method,
@@ -1007,7 +1050,8 @@ def _result(problem, analysis: Analysis, nz: int, matrices: dict, cert: dict, sy
     existence, s, fixed = analysis.existence, analysis.data["sampled"], analysis.data["fixed"]
     plant, opts = problem.plant, problem.options
     if not plant.feedthrough and existence.holds("rank(CE) = q"):
-        matrices.update({k: v.value for k, v in _dhat(s, plant.C).items()})
+        matrices.update({k: v[0] for k, v in dhat_matrices(plant.C, s.A[None], s.B[None], s.E[None],
+                                                            s.w[None]).items()})
     if plant.r:
         matrices["W_sampled"] = plant.sampled_noise(opts.dt)
     eigN = np.linalg.eigvals(matrices["N"])

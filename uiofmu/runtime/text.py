@@ -56,6 +56,8 @@ def check_text(value, key: str, error=ValueError, max_len: int = MAX_NAME, allow
         raise error(f"{key}: expected a non-empty string, found {value!r}")
     if len(value) > max_len:
         raise error(f"{key}: at most {max_len} characters, found {len(value)}")
+    if value.isascii() and value.isprintable():     # of ASCII, only the controls (Cc) are refused: none here
+        return value
     for i, ch in enumerate(value):
         if unicodedata.category(ch) in _REFUSED:
             raise error(f"{key}: character U+{ord(ch):04X} at position {i} is not allowed "
