@@ -32,6 +32,11 @@ NEAR_UNIT_FIXED_MODE = {"time": "discrete", "dt": 0.1, "A": [[0.0, 1.0], [-0.5, 
 REPRODUCERS = (("sampled-data", 7000022), ("sampled-data", 11000116), ("sampled-data", 11000042))
 #: The start of the design robustness campaign at seed 2024, as tests/test_design_robustness.py draws it.
 SAMPLE_SEED, SAMPLE, KNOBS = 2024, 3, {"n_max": 5, "intervals_max": 4}
+#: Fresh problems of that generator next to the edge, ``(family, campaign seed, index)``, whose searches or
+#: overshoot figures once differed between BLAS kernels: a held figure from an answer CLARABEL stopped short at
+#: (ltv-auid 2025/6) or gave none for (ltv-auid 2028/1), the balanced coordinates' own overshoot read in the
+#: plant's (lti-uio 2026/6), a margin probe whose second point did not certify (lti-uio 2027/5).
+FRESH = (("ltv-auid", 2025, 6), ("lti-uio", 2026, 6), ("lti-uio", 2027, 5), ("ltv-auid", 2028, 1))
 
 
 def badly_scaled(plant: dict, exponents) -> dict:
@@ -60,6 +65,9 @@ def problems() -> list[tuple[str, dict]]:
     for family in ("lti-uio", "ltv-auid", "sampled-data"):
         for doc in rpl.campaign(family, SAMPLE, SAMPLE_SEED, **KNOBS):
             out.append((f"robustness sample {doc['name']}", doc))
+    for family, seed, index in FRESH:
+        doc = list(rpl.campaign(family, index + 1, seed, **KNOBS))[index]
+        out.append((f"fresh {doc['name']}", doc))
     for decay in (0.3, 0.6, 0.7, 0.98, "max"):
         out.append((f"DC motor, lti-uio at dt = 0.01 s, decay {decay}",
                     {"name": "dc-motor", "plant": DC_MOTOR, "observer": {"family": "lti-uio", "dt": 0.01,

@@ -159,3 +159,56 @@ def test_the_overshoot_is_printed_to_the_digits_its_design_determines():
     assert overshoot_text(edge.data).endswith(UNDETERMINED_NOTE)
     assert [figure_text(v, 2) for v in (292.79, 36.08, 0.00012345)] == ["290", "36", "0.00012"]
     assert figure_text(6.4517, 4) == "6.452" and figure_text(2.5e6, 2) == "2.5e+06"
+
+
+def _scripted_held(figures):
+    """A homogeneous system whose held solves return, in turn, points of these figures (None: no point)."""
+    from dataclasses import replace as _replace
+
+    from uiofmu.lmi import LmiSolution
+
+    system = _toy()
+    answers = iter(figures)
+    calls = []
+
+    def held_once(held, parameters):
+        figure = next(answers)
+        calls.append(held)
+        if figure is None:
+            return LmiSolution({}, {"s": 0.0}, "solver_error: CLARABEL answered InsufficientProgress", {}, False, 0, 0)
+        sol = LmiSolution({"X": np.array([[figure]])}, {"s": 0.0}, "optimal_inaccurate", {}, True, 0, 0, figure)
+        return _replace(sol, held=True, relative_margin=held)
+
+    system._held_once = held_once
+    return system, calls
+
+
+def test_a_held_figure_counts_when_two_solves_agree_and_an_outlier_does_not_decide():
+    """An answer CLARABEL stopped short at (58.94) agrees with no other; the two that agree decide, and the earlier
+    of them is kept. Solves with no point are skipped."""
+    system, calls = _scripted_held([58.94, None, 58.743, 58.735])
+    sol = system.least_at_margin(5e-7)
+    assert sol.reproduced and REPRODUCED in sol.status and sol.objective == 58.743
+    assert len(calls) == 4 and calls[0] == 5e-7 and calls[2] < 5e-7 < calls[1]
+    system, calls = _scripted_held([None, 12.0772, 12.0773])          # the first solve has no point
+    sol = system.least_at_margin(5e-7)
+    assert sol.reproduced and sol.objective == 12.0772 and len(calls) == 3
+    system, calls = _scripted_held([58.94, 58.74, 57.0, 56.0, 55.0])   # no two agree: not the problem's figure
+    sol = system.least_at_margin(5e-7)
+    assert sol.verified and not sol.reproduced and sol.objective == 58.94 and len(calls) == 5
+
+
+def test_a_search_whose_margins_the_solver_does_not_resolve_refuses():
+    """A badly scaled plant (gains of 1.6e6 needed) whose largest margins are CLARABEL's noise (-1.2e-6..9e-7 along
+    the range, two solves 1e-9 apart of opposite signs): with the LMI alone the design is refused with that reason,
+    and by default it falls back to the solver-free Riccati gain, the same on every BLAS kernel."""
+    from uiofmu.families import random_plants as rpl
+
+    doc = list(rpl.campaign("lti-uio", 8, 2026, n_max=5, intervals_max=4))[7]
+    assert doc["name"].startswith("lti-uio-seed2026000007-badly-scaled")
+    card = uiofmu.design(problem_from_data(doc))
+    assert card.data["design_method"] == "riccati (the LMI found no certificate)"
+    assert card.data["certificate"]["verified"] and all(c.holds for c in uiofmu.verify(card))
+    doc["observer"]["method"] = "lmi"
+    with pytest.raises(uiofmu.InfeasibleError, match="the solver does not resolve these LMIs' margins"):
+        uiofmu.design(problem_from_data(doc))

@@ -399,7 +399,7 @@ class LmiSystem:
 
         Whether CLARABEL reached that optimum is not read off its word (``optimal`` or
         ``optimal_inaccurate`` moved with the BLAS kernel, on answers equal to 1e-5 and on answers 40 %
-        apart alike): the problem is solved again with the margin held
+        apart alike, and either may come with no point): the problem is solved again with the margin held
         :data:`~uiofmu.runtime.tolerances.HELD_PROBE` higher, lower, twice that higher and lower
         (:data:`~uiofmu.runtime.tolerances.HELD_PROBES`), until the figures (:attr:`figure`, else the
         objective) of two solves agree to :data:`~uiofmu.runtime.tolerances.HELD_AGREEMENT`: the figure is then
@@ -414,20 +414,18 @@ class LmiSystem:
         """
         if not self.homogeneous:
             raise ValueError(f"{self.name}: a margin held needs a homogeneous system")
-        sol = self._held_once(held, parameters)
-        if not sol.verified:
-            return sol
-        found = [(self._figure_of(sol), sol)]
-        for k in HELD_PROBES:
-            again = self._held_once(held * (1.0 + k * HELD_PROBE), parameters)
-            if not again.verified:                      # CLARABEL gave up on this one: the next probe
+        first, found = None, []
+        for k in (0, *HELD_PROBES):
+            sol = self._held_once(held * (1.0 + k * HELD_PROBE), parameters)
+            first = first or sol
+            if not sol.verified:                        # CLARABEL gave up on this one: the next probe
                 continue
-            figure = self._figure_of(again)
+            figure = self._figure_of(sol)
             kept = next((s for f, s in found if reproduced(f, figure, HELD_AGREEMENT)), None)
             if kept is not None:                        # two solves agree: the earlier of them is kept
                 return replace(kept, status=f"{kept.status}, {REPRODUCED}", reproduced=True)
-            found.append((figure, again))
-        return sol
+            found.append((figure, sol))
+        return found[0][1] if found else first
 
     def _figure_of(self, sol: LmiSolution) -> float:
         """The figure :meth:`least_at_margin` compares: :attr:`figure` of the point, else its objective."""
@@ -866,7 +864,7 @@ def _judged(decide: Callable, parameter: str, value: float, threshold: float, fi
     """``decide`` at ``value``; a largest margin within a factor :data:`~uiofmu.runtime.tolerances.MARGIN_NEAR`
     of ``threshold`` (any margin, with ``first``: the first value that passes sets the search's threshold) is
     decided once more at a value :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE` away, and counts only when
-    the two agree to :data:`~uiofmu.runtime.tolerances.MARGIN_AGREEMENT` (to
+    the second certifies too and the two agree to :data:`~uiofmu.runtime.tolerances.MARGIN_AGREEMENT` (to
     :data:`~uiofmu.runtime.tolerances.FIRST_MARGIN_AGREEMENT` with ``first``; else the value is refused, its two
     margins kept as ``unresolved``: its margin is lost in the solver's rounding, which moves with the BLAS
     kernel). The solution returned carries the smaller margin."""
@@ -876,7 +874,7 @@ def _judged(decide: Callable, parameter: str, value: float, threshold: float, fi
         return sol
     again = decide(**{parameter: value * (1.0 + MARGIN_PROBE)})
     s = again.relative_margin
-    if s is None or not reproduced(t, s, FIRST_MARGIN_AGREEMENT if first else MARGIN_AGREEMENT):
+    if s is None or not again.verified or not reproduced(t, s, FIRST_MARGIN_AGREEMENT if first else MARGIN_AGREEMENT):
         return replace(sol, verified=False, unresolved=(t, float("nan") if s is None else s))
     return replace(sol, relative_margin=min(t, s))
 
