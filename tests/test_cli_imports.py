@@ -34,8 +34,13 @@ print(json.dumps({"code": code, "modules": sorted(sys.modules)}), file=sys.stder
 
 
 def loaded(*argv, cwd) -> set:
-    """The modules a fresh interpreter holds after ``uiofmu ARGV`` (which must exit 0)."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    """The modules a fresh interpreter holds after ``uiofmu ARGV`` (which must exit 0), for a user who set no
+    BLAS thread variable (a test run may have one: Dask's workers set ``OMP_NUM_THREADS``, ``make test-blas``
+    sets ``OPENBLAS_NUM_THREADS``; with one, scipy is imported up front)."""
+    from uiofmu.threads import THREAD_VARIABLES
+
+    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
     proc = subprocess.run([sys.executable, "-c", PROBE, json.dumps([str(a) for a in argv])], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=300)
     report = json.loads(proc.stderr.strip().splitlines()[-1])
