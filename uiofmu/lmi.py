@@ -34,6 +34,7 @@ from .runtime.errors import InfeasibleError
 from .progress import progress
 from .runtime.tolerances import (
     FIGURE_RTOL,
+    FIRST_MARGIN_AGREEMENT,
     HELD_AGREEMENT,
     HELD_PROBE,
     HELD_PROBES,
@@ -41,7 +42,6 @@ from .runtime.tolerances import (
     MARGIN_DECISION_RTOL,
     MARGIN_SOLVER_TOL,
     POINT_RTOL,
-    FIRST_MARGIN_AGREEMENT,
     MARGIN_AGREEMENT,
     MARGIN_NEAR,
     MARGIN_PROBE,
@@ -726,10 +726,11 @@ class LmiSystem:
         params = ", ".join(f"{k} = {v:.6g}" for k, v in sol.parameters.items())
         if sol.unresolved is not None:
             raise InfeasibleError(
-                f"{self.name} LMIs at {params}: the largest margin moved by more than {FIRST_MARGIN_AGREEMENT:g} of "
-                f"itself at a value {MARGIN_PROBE:g} away: the solver does not resolve these LMIs' margins, so no "
-                "value of the range would be decided the same under every BLAS kernel; units that bring the states "
-                "to comparable sizes, or a slower requirement, give margins it resolves")
+                f"{self.name} LMIs at {params}: the largest margin did not come out again at a value {MARGIN_PROBE:g} "
+                f"away (a certified point, its margin within {FIRST_MARGIN_AGREEMENT:g} of the first): "
+                "the solver does not resolve these LMIs' margins, so no value of the range would be decided the same "
+                "under every BLAS kernel; units that bring the states to comparable sizes, or a slower requirement, "
+                "give margins it resolves")
         if sol.values:
             lmis = self.evaluate(sol.values, sol.parameters)
             bad = [f"{k}: eig_min = {v:.3g} < {b:.3g}"
