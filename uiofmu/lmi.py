@@ -726,8 +726,8 @@ class LmiSystem:
         params = ", ".join(f"{k} = {v:.6g}" for k, v in sol.parameters.items())
         if sol.unresolved is not None:
             raise InfeasibleError(
-                f"{self.name} LMIs at {params}: the largest margin did not come out again at a value {MARGIN_PROBE:g} "
-                f"away (a certified point, its margin within {FIRST_MARGIN_AGREEMENT:g} of the first): "
+                f"{self.name} LMIs at {params}: the largest margin did not come out again, within "
+                f"{FIRST_MARGIN_AGREEMENT:g} of itself, at a value {MARGIN_PROBE:g} away: "
                 "the solver does not resolve these LMIs' margins, so no value of the range would be decided the same "
                 "under every BLAS kernel; units that bring the states to comparable sizes, or a slower requirement, "
                 "give margins it resolves")
@@ -865,8 +865,9 @@ def _judged(decide: Callable, parameter: str, value: float, threshold: float, fi
     """``decide`` at ``value``; a largest margin within a factor :data:`~uiofmu.runtime.tolerances.MARGIN_NEAR`
     of ``threshold`` (any margin, with ``first``: the first value that passes sets the search's threshold) is
     decided once more at a value :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE` away, and counts only when
-    the second certifies too and the two agree to :data:`~uiofmu.runtime.tolerances.MARGIN_AGREEMENT` (to
-    :data:`~uiofmu.runtime.tolerances.FIRST_MARGIN_AGREEMENT` with ``first``; else the value is refused, its two
+    the second certifies too and the two agree to :data:`~uiofmu.runtime.tolerances.MARGIN_AGREEMENT` (with
+    ``first``: when the two agree to :data:`~uiofmu.runtime.tolerances.FIRST_MARGIN_AGREEMENT`, whether the
+    second point, a value away from the first, certifies or not; else the value is refused, its two
     margins kept as ``unresolved``: its margin is lost in the solver's rounding, which moves with the BLAS
     kernel). The solution returned carries the smaller margin."""
     sol = decide(**{parameter: value})
@@ -875,7 +876,8 @@ def _judged(decide: Callable, parameter: str, value: float, threshold: float, fi
         return sol
     again = decide(**{parameter: value * (1.0 + MARGIN_PROBE)})
     s = again.relative_margin
-    if s is None or not again.verified or not reproduced(t, s, FIRST_MARGIN_AGREEMENT if first else MARGIN_AGREEMENT):
+    if s is None or not (first or again.verified) or not reproduced(t, s, FIRST_MARGIN_AGREEMENT if first
+                                                                       else MARGIN_AGREEMENT):
         return replace(sol, verified=False, unresolved=(t, float("nan") if s is None else s))
     return replace(sol, relative_margin=min(t, s))
 

@@ -11,9 +11,10 @@ written for ``(T^-1 A T, T^-1 E, T^-1 B, C T)`` and their variables mapped back 
 
 which turns each LMI of the scaled coordinates into the same LMI of the plant's coordinates,
 pre- and post-multiplied by ``diag(T^-T, ...)`` and its transpose: feasible in one set of
-coordinates exactly when feasible in the other. The normalisations are written in the plant's
-coordinates (``Xs >= T' T``, :func:`plant_identity`), so that the least overshoot the LMIs find is the
-plant's; only the numbers the solver sees change. The card's matrices are always in
+coordinates exactly when feasible in the other. Only the normalisation (``Xs >= I`` becomes
+``X >= T^-T T^-1``) and the numbers the solver sees change, unless the family writes its normalisations in
+the plant's coordinates (``Xs >= T' T``, :func:`plant_identity`; lti-uio does), so that the least overshoot
+its LMIs find is the plant's. The card's matrices are always in
 the plant's coordinates, and the certificate is re-checked there.
 
 The change is the reduction :class:`StateScaling` (:mod:`uiofmu.reductions`): ``apply`` builds the

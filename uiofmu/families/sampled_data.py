@@ -82,8 +82,8 @@ from ..certificate import UNDETERMINED
 from ..structure import kernel_maps, product_radius
 from ..existence import Condition, Existence, complex_list, from_pairs
 from ..lmi import Lmi, LmiSystem, tune
-from ..reductions import UNCHANGED, UPPER_BOUND, Recentring, Reduction, matrix, scalar, symmetric
-from ..scaling import SCALINGS, PlantLmis, StateScaling, identity_spread, plant_identity, state_scaling
+from ..reductions import UPPER_BOUND, Recentring, Reduction, matrix, scalar, symmetric
+from ..scaling import SCALINGS, PlantLmis, StateScaling, state_scaling
 from ..scaling import to_data as scaling_data
 from ..runtime.schedules import STEP_POLICIES
 from ..runtime.tolerances import (
@@ -560,12 +560,10 @@ def analyse(problem, solver: bool = True) -> Analysis:
     return Analysis(existence, {"samples": samples, "decay_floor": floor})
 
 
-def _lmis(samples, C, gain_cap: float | None = None, unit=None):
+def _lmis(samples, C, gain_cap: float | None = None):
     """Corollary 2's LMIs (15)-(16), and with ``gain_cap`` the LMIs of ``||Pl_i^-1 S_i|| <= gain_cap`` and
     ``||Pl_i^-1 Q_ij|| <= gain_cap`` (:func:`uiofmu.gains.cap_lmis`; in the scaled coordinates, whose gains bound
-    the plant's). ``unit`` is the plant's identity in the LMIs' coordinates (:func:`uiofmu.scaling.plant_identity`;
-    the identity when None): ``Pl_i >= I`` and ``Pl_i <= mu I`` hold in the plant's coordinates, so the least
-    ``mu`` is the square of the card's overshoot bound."""
+    the plant's)."""
     N, n, p = len(samples), C.shape[1], C.shape[0]
     Es = [s.E / max(np.linalg.norm(s.E, 2), 1e-300) for s in samples]
 
@@ -574,9 +572,8 @@ def _lmis(samples, C, gain_cap: float | None = None, unit=None):
         scaled = [prm["c"] * v[f"Pl{j}"] for j in range(N)]           # (1 - alpha) Pl_j, once per j
         for i in range(N):
             P, S = v[f"Pl{i}"], v[f"S{i}"]
-            eye = ops.eye(n) if unit is None else unit
-            out.append(Lmi(f"Pl_{i + 1} >= I", P - eye, strict=False))
-            out.append(Lmi(f"Pl_{i + 1} <= mu I", v["mu"] * eye - P, strict=False))
+            out.append(Lmi(f"Pl_{i + 1} >= I", P - ops.eye(n), strict=False))
+            out.append(Lmi(f"Pl_{i + 1} <= mu I", v["mu"] * ops.eye(n) - P, strict=False))
             out.append(Lmi(f"(16) decoupling i={i + 1}", P @ Es[i] - S @ (C @ Es[i]), equality=True))
             base = P @ samples[i].A - S @ (C @ samples[i].A)            # the part of (15) common to all j
             for j in range(N):
@@ -588,7 +585,7 @@ def _lmis(samples, C, gain_cap: float | None = None, unit=None):
                                        for i in range(N)], v["s"], ops)
         return out
 
-    variables = {"mu": scalar(UPPER_BOUND if unit is None else UNCHANGED)}
+    variables = {"mu": scalar(UPPER_BOUND)}
     for i in range(N):
         variables[f"Pl{i}"] = symmetric(n)
         variables[f"S{i}"] = matrix((n, p))
@@ -597,7 +594,7 @@ def _lmis(samples, C, gain_cap: float | None = None, unit=None):
     if gain_cap is not None:
         variables["s"] = scalar()
     return LmiSystem(f"{NAME} (15)-(16)", variables, {"c": 0.99}, build, objective=lambda v: v["mu"],
-                     homogeneous=True, structure=([s.A for s in samples], Es, C, gain_cap, unit))
+                     homogeneous=True, structure=([s.A for s in samples], Es, C, gain_cap))
 
 
 def checks(matrices: dict, decay: float) -> list:
@@ -870,13 +867,11 @@ def _attempts(samples, C, t, plant, gain_cap: float | None = None):
     (str, LmiSystem, callable)
         The design method, its system (``certify`` set) and the map to the stored matrices.
     """
-    attempts = [("lmi", StateScaling(t), PlantLmis(lambda steps, Cs: _lmis(steps, Cs, gain_cap, plant_identity(t)),
-                                                              samples, C), identity_spread(t))]
+    attempts = [("lmi", StateScaling(t), PlantLmis(lambda steps, Cs: _lmis(steps, Cs, gain_cap), samples, C))]
     if plant.p == plant.q and plant.n > plant.p and gain_cap is None:
-        attempts.insert(0, ("lmi on ker C (p = q)", KerC(), (samples, C), 1.0))
-    for method, reduction, lmis, spread in attempts:
+        attempts.insert(0, ("lmi on ker C (p = q)", KerC(), (samples, C)))
+    for method, reduction, lmis in attempts:
         system, inverse = reduction.apply(lmis)
-        system.figure_spread = spread
         matrices_at = lambda v, r=reduction, inv=inverse: observer_matrices(r.invert(v, inv), samples, C)  # noqa: E731
         system.certify = lambda v, prm, at=matrices_at: all(c.holds for c in checks(at(v), np.sqrt(prm["c"])))
         system.figure = lambda v, at=matrices_at: overshoot(list(at(v)["Pl"]))
@@ -957,7 +952,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
     alpha, sol = tuned.value, tuned.solution
     searched = tuned.search.to_data() if tuned.search else None
     matrices = matrices_at(sol.values)
-    decay, digits, noise_design = float(np.sqrt(1.0 - alpha)), figure_digits(sol, system.figure_spread), None
+    decay, digits, noise_design = float(np.sqrt(1.0 - alpha)), figure_digits(sol), None
     coordinates = ("recentred: ker C in the coordinates where the mean Lyapunov matrix of a point the re-check "
                    "refused is the identity (the point mapped back and re-checked)" if system.recentred
                    else "as scaled")
@@ -981,7 +976,7 @@ def design(problem, analysis: Analysis) -> DesignResult:
         if least is not None:
             sol, matrices, which = least
             if which == "default":
-                digits = figure_digits(sol, lmi.figure_spread)
+                digits = figure_digits(sol)
             else:
                 method, digits, coordinates = NOISE_METHOD, UNDETERMINED, "the plant's"
     Pl = list(matrices["Pl"])
