@@ -322,8 +322,10 @@ def _lmis(PA, C, gain_cap: float | None = None, unit=None):
 
     ``unit`` is the plant's identity in the LMIs' coordinates (:func:`uiofmu.scaling.plant_identity`; the
     identity when None): the normalisations ``X >= I`` and ``X <= t I`` hold in the plant's coordinates, so the
-    least ``t`` is the square of the card's overshoot bound. The largest-margin search drops their constants,
-    so it decides as it would with the identity.
+    least ``t`` is the square of the card's overshoot bound. The largest-margin search drops their constants;
+    ``t`` reaches it only through the small weight that pins it (:data:`uiofmu.lmi.MARGIN_TIE_BREAK`), so its
+    margins can move in their last digits (sampled-data keeps the identity for that reason, see
+    docs/tolerances.md).
     """
     n, p = C.shape[1], C.shape[0]
 
@@ -530,9 +532,9 @@ def checks(matrices: dict, rho: float, fixed: dict | None = None) -> list:
     moving = identity_checks(
         ("||PA - NP - LC||", P @ A - N @ P - L @ C, magnitude([P, A], [N, P], [L, C])),
         ("||K - (L + NM)|| (the gain the card reports)", g["K"] - L - N @ g["M"], magnitude([L], [N, g["M"]])))
-    first = 1 + ("F" in g)                   # decoupling, then the inputs' and P = I + MC up to ``upto``
-    upto = first + 1 + ("D" in g)
-    return [*same[:first], moving[0], *same[first:upto + 1], moving[1], *same[upto + 1:],
+    decoupled = 1 + ("F" in g)               # the decoupling checks, then the inputs' and P = I + MC up to ``upto``
+    upto = decoupled + 1 + ("D" in g)
+    return [*same[:decoupled], moving[0], *same[decoupled:upto + 1], moving[1], *same[upto + 1:],
             positive_check("eig_min(X)", g["X"]),
             lyapunov_check("eig_min(rho^2 X - N'XN)", N, g["X"], rho),
             decay_check(rho)]
