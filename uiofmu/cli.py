@@ -118,10 +118,12 @@ def design_summary(card, timing: bool = True) -> list[str]:
     without the solver, and that word moved with the BLAS kernel. The result of a ``"max"`` search
     is decided by optimal values (largest margins); where a plant's margin is lost in the solver's
     own noise over a range of values, the search ends somewhere in that range, and that value and
-    the figures at it can differ between machines. The seconds always differ, and the largest gain
-    (:mod:`uiofmu.gains`) and the noise gains of an LMI design (:mod:`uiofmu.noise`), read off the solver's point,
-    can: they are left out with ``timing=False`` (the warning about a large gain stays, and so do the noise
-    gains of a closed-form design).
+    the figures at it can differ between machines. The seconds always differ; so can the number of solves
+    a search made (a margin near its threshold is decided twice, and which margins lie near it moves with
+    the kernel, also where the search ends at the same value), the largest gain (:mod:`uiofmu.gains`) and
+    the noise gains of an LMI design (:mod:`uiofmu.noise`), read off the solver's point: they are left out
+    with ``timing=False`` (the warning about a large gain stays, and so do the noise gains of a
+    closed-form design).
     """
     from .certificate import overshoot_text
     from .gains import gain_lines
@@ -141,8 +143,8 @@ def design_summary(card, timing: bool = True) -> list[str]:
                      f"gx is G x of {card.data['delay']} step(s) back")
     search = card.data.get("search")
     if search:
-        lines.append(f"  search           {search['parameter']} over {search['solves']} solve(s)"
-                     + (f" in {search['seconds']:.3f} s" if timing else ""))
+        lines.append(f"  search           {search['parameter']}"
+                     + (f" over {search['solves']} solve(s) in {search['seconds']:.3f} s" if timing else ""))
     lines += gain_lines(card.data, figures=timing)
     lines += noise_lines(card.data, figures=timing)
     lines += noise_design_lines(card.data, figures=timing)
