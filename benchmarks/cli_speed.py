@@ -7,8 +7,9 @@ its CPU time (user + system of the child and of what it waited for, from ``wait4
 ``python -c pass`` and with ``python -c "import numpy"`` (the floor of every command that touches a
 matrix) measured in the same rounds. The commands: ``--help``, and ``check``, ``design``, ``verify`` and
 ``build --backend c`` (which also runs the C compiler) of seed 000 Example 1. Two more floors, with
-``OPENBLAS_NUM_THREADS=1`` as the command line loads its BLAS libraries: ``import numpy``, and the imports
-of ``design`` from outside uiofmu (numpy, scipy.linalg, scipy.sparse, clarabel, threadpoolctl). Medians in
+``OPENBLAS_NUM_THREADS=1`` as the command line loads its BLAS libraries: ``import numpy``, the imports
+of ``design`` from outside uiofmu (numpy, scipy.linalg, scipy.sparse, clarabel, threadpoolctl), and
+CLARABEL solving one 2x2 semidefinite cone (the least any LMI design costs). Medians in
 seconds; prints one JSON document with the goals of the quick command line (``design`` under 0.12 s,
 ``--help`` under 0.08 s).
 
@@ -36,6 +37,18 @@ THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS
 
 #: What ``uiofmu design`` of Example 1 imports from outside uiofmu.
 DESIGN_IMPORTS = "import numpy, scipy.linalg, scipy.sparse, clarabel, threadpoolctl"
+
+#: The least any LMI design costs: CLARABEL solving one 2x2 semidefinite cone (``t I >= [[0, 1], [1, 0]]``,
+#: least ``t``). Its semidefinite cones take their LAPACK from scipy, so that solve imports scipy's package
+#: (and with it what scipy's own start imports) even where the caller imported no scipy.
+CLARABEL_SDP = ("import numpy as np, clarabel\n"
+                "from scipy.sparse import csc_matrix\n"
+                "s = clarabel.DefaultSettings(); s.verbose = False\n"
+                "A = csc_matrix(-np.array([[1.0], [0.0], [1.0]]))\n"
+                "b = np.array([0.0, -2.0 ** 0.5, 0.0])\n"
+                "x = clarabel.DefaultSolver(csc_matrix((1, 1)), np.ones(1), A, b, [clarabel.PSDTriangleConeT(2)], s)"
+                ".solve().x\n"
+                "assert abs(x[0] - 1.0) < 1e-6, x\n")
 
 
 def cpu_of(argv: list[str], cwd: Path, env: dict) -> float:
@@ -68,6 +81,7 @@ def main(argv=None) -> int:
             "python_import_numpy": [py, "-c", "import numpy"],
             "python_import_numpy_1_thread": [py, "-c", "import numpy"],
             "python_imports_of_design_1_thread": [py, "-c", DESIGN_IMPORTS],
+            "python_clarabel_sdp_1_thread": [py, "-c", CLARABEL_SDP],
             "help": [py, "-m", "uiofmu", "--help"],
             "check": [py, "-m", "uiofmu", "check", str(EXAMPLE)],
             "design": [py, "-m", "uiofmu", "design", str(EXAMPLE), "-o", str(tmp / "again.json")],
