@@ -37,6 +37,11 @@ SAMPLE_SEED, SAMPLE, KNOBS = 2024, 3, {"n_max": 5, "intervals_max": 4}
 #: (ltv-auid 2025/6) or gave none for (ltv-auid 2028/1), the balanced coordinates' own overshoot read in the
 #: plant's (lti-uio 2026/6), a margin probe whose second point did not certify (lti-uio 2027/5).
 FRESH = (("ltv-auid", 2025, 6), ("lti-uio", 2026, 6), ("lti-uio", 2027, 5), ("ltv-auid", 2028, 1))
+#: A fresh problem of that generator whose closed-form design (the observer options given) has noise gains that
+#: the rounding of their certificate's ``X`` decided (gain_y 31800 under one kernel, 35000 under another): lti-uio
+#: 2026/7's Riccati design at decay 0.5, what its ``decay = "max"`` falls back to where the LMIs certify nothing
+#: (Sandybridge's LMIs certify 0.78125 there).
+FRESH_CLOSED_FORM = ("lti-uio", 2026, 7, {"decay": 0.5, "method": "riccati"})
 
 
 def badly_scaled(plant: dict, exponents) -> dict:
@@ -48,6 +53,15 @@ def badly_scaled(plant: dict, exponents) -> dict:
     A, B, E, C = (np.array(plant[k], dtype=float) for k in "ABEC")
     return {**plant, "A": (Ti @ A @ T).tolist(), "B": (Ti @ B).tolist(), "E": (Ti @ E).tolist(),
             "C": (C @ T).tolist()}
+
+
+def fresh_closed_form() -> dict:
+    """The problem of :data:`FRESH_CLOSED_FORM`: the generator's problem with its observer options."""
+    from uiofmu.families import random_plants as rpl
+
+    family, seed, index, options = FRESH_CLOSED_FORM
+    doc = list(rpl.campaign(family, index + 1, seed, **KNOBS))[index]
+    return {**doc, "observer": {**doc["observer"], **options}}
 
 
 def problems() -> list[tuple[str, dict]]:
@@ -68,6 +82,8 @@ def problems() -> list[tuple[str, dict]]:
     for family, seed, index in FRESH:
         doc = list(rpl.campaign(family, index + 1, seed, **KNOBS))[index]
         out.append((f"fresh {doc['name']}", doc))
+    asked = ", ".join(f"{key} {value}" for key, value in FRESH_CLOSED_FORM[3].items())
+    out.append((f"fresh {(doc := fresh_closed_form())['name']}, {asked}", doc))
     for decay in (0.3, 0.6, 0.7, 0.98, "max"):
         out.append((f"DC motor, lti-uio at dt = 0.01 s, decay {decay}",
                     {"name": "dc-motor", "plant": DC_MOTOR, "observer": {"family": "lti-uio", "dt": 0.01,

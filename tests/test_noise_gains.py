@@ -295,6 +295,83 @@ def test_the_card_schema_checks_the_noise_section(lti_cards, change, match):
         card_from_data(doc)
 
 
+@pytest.fixture(scope="module")
+def edge_card():
+    """lti-uio 2026/7 of the robustness generator (PBH margin 6.3e-7), its Riccati design at decay 0.5
+    (``same_answers.FRESH_CLOSED_FORM``): gain_y 31800 under one BLAS kernel, 35000 under another, the re-check
+    refusing the first figures (26200, 28900) with the lemma's smallest eigenvalue within a few hundred times its
+    rounding, of either sign."""
+    return uiofmu.design(problem_from_data(same_answers.fresh_closed_form()))
+
+
+def _noise_line(card, label: str, timing: bool) -> str:
+    from uiofmu.cli import design_summary
+
+    return next(line for line in design_summary(card, timing=timing) if line.startswith(f"  {label} "))
+
+
+@pytest.mark.parametrize("key, label", [("gain_y", "noise y->e"), ("gain_dhat_y", "noise y->dhat")])
+def test_a_gain_the_rounding_of_its_certificate_decides_is_not_printed_as_the_problems(edge_card, key, label):
+    """Its closed-form design's gains are certified (full precision on the card, re-checked at its matrices), but
+    not at their first figure with room over the rounding: the card says they are the design's, ``uiofmu design``
+    prints them with that note, and the text every kernel prints alike leaves them out."""
+    from uiofmu.noise import NOISE_UNDETERMINED_NOTE, certificate_key, gain_text
+
+    noise = edge_card.data["noise"]
+    cert = noise[certificate_key(key)]
+    assert edge_card.data["certificate"]["solver"] == "none" and noise[key] > 0
+    assert cert["determined"] is False
+    assert all(c.holds for c in recheck(card_from_data(json.loads(edge_card.to_json()))))
+    told = _noise_line(edge_card, label, timing=True)
+    assert told.split()[2] == gain_text(noise[key]) and told.endswith(f"; {NOISE_UNDETERMINED_NOTE})")
+    kept = _noise_line(edge_card, label, timing=False)
+    assert gain_text(noise[key]) not in kept and kept.split()[2:4] == ["left", "out"]
+    assert kept.endswith(f"; {NOISE_UNDETERMINED_NOTE})")
+
+
+@pytest.mark.parametrize("source", ["dc-motor-0.7", "examples/pole_placement.toml"])
+def test_a_well_conditioned_closed_form_gain_is_the_problems_and_stays_printed(lti_cards, source):
+    """The DC motor's Riccati design at decay 0.7 (gains of 2.6e6) and a pole placement of modest gains: each gain
+    is certified at its first figure with its lemma's eigenvalues far above their rounding (9.5e6 times and more),
+    and printed alike with and without the timings."""
+    from uiofmu.noise import certificate_key, gain_text
+
+    card = lti_cards[source] if source in lti_cards else uiofmu.design(uiofmu.load_problem(ROOT / source))
+    noise = card.data["noise"]
+    assert card.data["certificate"]["solver"] == "none"
+    for key in ("gain_y", "gain_dhat_y"):
+        if noise[key] is not None:
+            assert noise[certificate_key(key)]["determined"] is True
+    printed = f"  noise y->e       {gain_text(noise['gain_y'])} (l2 gain)"
+    assert _noise_line(card, "noise y->e", timing=False) == _noise_line(card, "noise y->e", timing=True) == printed
+
+
+def _determined(doc: dict, value) -> dict:
+    doc = copy.deepcopy(doc)
+    doc["noise"]["certificate"]["determined"] = value
+    return doc
+
+
+def test_the_card_reader_holds_determined_to_its_certificates_figures(lti_cards, edge_card):
+    """A card is untrusted: ``determined`` is true or false, and true only where the certificate's own figures say
+    so (its first figure, every check with room); false is always allowed (it claims less)."""
+    card_from_data(_determined(lti_cards["dc-motor-0.7"].data, False))
+    for value in ("yes", 1, None):
+        with pytest.raises(CardError, match="noise.certificate.determined: expected true or false"):
+            card_from_data(_determined(lti_cards["dc-motor-0.7"].data, value))
+    with pytest.raises(CardError, match="noise.certificate.determined: true, but"):
+        card_from_data(_determined(edge_card.data, True))
+    raised = _determined(lti_cards["dc-motor-0.7"].data, True)
+    raised["noise"]["gain_y"] = 1.1 * raised["noise"]["gain_y"]          # a later figure: still a bound, not the first
+    with pytest.raises(CardError, match="noise.certificate.determined: true, but"):
+        card_from_data(raised)
+    tight = _determined(lti_cards["dc-motor-0.7"].data, True)
+    check = next(iter(tight["noise"]["certificate"]["checks"].values()))
+    check["value"] = 100.0 * check["bound"]
+    with pytest.raises(CardError, match="noise.certificate.determined: true, but"):
+        card_from_data(tight)
+
+
 def with_process_noise(doc: dict, W) -> dict:
     doc = copy.deepcopy(doc)
     doc["plant"]["W"] = W

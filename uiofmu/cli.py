@@ -123,7 +123,8 @@ def design_summary(card, timing: bool = True) -> list[str]:
     the kernel, also where the search ends at the same value), the largest gain (:mod:`uiofmu.gains`) and
     the noise gains of an LMI design (:mod:`uiofmu.noise`), read off the solver's point: they are left out
     with ``timing=False`` (the warning about a large gain stays, and so do the noise gains of a
-    closed-form design).
+    closed-form design that the problem determines; one it does not is said to be left out,
+    :func:`uiofmu.noise.noise_lines`).
     """
     from .certificate import overshoot_text
     from .gains import gain_lines

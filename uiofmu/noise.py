@@ -51,7 +51,8 @@ from functools import partial
 import numpy as np
 
 from .certificate import Check, definite_check, figure_text, rounding_floor, round_up
-from .runtime.tolerances import ROUNDING_FACTOR
+from .runtime.card import noise_determined
+from .runtime.tolerances import NOISE_DIGITS, ROUNDING_FACTOR
 from .threads import blas_module
 
 #: The norm every gain of a card's ``noise`` section is in.
@@ -59,9 +60,6 @@ NORM = "l2"
 
 #: The keys every ``noise`` section has.
 KEYS = ("norm", "gain_y", "gain_w", "gain_dhat_y", "reason")
-
-#: Significant digits of a certified gain (rounded up): the problem determines them on every machine.
-NOISE_DIGITS = 3
 
 #: Relative margin added to the H-infinity norm before it is rounded up and certified.
 NOISE_MARGIN = 1e-3
@@ -1156,37 +1154,57 @@ def stated(cert: dict, method: str, key: str = "gain_y") -> tuple:
     section's extra keys, why it is None).
 
     The extra keys are the certificate (at :func:`certificate_key`: the method, the H-infinity norm or the
-    solver's gamma, the margin, ``X`` and the checks) and the ``initial_term`` (top level for ``gain_y``, in its
-    certificate else).
+    solver's gamma, the margin, ``X``, the checks and ``determined``, whether the gain is the problem's to
+    :data:`NOISE_DIGITS` digits, :func:`uiofmu.runtime.card.noise_determined`) and the ``initial_term`` (top level
+    for ``gain_y``, in its certificate else).
     """
     if cert["gamma"] is None:
         return None, {}, f"{key}: not certified ({cert['why']})"
     record = {"method": method, **{k: cert[k] for k in ("hinf_norm", "lmi_gamma", "least_gamma") if k in cert},
               "margin": NOISE_MARGIN, "X": cert["X"], "checks": {c.name: c.to_data() for c in cert["checks"]}}
+    record["determined"] = noise_determined(cert["gamma"], record)
     if key == "gain_y":
         return cert["gamma"], {"initial_term": cert["initial_term"], "certificate": record}, None
     return cert["gamma"], {certificate_key(key): {**record, "initial_term": cert["initial_term"]}}, None
+
+
+#: What follows a closed-form design's noise gain that the problem does not determine (its certificate's
+#: ``determined`` false) where it is printed.
+NOISE_UNDETERMINED_NOTE = "this design's; not determined by the problem"
+
+
+def _gain_line(label: str, noise: dict, key: str, closed: bool, figures: bool, extra: str = "") -> str:
+    """The line of ``noise.<key>``: its figure (left out with ``figures`` false where a closed-form design's
+    certificate says the problem does not determine it, which the line then says)."""
+    cert = noise.get(certificate_key(key))
+    own = closed and isinstance(cert, dict) and cert.get("determined") is False
+    figure = "left out" if own and not figures else gain_text(noise.get(key))
+    return f"  {label:16s} {figure} (l2 gain{extra}" + (f"; {NOISE_UNDETERMINED_NOTE})" if own else ")")
 
 
 def noise_lines(card_data: dict, figures: bool = True) -> list[str]:
     """The lines ``uiofmu design`` prints of the card's noise gains.
 
     Each gain is the least certified gain of the card's error system rounded up to :data:`NOISE_DIGITS`: a figure
-    of the card's matrices. Those of a closed-form design (``certificate.solver`` ``"none"``) are the problem's;
-    those of an LMI design are the solver's point's, which is not unique at the optimum of its objective (a
-    sampled-data design of the robustness sample: 154 under one BLAS kernel, 155 under another; a plant at the
-    edge: certified under one, not under the other), so the text every machine prints alike
-    (``figures=False``) leaves them out, as it does the largest gain (:func:`uiofmu.gains.gain_lines`).
+    of the card's matrices. Those of an LMI design are the solver's point's, which is not unique at the optimum of
+    its objective (a sampled-data design of the robustness sample: 154 under one BLAS kernel, 155 under another; a
+    plant at the edge: certified under one, not under the other), so the text every machine prints alike
+    (``figures=False``) leaves them out, as it does the largest gain (:func:`uiofmu.gains.gain_lines`). Those of a
+    closed-form design (``certificate.solver`` ``"none"``) are the problem's where their certificate says so
+    (``determined``, :func:`uiofmu.runtime.card.noise_determined`); where it does not (a re-check held by the
+    rounding of its ``X``: 31800 under one kernel, 35000 under another), the line says so and that text leaves
+    the figure out.
     """
     noise = card_data.get("noise")
-    if not isinstance(noise, dict) or not (figures or card_data["certificate"].get("solver") == "none"):
+    closed = card_data["certificate"].get("solver") == "none"
+    if not isinstance(noise, dict) or not (figures or closed):
         return []
     peak = noise.get("peak_to_peak_y")
-    lines = [f"  {'noise y->e':16s} {gain_text(noise.get('gain_y'))} (l2 gain"
-             + (f"; peak-to-peak {gain_text(peak)}" if peak is not None else "") + ")"]
+    lines = [_gain_line("noise y->e", noise, "gain_y", closed, figures,
+                        f"; peak-to-peak {gain_text(peak)}" if peak is not None else "")]
     for key, label in (("gain_dhat_y", "noise y->dhat"), ("gain_w", "noise w->e")):
         if noise.get(key) is not None:
-            lines.append(f"  {label:16s} {gain_text(noise[key])} (l2 gain)")
+            lines.append(_gain_line(label, noise, key, closed, figures))
     if noise.get("reason"):
         lines.append(f"  {'noise note':16s} {noise['reason']}")
     return lines
@@ -1224,7 +1242,8 @@ def initial_check(noise: dict, X, key: str = "gain_y") -> Check:
                  at_most=False)
 
 
-__all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NORM", "brl_certificate", "brl_checks",
+__all__ = ["KEYS", "MAX_PAIRS", "NOISE_DIGITS", "NOISE_MARGIN", "NOISE_UNDETERMINED_NOTE", "NORM", "brl_certificate",
+           "brl_checks",
            "certificate_key", "certified", "claimed_without", "continuous_brl_certificate", "continuous_brl_checks",
            "dhat_error_step", "dhat_missing", "fir_system", "gain_text", "gains_section", "hinf_norm", "initial_check",
            "lemma_certificate", "lemma_checks", "noise_design_lines", "noise_lines", "pair_checks",

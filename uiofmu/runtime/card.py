@@ -24,7 +24,7 @@ from .matrices import as_vector
 from .ports import check_declared
 from .registry import KNOWN
 from .text import check_name
-from .tolerances import STEP_RTOL
+from .tolerances import NOISE_DIGITS, NOISE_ROOM, STEP_RTOL
 
 FORMAT = "uiofmu.design"
 VERSION = 1
@@ -194,11 +194,64 @@ def _check_noise(value) -> None:
             _text(noise[key], f"noise.{key}", MAX_REASON)
     if all(noise[key] is None for key in NOISE_GAINS) and not noise.get("reason"):
         raise CardError("design card noise: every gain is null and noise.reason does not say why")
-    for key in ("certificate", "certificate_w", "certificate_dhat_y"):
+    for key, gain in zip(("certificate", "certificate_w", "certificate_dhat_y"), NOISE_GAINS):
         if key in noise:
             cert = _table(noise[key], f"noise.{key}")
             if "X" in cert:
                 any_array(cert["X"], f"design card noise.{key}.X")
+            if "determined" in cert:
+                _check_determined(noise.get(gain), cert, f"noise.{key}.determined")
+
+
+#: Where a noise certificate keeps the figure its gain is rounded up from: the H-infinity norm, the solver's least
+#: gain, or the least gain of a storage's scale (:mod:`uiofmu.noise`).
+NOISE_BASES = ("hinf_norm", "lmi_gamma", "least_gamma")
+
+
+def _room(check: dict) -> float:
+    """A stored check's ``value`` over its ``bound`` (what the rounding of its evaluation can move it); nan where
+    they are not two finite numbers with a positive bound, or the check is not ``value >= bound``."""
+    if check.get("relation", ">=") != ">=":
+        return math.nan
+    try:
+        value, bound = float(check["value"]), float(check["bound"])
+    except (KeyError, TypeError, ValueError):
+        return math.nan
+    return value / bound if math.isfinite(value) and math.isfinite(bound) and bound > 0.0 else math.nan
+
+
+def noise_determined(gain, cert) -> bool:
+    """Whether a certified noise gain is the problem's to :data:`~uiofmu.runtime.tolerances.NOISE_DIGITS` digits, read
+    off its certificate ``cert`` (as a card stores it: the base figure, ``margin``, ``checks``).
+
+    It is when it is the first figure tried (the base times ``1 + margin`` rounded up: within one unit of its last
+    digit above) and every check of its lemma holds with :data:`~uiofmu.runtime.tolerances.NOISE_ROOM` times the
+    rounding of its evaluation: then no kernel's rounding of the storage ``X`` decides it. A gain certified only
+    at a larger figure (the re-check refused the first), or with less room, is the design's: another kernel's
+    rounding of the same design certifies another figure (31800 against 35000 on a plant next to the edge).
+    """
+    if not isinstance(cert, dict) or not isinstance(cert.get("checks"), dict) or not cert["checks"]:
+        return False
+    try:
+        base = next(float(cert[k]) for k in NOISE_BASES if cert.get(k) is not None)
+        first, gain = base * (1.0 + float(cert["margin"])), float(gain)
+    except (StopIteration, KeyError, TypeError, ValueError):
+        return False
+    if not (math.isfinite(first) and first > 0.0 and gain <= first * (1.0 + 10.0 ** (1 - NOISE_DIGITS))):
+        return False
+    return all(isinstance(check, dict) and _room(check) >= NOISE_ROOM for check in cert["checks"].values())
+
+
+def _check_determined(gain, cert: dict, where: str) -> None:
+    """A noise certificate's ``determined``: true or false, and true only where :func:`noise_determined` reads it
+    off the certificate's own figures."""
+    flag = cert["determined"]
+    if not isinstance(flag, bool):
+        raise CardError(f"design card {where}: expected true or false, found {_kind(flag)}")
+    if flag and not noise_determined(gain, cert):
+        raise CardError(f"design card {where}: true, but its gain is not its base figure ({', '.join(NOISE_BASES)}) "
+                        f"times 1 + margin rounded up to {NOISE_DIGITS} digits, with every check's value at least "
+                        f"{NOISE_ROOM:g} times its bound")
 
 
 def check_card(data, require_verified: bool = True) -> dict:

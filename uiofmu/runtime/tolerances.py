@@ -142,3 +142,14 @@ ZERO_MARGIN = 1e-9
 #: A placeable mode whose relative PBH margin is below this needs gains above about its inverse
 #: (1e4): ``check`` warns, and a failed design names it.
 WEAK_MARGIN = 1e-4
+
+#: Significant digits of a certified noise gain (:mod:`uiofmu.noise`, rounded up).
+NOISE_DIGITS = 3
+
+#: A closed-form design's certified noise gain is the problem's to :data:`NOISE_DIGITS` when its re-check holds at
+#: its first figure (the H-infinity norm's, rounded up) with each inequality's smallest eigenvalue at least this
+#: many times what the rounding of its evaluation can move it. A lemma held by less is held by the rounding of its
+#: storage ``X``: on a plant next to the edge, the values were 1.5e-14 to 1.5e-11 (0.25 to 260 times that floor, of
+#: either sign, the sign moving with the BLAS kernel); on the closed-form designs of tests/same_answers.py, 9.5e6
+#: times the floor and more.
+NOISE_ROOM = 1e4
