@@ -665,10 +665,10 @@ def dhat_error_step(N, L, Xz, Xy, Dy, Yx) -> tuple:
     """
     N, L, Xz, Xy, Dy, Yx = (np.asarray(m, dtype=float) for m in (N, L, Xz, Xy, Dy, Yx))
     nz, p = L.shape
-    A = np.block([[N, -L], [np.zeros((p, nz)), np.zeros((p, p))]])
-    B = np.vstack([np.zeros((nz, p)), np.eye(p)])
+    A, B = np.zeros((nz + p, nz + p)), np.zeros((nz + p, p))
+    A[:nz, :nz], A[:nz, nz:], B[nz:] = N, -L, np.eye(p)
     DyYx = Dy @ Yx
-    return A, B, np.hstack([DyYx @ Xz, -DyYx @ Xy]), Dy
+    return A, B, np.concatenate([DyYx @ Xz, -DyYx @ Xy], axis=1), Dy
 
 
 def pair_dhat_error_system(matrices: dict) -> tuple:
