@@ -80,7 +80,7 @@ def magnitude(*products) -> float:
         term = np.abs(np.asarray(factors[0], dtype=float))
         for f in factors[1:]:
             term = term @ np.abs(np.asarray(f, dtype=float))
-        total += float(np.sqrt(np.sum(term * term)))
+        total += float(np.sqrt((term * term).sum()))
     return total
 
 
@@ -100,7 +100,7 @@ def rounding_floor(Q: np.ndarray, terms: np.ndarray, length: int) -> np.ndarray:
         One floor per matrix of the stack.
     """
     n = Q.shape[-1]
-    fro = lambda x: np.sqrt(np.sum(x * x, axis=(-2, -1)))    # noqa: E731
+    fro = lambda x: np.sqrt((x * x).sum(axis=(-2, -1)))    # noqa: E731
     gamma = length * EPS / (1.0 - length * EPS)
     return gamma * fro(terms) + 4.0 * n * EPS * fro(Q)
 

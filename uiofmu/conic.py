@@ -433,7 +433,9 @@ class ConicProblem:
         t_rows = np.sort(np.concatenate(strict + ([] if held else [norm_diag])))
         keys = len(self.keys)
         cols = np.repeat(np.arange(self.nvar), np.diff(self._indptr))
-        on_trace = np.isin(self._indices, norm_diag)          # the trace row: minus the sum of those rows
+        on_norm = np.zeros(self.nrows, dtype=bool)
+        on_norm[norm_diag] = True
+        on_trace = on_norm[self._indices]                     # the trace row: minus the sum of those rows
         trace_cols, where = np.unique(cols[on_trace], return_inverse=True)
         trace_vals = np.zeros((trace_cols.size, keys))
         np.add.at(trace_vals, where, -self._values[on_trace])

@@ -434,21 +434,20 @@ def _crossings(A, B, C, D, level: float):
     M, E = np.zeros((2, 2 * n + m, 2 * n + m))
     M[:n, :n], M[:n, 2 * n:], M[2 * n:, :n], M[2 * n:, n:2 * n] = A, Bs, Ds.T @ Cs, Bs.T
     M[2 * n:, 2 * n:] = Ds.T @ Ds - np.eye(m)
-    M[range(n, 2 * n), range(n, 2 * n)] = 1.0
-    E[range(n), range(n)] = 1.0
+    M[n:2 * n, n:2 * n] = E[:n, :n] = np.eye(n)
     E[n:2 * n, :n], E[n:2 * n, n:2 * n], E[n:2 * n, 2 * n:] = Cs.T @ Cs, A.T, Cs.T @ Ds
     if not (np.isfinite(M).all() and np.isfinite(E).all()):
         return None
     re, im, beta, _, _, _, info = dggev(M, E, compute_vl=0, compute_vr=0, overwrite_a=1, overwrite_b=1)
     alpha = re + 1j * im
     a, b = np.abs(alpha), np.abs(beta)
-    if info != 0 or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))) or np.any(np.maximum(a, b) == 0.0):
+    if info != 0 or not (np.isfinite(a).all() and np.isfinite(b).all()) or (np.maximum(a, b) == 0.0).any():
         return None
     near = (a < 2.0 * b) & (b < 2.0 * a)
     z = alpha[near] / beta[near]
     on = np.abs(np.abs(z) - 1.0) <= CIRCLE_TOL
     mirror = 1.0 / np.conj(z[~on])              # the eigenvalues off the circle come in pairs (z, 1 / conj(z))
-    if len(mirror) and np.any(np.abs(mirror[:, None] - z[None, :]).min(axis=1) > CIRCLE_TOL * np.abs(mirror)):
+    if len(mirror) and (np.abs(mirror[:, None] - z[None, :]).min(axis=1) > CIRCLE_TOL * np.abs(mirror)).any():
         return None
     return np.abs(np.angle(z[on]))
 
@@ -540,7 +539,7 @@ def scaled_definite_check(name: str, Q: np.ndarray, terms: np.ndarray, length: i
     gains of 1e6 next to entries of 1e-6) down to the size of its entries (:func:`uiofmu.certificate.definite_check`,
     no margin beyond the rounding: the gain's rounding up is the margin).
     """
-    scale = np.diag(terms).copy()
+    scale = terms.diagonal().copy()
     d = 1.0 / np.sqrt(np.where(scale > 0, scale, 1.0))
     return definite_check(name, d[:, None] * Q * d[None, :], d[:, None] * terms * d[None, :], length + 2, margin=0.0)
 
@@ -664,10 +663,10 @@ def dhat_error_step(N, L, Xz, Xy, Dy, Yx) -> tuple:
     """
     N, L, Xz, Xy, Dy, Yx = (np.asarray(m, dtype=float) for m in (N, L, Xz, Xy, Dy, Yx))
     nz, p = L.shape
-    A = np.block([[N, -L], [np.zeros((p, nz)), np.zeros((p, p))]])
-    B = np.vstack([np.zeros((nz, p)), np.eye(p)])
+    A, B = np.zeros((nz + p, nz + p)), np.zeros((nz + p, p))
+    A[:nz, :nz], A[:nz, nz:], B[nz:] = N, -L, np.eye(p)
     DyYx = Dy @ Yx
-    return A, B, np.hstack([DyYx @ Xz, -DyYx @ Xy]), Dy
+    return A, B, np.concatenate([DyYx @ Xz, -DyYx @ Xy], axis=1), Dy
 
 
 def pair_dhat_error_system(matrices: dict) -> tuple:
@@ -906,8 +905,7 @@ def _riccati(A, B, C, D, gamma: float, delta: float) -> np.ndarray:
         H[:n, :n], H[:n, 2 * n:], H[n:2 * n, :n] = A, B, -(C.T @ C + delta * np.eye(n))
         H[n:2 * n, 2 * n:], H[2 * n:, :n] = -(C.T @ D), D.T @ C
         H[2 * n:, 2 * n:] = D.T @ D - gamma * gamma * np.eye(m)
-    H[range(n, 2 * n), range(n, 2 * n)] = 1.0
-    J[range(n), range(n)] = 1.0
+    H[n:2 * n, n:2 * n] = J[:n, :n] = np.eye(n)
     J[n:2 * n, n:2 * n], J[2 * n:, n:2 * n] = A.T, -B.T
     size = np.abs(H) + np.abs(J)
     if not np.isfinite(size).all():

@@ -271,7 +271,7 @@ class Plant:
         Sampled
         """
         if not self.continuous:
-            if h is not None and not np.isclose(h, self.dt, rtol=1e-12, atol=0.0):
+            if h is not None and not abs(h - self.dt) <= 1e-12 * abs(self.dt):     # np.isclose's rule, for scalars
                 raise ProblemError(f"a discrete plant steps at dt = {self.dt:g} s only, not h = {h:g} s")
             return Sampled(self.A, self.B, self.E, self.w, self.dt)
         if h is None or not h > 0:

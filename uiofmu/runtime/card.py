@@ -41,10 +41,10 @@ def to_lists(value):
         return value
     if isinstance(value, np.ndarray):
         return value.tolist() if value.dtype.kind in "biuf" else to_lists(value.tolist())
-    if isinstance(value, dict):
-        return {k: to_lists(v) for k, v in value.items()}
+    if isinstance(value, dict):                     # plain leaves kept without a call each
+        return {k: v if type(v) in _PLAIN else to_lists(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [to_lists(v) for v in value]
+        return [v if type(v) in _PLAIN else to_lists(v) for v in value]
     if isinstance(value, (np.floating,)):
         return float(value)
     if isinstance(value, (np.integer,)):

@@ -187,8 +187,10 @@ def as_array(value, name: str, shape: tuple, error=ProblemError) -> np.ndarray:
                 arr = np.array(level, dtype=float)
             except OverflowError:
                 arr = None
-            if arr is not None and np.all(np.isfinite(arr)):
-                return freeze(arr.reshape(want))
+            if arr is not None and np.isfinite(arr).all():
+                arr = arr.reshape(want)          # a new array already: made read-only without freeze's copy
+                arr.setflags(write=False)
+                return arr
     want = list(shape)
     flat = []
     stack = [(value, 0, "")]
