@@ -212,3 +212,75 @@ def test_a_search_whose_margins_the_solver_does_not_resolve_refuses():
     doc["observer"]["method"] = "lmi"
     with pytest.raises(uiofmu.InfeasibleError, match="the solver does not resolve these LMIs' margins"):
         uiofmu.design(problem_from_data(doc))
+
+
+def test_a_rounding_twin_solves_the_same_problem():
+    """Within ``rounding_twin`` CLARABEL gets the variables in reversed order and the answer is put back in
+    order: the toy's point (``X`` and ``t``, two variables swapped) and margin are its closed form, and Example 2's
+    margin (8.7e-8, capped by a vertex mu does not move) comes out the same to its rounding (0.15 % apart)."""
+    from uiofmu.conic import rounding_twin
+
+    toy = _toy()
+    with rounding_twin():
+        sol = toy.largest_margin(s=0.3)
+    assert sol.relative_margin == pytest.approx(0.7, abs=1e-8) and sol.verified
+    assert sol.values["X"][0, 0] == pytest.approx(1.0 / 0.7, rel=1e-8)    # X = 1 at margin 0.7, scaled by it
+    system, tau1 = _theorem2(_example2())
+    own = system.largest_margin(tau1=tau1(10.0))
+    with rounding_twin():
+        twin = system.largest_margin(tau1=tau1(10.0))
+    assert twin.verified and twin.relative_margin == pytest.approx(own.relative_margin, rel=1e-2)
+
+
+def _scripted_margins(margins):
+    """A ``decide`` answering the given (margin, certifies) in turn, and the calls it got: (value, twin)."""
+    from uiofmu import conic
+    from uiofmu.lmi import LmiSolution
+
+    calls, answers = [], iter(margins)
+
+    def decide(s):
+        calls.append((s, conic._REVERSED.get()))
+        margin, verified = next(answers)
+        return LmiSolution({}, {"s": s}, "optimal", {}, verified, 0.0, 0.0, None, 1e-6, margin)
+    return decide, calls
+
+
+def test_a_value_near_its_threshold_counts_when_two_of_its_solves_agree():
+    """Near the threshold a value is solved as its rounding twin, then 1e-9 away, until two certified margins agree:
+    a lone outlier (the twin here) decides nothing; the margin kept is the smaller of those solved in the problem's
+    own order. The first value that passes must agree with every probe."""
+    from uiofmu.lmi import _judged
+    from uiofmu.runtime.tolerances import MARGIN_PROBE
+
+    decide, calls = _scripted_margins([(3e-8, True), (1e-10, True), (2.5e-8, True)])
+    sol = _judged(decide, "s", 0.5, 2e-8)
+    assert sol.verified and sol.relative_margin == 2.5e-8 and sol.unresolved is None
+    assert calls == [(0.5, False), (0.5, True), (0.5 * (1.0 + MARGIN_PROBE), False)]
+    decide, calls = _scripted_margins([(3e-8, True), (2.9e-8, True)])
+    sol = _judged(decide, "s", 0.5, 2e-8)                  # the twin agrees: no third solve, the own margin kept
+    assert sol.verified and sol.relative_margin == 3e-8 and len(calls) == 2
+    decide, calls = _scripted_margins([(3e-8, True), (1e-10, True), (2.9e-8, False)])
+    sol = _judged(decide, "s", 0.5, 2e-8)                  # the agreeing probe's point does not certify
+    assert not sol.verified and sol.unresolved == (3e-8, 1e-10)
+    decide, calls = _scripted_margins([(1e-6, True), (1e-10, True), (1e-6, True)])
+    sol = _judged(decide, "s", 0.5, 2e-8, first=True)      # the first value: every probe must agree
+    assert not sol.verified and sol.unresolved == (1e-6, 1e-10) and len(calls) == 2
+
+
+def test_a_value_whose_solve_fails_is_decided_by_its_rounding_twin():
+    """A solve CLARABEL gives up on (no margin) is made once more as its rounding twin, whose answer decides."""
+    from uiofmu import conic
+    from uiofmu.lmi import LmiSolution, _judged
+
+    calls = []
+
+    def decide(s):
+        twin = conic._REVERSED.get()
+        calls.append(twin)
+        if not twin:
+            return LmiSolution({}, {"s": s}, "solver_error: CLARABEL answered NumericalError", {}, False, 0.0, 0.0,
+                               None, 1e-6)
+        return LmiSolution({}, {"s": s}, "optimal", {}, True, 0.0, 0.0, None, 1e-6, 1e-3)
+    sol = _judged(decide, "s", 0.5, 2e-8)
+    assert sol.verified and sol.relative_margin == 1e-3 and calls == [False, True]

@@ -12,6 +12,8 @@ whatever their parameters' values) share one traced problem.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import copy
 import math
 import threading
@@ -42,6 +44,25 @@ CLARABEL_STATUS = {
     "InsufficientProgress": "solver_error",
     "Unsolved": "solver_error",
 }
+
+
+#: Whether :meth:`ConicProblem.solve` hands CLARABEL its variables in reversed order (see :func:`rounding_twin`).
+_REVERSED = contextvars.ContextVar("uiofmu_reversed_variables", default=False)
+
+
+@contextlib.contextmanager
+def rounding_twin():
+    """Within this context, :meth:`ConicProblem.solve` solves its problem with the variables in reversed order
+    (the columns of ``A`` and ``P`` and the entries of ``q`` reversed, the answer put back in order): the same
+    problem, whose answer CLARABEL's sums round in another order, as another BLAS kernel's do. A decision read
+    off a margin within that rounding agrees with its twin's on one machine only by chance; a solve at a value
+    :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE` away rounds in the same order and moves with it (see
+    :func:`uiofmu.lmi._judged`). Solves in recentred coordinates, made within the context, are twins too."""
+    token = _REVERSED.set(True)
+    try:
+        yield
+    finally:
+        _REVERSED.reset(token)
 
 
 def cvxpy_status(clarabel_status) -> str:
@@ -509,20 +530,25 @@ class ConicProblem:
         ``reduced``, when given, is the accuracy an ``optimal_inaccurate`` answer still has (CLARABEL's
         reduced gap and feasibility tolerances; its defaults are 5e-5 and 1e-4).
         ``solver_time`` is the wall time spent in CLARABEL's calls: its setup (presolve, KKT
-        initialisation, equilibration) and its interior-point iterations."""
+        initialisation, equilibration) and its interior-point iterations. Within :func:`rounding_twin`
+        the variables are handed to CLARABEL in reversed order."""
         A, b = self.data(params)
+        P, q, reverse = self.P, self.q, _REVERSED.get()
+        if reverse:
+            A, P, q = A[:, ::-1].tocsc(), P[::-1, ::-1].tocsc(), q[::-1].copy()
         settings = clarabel.DefaultSettings()
         settings.verbose = False
         settings.tol_feas = settings.tol_gap_abs = settings.tol_gap_rel = tol
         if reduced is not None:
             settings.reduced_tol_feas = settings.reduced_tol_gap_abs = settings.reduced_tol_gap_rel = reduced
         t0 = time.perf_counter()                      # CLARABEL's own time: its setup and its solve
-        sol = clarabel.DefaultSolver(self.P, self.q, A, b, self.cones, settings).solve()
+        sol = clarabel.DefaultSolver(P, q, A, b, self.cones, settings).solve()
         solver_time = time.perf_counter() - t0
         status = cvxpy_status(sol.status)
         if status not in ("optimal", "optimal_inaccurate"):
             return None, status, solver_time
-        return self.unpack(np.array(sol.x)), status, solver_time
+        x = np.array(sol.x)
+        return self.unpack(x[::-1] if reverse else x), status, solver_time
 
     def unpack(self, x: np.ndarray) -> dict:
         """The solution vector as the variables' arrays."""

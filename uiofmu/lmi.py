@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 from functools import partial
 from types import SimpleNamespace
@@ -45,6 +46,7 @@ from .runtime.tolerances import (
     MARGIN_AGREEMENT,
     MARGIN_NEAR,
     MARGIN_PROBE,
+    MARGIN_PROBES,
     SEARCH_MARGIN_CAP,
     SEARCH_MARGIN_FRACTION,
     SEARCH_RESOLUTION,
@@ -135,8 +137,9 @@ class LmiSolution:
     #: ``relative_margin`` is the margin held), and whether its figure was reproduced by a second solve.
     held: bool = False
     reproduced: bool = False
-    #: For a point of largest margin refused because a second solve :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE`
-    #: away did not reproduce its margin (:func:`search`): the two margins, which the solver did not resolve.
+    #: For a point of largest margin refused because its probes (:data:`~uiofmu.runtime.tolerances.MARGIN_PROBES`:
+    #: its rounding twin, a value :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE` away) did not reproduce its margin
+    #: (:func:`search`): its margin and a probe's, which the solver did not resolve.
     unresolved: tuple | None = None
 
 
@@ -728,7 +731,8 @@ class LmiSystem:
         if sol.unresolved is not None:
             raise InfeasibleError(
                 f"{self.name} LMIs at {params}: the largest margin did not come out again, within "
-                f"{FIRST_MARGIN_AGREEMENT:g} of itself, at a value {MARGIN_PROBE:g} away: "
+                f"{FIRST_MARGIN_AGREEMENT:g} of itself, with the variables in reversed order or at a value "
+                f"{MARGIN_PROBE:g} away: "
                 "the solver does not resolve these LMIs' margins, so no value of the range would be decided the same "
                 "under every BLAS kernel; units that bring the states to comparable sizes, or a slower requirement, "
                 "give margins it resolves")
@@ -862,25 +866,68 @@ def _passes(sol: LmiSolution, threshold: float) -> bool:
     return sol.verified and (sol.relative_margin is None or sol.relative_margin >= threshold)
 
 
+def _decided(decide: Callable, parameter: str, value: float, twin: bool = False, away: int = 0) -> LmiSolution:
+    """``decide`` at ``value`` moved by ``away`` times :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE`, as its
+    rounding twin (:func:`uiofmu.conic.rounding_twin`) with ``twin``."""
+    from .conic import rounding_twin
+
+    with rounding_twin() if twin else nullcontext():
+        return decide(**{parameter: value * (1.0 + away * MARGIN_PROBE)})
+
+
 def _judged(decide: Callable, parameter: str, value: float, threshold: float, first: bool = False) -> LmiSolution:
-    """``decide`` at ``value``; a largest margin within a factor :data:`~uiofmu.runtime.tolerances.MARGIN_NEAR`
-    of ``threshold`` (any margin, with ``first``: the first value that passes sets the search's threshold) is
-    decided once more at a value :data:`~uiofmu.runtime.tolerances.MARGIN_PROBE` away, and counts only when
-    the second certifies too and the two agree to :data:`~uiofmu.runtime.tolerances.MARGIN_AGREEMENT` (with
-    ``first``: when the two agree to :data:`~uiofmu.runtime.tolerances.FIRST_MARGIN_AGREEMENT`, whether the
-    second point, a value away from the first, certifies or not; else the value is refused, its two
-    margins kept as ``unresolved``: its margin is lost in the solver's rounding, which moves with the BLAS
-    kernel). The solution returned carries the smaller margin."""
-    sol = decide(**{parameter: value})
+    """``decide`` at ``value`` (once more as its rounding twin, :func:`uiofmu.conic.rounding_twin`, when CLARABEL
+    gave no answer); a largest margin within a factor :data:`~uiofmu.runtime.tolerances.MARGIN_NEAR` of
+    ``threshold`` (any margin, with ``first``: the first value that passes sets the search's threshold) is decided
+    again by the probes of :data:`~uiofmu.runtime.tolerances.MARGIN_PROBES` (:func:`_reproduced_near`,
+    :func:`_reproduced_first`). A value they refuse keeps two of its margins as ``unresolved``: its margin is lost
+    in the solver's rounding, which moves with the BLAS kernel."""
+    sol = _decided(decide, parameter, value)
+    if sol.relative_margin is None and sol.status.startswith("solver_error"):
+        sol = _decided(decide, parameter, value, twin=True)
     t = sol.relative_margin
     if t is None or not sol.verified or not (first or threshold / MARGIN_NEAR <= t <= MARGIN_NEAR * threshold):
         return sol
-    again = decide(**{parameter: value * (1.0 + MARGIN_PROBE)})
+    probe = partial(_decided, decide, parameter, value)
+    return _reproduced_first(sol, probe) if first else _reproduced_near(sol, probe)
+
+
+def _refused(sol: LmiSolution, again: LmiSolution) -> LmiSolution:
+    """``sol`` refused, its margin and the margin of ``again`` (a probe of it) kept as ``unresolved``."""
     s = again.relative_margin
-    if s is None or not (first or again.verified) or not reproduced(t, s, FIRST_MARGIN_AGREEMENT if first
-                                                                       else MARGIN_AGREEMENT):
-        return replace(sol, verified=False, unresolved=(t, float("nan") if s is None else s))
-    return replace(sol, relative_margin=min(t, s))
+    return replace(sol, verified=False, unresolved=(sol.relative_margin, float("nan") if s is None else s))
+
+
+def _reproduced_near(sol: LmiSolution, probe: Callable) -> LmiSolution:
+    """A value near its search's threshold, probed in turn (``probe(twin, away)``, one of
+    :data:`~uiofmu.runtime.tolerances.MARGIN_PROBES`) until two certified solves of it agree to
+    :data:`~uiofmu.runtime.tolerances.MARGIN_AGREEMENT`: the earlier counts, with the smaller margin of the two
+    solved in the problem's own order (a twin's margin vets, it does not count); refused when no two agree."""
+    solved = [sol]
+    for twin, away in MARGIN_PROBES:
+        again = probe(twin, away)
+        s = again.relative_margin
+        kept = next((e for e in solved if e.verified and again.verified and s is not None
+                     and reproduced(e.relative_margin, s, MARGIN_AGREEMENT)), None)
+        if kept is not None:
+            return replace(kept, relative_margin=kept.relative_margin if twin else min(kept.relative_margin, s))
+        solved.append(again)
+    return _refused(sol, solved[1])
+
+
+def _reproduced_first(sol: LmiSolution, probe: Callable) -> LmiSolution:
+    """The first value that passes a search (it sets the threshold), probed by every one of
+    :data:`~uiofmu.runtime.tolerances.MARGIN_PROBES`: it counts when each probe's margin agrees with its own to
+    :data:`~uiofmu.runtime.tolerances.FIRST_MARGIN_AGREEMENT` (whether the probe's point certifies or not), with
+    the smallest margin solved in the problem's own order; refused at the first probe that does not agree."""
+    own = [sol.relative_margin]
+    for twin, away in MARGIN_PROBES:
+        again = probe(twin, away)
+        s = again.relative_margin
+        if s is None or not reproduced(sol.relative_margin, s, FIRST_MARGIN_AGREEMENT):
+            return _refused(sol, again)
+        own += [] if twin else [s]
+    return replace(sol, relative_margin=min(own))
 
 
 def _threshold(first: LmiSolution) -> float:

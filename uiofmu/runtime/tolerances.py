@@ -56,10 +56,11 @@ HELD_PROBES = (1, -1, 2, -2)
 HELD_AGREEMENT = 1e-3
 
 #: A ``"max"`` search decides a value whose largest margin lies within this factor of its threshold (either
-#: side) once more, at a value :data:`MARGIN_PROBE` away, and the value counts only when the two margins agree
-#: to :data:`MARGIN_AGREEMENT`: on plants whose LMIs need gains of 1e8 the margin moved by a factor 8 between
-#: BLAS kernels (1.5e-7 against 1.1e-6), so a threshold between them decided the search by the machine; the
-#: same solve at a value 1e-9 away disagrees as much, and such a value is refused on every machine alike.
+#: side) again (:data:`MARGIN_PROBES`: its rounding twin, then a value :data:`MARGIN_PROBE` away), and the value
+#: counts only when two of those margins agree to :data:`MARGIN_AGREEMENT`: on plants whose LMIs need gains of 1e8
+#: the margin moved by a factor 8 between BLAS kernels (1.5e-7 against 1.1e-6), so a threshold between them decided
+#: the search by the machine; the same solve at a value 1e-9 away disagrees as much, and such a value is refused on
+#: every machine alike.
 MARGIN_NEAR = 10.0
 
 #: See :data:`MARGIN_NEAR` (relative to the value).
@@ -68,9 +69,18 @@ MARGIN_PROBE = 1e-9
 #: See :data:`MARGIN_NEAR` (relative to the larger margin).
 MARGIN_AGREEMENT = 0.5
 
+#: The probes of a value :data:`MARGIN_NEAR` its threshold, made in turn until two certified solves agree (the first
+#: value that passes: every one, each agreeing with it; :func:`uiofmu.lmi._judged`): ``(twin, away)``, ``twin`` a
+#: solve with the variables in reversed order (:func:`uiofmu.conic.rounding_twin`), ``away`` the value moved by that
+#: many :data:`MARGIN_PROBE`. A solve 1e-9 away rounds as the first does, so on one machine it moves with it; the
+#: twin rounds as another kernel would: on a campaign plant whose point 1e-9 away failed its re-check under one
+#: kernel only (its decay search ended at 0.625 there, 0.5625 elsewhere), the twin's margin (6.99e-9 against
+#: 7.22e-9) and point agree, and the search ends at 0.5625 on every kernel.
+MARGIN_PROBES = ((True, 0), (False, 1))
+
 #: The first value that passes a ``"max"`` search away from theory's limit sets its threshold
-#: (:data:`SEARCH_MARGIN_FRACTION` of its margin), so its margin is decided once more at a value :data:`MARGIN_PROBE`
-#: away whatever its size, and counts only when the two agree to this (relative to the larger); otherwise the search
+#: (:data:`SEARCH_MARGIN_FRACTION` of its margin), so its margin is decided again by every one of :data:`MARGIN_PROBES`
+#: whatever its size, and counts only when each agrees with it to this (relative to the larger); otherwise the search
 #: stops there and refuses. On a badly scaled plant needing gains of 1.6e6, CLARABEL's inaccurate optima put the
 #: margin anywhere in -1.2e-6..9e-7 along the range, and the first value's two solves came out 75 % apart under one
 #: BLAS kernel, of opposite signs under another; on a plant needing gains of 1e7 whose margins are resolved well
