@@ -198,6 +198,35 @@ def test_a_held_figure_counts_when_two_solves_agree_and_an_outlier_does_not_deci
     assert sol.verified and not sol.reproduced and sol.objective == 58.94 and len(calls) == 5
 
 
+def test_a_held_problem_whose_first_two_solves_fail_is_not_solved_further():
+    """Where neither of the first two solves gives a point that verifies, CLARABEL does not solve the held problem, and
+    which later solves verify is the BLAS kernel's rounding (an lti-uio plant: the 3rd and 4th under SkylakeX, 9.7965,
+    none under Prescott): no more are made, and no figure counts. A first solve that verifies keeps the probes going."""
+    system, calls = _scripted_held([None, None, 9.79648, 9.79645, None])
+    sol = system.least_at_margin(5e-7)
+    assert not sol.verified and not sol.reproduced and len(calls) == 2
+    system, calls = _scripted_held([9.79648, None, None, 9.79645])
+    sol = system.least_at_margin(5e-7)
+    assert sol.reproduced and sol.objective == 9.79648 and len(calls) == 4
+    system, calls = _scripted_held([])                  # below the floor a held point never verifies: not solved
+    sol = system.least_at_margin(0.5 * MARGIN_DECISION_RTOL)
+    assert not sol.verified and sol.held and not calls
+
+
+def test_a_held_overshoot_the_solver_does_not_reach_is_not_the_problems():
+    """An lti-uio plant next to the edge (decay 0.9754) whose held problem CLARABEL gives up on (InsufficientProgress)
+    under some kernels and ends AlmostSolved under others, at every margin up to its own largest: its overshoot is
+    said not to be determined by the problem, where SkylakeX printed 9.8 and Prescott did not."""
+    from uiofmu.families import random_plants as rpl
+
+    doc = list(rpl.campaign("lti-uio", 3, 2026, n_max=5, intervals_max=4))[2]
+    card = uiofmu.design(problem_from_data(doc))
+    assert card.data["decay_bound"] == pytest.approx(0.975403, abs=1e-6)
+    assert card.data["certificate"]["verified"] and all(c.holds for c in uiofmu.verify(card))
+    assert card.data["overshoot_digits"] == UNDETERMINED
+    assert overshoot_text(card.data).endswith(UNDETERMINED_NOTE)
+
+
 def test_a_search_whose_margins_the_solver_does_not_resolve_refuses():
     """A badly scaled plant (gains of 1.6e6 needed) whose largest margins are CLARABEL's noise (-1.2e-6..9e-7 along
     the range, two solves 1e-9 apart of opposite signs, the first value's margin 1.5e-7 to 5.8e-7 by solve under

@@ -37,6 +37,7 @@ from .runtime.tolerances import (
     FIGURE_RTOL,
     FIRST_MARGIN_AGREEMENT,
     HELD_AGREEMENT,
+    HELD_OPENING,
     HELD_PROBE,
     HELD_PROBES,
     LMI_MARGIN,
@@ -408,7 +409,12 @@ class LmiSystem:
         (:data:`~uiofmu.runtime.tolerances.HELD_PROBES`), until the figures (:attr:`figure`, else the
         objective) of two solves agree to :data:`~uiofmu.runtime.tolerances.HELD_AGREEMENT`: the figure is then
         reproduced, and the earlier of the two points is kept. An answer CLARABEL did not converge to is one
-        solve that agrees with no other (58.94 against 58.74 and 58.74).
+        solve that agrees with no other (58.94 against 58.74 and 58.74). Where none of the first
+        :data:`~uiofmu.runtime.tolerances.HELD_OPENING` solves gives a point that verifies, CLARABEL does not solve
+        the held problem (InsufficientProgress, or answers the re-check refuses), and which of the later ones
+        verify is the BLAS kernel's rounding: no more are made, and the figure is not the problem's. A margin
+        held below :data:`~uiofmu.runtime.tolerances.MARGIN_DECISION_RTOL` is not solved for (its point
+        would not verify).
 
         Returns
         -------
@@ -418,8 +424,14 @@ class LmiSystem:
         """
         if not self.homogeneous:
             raise ValueError(f"{self.name}: a margin held needs a homogeneous system")
+        if held < MARGIN_DECISION_RTOL:                 # its point would not verify (:meth:`_margin_in`): not solved
+            pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
+            return LmiSolution({}, pvals, f"not solved: margin {held:.3g} below {MARGIN_DECISION_RTOL:g} {HELD}", {},
+                               False, 0.0, 0.0, None, self.margin, held, True)
         first, found = None, []
-        for k in (0, *HELD_PROBES):
+        for i, k in enumerate((0, *HELD_PROBES)):
+            if i == HELD_OPENING and not found:         # CLARABEL does not solve this problem: more solves are luck
+                break
             sol = self._held_once(held * (1.0 + k * HELD_PROBE), parameters)
             first = first or sol
             if not sol.verified:                        # CLARABEL gave up on this one: the next probe
