@@ -427,7 +427,8 @@ class LmiSystem:
         if held < MARGIN_DECISION_RTOL:                 # its point would not verify (:meth:`_margin_in`): not solved
             pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
             return LmiSolution({}, pvals, f"not solved: margin {held:.3g} below {MARGIN_DECISION_RTOL:g} {HELD}", {},
-                               False, 0.0, 0.0, None, self.margin, held, True)
+                               verified=False, solve_time=0.0, setup_time=0.0, margin=self.margin,
+                               relative_margin=held, held=True)
         first, found = None, []
         for i, k in enumerate((0, *HELD_PROBES)):
             if i == HELD_OPENING and not found:         # CLARABEL does not solve this problem: more solves are luck
@@ -915,16 +916,17 @@ def _reproduced_near(sol: LmiSolution, probe: Callable) -> LmiSolution:
     :data:`~uiofmu.runtime.tolerances.MARGIN_PROBES`) until two certified solves of it agree to
     :data:`~uiofmu.runtime.tolerances.MARGIN_AGREEMENT`: the earlier counts, with the smaller margin of the two
     solved in the problem's own order (a twin's margin vets, it does not count); refused when no two agree."""
-    solved = [sol]
+    solved = [(sol, False)]
     for twin, away in MARGIN_PROBES:
         again = probe(twin, away)
         s = again.relative_margin
-        kept = next((e for e in solved if e.verified and again.verified and s is not None
+        pair = next(((e, e_twin) for e, e_twin in solved if e.verified and again.verified and s is not None
                      and reproduced(e.relative_margin, s, MARGIN_AGREEMENT)), None)
-        if kept is not None:
-            return replace(kept, relative_margin=kept.relative_margin if twin else min(kept.relative_margin, s))
-        solved.append(again)
-    return _refused(sol, solved[1])
+        if pair is not None:
+            own = [e.relative_margin for e, is_twin in (pair, (again, twin)) if not is_twin]
+            return replace(pair[0], relative_margin=min(own or [pair[0].relative_margin]))
+        solved.append((again, twin))
+    return _refused(sol, solved[1][0])
 
 
 def _reproduced_first(sol: LmiSolution, probe: Callable) -> LmiSolution:
