@@ -11,7 +11,8 @@ the FMU and the FMU's own line.
 ``make fmus`` goes on; the importers see ``PATH`` and no Python variable; a non-finite output is an error.
 
 The importers are ``../shared/importers/`` next to the repository, or ``$UIOFMU_FMUCHECK`` and
-``$UIOFMU_FMUSIM``; where one is not there, (a) and (b) skip with the reason.
+``$UIOFMU_FMUSIM``; where one is not there or cannot start (fmusim needs libminizip1 and
+libsundials-cvode6, see that folder's README), (a) and (b) skip with the reason.
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ import pytest
 from cfmu import NEEDS_CC
 from conftest import ROOT
 from uiofmu import catalogue as cat
-from uiofmu.cosim.native_importers import (FIXED_STEP_WARNING, FMUCHECK, FMUSIM, bare_environment, importer_missing,
-                                           run_compliance_checker, run_fmusim)
+from uiofmu.cosim.native_importers import (FIXED_STEP_WARNING, FMUCHECK, FMUSIM, bare_environment,
+                                           importer_unavailable, run_compliance_checker, run_fmusim)
 
 RUNS = {"fmuCheck": run_compliance_checker, "fmusim": run_fmusim}
 KEYS = ("seed000-example1", "two-room-building")
@@ -70,8 +71,8 @@ def test_each_fmu_runs_alone_to_its_stop_time(built, tool, tmp_path):
 
 def _both_there():
     for tool in (FMUCHECK, FMUSIM):
-        if missing := importer_missing(tool):
-            pytest.skip(missing)
+        if why := importer_unavailable(tool):          # absent, or the loader misses a library it needs
+            pytest.skip(why)
 
 
 @NEEDS_CC

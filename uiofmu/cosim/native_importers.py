@@ -182,6 +182,28 @@ def importer_missing(tool: tuple) -> str:
     return ""
 
 
+def importer_unavailable(tool: tuple, timeout: float = 30.0) -> str:
+    """Why an importer cannot run: :func:`importer_missing`'s reasons, or a shared library the system's loader
+    does not find (the program is started once, with no arguments, to see).
+
+    Parameters
+    ----------
+    tool : tuple of str
+        :data:`FMUCHECK` or :data:`FMUSIM`.
+    timeout : float
+        Seconds the program may take to print its usage.
+
+    Returns
+    -------
+    str
+        Empty when it starts.
+    """
+    if missing := importer_missing(tool):
+        return missing
+    _, why, _ = _launch(tool, importer_path(tool), [], timeout)
+    return why
+
+
 def _folder(path) -> Path:
     """``path``, made where it is not there yet."""
     path = Path(path)
@@ -351,4 +373,4 @@ def run_fmusim(fmu, step: float, stop: float, *, workdir=None, timeout: float = 
 
 
 __all__ = ["FIXED_STEP_WARNING", "FMUCHECK", "FMUSIM", "IMPORTERS", "ImporterRun", "bare_environment",
-           "importer_missing", "importer_path", "run_compliance_checker", "run_fmusim"]
+           "importer_missing", "importer_path", "importer_unavailable", "run_compliance_checker", "run_fmusim"]
