@@ -425,7 +425,7 @@ class LmiSystem:
         if not self.homogeneous:
             raise ValueError(f"{self.name}: a margin held needs a homogeneous system")
         if held < MARGIN_DECISION_RTOL:                 # its point would not verify (:meth:`_margin_in`): not solved
-            pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
+            pvals = self._parameter_values(parameters)
             return LmiSolution({}, pvals, f"not solved: margin {held:.3g} below {MARGIN_DECISION_RTOL:g} {HELD}", {},
                                verified=False, solve_time=0.0, setup_time=0.0, margin=self.margin,
                                relative_margin=held, held=True)
@@ -444,6 +444,10 @@ class LmiSystem:
             found.append((figure, sol))
         return found[0][1] if found else first
 
+    def _parameter_values(self, parameters: dict) -> dict:
+        """Every parameter's value as a float: ``parameters``' where given, the system's default otherwise."""
+        return {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
+
     def _figure_of(self, sol: LmiSolution) -> float:
         """The figure :meth:`least_at_margin` compares: :attr:`figure` of the point, else its objective."""
         try:
@@ -457,7 +461,7 @@ class LmiSystem:
         relative to them), then as :meth:`_recentring` goes on."""
         attempt = lambda frame, pvals: self._margin_in(frame, pvals, held=held)   # noqa: E731
         if self._frame is not None:
-            pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
+            pvals = self._parameter_values(parameters)
             sol = attempt(None, pvals)
             if sol.verified:
                 return sol
@@ -549,7 +553,7 @@ class LmiSystem:
         """``attempt(frame, pvals)`` in the current coordinates, and once more in the coordinates
         ``recentre`` chooses from a refused point (the solver proved nothing); the new coordinates are kept
         when their point verifies."""
-        pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
+        pvals = self._parameter_values(parameters)
         sol = attempt(self._frame, pvals)
         if sol.verified or self.recentre is None or not sol.values or sol.status in INFEASIBLE:
             return sol
@@ -634,7 +638,7 @@ class LmiSystem:
         -------
         LmiSolution
         """
-        pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
+        pvals = self._parameter_values(parameters)
         eigs, ok, objective = {}, False, None
         if values:
             lmis = self.evaluate(values, pvals)
@@ -684,7 +688,7 @@ class LmiSystem:
         cp = _cvxpy()
         if self._problem is None:
             self._compile_cvxpy()
-        pvals = {k: float(parameters.get(k, v)) for k, v in self.parameters.items()}
+        pvals = self._parameter_values(parameters)
         slack = {l.name: cp.Variable(nonneg=True, name=f"slack_{i}")
                  for i, l in enumerate(self._lmis) if not l.equality}
         cons = []
