@@ -33,7 +33,8 @@ test-fast: $(STAMP)
 # the numerically sensitive tests (verdicts of the examples, reproducers and edge plants; the design
 # rules) under other OpenBLAS kernels and thread counts: the same answers
 # on every machine. SkylakeX only where the CPU has AVX-512.
-BLAS_TESTS   := tests/test_same_answers.py tests/test_design_rules.py tests/test_fmus_catalogue.py
+BLAS_TESTS   := tests/test_same_answers.py tests/test_design_rules.py tests/test_fmus_catalogue.py \
+                tests/test_largest_margin.py::test_a_plant_whose_first_margins_differ_above_the_cap_is_designed_under_every_kernel
 BLAS_KERNELS ?= Prescott Sandybridge Haswell $(shell grep -qw avx512f /proc/cpuinfo 2>/dev/null && echo SkylakeX)
 test-blas: $(STAMP)
 	@set -e; for k in default $(BLAS_KERNELS); do for t in 1 2; do \

@@ -242,7 +242,8 @@ def test_a_condition_that_took_a_solve_stays_the_solvers_record(docs):
     solved = [i for i, c in enumerate(doc["existence"]["conditions"]) if c.get("solver")]
     assert solved and not _refused(doc)
     edited = copy.deepcopy(doc)
-    edited["existence"]["conditions"][solved[0]]["values"]["status"] = "edited"
+    values = edited["existence"]["conditions"][solved[0]]["values"]
+    values["verified"] = not values["verified"]
     assert not _refused(edited)                                  # the solver's word: a record, not a claim
     marked = copy.deepcopy(doc)
     marked["existence"]["conditions"][0]["solver"] = True

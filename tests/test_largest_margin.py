@@ -306,6 +306,36 @@ def test_a_value_near_its_threshold_counts_when_two_of_its_solves_agree():
     assert not sol.verified and sol.unresolved == (1e-6, 1e-10) and len(calls) == 2
 
 
+def test_a_first_value_whose_margins_all_set_the_largest_threshold_counts_however_they_differ():
+    """The first value's margin matters through the threshold it sets: where the first solve and every probe
+    give margins of which 1 % is above the cap (2.4e-4 to 6.2e-4, as an ltv-auid plant's by kernel and probe), the
+    threshold is the cap whatever their digits and the value counts, with the smallest own margin; a probe below
+    that level (the cap then depends on which margin counts) must agree as before."""
+    from uiofmu.lmi import _judged
+
+    lowest = SEARCH_MARGIN_CAP / SEARCH_MARGIN_FRACTION
+    decide, calls = _scripted_margins([(6.2e-4, True), (3.3e-4, True), (2.45e-4, True)])
+    sol = _judged(decide, "s", 0.5, 2e-8, first=True)
+    assert sol.verified and sol.relative_margin == 2.45e-4 and sol.unresolved is None and len(calls) == 3
+    decide, calls = _scripted_margins([(6.2e-4, True), (0.9 * lowest, True), (6e-4, True)])
+    sol = _judged(decide, "s", 0.5, 2e-8, first=True)
+    assert not sol.verified and sol.unresolved == (6.2e-4, 0.9 * lowest) and len(calls) == 2
+
+
+def test_a_plant_whose_first_margins_differ_above_the_cap_is_designed_under_every_kernel():
+    """A badly scaled ltv-auid plant (||M C E|| 2.2e4) whose first value's margins came out 2.4e-4 to 6.2e-4 by
+    BLAS kernel and probe: refused under three kernels and designed under the fourth while their disagreement
+    decided; the threshold they set is the cap under all four, and the design is made and re-checks (where its
+    search ends still moves with the kernel: docs/tolerances.md)."""
+    from uiofmu.families import random_plants as rpl
+
+    doc = list(rpl.campaign("ltv-auid", 8, 2031, n_max=5, intervals_max=4))[3]
+    assert doc["name"].startswith("ltv-auid-seed2031000003-badly-scaled")
+    card = uiofmu.design(problem_from_data(doc))
+    assert card.data["certificate"]["verified"] and all(c.holds for c in uiofmu.verify(card))
+    assert card.data["search"]["parameter"] == "mu" and card.data["mu"] > 0
+
+
 def test_a_value_whose_solve_fails_is_decided_by_its_rounding_twin():
     """A solve CLARABEL gives up on (no margin) is made once more as its rounding twin, whose answer decides."""
     from uiofmu import conic

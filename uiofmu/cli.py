@@ -116,6 +116,7 @@ def design_summary(card, timing: bool = True) -> list[str]:
     the same on every machine, like the verdict. The solver's own word (``optimal`` or
     ``optimal_inaccurate``) is printed only for a refused certificate: a verified one was re-checked
     without the solver, and that word moved with the BLAS kernel. The result of a ``"max"`` search
+    (on the ``search`` line where no line above shows it: ltv-auid's ``mu``)
     is decided by optimal values (largest margins); where a plant's margin is lost in the solver's
     own noise over a range of values, the search ends somewhere in that range, and that value and
     the figures at it can differ between machines. The seconds always differ; so can the number of solves
@@ -144,7 +145,9 @@ def design_summary(card, timing: bool = True) -> list[str]:
                      f"gx is G x of {card.data['delay']} step(s) back")
     search = card.data.get("search")
     if search:
-        lines.append(f"  search           {search['parameter']}"
+        found = card.data.get(search["parameter"])     # the value found, where no line above shows it (ltv-auid's mu)
+        shown = isinstance(found, (int, float)) and found not in (card.data.get("decay_bound"), card.data.get("alpha"))
+        lines.append(f"  search           {search['parameter']}" + (f" = {found:.6g}" if shown else "")
                      + (f" over {search['solves']} solve(s) in {search['seconds']:.3f} s" if timing else ""))
     lines += gain_lines(card.data, figures=timing)
     lines += noise_lines(card.data, figures=timing)

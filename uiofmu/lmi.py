@@ -936,16 +936,25 @@ def _reproduced_near(sol: LmiSolution, probe: Callable) -> LmiSolution:
 def _reproduced_first(sol: LmiSolution, probe: Callable) -> LmiSolution:
     """The first value that passes a search (it sets the threshold), probed by every one of
     :data:`~uiofmu.runtime.tolerances.MARGIN_PROBES`: it counts when each probe's margin agrees with its own to
-    :data:`~uiofmu.runtime.tolerances.FIRST_MARGIN_AGREEMENT` (whether the probe's point certifies or not), with
-    the smallest margin solved in the problem's own order; refused at the first probe that does not agree."""
+    :data:`~uiofmu.runtime.tolerances.FIRST_MARGIN_AGREEMENT` (whether the probe's point certifies or not), or
+    when both margins set the search's largest threshold (:func:`_capped`: the threshold is then the same
+    whatever the digits), with the smallest margin solved in the problem's own order; refused at the first probe
+    that does not agree."""
     own = [sol.relative_margin]
     for twin, away in MARGIN_PROBES:
         again = probe(twin, away)
         s = again.relative_margin
-        if s is None or not reproduced(sol.relative_margin, s, FIRST_MARGIN_AGREEMENT):
+        if s is None or not (reproduced(sol.relative_margin, s, FIRST_MARGIN_AGREEMENT)
+                             or _capped(sol.relative_margin) and _capped(s)):
             return _refused(sol, again)
         own += [] if twin else [s]
     return replace(sol, relative_margin=min(own))
+
+
+def _capped(margin: float) -> bool:
+    """Whether a first value's margin sets the search's largest threshold,
+    :data:`~uiofmu.runtime.tolerances.SEARCH_MARGIN_CAP` (see :func:`_threshold`)."""
+    return SEARCH_MARGIN_FRACTION * margin >= SEARCH_MARGIN_CAP
 
 
 def _threshold(first: LmiSolution) -> float:

@@ -95,7 +95,9 @@ MARGIN_PROBES = ((True, 0), (False, 1))
 #: stops there and refuses. On a badly scaled plant needing gains of 1.6e6, CLARABEL's inaccurate optima put the
 #: margin anywhere in -1.2e-6..9e-7 along the range, and the first value's two solves came out 75 % apart under one
 #: BLAS kernel, of opposite signs under another; on a plant needing gains of 1e7 whose margins are resolved well
-#: enough for the same search on every kernel, they came out up to 10 % apart under one kernel.
+#: enough for the same search on every kernel, they came out up to 10 % apart under one kernel. Two margins that
+#: both set the largest threshold (:data:`SEARCH_MARGIN_CAP`) need not agree: the threshold is the same whatever
+#: their digits (an ltv-auid plant's were 2.4e-4 to 6.2e-4 by kernel and probe).
 FIRST_MARGIN_AGREEMENT = 0.5
 
 #: The largest threshold of a ``"max"`` search (see :data:`SEARCH_MARGIN_FRACTION`).
