@@ -230,16 +230,27 @@ def noise_determined(gain, cert) -> bool:
     at a larger figure (the re-check refused the first), or with less room, is the design's: another kernel's
     rounding of the same design certifies another figure (31800 against 35000 on a plant next to the edge).
     """
+    return _undetermined_because(gain, cert) is None
+
+
+def _undetermined_because(gain, cert) -> str | None:
+    """Why :func:`noise_determined` finds a gain not the problem's, with the figures that say so; None where it is."""
     if not isinstance(cert, dict) or not isinstance(cert.get("checks"), dict) or not cert["checks"]:
-        return False
+        return "the certificate has no checks"
     try:
         base = next(float(cert[k]) for k in NOISE_BASES if cert.get(k) is not None)
-        first, gain = base * (1.0 + float(cert["margin"])), float(gain)
+        margin, gain = float(cert["margin"]), float(gain)
     except (StopIteration, KeyError, TypeError, ValueError):
-        return False
+        return f"the certificate has no base figure ({', '.join(NOISE_BASES)}) and margin, or the gain is not a number"
+    first = base * (1.0 + margin)
     if not (math.isfinite(first) and first > 0.0 and gain <= first * (1.0 + 10.0 ** (1 - NOISE_DIGITS))):
-        return False
-    return all(isinstance(check, dict) and _room(check) >= NOISE_ROOM for check in cert["checks"].values())
+        return (f"the gain {gain:.6g} is not the first figure tried, the base {base:.6g} times 1 + margin "
+                f"({margin:.3g}) rounded up to {NOISE_DIGITS} digits")
+    for name, check in cert["checks"].items():
+        room = _room(check) if isinstance(check, dict) else math.nan
+        if not room >= NOISE_ROOM:
+            return f"check {name} holds with {room:.3g} times its bound, where {NOISE_ROOM:g} times are needed"
+    return None
 
 
 def _check_determined(gain, cert: dict, where: str) -> None:
@@ -248,10 +259,9 @@ def _check_determined(gain, cert: dict, where: str) -> None:
     flag = cert["determined"]
     if not isinstance(flag, bool):
         raise CardError(f"design card {where}: expected true or false, found {_kind(flag)}")
-    if flag and not noise_determined(gain, cert):
-        raise CardError(f"design card {where}: true, but its gain is not its base figure ({', '.join(NOISE_BASES)}) "
-                        f"times 1 + margin rounded up to {NOISE_DIGITS} digits, with every check's value at least "
-                        f"{NOISE_ROOM:g} times its bound")
+    because = _undetermined_because(gain, cert) if flag else None
+    if because is not None:
+        raise CardError(f"design card {where}: true, but {because}")
 
 
 def check_card(data, require_verified: bool = True) -> dict:
