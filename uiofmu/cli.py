@@ -131,11 +131,12 @@ def design_summary(card, timing: bool = True) -> list[str]:
     from .gains import gain_lines
     from .noise import noise_design_lines, noise_lines
 
-    lines = []
+    lines, shown = [], []
     for key, digits in (("decay_bound", 6), ("overshoot_bound", 0), ("alpha", 6)):
         if card.data.get(key) is not None:
             text = overshoot_text(card.data) if key == "overshoot_bound" else f"{card.data[key]:.{digits}g}"
             lines.append(f"  {key:16s} {text}")
+            shown.append(card.data[key])
     if card.data.get("order"):                    # a reduced-order observer: its state's size
         lines.append(f"  order            {card.data['order']} ({card.data['dims']['nz']} states, n = "
                      f"{card.data['dims']['n']})")
@@ -146,8 +147,8 @@ def design_summary(card, timing: bool = True) -> list[str]:
     search = card.data.get("search")
     if search:
         found = card.data.get(search["parameter"])     # the value found, where no line above shows it (ltv-auid's mu)
-        shown = isinstance(found, (int, float)) and found not in (card.data.get("decay_bound"), card.data.get("alpha"))
-        lines.append(f"  search           {search['parameter']}" + (f" = {found:.6g}" if shown else "")
+        new = isinstance(found, (int, float)) and found not in shown
+        lines.append(f"  search           {search['parameter']}" + (f" = {found:.6g}" if new else "")
                      + (f" over {search['solves']} solve(s) in {search['seconds']:.3f} s" if timing else ""))
     lines += gain_lines(card.data, figures=timing)
     lines += noise_lines(card.data, figures=timing)

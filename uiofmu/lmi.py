@@ -953,16 +953,21 @@ def _reproduced_first(sol: LmiSolution, probe: Callable) -> LmiSolution:
 
 def _capped(margin: float) -> bool:
     """Whether a first value's margin sets the search's largest threshold,
-    :data:`~uiofmu.runtime.tolerances.SEARCH_MARGIN_CAP` (see :func:`_threshold`)."""
-    return SEARCH_MARGIN_FRACTION * margin >= SEARCH_MARGIN_CAP
+    :data:`~uiofmu.runtime.tolerances.SEARCH_MARGIN_CAP`."""
+    return _threshold_at(margin) == SEARCH_MARGIN_CAP
 
 
 def _threshold(first: LmiSolution) -> float:
     """A search's threshold from the first value that passed (see
     :data:`~uiofmu.runtime.tolerances.SEARCH_MARGIN_FRACTION`)."""
-    if first.relative_margin is None:
-        return MARGIN_DECISION_RTOL
-    return min(max(SEARCH_MARGIN_FRACTION * first.relative_margin, MARGIN_DECISION_RTOL), SEARCH_MARGIN_CAP)
+    return MARGIN_DECISION_RTOL if first.relative_margin is None else _threshold_at(first.relative_margin)
+
+
+def _threshold_at(margin: float) -> float:
+    """The threshold a first value's largest margin sets: :data:`~uiofmu.runtime.tolerances.SEARCH_MARGIN_FRACTION`
+    of it, within :data:`~uiofmu.runtime.tolerances.MARGIN_DECISION_RTOL` and
+    :data:`~uiofmu.runtime.tolerances.SEARCH_MARGIN_CAP`."""
+    return min(max(SEARCH_MARGIN_FRACTION * margin, MARGIN_DECISION_RTOL), SEARCH_MARGIN_CAP)
 
 
 def _resolved(good: LmiSolution, bad: LmiSolution, threshold: float) -> bool:
