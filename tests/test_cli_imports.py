@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import subprocess
 import sys
 
@@ -17,6 +18,7 @@ import pytest
 
 from conftest import EXAMPLES, ROOT
 from uiofmu.fmu.c_backend import c_compiler
+from uiofmu.threads import REPRODUCIBLE_KERNELS
 
 #: What no command of the default path may load.
 NEVER = ("cvxpy", "scipy.optimize", "matplotlib", "fmpy", "dask", "distributed", "tqdm", "mujoco", "pythonfmu")
@@ -57,8 +59,11 @@ import threadpoolctl        # first: its import sets KMP_DUPLICATE_LIB_OK (Intel
 before = dict(os.environ)
 from uiofmu.cli import main
 code = main(json.loads(sys.argv[1]))
-threads = {i["filepath"]: i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"}
-print(json.dumps({"code": code, "threads": threads, "environment_kept": dict(os.environ) == before}), file=sys.stderr)
+blas = [i for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
+threads = {i["filepath"]: i["num_threads"] for i in blas}
+kernels = {i["filepath"]: i["architecture"] for i in blas}
+kept = dict(os.environ) == before
+print(json.dumps({"code": code, "threads": threads, "kernels": kernels, "environment_kept": kept}), file=sys.stderr)
 """
 
 #: The BLAS libraries' threads and the environment after ``import uiofmu`` and a check of Example 1 (the API), or
@@ -72,8 +77,11 @@ if sys.argv[1] == "plain":
 else:
     import uiofmu
     uiofmu.check(uiofmu.load_problem(sys.argv[2]))
-threads = {i["filepath"]: i["num_threads"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"}
-print(json.dumps({"threads": threads, "environment_kept": dict(os.environ) == before}), file=sys.stderr)
+blas = [i for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
+threads = {i["filepath"]: i["num_threads"] for i in blas}
+kernels = {i["filepath"]: i["architecture"] for i in blas}
+print(json.dumps({"threads": threads, "kernels": kernels, "environment_kept": dict(os.environ) == before}),
+      file=sys.stderr)
 """
 
 #: Runs ``uiofmu check`` of its first argument through ``uiofmu.cli.main``, then ``uiofmu.check`` of it (the API),
@@ -94,8 +102,8 @@ THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS
 
 def probe(script: str, *args, cwd, **variables) -> dict:
     """What ``script`` reports (its last line on stderr, JSON) in a fresh interpreter whose environment has no
-    thread variable but ``variables``."""
-    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
+    thread variable and no ``OPENBLAS_CORETYPE`` but ``variables``."""
+    env = {k: v for k, v in os.environ.items() if k not in (*THREAD_VARIABLES, "OPENBLAS_CORETYPE")}
     env.update(variables, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.run([sys.executable, "-c", script, *map(str, args)], cwd=cwd, env=env, capture_output=True,
                           text=True, timeout=300)
@@ -170,11 +178,99 @@ def test_the_command_line_keeps_the_users_number_of_threads(tmp_path):
 
 def test_import_uiofmu_sets_no_variable(tmp_path):
     """The library (``import uiofmu``, its API) sets no environment variable, and the BLAS libraries it loads
-    start with the threads they start with in a plain ``import numpy, scipy.linalg``."""
+    start with the threads and on the kernel they start with in a plain ``import numpy, scipy.linalg``."""
     plain = probe(LIBRARY_PROBE, "plain", cwd=tmp_path)
     report = probe(LIBRARY_PROBE, "uiofmu", EXAMPLES / "seed000_example1.toml", cwd=tmp_path)
     assert plain["environment_kept"] and report["environment_kept"], (plain, report)
     assert report["threads"] == plain["threads"], (report["threads"], plain["threads"])
+    assert report["kernels"] == plain["kernels"], (report["kernels"], plain["kernels"])
+
+
+@pytest.mark.skipif(platform.machine() not in REPRODUCIBLE_KERNELS,
+                    reason=f"no reproducible OpenBLAS kernel known for a {platform.machine()} machine")
+def test_the_command_line_runs_on_one_blas_kernel(tmp_path):
+    """``uiofmu design`` and ``verify`` load numpy's and scipy's OpenBLAS on the machine's reproducible kernel
+    (the one a plain import loads with ``OPENBLAS_CORETYPE`` set to it), whatever kernel the CPU would have
+    chosen, and leave the environment as it was."""
+    kernel = REPRODUCIBLE_KERNELS[platform.machine()]
+    pinned = probe(LIBRARY_PROBE, "plain", cwd=tmp_path, OPENBLAS_CORETYPE=kernel)["kernels"]
+    example, card = EXAMPLES / "seed000_example1.toml", tmp_path / "card.json"
+    for argv in (["design", example, "-o", card], ["verify", card]):
+        report = probe(THREADS_PROBE, json.dumps([str(a) for a in argv]), cwd=tmp_path)
+        assert report["code"] == 0 and report["environment_kept"], (argv[0], report)
+        assert report["kernels"] == pinned, (argv[0], report["kernels"], pinned)
+
+
+def test_a_program_that_loaded_numpy_keeps_its_kernel(tmp_path):
+    """A program that imported numpy before it calls ``uiofmu.cli.main`` runs the command on numpy's kernel, scipy's
+    loads on it too (one kernel in a process: a campaign's replay in it reproduces its workers' runs)."""
+    plain = probe(LIBRARY_PROBE, "plain", cwd=tmp_path)["kernels"]
+    report = probe("import numpy\n" + THREADS_PROBE, json.dumps(["design", str(EXAMPLES / "seed000_example1.toml"),
+                                                                "-o", str(tmp_path / "card.json")]), cwd=tmp_path)
+    assert report["code"] == 0 and report["environment_kept"], report
+    assert report["kernels"] == plain, (report["kernels"], plain)
+
+
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"), reason="Haswell is an x86-64 kernel")
+def test_the_command_line_keeps_the_users_blas_kernel(tmp_path):
+    """A user's ``OPENBLAS_CORETYPE`` is the kernel the command's libraries load with (``make test-blas``
+    sets each in turn)."""
+    plain = probe(LIBRARY_PROBE, "plain", cwd=tmp_path, OPENBLAS_CORETYPE="Haswell")["kernels"]
+    report = probe(THREADS_PROBE, json.dumps(["design", str(EXAMPLES / "seed000_example1.toml"), "-o",
+                                              str(tmp_path / "card.json")]), cwd=tmp_path, OPENBLAS_CORETYPE="Haswell")
+    assert report["code"] == 0 and report["environment_kept"], report
+    assert report["kernels"] == plain and set(plain.values()) == {"Haswell"}, (report["kernels"], plain)
+
+
+#: The kernels of the BLAS libraries of a campaign's Dask worker, started as ``uiofmu campaign`` starts it (a
+#: LocalCluster of one worker process within the command's start).
+WORKER_PROBE = """\
+import json, sys
+from uiofmu.threads import start_with_one_thread
+
+def kernels():
+    import numpy, scipy.linalg, threadpoolctl
+    return sorted(i["architecture"] for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas")
+
+if __name__ == "__main__":
+    with start_with_one_thread():
+        from uiofmu.cosim.campaign.scheduler import start_client     # as the command imports it: after the start
+
+        client, cluster = start_client(1, None)
+        try:
+            found = client.submit(kernels).result()
+        finally:
+            client.close()
+            cluster.close()
+    print(json.dumps({"kernels": found}), file=sys.stderr)
+"""
+
+
+@pytest.mark.skipif(platform.machine() not in REPRODUCIBLE_KERNELS,
+                    reason=f"no reproducible OpenBLAS kernel known for a {platform.machine()} machine")
+def test_a_campaigns_workers_run_on_the_commands_kernel(tmp_path):
+    """The Dask workers a campaign starts load their BLAS libraries on the command's kernel too (their runs step
+    observers with numpy)."""
+    pinned = probe(LIBRARY_PROBE, "plain", cwd=tmp_path, OPENBLAS_CORETYPE=REPRODUCIBLE_KERNELS[platform.machine()])
+    script = tmp_path / "workers.py"
+    script.write_text(WORKER_PROBE)
+    report = probe(f"import runpy; runpy.run_path({str(script)!r}, run_name='__main__')", cwd=tmp_path)
+    assert report["kernels"] == sorted(pinned["kernels"].values()), (report, pinned)
+
+
+def test_version_names_the_solver_and_the_blas_kernel(tmp_path):
+    """``uiofmu --version``: the version first, then the numerical libraries' versions and each BLAS library's
+    kernel, and who chose it."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
+    out = subprocess.run([sys.executable, "-m", "uiofmu", "--version"], cwd=tmp_path, env=env, capture_output=True,
+                         text=True, timeout=300)
+    lines = out.stdout.splitlines()
+    assert out.returncode == 0 and lines[0].startswith("uiofmu "), out
+    assert "clarabel " in lines[1] and "numpy " in lines[1], lines
+    assert sum(line.strip().startswith("BLAS ") and ", kernel " in line for line in lines) == 2, lines
+    kernel = REPRODUCIBLE_KERNELS.get(platform.machine())
+    assert (f"OPENBLAS_CORETYPE={kernel} for uiofmu's commands" if kernel else "no kernel chosen") in lines[-1], lines
 
 
 def test_a_program_that_runs_main_goes_on_as_a_library(tmp_path):

@@ -678,14 +678,50 @@ _SUBCOMMANDS = (_add_check, _add_design, _add_tradeoff, _add_build, _add_verify,
                 _add_cosim, _add_ssp, _add_report, _add_campaign, _add_validate, _add_demo)
 
 
+class VersionAction(argparse.Action):
+    """``--version``: uiofmu's version, the versions of the numerical libraries its answers come from, and the
+    BLAS kernel its commands run on (:func:`uiofmu.threads.reproducible_kernel`): what a report of a
+    different answer on another machine needs."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest, nargs=0, default=default,
+                         help=help or "show uiofmu's version, its solver's and the BLAS kernel its commands run on")
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from importlib.metadata import PackageNotFoundError, version
+
+        from . import __version__
+        from .threads import blas_libraries, reproducible_kernel, start_with_one_thread
+
+        def installed(name):
+            try:
+                return version(name)
+            except PackageNotFoundError:
+                return "not installed"
+
+        kernel = reproducible_kernel()
+        with start_with_one_thread():
+            blas = blas_libraries()
+        chosen = (f"OPENBLAS_CORETYPE={kernel} for uiofmu's commands: the same kernel on every machine of "
+                  f"this architecture" if kernel else
+                  f"OPENBLAS_CORETYPE={os.environ['OPENBLAS_CORETYPE']}, set by the user" if
+                  os.environ.get("OPENBLAS_CORETYPE") else "numpy's kernel, loaded before the command" if
+                  "numpy" in sys.modules else "no kernel chosen on this architecture")
+        lines = [f"uiofmu {__version__}",
+                 "  " + ", ".join(f"{name} {installed(name)}" for name in ("numpy", "scipy", "cvxpy", "clarabel")),
+                 *(f"  BLAS {b['library']} {b['version']}, kernel {b['kernel']}" for b in blas),
+                 f"  ({chosen})"]
+        print("\n".join(lines))
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (also used to document the commands)."""
     parser = Parser(
         prog="uiofmu", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG,
         description="Design unknown-input observers from a TOML problem file, certify them, and ship them "
                     "as FMI 2.0 Co-Simulation FMUs.")
-    from . import __version__
-    parser.add_argument("--version", action="version", version=f"uiofmu {__version__}")
+    parser.add_argument("--version", action=VersionAction)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     parser.commands = sub.choices
     sub.required = True

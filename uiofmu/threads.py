@@ -1,4 +1,5 @@
-"""One BLAS thread for uiofmu's small dense linear algebra, inside uiofmu's own calls only.
+"""One BLAS thread for uiofmu's small dense linear algebra, inside uiofmu's own calls only; one BLAS
+kernel for the command line.
 
 Every matrix uiofmu multiplies, factors or exponentiates is small (n of a few to a few dozen): a
 second BLAS thread there costs more in start-up and spinning than it saves, and on a busy machine
@@ -26,6 +27,18 @@ of a discrete plant) does not import it. The processes started later (the C comp
 co-simulation loop, Dask's workers, which Dask starts with one BLAS thread of its own accord)
 inherit the user's environment. A user who set one of these variables keeps the number chosen
 (``make test-blas`` runs with 2 threads), and ``import uiofmu`` changes nothing of this.
+
+The command line's BLAS libraries load on one kernel too (:func:`reproducible_kernel`): OpenBLAS picks the
+kernels of the CPU it runs on, and kernels round sums in different orders (with and without fused
+multiply-adds, in other blocks), so the same design solved on two machines followed two interior-point paths
+apart in their last digits, and next to the edge of feasibility CLARABEL converged on one and not on the
+other (``docs/tolerances.md``). The command line loads them with ``OPENBLAS_CORETYPE`` set to the oldest kernel
+of the machine's architecture, around the same imports, and starts a campaign's Dask workers with it (their
+runs step observers with numpy): its answers do not depend on which CPU of that architecture runs it, as
+Intel's MKL does with ``MKL_CBWR``. The kernels are those of OpenBLAS's own build (the wheels of numpy and
+scipy), as fast at uiofmu's sizes (``benchmarks/blas_kernel.py``). A user who set ``OPENBLAS_CORETYPE`` keeps the
+kernel chosen (``make test-blas`` sets each in turn), and the library (``import uiofmu``), or a program
+that imported numpy before it calls :func:`uiofmu.cli.main`, runs on the kernel its numpy loaded with.
 """
 
 from __future__ import annotations
@@ -34,52 +47,75 @@ import contextlib
 import functools
 import importlib
 import os
+import platform
 import sys
 
 #: The environment variables OpenBLAS reads, when it loads, for the number of threads it starts.
 THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
 
+#: The OpenBLAS kernel the command line loads its BLAS libraries with, by machine architecture
+#: (``platform.machine()``): the oldest one OpenBLAS's builds for it have, which every CPU of it runs.
+#: OpenBLAS reports Prescott's as ``Katmai`` (its builds hold one kernel for both).
+REPRODUCIBLE_KERNELS = {"x86_64": "Prescott", "AMD64": "Prescott", "aarch64": "ARMV8", "arm64": "ARMV8"}
+
 _controller = None
 _modules = 0
-_one_at_load = False            # set by the command line: BLAS libraries load with one thread
+_at_load: dict = {}             # set by the command line: the variables its BLAS libraries load with
+
+
+def reproducible_kernel() -> str | None:
+    """The kernel :func:`start_with_one_thread` loads the command line's BLAS libraries with: that of
+    :data:`REPRODUCIBLE_KERNELS` for this machine, or None where the user set ``OPENBLAS_CORETYPE`` (theirs
+    is kept), the machine has none there, or numpy is loaded already (a program that calls
+    :func:`uiofmu.cli.main` after its own imports: the kernel numpy loaded with is kept, for the command's
+    other libraries and its workers alike, so that a replay in the process reproduces their runs bit for bit)."""
+    if os.environ.get("OPENBLAS_CORETYPE") or "numpy" in sys.modules:
+        return None
+    return REPRODUCIBLE_KERNELS.get(platform.machine())
 
 
 @contextlib.contextmanager
 def start_with_one_thread():
     """Run the block (a command of the command line) with the BLAS libraries it loads started with one
-    thread: numpy's now, scipy's and cvxpy's where uiofmu first imports them (:func:`blas_module`);
-    nothing when the user set one of :data:`THREAD_VARIABLES`. After the block, uiofmu imports them
-    as a library does again (a program that calls :func:`uiofmu.cli.main` goes on as it was)."""
-    global _one_at_load
-    _one_at_load = not any(os.environ.get(name) for name in THREAD_VARIABLES)
+    thread and on :func:`reproducible_kernel`: numpy's now, scipy's and cvxpy's where uiofmu first imports them
+    (:func:`blas_module`), a campaign's Dask workers where they start. The number of threads is the user's
+    where the user set one of :data:`THREAD_VARIABLES`, the kernel where the user set ``OPENBLAS_CORETYPE`` or
+    numpy was loaded before the block (the process keeps one kernel).
+    After the block, uiofmu imports them as a library does again (a program that calls
+    :func:`uiofmu.cli.main` goes on as it was)."""
+    global _at_load
+    kernel = reproducible_kernel()
+    _at_load = {**({} if any(os.environ.get(name) for name in THREAD_VARIABLES) else {"OPENBLAS_NUM_THREADS": "1"}),
+                **({} if kernel is None else {"OPENBLAS_CORETYPE": kernel})}
     try:
         with loading_blas():
-            import numpy  # noqa: F401 - numpy's OpenBLAS, started with one thread
+            import numpy  # noqa: F401 - numpy's OpenBLAS, started with one thread on one kernel
         yield
     finally:
-        _one_at_load = False
+        _at_load = {}
 
 
 @contextlib.contextmanager
 def loading_blas():
-    """Import BLAS libraries in the block with ``OPENBLAS_NUM_THREADS=1``, then restore the environment.
+    """Import BLAS libraries (or start processes that do) in the block with the variables
+    :func:`start_with_one_thread` chose (``OPENBLAS_NUM_THREADS=1``, ``OPENBLAS_CORETYPE``), then restore the
+    environment.
 
     Only inside :func:`start_with_one_thread`; otherwise the block runs as it is. OpenBLAS reads the
-    variable once, when it loads: a library already loaded keeps its threads, and the processes started
-    after the block do not see the variable.
+    variables once, when it loads: a library already loaded keeps its threads and its kernel, and the
+    processes started after the block do not see the variables.
     """
-    if not _one_at_load or any(os.environ.get(name) for name in THREAD_VARIABLES):
-        yield
-        return
-    empty = os.environ.get("OPENBLAS_NUM_THREADS")           # None, or "" (which OpenBLAS ignores)
-    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    chosen = {name: value for name, value in _at_load.items() if not os.environ.get(name)}
+    before = {name: os.environ.get(name) for name in chosen}    # None, or "" (which OpenBLAS ignores)
+    os.environ.update(chosen)
     try:
         yield
     finally:
-        if empty is None:
-            del os.environ["OPENBLAS_NUM_THREADS"]
-        else:
-            os.environ["OPENBLAS_NUM_THREADS"] = empty
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def blas_module(name: str):
@@ -93,10 +129,23 @@ def blas_module(name: str):
     return module
 
 
+def blas_libraries() -> list[dict]:
+    """numpy's and scipy's BLAS libraries as this process loaded them (importing them first where needed, as
+    :func:`blas_module` does): for each, ``library`` (the file's name), ``version`` and ``kernel`` (OpenBLAS's
+    name of the kernel it runs, ``Katmai`` for Prescott's), ``threads``, as threadpoolctl reads them."""
+    blas_module("numpy")
+    blas_module("scipy.linalg")
+    from threadpoolctl import threadpool_info
+
+    return [{"library": os.path.basename(info["filepath"]), "version": info.get("version"),
+             "kernel": info.get("architecture"), "threads": info.get("num_threads")}
+            for info in threadpool_info() if info.get("user_api") == "blas"]
+
+
 def _blas(with_scipy: bool):
     """The threadpoolctl controller of the BLAS libraries loaded now (made again when modules were added)."""
     global _controller, _modules
-    if with_scipy and not _one_at_load:
+    if with_scipy and "OPENBLAS_NUM_THREADS" not in _at_load:
         blas_module("scipy.linalg")      # scipy's own OpenBLAS, loaded before the limit so that it covers it
     if _controller is None or len(sys.modules) != _modules:
         from threadpoolctl import ThreadpoolController

@@ -34,7 +34,9 @@ def start_client(workers: int | None, address: str | None):
                                  f"{SCHEDULER_TIMEOUT_S:g} s") from None
         return client, None
     n = workers or os.cpu_count() or 1
-    with _workers_ignore_interrupts():
+    from ...threads import loading_blas
+
+    with _workers_ignore_interrupts(), loading_blas():     # the command's BLAS kernel in the workers too
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
     return Client(cluster), cluster
